@@ -1,0 +1,1 @@
+"""agrifleet's dispatcher: missions, the MAVLink-over-Zenoh link, the daemon, recording, review, CLI."""

@@ -1,0 +1,1 @@
+"""Simulated tractors that speak MAVLink over Zenoh like an ArduPilot Rover."""
