@@ -1,0 +1,273 @@
+"""The paper's cost model, formulas (1)-(6), compiled for the solvers and readable for reports.
+
+For machine i driving route r (its tasks in order):
+
+    s_i = D(start_i, r_1) + sum_k D(r_k, r_k+1) + D(r_last, end_i)                  (1), (2)
+    c_i = s_i / v_i * c_vi + sum_j n_turn(i,j) * t_T(i) * c_vi + sum_j S_j / w_i * c_wi  (5)
+    t_i = s_i / v_i + sum_j n_turn(i,j) * t_T(i) + sum_j S_j / w_i                       (6)
+
+with s in metres and v in km/h (so s / v is s / (1000 v) hours). The in-field parts
+depend only on which machine works which task, so they are precomputed per
+[machine, task] in :class:`CostTables`; a route's time and fuel then follow from its
+distance. Objectives: ``distance`` = sum s_i (formula 3), ``time`` = sum t_i,
+``fuel`` = sum c_i, ``makespan`` = max t_i, ``minmax`` = max s_i.
+
+A chromosome is the paper's two-part encoding (§4.1): ``perm`` is the task order and
+``counts[i]`` the number of consecutive tasks of ``perm`` that machine i takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+from numba import njit
+
+from planner.problem import FloatArray, Problem
+
+# Weight of the tie-breaker (total distance, metres) added to the min-max objectives:
+# small enough never to trade a real gain in the primary figure for distance.
+TIE_BREAK = 1e-9
+
+
+class Objective(IntEnum):
+    """What the solver minimises; the integer is what the kernels switch on."""
+
+    DISTANCE = 0  # sum s_i, the paper's formula (3); "minsum" on TSPLIB
+    TIME = 1  # sum t_i
+    FUEL = 2  # sum c_i
+    MAKESPAN = 3  # max t_i: when the whole farm is done
+    MINMAX = 4  # max s_i: the longest route
+
+    @classmethod
+    def parse(cls, name: str | Objective) -> Objective:
+        if isinstance(name, Objective):
+            return name
+        key = {"minsum": "distance", "min-sum": "distance", "min-max": "minmax"}.get(
+            name.lower(), name.lower()
+        )
+        try:
+            return cls[key.upper()]
+        except KeyError:
+            names = ", ".join(o.name.lower() for o in cls)
+            raise ValueError(f"unknown objective {name!r}; choose one of {names}, minsum") from None
+
+
+@dataclass(frozen=True)
+class CostTables:
+    """The arrays the kernels read, derived once from a :class:`Problem`."""
+
+    dist: FloatArray  # [task, task] metres
+    start_dist: FloatArray  # [machine, task]
+    end_dist: FloatArray  # [machine, task]
+    road_hours_per_m: FloatArray  # [machine] 1 / (1000 v_i)
+    road_fuel_lh: FloatArray  # [machine] c_vi
+    task_hours: FloatArray  # [machine, task] n_turn * t_T + S / w
+    task_fuel: FloatArray  # [machine, task] n_turn * t_T * c_v + S / w * c_w
+
+    @classmethod
+    def of(cls, problem: Problem) -> CostTables:
+        turn_h = problem.machine_array("turn_time_h")
+        road_fuel = problem.machine_array("road_fuel_lh")
+        work_fuel = problem.machine_array("work_fuel_lh")
+        turn_hours = problem.turns * turn_h[:, None]
+        task_hours = turn_hours + problem.work_hours
+        task_fuel = turn_hours * road_fuel[:, None] + problem.work_hours * work_fuel[:, None]
+        return cls(
+            dist=np.ascontiguousarray(problem.dist),
+            start_dist=np.ascontiguousarray(problem.start_dist),
+            end_dist=np.ascontiguousarray(problem.end_dist),
+            road_hours_per_m=1.0 / (1000.0 * problem.machine_array("road_speed_kmh")),
+            road_fuel_lh=road_fuel,
+            task_hours=task_hours,
+            task_fuel=task_fuel,
+        )
+
+    def kernel_args(self) -> tuple[FloatArray, ...]:
+        return (
+            self.dist,
+            self.start_dist,
+            self.end_dist,
+            self.road_hours_per_m,
+            self.road_fuel_lh,
+            self.task_hours,
+            self.task_fuel,
+        )
+
+
+@njit(cache=True)
+def route_distance(perm, begin, count, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-def]
+    """Formula (1) for the ``count`` tasks of ``perm`` from ``begin`` done by ``machine``."""
+    if count == 0:
+        return 0.0
+    prev = perm[begin]
+    s = start_dist[machine, prev]
+    for k in range(begin + 1, begin + count):
+        cur = perm[k]
+        s += dist[prev, cur]
+        prev = cur
+    return s + end_dist[machine, prev]
+
+
+@njit(cache=True)
+def evaluate(  # type: ignore[no-untyped-def]
+    perm,
+    counts,
+    objective,
+    dist,
+    start_dist,
+    end_dist,
+    road_hours_per_m,
+    road_fuel_lh,
+    task_hours,
+    task_fuel,
+    route_cost,
+):
+    """The objective value of one chromosome; fills ``route_cost[i]`` with machine i's share.
+
+    A route's share is the figure the objective adds up or maximises: s_i for distance and
+    minmax, t_i for time and makespan, c_i for fuel (the "path cost" of §4.3's overshoot).
+    """
+    m = counts.shape[0]
+    total = 0.0
+    worst = 0.0
+    total_s = 0.0
+    begin = 0
+    for i in range(m):
+        cnt = counts[i]
+        s = route_distance(perm, begin, cnt, i, dist, start_dist, end_dist)
+        total_s += s
+        if objective == 0 or objective == 4:
+            value = s
+        else:
+            drive_h = s * road_hours_per_m[i]
+            if objective == 2:
+                value = drive_h * road_fuel_lh[i]
+                for k in range(begin, begin + cnt):
+                    value += task_fuel[i, perm[k]]
+            else:
+                value = drive_h
+                for k in range(begin, begin + cnt):
+                    value += task_hours[i, perm[k]]
+        route_cost[i] = value
+        total += value
+        if value > worst:
+            worst = value
+        begin += cnt
+    if objective == 3 or objective == 4:
+        return worst + TIE_BREAK * total_s
+    return total
+
+
+@njit(cache=True)
+def evaluate_population(perms, counts, objective, tables, costs, route_costs):  # type: ignore[no-untyped-def]
+    """Evaluate every row of a population in place."""
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
+    for p in range(perms.shape[0]):
+        costs[p] = evaluate(
+            perms[p], counts[p], objective, dist, start_dist, end_dist, road_h, road_f,
+            task_h, task_f, route_costs[p],
+        )
+
+
+@dataclass(frozen=True)
+class RouteFigures:
+    """Every figure of one machine's route."""
+
+    machine_id: str
+    tasks: tuple[str, ...]
+    distance_m: float  # s_i
+    fuel_l: float  # c_i
+    time_h: float  # t_i
+    turns: int  # sum of n_turn(i, j) over its tasks
+
+
+@dataclass(frozen=True)
+class Figures:
+    """All figures of a solution: per machine and for the fleet."""
+
+    routes: tuple[RouteFigures, ...]
+
+    @property
+    def distance_m(self) -> float:
+        return sum(r.distance_m for r in self.routes)
+
+    @property
+    def fuel_l(self) -> float:
+        return sum(r.fuel_l for r in self.routes)
+
+    @property
+    def time_h(self) -> float:
+        return sum(r.time_h for r in self.routes)
+
+    @property
+    def makespan_h(self) -> float:
+        return max(r.time_h for r in self.routes)
+
+    @property
+    def max_distance_m(self) -> float:
+        return max(r.distance_m for r in self.routes)
+
+    def value(self, objective: Objective) -> float:
+        """The objective's own figure (without tie-breaker)."""
+        return {
+            Objective.DISTANCE: self.distance_m,
+            Objective.TIME: self.time_h,
+            Objective.FUEL: self.fuel_l,
+            Objective.MAKESPAN: self.makespan_h,
+            Objective.MINMAX: self.max_distance_m,
+        }[objective]
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "distance_m": self.distance_m,
+            "fuel_l": self.fuel_l,
+            "time_h": self.time_h,
+            "makespan_h": self.makespan_h,
+            "max_distance_m": self.max_distance_m,
+            "machines": [
+                {
+                    "id": r.machine_id,
+                    "tasks": list(r.tasks),
+                    "distance_m": r.distance_m,
+                    "fuel_l": r.fuel_l,
+                    "time_h": r.time_h,
+                    "turns": r.turns,
+                }
+                for r in self.routes
+            ],
+        }
+
+
+def figures(problem: Problem, routes: list[list[int]] | tuple[tuple[int, ...], ...]) -> Figures:
+    """Formulas (1)-(6) for routes given as task indices per machine (plain Python)."""
+    tables = CostTables.of(problem)
+    out = []
+    for i, route in enumerate(routes):
+        s = 0.0
+        if route:
+            s = float(tables.start_dist[i, route[0]] + tables.end_dist[i, route[-1]])
+            s += sum(float(tables.dist[a, b]) for a, b in zip(route, route[1:], strict=False))
+        drive_h = s * float(tables.road_hours_per_m[i])
+        out.append(
+            RouteFigures(
+                machine_id=problem.machines[i].id,
+                tasks=tuple(problem.tasks[j].id for j in route),
+                distance_m=s,
+                fuel_l=drive_h * float(tables.road_fuel_lh[i])
+                + sum(float(tables.task_fuel[i, j]) for j in route),
+                time_h=drive_h + sum(float(tables.task_hours[i, j]) for j in route),
+                turns=int(sum(problem.turns[i, j] for j in route)),
+            )
+        )
+    return Figures(routes=tuple(out))
+
+
+def split_routes(perm: np.ndarray, counts: np.ndarray) -> list[list[int]]:
+    """The two-part chromosome as one list of task indices per machine."""
+    routes, begin = [], 0
+    for cnt in counts:
+        routes.append([int(j) for j in perm[begin : begin + int(cnt)]])
+        begin += int(cnt)
+    return routes

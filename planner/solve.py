@@ -1,0 +1,280 @@
+"""The planner's one entry point: ``solve(problem, objective, algorithm, stop, seed)``.
+
+Python drives the generations; each generation is one compiled call. Stopping criteria
+are small callables started on their first call, so numba's compilation (done by
+:func:`warm_up` before the clock starts) is never charged to a time limit.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from planner import ga, ighoa
+from planner.cost import CostTables, Figures, Objective, evaluate_population, figures, split_routes
+from planner.population import random_counts
+from planner.problem import Problem
+from planner.rng import make_state, shuffle
+from planner.sa import AnnealingParams, anneal
+
+log = logging.getLogger(__name__)
+
+ALGORITHMS = ("ighoa", "ga")
+
+
+class MaxGenerations:
+    """Stop after ``limit`` generations (the paper's MAXGEN)."""
+
+    def __init__(self, limit: int) -> None:
+        if limit < 1:
+            raise ValueError(f"the generation limit must be at least 1, not {limit}")
+        self.limit = limit
+        self.done = 0
+
+    def start(self) -> None:
+        self.done = 0
+
+    def __call__(self, best_cost: float) -> bool:
+        self.done += 1
+        return self.done >= self.limit
+
+    def progress(self) -> float:
+        return min(self.done / self.limit, 1.0)
+
+
+class MaxRuntime:
+    """Stop once ``seconds`` of wall-clock time have passed since the first call."""
+
+    def __init__(self, seconds: float) -> None:
+        if not seconds > 0:
+            raise ValueError(f"the time limit must be positive, not {seconds}")
+        self.seconds = seconds
+        self.started: float | None = None
+
+    def start(self) -> None:
+        self.started = time.perf_counter()
+
+    def __call__(self, best_cost: float) -> bool:
+        if self.started is None:
+            self.start()
+        return self.elapsed() >= self.seconds
+
+    def elapsed(self) -> float:
+        return 0.0 if self.started is None else time.perf_counter() - self.started
+
+    def progress(self) -> float:
+        return min(self.elapsed() / self.seconds, 1.0)
+
+
+class AnyOf:
+    """Stop as soon as any criterion says so; progress is the furthest along."""
+
+    def __init__(self, *criteria: MaxGenerations | MaxRuntime) -> None:
+        if not criteria:
+            raise ValueError("give at least one stopping criterion")
+        self.criteria = criteria
+
+    def start(self) -> None:
+        for criterion in self.criteria:
+            criterion.start()
+
+    def __call__(self, best_cost: float) -> bool:
+        # Call every criterion so that each one's clock and counter advance.
+        return any([criterion(best_cost) for criterion in self.criteria])
+
+    def progress(self) -> float:
+        return max(criterion.progress() for criterion in self.criteria)
+
+    @property
+    def max_generations(self) -> int:
+        limits = [c.limit for c in self.criteria if isinstance(c, MaxGenerations)]
+        return min(limits) if limits else 1_000_000
+
+
+def stop_after(generations: int | None = 2000, seconds: float | None = None) -> AnyOf:
+    """The usual criterion: MAXGEN generations or a wall-clock limit, whichever first."""
+    criteria: list[MaxGenerations | MaxRuntime] = []
+    if generations is not None:
+        criteria.append(MaxGenerations(generations))
+    if seconds is not None:
+        criteria.append(MaxRuntime(seconds))
+    return AnyOf(*criteria)
+
+
+@dataclass(frozen=True)
+class Result:
+    """A solution with every cost figure and the search's history."""
+
+    problem: Problem
+    objective: Objective
+    algorithm: str
+    seed: int
+    routes: tuple[tuple[int, ...], ...]  # task indices per machine, in driving order
+    figures: Figures
+    history: tuple[float, ...]  # best objective value after each generation
+    generations: int
+    elapsed_s: float
+    stats: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def cost(self) -> float:
+        """The objective's figure for this solution (no tie-breaker)."""
+        return self.figures.value(self.objective)
+
+    def route_ids(self) -> list[list[str]]:
+        return [[self.problem.tasks[j].id for j in route] for route in self.routes]
+
+
+GenerationCallback = Callable[[int, float, float], None]
+
+
+def solve(
+    problem: Problem,
+    objective: str | Objective = Objective.DISTANCE,
+    algorithm: str = "ighoa",
+    stop: AnyOf | None = None,
+    seed: int = 1,
+    params: ighoa.IGHOAParams | ga.GAParams | None = None,
+    annealing: AnnealingParams | None = None,
+    on_generation: GenerationCallback | None = None,
+) -> Result:
+    """Allocate and order the tasks of ``problem`` over its machines.
+
+    ``on_generation(generation, best_cost, elapsed_s)`` is called after every generation.
+    """
+    obj = Objective.parse(objective)
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
+    stop = stop or stop_after()
+    if algorithm == "ighoa":
+        params = params or ighoa.IGHOAParams()
+        if not isinstance(params, ighoa.IGHOAParams):
+            raise TypeError("ighoa takes IGHOAParams")
+    else:
+        params = params or ga.GAParams()
+        if not isinstance(params, ga.GAParams):
+            raise TypeError("ga takes GAParams")
+    annealing = annealing or AnnealingParams()
+    warm_up()
+
+    tables = CostTables.of(problem).kernel_args()
+    state = make_state(seed)
+    n, m, pop = problem.num_tasks, problem.num_machines, params.population
+    min_count = problem.min_tasks_per_machine
+    perms = np.empty((pop, n), dtype=np.int64)
+    counts = np.empty((pop, m), dtype=np.int64)
+    started = time.perf_counter()
+    stop.start()
+    _initial_population(
+        state, perms, counts, min_count, tables,
+        algorithm == "ighoa", annealing.t_start, annealing.t_end, annealing.alpha, annealing.chain,
+    )
+    costs = np.empty(pop)
+    route_costs = np.empty((pop, m))
+    evaluate_population(perms, counts, int(obj), tables, costs, route_costs)
+    best = int(np.argmin(costs))
+    elite_perm, elite_counts = perms[best].copy(), counts[best].copy()
+    elite_route, elite_cost = route_costs[best].copy(), float(costs[best])
+    history: list[float] = []
+    stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
+    gen = 0
+    while True:
+        gen += 1
+        if isinstance(params, ighoa.IGHOAParams):
+            sp = ighoa.adaptive_tolerance(
+                stop.progress(), pop, stop.max_generations, params.tol_min, params.tol_max
+            )
+            cx, mu = ighoa.generation(
+                state, perms, counts, costs, route_costs, int(obj), tables, min_count, sp,
+                params.pc_min, params.pc_mid, params.pc_max, params.pm, params.tournament_size,
+                params.shift_counts, elite_perm, elite_counts, elite_route, elite_cost,
+            )
+            stats["crossovers"] += cx
+            stats["mutations"] += mu
+            best = int(np.argmin(costs))
+            cand_perm, cand_counts = perms[best].copy(), counts[best].copy()
+            cand_route = route_costs[best].copy()
+            polished = ighoa.polish(
+                state, cand_perm, cand_counts, int(obj), tables, params.two_opt_tries, cand_route
+            )
+            if polished < costs[best] - 1e-12:
+                stats["polish_gains"] += 1
+                perms[best], counts[best] = cand_perm, cand_counts
+                route_costs[best], costs[best] = cand_route, polished
+        else:
+            ga.generation(
+                state, perms, counts, costs, route_costs, int(obj), tables, min_count,
+                params.crossover_rate, params.mutation_rate, params.tournament_size,
+                elite_perm, elite_counts, elite_route, elite_cost,
+            )
+        best = int(np.argmin(costs))
+        if costs[best] < elite_cost:
+            elite_perm[:], elite_counts[:] = perms[best], counts[best]
+            elite_route[:], elite_cost = route_costs[best], float(costs[best])
+        history.append(elite_cost)
+        if on_generation is not None:
+            on_generation(gen, elite_cost, time.perf_counter() - started)
+        if stop(elite_cost):
+            break
+    elapsed = time.perf_counter() - started
+    routes = tuple(tuple(r) for r in split_routes(elite_perm, elite_counts))
+    figs = figures(problem, routes)
+    log.debug("%s on %s: %.6g after %d generations, %.2fs", algorithm, problem.name,
+              figs.value(obj), gen, elapsed)
+    return Result(
+        problem=problem,
+        objective=obj,
+        algorithm=algorithm,
+        seed=seed,
+        routes=routes,
+        figures=figs,
+        history=tuple(history),
+        generations=gen,
+        elapsed_s=elapsed,
+        stats=stats,
+    )
+
+
+@njit(cache=True)
+def _initial_population(  # type: ignore[no-untyped-def]
+    state, perms, counts, min_count, tables, pre_plan, t_start, t_end, alpha, chain
+):
+    """§4.6 (1)-(2): random task orders, annealed when ``pre_plan`` (IGHOA's SA path
+    pre-planning), each with a random split of the tasks over the machines."""
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    pop, n = perms.shape
+    m = counts.shape[1]
+    for p in range(pop):
+        for k in range(n):
+            perms[p, k] = k
+        shuffle(state, perms[p])
+        if pre_plan:
+            anneal(state, perms[p], dist, start_dist, end_dist, t_start, t_end, alpha, chain)
+        random_counts(state, n, m, min_count, counts[p])
+
+
+_warmed = False
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel on a tiny problem, once."""
+    global _warmed
+    if _warmed:
+        return
+    from planner.problem import Machine, Task
+
+    machines = [Machine(f"w{i}", 2.0, 10.0, 5.0, 0.01, 1.0, 2.0) for i in range(2)]
+    tasks = [Task(f"t{j}", float(j), float(j % 2), 10.0, 4.0, 2.5) for j in range(5)]
+    tiny = Problem.build(machines, tasks, (0.0, 0.0))
+    _warmed = True
+    for algorithm, params in (
+        ("ighoa", ighoa.IGHOAParams(population=4)),
+        ("ga", ga.GAParams(population=4)),
+    ):
+        solve(tiny, Objective.DISTANCE, algorithm, stop_after(2), seed=0, params=params,
+              annealing=AnnealingParams(t_start=2.0, t_end=1.0))
