@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import logging
 import struct
+from typing import TypeAlias
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 logger = logging.getLogger(__name__)
 
-MAVLinkMessage = mavlink2.MAVLink_message
-MissionItemIntMessage = mavlink2.MAVLink_mission_item_int_message
+MAVLinkMessage: TypeAlias = mavlink2.MAVLink_message
+MissionItemIntMessage: TypeAlias = mavlink2.MAVLink_mission_item_int_message
 
 # Commands a mission uses (MAV_CMD).
 MAV_CMD_NAV_WAYPOINT: int = mavlink2.MAV_CMD_NAV_WAYPOINT

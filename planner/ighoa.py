@@ -44,6 +44,11 @@ class IGHOAParams:
     tournament_size: int = 2  # not given by the paper
     two_opt_tries: int = 50  # random 2-opt attempts on the best per generation (§4.5(1))
     shift_counts: bool = True  # ours: mutation may move a task between machines' counts
+    # Ours: "paper" polishes the best with §4.5 only; "extended" adds relocate/exchange
+    # moves between routes (planner.local_search) on the best and ``memetic`` others.
+    local_search: str = "extended"
+    memetic: int = 2
+    neighbours: int = 10
 
     def __post_init__(self) -> None:
         if self.population < 2 or self.population % 2:
@@ -58,6 +63,10 @@ class IGHOAParams:
             raise ValueError("tournament_size must be at least 1")
         if self.two_opt_tries < 0:
             raise ValueError("two_opt_tries must not be negative")
+        if self.local_search not in ("paper", "extended"):
+            raise ValueError(f"local_search is 'paper' or 'extended', not {self.local_search!r}")
+        if self.memetic < 0 or self.neighbours < 1:
+            raise ValueError("memetic must be >= 0 and neighbours >= 1")
 
 
 def adaptive_tolerance(
@@ -183,10 +192,10 @@ def generation(  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def polish(state, perm, counts, objective, tables, tries, route_cost):  # type: ignore[no-untyped-def]
+def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours):  # type: ignore[no-untyped-def]
     """§4.5 on one chromosome in place: ``tries`` random 2-opt reversals of both parts,
-    each kept only if it lowers the cost, then the circle modification of every route.
-    Returns the new cost."""
+    each kept only if it lowers the cost, then the circle modification of every route
+    (neighbour-list 2-opt when ``neighbours`` has columns). Returns the new cost."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     cost = evaluate(
         perm, counts, objective, dist, start_dist, end_dist, road_h, road_f, task_h, task_f,
@@ -208,7 +217,7 @@ def polish(state, perm, counts, objective, tables, tries, route_cost):  # type: 
             counts[:] = trial_counts
             route_cost[:] = trial_route
             cost = trial
-    improve_routes(perm, counts, dist, start_dist, end_dist)
+    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
     return evaluate(
         perm, counts, objective, dist, start_dist, end_dist, road_h, road_f, task_h, task_f,
         route_cost,

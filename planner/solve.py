@@ -16,10 +16,19 @@ import numpy as np
 from numba import njit
 
 from planner import ga, ighoa
-from planner.cost import CostTables, Figures, Objective, evaluate_population, figures, split_routes
+from planner.cost import (
+    CostTables,
+    Figures,
+    Objective,
+    evaluate,
+    evaluate_population,
+    figures,
+    split_routes,
+)
+from planner.local_search import improve_allocation, nearest_neighbours
 from planner.population import random_counts
 from planner.problem import Problem
-from planner.rng import make_state, shuffle
+from planner.rng import make_state, randint, shuffle
 from planner.sa import AnnealingParams, anneal
 
 log = logging.getLogger(__name__)
@@ -181,6 +190,7 @@ def solve(
     elite_perm, elite_counts = perms[best].copy(), counts[best].copy()
     elite_route, elite_cost = route_costs[best].copy(), float(costs[best])
     history: list[float] = []
+    neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
     stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
     gen = 0
     while True:
@@ -196,16 +206,8 @@ def solve(
             )
             stats["crossovers"] += cx
             stats["mutations"] += mu
-            best = int(np.argmin(costs))
-            cand_perm, cand_counts = perms[best].copy(), counts[best].copy()
-            cand_route = route_costs[best].copy()
-            polished = ighoa.polish(
-                state, cand_perm, cand_counts, int(obj), tables, params.two_opt_tries, cand_route
-            )
-            if polished < costs[best] - 1e-12:
-                stats["polish_gains"] += 1
-                perms[best], counts[best] = cand_perm, cand_counts
-                route_costs[best], costs[best] = cand_route, polished
+            _polish(state, perms, counts, costs, route_costs, int(obj), tables, params,
+                    neighbours, min_count, stats)
         else:
             ga.generation(
                 state, perms, counts, costs, route_costs, int(obj), tables, min_count,
@@ -238,6 +240,29 @@ def solve(
         elapsed_s=elapsed,
         stats=stats,
     )
+
+
+def _polish(  # type: ignore[no-untyped-def]
+    state, perms, counts, costs, route_costs, objective, tables, params, neighbours, min_count,
+    stats,
+) -> None:
+    """§4.5 on the generation's best (and, with the extended local search, on
+    ``params.memetic`` random others); a polished chromosome replaces its original."""
+    targets = [int(np.argmin(costs))]
+    if params.local_search == "extended" and params.memetic:
+        targets += [randint(state, len(costs)) for _ in range(params.memetic)]
+    for idx in dict.fromkeys(targets):
+        perm, cnt, route = perms[idx].copy(), counts[idx].copy(), route_costs[idx].copy()
+        route_nn = neighbours if params.local_search == "extended" else neighbours[:, :0]
+        cost = ighoa.polish(
+            state, perm, cnt, objective, tables, params.two_opt_tries, route, route_nn
+        )
+        if params.local_search == "extended":
+            improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50)
+            cost = evaluate(perm, cnt, objective, *tables, route)
+        if cost < costs[idx] - 1e-12:
+            stats["polish_gains"] += 1
+            perms[idx], counts[idx], route_costs[idx], costs[idx] = perm, cnt, route, cost
 
 
 @njit(cache=True)

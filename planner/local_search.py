@@ -1,0 +1,239 @@
+"""Our local search beyond the paper: moves of single tasks between routes.
+
+The paper's 2-opt and circle modification (§4.5) only reorder tasks inside the fixed
+route boundaries of a chromosome. These moves change the allocation itself, evaluated
+exactly under every objective (sums and min-max alike):
+
+- relocate: take a task out of its route and put it next to one of its nearest
+  neighbours in another route;
+- exchange: swap a task with one of its nearest neighbours in another route.
+
+Candidate positions come from each task's ``k`` nearest tasks, so a pass costs
+O(n k m) rather than O(n^2). Moves are applied best-per-task, first-improvement over tasks,
+until a pass finds nothing; then the circle modification tidies each route again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from planner.cost import TIE_BREAK
+from planner.operators import improve_routes, leg
+
+
+def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` nearest other tasks of every task, nearest first."""
+    n = dist.shape[0]
+    k = max(0, min(k, n - 1))
+    if k == 0:
+        return np.zeros((n, 0), dtype=np.int64)
+    d = dist.copy()
+    np.fill_diagonal(d, np.inf)
+    nn = np.argpartition(d, k - 1, axis=1)[:, :k]
+    rows = np.arange(n)[:, None]
+    order = np.argsort(d[rows, nn], axis=1, kind="stable")
+    return np.ascontiguousarray(nn[rows, order]).astype(np.int64)
+
+
+@njit(cache=True)
+def _route_value(objective, machine, s, extra, road_h, road_f):  # type: ignore[no-untyped-def]
+    if objective == 0 or objective == 4:
+        return s
+    if objective == 2:
+        return s * road_h[machine] * road_f[machine] + extra
+    return s * road_h[machine] + extra
+
+
+@njit(cache=True)
+def _objective(objective, values, lengths):  # type: ignore[no-untyped-def]
+    if objective == 3 or objective == 4:
+        return values.max() + TIE_BREAK * lengths.sum()
+    return values.sum()
+
+
+@njit(cache=True)
+def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
+    """Route r's node at position p; -1 before the first task, -2 after the last."""
+    if p < 0:
+        return -1
+    if p >= sizes[r]:
+        return -2
+    return routes[r, p]
+
+
+@njit(cache=True)
+def improve_allocation(  # type: ignore[no-untyped-def]
+    perm, counts, objective, tables, neighbours, min_count, max_passes
+):
+    """Relocate and exchange tasks between routes while it pays; then 2-opt each route.
+    Works in place on the chromosome and returns the number of moves applied."""
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
+    m = counts.shape[0]
+    n = perm.shape[0]
+    task_x = task_f if objective == 2 else task_h
+    use_extra = objective == 1 or objective == 2 or objective == 3
+    routes = np.empty((m, n), dtype=np.int64)
+    sizes = np.zeros(m, dtype=np.int64)
+    route_of = np.empty(n, dtype=np.int64)
+    pos = np.empty(n, dtype=np.int64)
+    begin = 0
+    for r in range(m):
+        for k in range(counts[r]):
+            t = perm[begin + k]
+            routes[r, k] = t
+            route_of[t] = r
+            pos[t] = k
+        sizes[r] = counts[r]
+        begin += counts[r]
+    lengths = np.zeros(m)
+    extras = np.zeros(m)
+    values = np.zeros(m)
+    for r in range(m):
+        s = 0.0
+        prev = -1
+        for k in range(sizes[r]):
+            s += leg(prev, routes[r, k], r, dist, start_dist, end_dist)
+            prev = routes[r, k]
+            if use_extra:
+                extras[r] += task_x[r, prev]
+        s += leg(prev, -2, r, dist, start_dist, end_dist)
+        lengths[r] = s
+        values[r] = _route_value(objective, r, s, extras[r], road_h, road_f)
+    current = _objective(objective, values, lengths)
+    trial_values = values.copy()
+    trial_lengths = lengths.copy()
+    moves = 0
+    for _ in range(max_passes):
+        improved = False
+        for t in range(n):
+            a = route_of[t]
+            pa = pos[t]
+            prev_t = _node(routes, sizes, a, pa - 1)
+            next_t = _node(routes, sizes, a, pa + 1)
+            removal = (
+                leg(prev_t, next_t, a, dist, start_dist, end_dist)
+                - leg(prev_t, t, a, dist, start_dist, end_dist)
+                - leg(t, next_t, a, dist, start_dist, end_dist)
+            )
+            best_gain = 1e-9 * max(1.0, abs(current))
+            best_kind = -1
+            best_b = -1
+            best_p = -1
+            best_w = -1
+            for q in range(neighbours.shape[1]):
+                w = neighbours[t, q]
+                b = route_of[w]
+                if b == a:
+                    continue
+                pw = pos[w]
+                # Relocate t next to w (before: between pw-1 and pw; after: pw and pw+1).
+                if sizes[a] > min_count:
+                    for side in range(2):
+                        u = _node(routes, sizes, b, pw - 1 + side)
+                        v = _node(routes, sizes, b, pw + side)
+                        insertion = (
+                            leg(u, t, b, dist, start_dist, end_dist)
+                            + leg(t, v, b, dist, start_dist, end_dist)
+                            - leg(u, v, b, dist, start_dist, end_dist)
+                        )
+                        trial_lengths[a] = lengths[a] + removal
+                        trial_lengths[b] = lengths[b] + insertion
+                        ea = extras[a] - (task_x[a, t] if use_extra else 0.0)
+                        eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
+                        trial_values[a] = _route_value(objective, a, trial_lengths[a], ea, road_h, road_f)
+                        trial_values[b] = _route_value(objective, b, trial_lengths[b], eb, road_h, road_f)
+                        gain = current - _objective(objective, trial_values, trial_lengths)
+                        if gain > best_gain:
+                            best_gain, best_kind, best_b, best_p, best_w = gain, 0, b, pw + side, w
+                        trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
+                        trial_values[a], trial_values[b] = values[a], values[b]
+                # Exchange t and w.
+                prev_w = _node(routes, sizes, b, pw - 1)
+                next_w = _node(routes, sizes, b, pw + 1)
+                da = (
+                    leg(prev_t, w, a, dist, start_dist, end_dist)
+                    + leg(w, next_t, a, dist, start_dist, end_dist)
+                    - leg(prev_t, t, a, dist, start_dist, end_dist)
+                    - leg(t, next_t, a, dist, start_dist, end_dist)
+                )
+                db = (
+                    leg(prev_w, t, b, dist, start_dist, end_dist)
+                    + leg(t, next_w, b, dist, start_dist, end_dist)
+                    - leg(prev_w, w, b, dist, start_dist, end_dist)
+                    - leg(w, next_w, b, dist, start_dist, end_dist)
+                )
+                trial_lengths[a] = lengths[a] + da
+                trial_lengths[b] = lengths[b] + db
+                ea = extras[a] + ((task_x[a, w] - task_x[a, t]) if use_extra else 0.0)
+                eb = extras[b] + ((task_x[b, t] - task_x[b, w]) if use_extra else 0.0)
+                trial_values[a] = _route_value(objective, a, trial_lengths[a], ea, road_h, road_f)
+                trial_values[b] = _route_value(objective, b, trial_lengths[b], eb, road_h, road_f)
+                gain = current - _objective(objective, trial_values, trial_lengths)
+                if gain > best_gain:
+                    best_gain, best_kind, best_b, best_p, best_w = gain, 1, b, pw, w
+                trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
+                trial_values[a], trial_values[b] = values[a], values[b]
+            if best_kind < 0:
+                continue
+            b = best_b
+            if best_kind == 0:
+                # Remove t from a.
+                for k in range(pa, sizes[a] - 1):
+                    routes[a, k] = routes[a, k + 1]
+                    pos[routes[a, k]] = k
+                sizes[a] -= 1
+                lengths[a] += removal
+                # Insert t into b at best_p.
+                for k in range(sizes[b], best_p, -1):
+                    routes[b, k] = routes[b, k - 1]
+                    pos[routes[b, k]] = k
+                routes[b, best_p] = t
+                pos[t] = best_p
+                route_of[t] = b
+                sizes[b] += 1
+                u = _node(routes, sizes, b, best_p - 1)
+                v = _node(routes, sizes, b, best_p + 1)
+                lengths[b] += (
+                    leg(u, t, b, dist, start_dist, end_dist)
+                    + leg(t, v, b, dist, start_dist, end_dist)
+                    - leg(u, v, b, dist, start_dist, end_dist)
+                )
+                if use_extra:
+                    extras[a] -= task_x[a, t]
+                    extras[b] += task_x[b, t]
+            else:
+                w = best_w
+                pw = pos[w]
+                routes[a, pa] = w
+                routes[b, pw] = t
+                pos[w], pos[t] = pa, pw
+                route_of[w], route_of[t] = a, b
+                # Recompute both lengths exactly from their neighbours.
+                for r in (a, b):
+                    s = 0.0
+                    prev = -1
+                    for k in range(sizes[r]):
+                        s += leg(prev, routes[r, k], r, dist, start_dist, end_dist)
+                        prev = routes[r, k]
+                    lengths[r] = s + leg(prev, -2, r, dist, start_dist, end_dist)
+                if use_extra:
+                    extras[a] += task_x[a, w] - task_x[a, t]
+                    extras[b] += task_x[b, t] - task_x[b, w]
+            values[a] = _route_value(objective, a, lengths[a], extras[a], road_h, road_f)
+            values[b] = _route_value(objective, b, lengths[b], extras[b], road_h, road_f)
+            trial_values[:] = values
+            trial_lengths[:] = lengths
+            current = _objective(objective, values, lengths)
+            moves += 1
+            improved = True
+        if not improved:
+            break
+    begin = 0
+    for r in range(m):
+        for k in range(sizes[r]):
+            perm[begin + k] = routes[r, k]
+        counts[r] = sizes[r]
+        begin += sizes[r]
+    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
+    return moves

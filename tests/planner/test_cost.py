@@ -1,0 +1,131 @@
+"""Formulas (1)-(6) against cases computed by hand, and the compiled evaluation against a
+slow pure-Python recomputation."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.cost import CostTables, Objective, evaluate, figures, split_routes
+from planner.problem import Machine, Problem, Task, rectangle_turns
+
+
+def paper_machine(ident: str = "am1") -> Machine:
+    # Table 6, machine 1: 6.9 m, 7000 m2/h, 10 km/h, 7 L/h working, 3 L/h road, 0.004 h/turn.
+    return Machine(ident, 6.9, 7000.0, 10.0, 0.004, 3.0, 7.0)
+
+
+def test_rectangle_turns_formula():
+    # 127 m across at 6.9 m: ceil(18.4) = 19 swaths, 18 U-turns.
+    assert rectangle_turns(127.0, 6.9) == 18
+    assert rectangle_turns(69.0, 6.9) == 9  # exactly 10 swaths
+    assert rectangle_turns(5.0, 6.9) == 0
+    assert rectangle_turns(0.0, 6.9) == 0
+
+
+def test_formulas_one_to_six_by_hand():
+    # Garage at the origin; task A at (300, 400) (500 m away), task B at (300, 0).
+    tasks = [
+        Task("A", 300.0, 400.0, area_m2=8890.0, width_m=127.0, length_m=70.0),
+        Task("B", 300.0, 0.0, area_m2=7000.0, width_m=69.0, length_m=101.0),
+    ]
+    problem = Problem.build([paper_machine()], tasks, (0.0, 0.0))
+    figs = figures(problem, [[0, 1]])
+    route = figs.routes[0]
+    # (1)-(2): 500 (garage->A) + 400 (A->B) + 300 (B->garage).
+    assert route.distance_m == pytest.approx(1200.0)
+    drive_h = 1200.0 / 10_000.0  # 10 km/h
+    turns = 18 + 9
+    work_h = 8890.0 / 7000.0 + 7000.0 / 7000.0
+    # (6): travel + turning + working time.
+    assert route.time_h == pytest.approx(drive_h + turns * 0.004 + work_h)
+    # (5): travel and turns at the road rate, work at the working rate.
+    assert route.fuel_l == pytest.approx(drive_h * 3.0 + turns * 0.004 * 3.0 + work_h * 7.0)
+    assert route.turns == turns
+    assert figs.value(Objective.DISTANCE) == pytest.approx(1200.0)
+    assert figs.value(Objective.MAKESPAN) == pytest.approx(route.time_h)
+
+
+def test_objectives_sum_and_max():
+    tasks = [Task(str(k), float(10 * k), 0.0) for k in range(1, 4)]
+    machines = [paper_machine("a"), paper_machine("b")]
+    problem = Problem.build(machines, tasks, (0.0, 0.0))
+    figs = figures(problem, [[0], [1, 2]])
+    assert figs.distance_m == pytest.approx(20.0 + 60.0)
+    assert figs.max_distance_m == pytest.approx(60.0)
+    assert figs.value(Objective.MINMAX) == pytest.approx(60.0)
+    assert figs.makespan_h == pytest.approx(max(r.time_h for r in figs.routes))
+    assert figs.time_h == pytest.approx(sum(r.time_h for r in figs.routes))
+
+
+def test_objective_names():
+    assert Objective.parse("minsum") is Objective.DISTANCE
+    assert Objective.parse("minmax") is Objective.MINMAX
+    assert Objective.parse("makespan") is Objective.MAKESPAN
+    with pytest.raises(ValueError, match="unknown objective 'fastest'"):
+        Objective.parse("fastest")
+
+
+@st.composite
+def problems_and_chromosomes(draw):
+    n = draw(st.integers(2, 9))
+    m = draw(st.integers(1, min(n, 4)))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    machines = [
+        Machine(f"m{i}", float(rng.uniform(2, 8)), float(rng.uniform(3000, 8000)),
+                float(rng.uniform(5, 20)), float(rng.uniform(0, 0.01)),
+                float(rng.uniform(1, 4)), float(rng.uniform(4, 9)))
+        for i in range(m)
+    ]
+    tasks = [
+        Task(f"t{j}", float(rng.uniform(0, 2000)), float(rng.uniform(0, 2000)),
+             float(rng.uniform(1000, 20000)), float(rng.uniform(20, 200)), float(rng.uniform(20, 200)))
+        for j in range(n)
+    ]
+    problem = Problem.build(machines, tasks, (float(rng.uniform(0, 2000)), 0.0))
+    perm = rng.permutation(n)
+    cuts = np.sort(rng.choice(np.arange(1, n), size=m - 1, replace=False))
+    counts = np.diff(np.concatenate(([0], cuts, [n])))
+    return problem, perm.astype(np.int64), counts.astype(np.int64)
+
+
+def slow_value(problem, routes, objective):
+    """Formulas (1)-(6) in plain Python, without any shared helper."""
+    per_route = []
+    for i, route in enumerate(routes):
+        mc = problem.machines[i]
+        pts = [problem.depot] + [(problem.tasks[j].x, problem.tasks[j].y) for j in route]
+        pts.append(problem.depot)
+        s = sum(math.dist(a, b) for a, b in zip(pts, pts[1:])) if route else 0.0
+        turns = sum(rectangle_turns(problem.tasks[j].width_m, mc.working_width_m) for j in route)
+        work = sum(problem.tasks[j].area_m2 / mc.capacity_m2h for j in route)
+        drive = s / (mc.road_speed_kmh * 1000)
+        t = drive + turns * mc.turn_time_h + work
+        c = drive * mc.road_fuel_lh + turns * mc.turn_time_h * mc.road_fuel_lh + work * mc.work_fuel_lh
+        per_route.append((s, t, c))
+    s_all = [r[0] for r in per_route]
+    return {
+        Objective.DISTANCE: sum(s_all),
+        Objective.TIME: sum(r[1] for r in per_route),
+        Objective.FUEL: sum(r[2] for r in per_route),
+        Objective.MAKESPAN: max(r[1] for r in per_route),
+        Objective.MINMAX: max(s_all),
+    }[objective]
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(problems_and_chromosomes(), st.sampled_from(list(Objective)))
+def test_compiled_cost_equals_slow_recomputation(case, objective):
+    problem, perm, counts = case
+    tables = CostTables.of(problem).kernel_args()
+    route_cost = np.empty(problem.num_machines)
+    value = evaluate(perm, counts, int(objective), *tables, route_cost)
+    routes = split_routes(perm, counts)
+    expected = slow_value(problem, routes, objective)
+    tie = 0.0
+    if objective in (Objective.MAKESPAN, Objective.MINMAX):
+        tie = 1e-9 * sum(r.distance_m for r in figures(problem, routes).routes)
+    assert value == pytest.approx(expected + tie, rel=1e-9, abs=1e-9)
+    assert figures(problem, routes).value(objective) == pytest.approx(expected, rel=1e-9)

@@ -1,0 +1,135 @@
+"""Every operator keeps the chromosome valid; local search reports true costs."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner import operators as ops
+from planner.cost import CostTables, Objective, evaluate
+from planner.ighoa import polish
+from planner.local_search import improve_allocation, nearest_neighbours
+from planner.population import positional_similarity, random_counts
+from planner.problem import Machine, Problem, Task
+from planner.rng import make_state
+
+SETTINGS = settings(max_examples=80, deadline=None, derandomize=True)
+
+
+@st.composite
+def chromosomes(draw, min_count=1):
+    n = draw(st.integers(2, 30))
+    m = draw(st.integers(1, min(n, 6)))
+    seed = draw(st.integers(0, 2**31))
+    state = make_state(seed)
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(n).astype(np.int64)
+    counts = np.empty(m, dtype=np.int64)
+    random_counts(state, n, m, min_count, counts)
+    return state, perm, counts
+
+
+def assert_valid(perm, counts, n, m, min_count=1):
+    assert sorted(perm.tolist()) == list(range(n))
+    assert counts.shape == (m,)
+    assert counts.sum() == n
+    assert counts.min() >= min_count
+
+
+@SETTINGS
+@given(chromosomes(), st.sampled_from(["ox", "pmx"]))
+def test_crossovers_keep_a_permutation(case, kind):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    other = np.random.default_rng(int(perm.sum())).permutation(n).astype(np.int64)
+    child = np.full(n, -1, dtype=np.int64)
+    child_counts = np.zeros(m, dtype=np.int64)
+    ops.crossover(state, ops.OX if kind == "ox" else ops.PMX, perm, other, counts, child, child_counts)
+    assert_valid(child, child_counts, n, m)
+    assert sorted(child_counts.tolist()) == sorted(counts.tolist())
+
+
+@SETTINGS
+@given(chromosomes(), st.sampled_from([ops.SWAP, ops.INSERT]), st.booleans())
+def test_mutations_keep_validity(case, kind, shift):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    for _ in range(5):
+        ops.mutate(state, kind, perm, counts, 1, shift)
+        assert_valid(perm, counts, n, m)
+
+
+@SETTINGS
+@given(chromosomes(min_count=0))
+def test_operators_respect_zero_minimum(case):
+    state, perm, counts = case
+    assert_valid(perm, counts, perm.size, counts.size, min_count=0)
+    for _ in range(10):
+        ops.shift_count(state, counts, 0)
+        assert counts.min() >= 0 and counts.sum() == perm.size
+
+
+@SETTINGS
+@given(chromosomes())
+def test_random_two_opt_keeps_validity(case):
+    state, perm, counts = case
+    ops.random_two_opt(state, perm, counts)
+    assert_valid(perm, counts, perm.size, counts.size)
+
+
+def problem_for(n, m, seed):
+    rng = np.random.default_rng(seed)
+    machines = [Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)]
+    tasks = [
+        Task(f"t{j}", float(x), float(y), 10000.0, 100.0, 80.0)
+        for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))
+    ]
+    return Problem.build(machines, tasks, (0.0, 0.0))
+
+
+@SETTINGS
+@given(chromosomes(), st.sampled_from(list(Objective)))
+def test_local_search_keeps_validity_and_reports_true_cost(case, objective):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, int(perm[0]) + 7 * n)
+    tables = CostTables.of(problem).kernel_args()
+    route = np.empty(m)
+    before = evaluate(perm, counts, int(objective), *tables, route)
+    nn = nearest_neighbours(problem.dist, 5)
+    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn[:, :0])
+    assert_valid(perm, counts, n, m)
+    check = np.empty(m)
+    assert cost == pytest.approx(evaluate(perm, counts, int(objective), *tables, check), rel=1e-12)
+    assert cost <= before + 1e-9 * max(1.0, before)
+    np.testing.assert_allclose(route, check)
+    improve_allocation(perm, counts, int(objective), tables, nn, 1, 20)
+    assert_valid(perm, counts, n, m)
+    after = evaluate(perm, counts, int(objective), *tables, check)
+    assert after <= cost + 1e-9 * max(1.0, cost)
+
+
+@SETTINGS
+@given(chromosomes(), st.booleans())
+def test_route_improvement_never_lengthens_a_route(case, with_neighbours):
+    _, perm, counts = case
+    problem = problem_for(perm.size, counts.size, 3)
+    tables = CostTables.of(problem)
+    route = np.empty(counts.size)
+    before = evaluate(perm, counts, 0, *tables.kernel_args(), route)
+    nn = nearest_neighbours(tables.dist, 4)[:, : 4 if with_neighbours else 0]
+    ops.improve_routes(perm, counts, tables.dist, tables.start_dist, tables.end_dist, nn)
+    after = evaluate(perm, counts, 0, *tables.kernel_args(), route)
+    assert after <= before + 1e-9
+    assert sorted(perm.tolist()) == list(range(perm.size))
+
+
+def test_similarity_matches_quadratic_definition():
+    rng = np.random.default_rng(5)
+    perms = np.array([rng.permutation(12) for _ in range(9)], dtype=np.int64)
+    perms[3] = perms[1]
+    div = np.empty(9)
+    positional_similarity(perms, div)
+    sim = (perms[:, None, :] == perms[None, :, :]).mean(axis=2)
+    expected = (sim.sum(axis=1) - 1.0) / (9 - 1)  # formula (19), self excluded
+    np.testing.assert_allclose(div, expected)

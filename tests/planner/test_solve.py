@@ -1,0 +1,104 @@
+"""The public solve(): seeds, stopping, and the paper's first yardstick cell."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from planner.ga import GAParams
+from planner.ighoa import IGHOAParams
+from planner.problem import Machine, Problem, Task
+from planner.solve import MaxGenerations, MaxRuntime, solve, stop_after
+from planner.tsplib import read_instance
+
+DATA = Path(__file__).parent.parent / "data"
+
+
+def small_farm() -> Problem:
+    machines = [
+        Machine("t1", 6.9, 7000.0, 10.0, 0.004, 3.0, 7.0),
+        Machine("t2", 5.5, 5000.0, 10.0, 0.003, 2.5, 5.0),
+    ]
+    tasks = [
+        Task(f"f{k}", 200.0 * (k % 4), 180.0 * (k // 4), 9000.0, 120.0, 75.0) for k in range(8)
+    ]
+    return Problem.build(machines, tasks, (-100.0, -100.0), name="small")
+
+
+def valid_routes(result, n):
+    flat = sorted(j for route in result.routes for j in route)
+    return flat == list(range(n)) and all(len(r) >= 1 for r in result.routes)
+
+
+@pytest.mark.parametrize("algorithm", ["ighoa", "ga"])
+@pytest.mark.parametrize("objective", ["distance", "time", "fuel", "makespan", "minmax"])
+def test_every_objective_and_algorithm_gives_valid_routes(algorithm, objective):
+    problem = small_farm()
+    params = IGHOAParams(population=20) if algorithm == "ighoa" else GAParams(population=20)
+    result = solve(problem, objective, algorithm, stop_after(30), seed=3, params=params)
+    assert valid_routes(result, problem.num_tasks)
+    assert result.generations == 30 and len(result.history) == 30
+    assert all(a >= b for a, b in zip(result.history, result.history[1:]))  # best never worsens
+    assert result.cost == pytest.approx(result.figures.value(result.objective))
+
+
+def test_same_seed_same_answer_other_seed_other_search():
+    problem = read_instance(DATA / "eil51.tsp").to_problem(3)
+    params = IGHOAParams(population=40)
+    a = solve(problem, "distance", "ighoa", stop_after(60), seed=7, params=params)
+    b = solve(problem, "distance", "ighoa", stop_after(60), seed=7, params=params)
+    c = solve(problem, "distance", "ighoa", stop_after(60), seed=8, params=params)
+    assert a.routes == b.routes and a.history == b.history and a.stats == b.stats
+    assert a.history != c.history
+
+
+def test_eil51_three_salesmen_reaches_the_papers_value():
+    """Table 2/3 row 1: the paper's IGHOA reports 471.77 on eil51 with m = 3."""
+    problem = read_instance(DATA / "eil51.tsp").to_problem(3)
+    result = solve(problem, "minsum", "ighoa", stop_after(2000, 30.0), seed=1)
+    assert result.cost <= 471.77
+    assert valid_routes(result, 50)
+
+
+def test_wall_clock_limit_stops_the_run():
+    problem = read_instance(DATA / "eil51.tsp").to_problem(3)
+    result = solve(problem, "distance", "ga", stop_after(10**9, 0.3), seed=1)
+    assert 0.3 <= result.elapsed_s < 5.0
+
+
+def test_stop_criteria():
+    gens = MaxGenerations(3)
+    gens.start()
+    assert [gens(1.0) for _ in range(3)] == [False, False, True]
+    assert gens.progress() == 1.0
+    with pytest.raises(ValueError):
+        MaxRuntime(0)
+    with pytest.raises(ValueError, match="unknown algorithm"):
+        solve(small_farm(), algorithm="aco")
+
+
+SCRIPT = """
+import json, sys
+from planner.ighoa import IGHOAParams
+from planner.problem import Machine, Problem, Task
+from planner.solve import solve, stop_after
+machines = [Machine("a", 3.0, 4000.0, 10.0, 0.002, 2.0, 4.0), Machine("b", 5.5, 5000.0, 12.0, 0.003, 2.5, 5.0)]
+tasks = [Task(f"f{k}", 97.0 * k % 500, 61.0 * k % 400, 5000.0, 60.0, 50.0) for k in range(7)]
+p = Problem.build(machines, tasks, (0.0, 0.0))
+r = solve(p, "makespan", "ighoa", stop_after(4), seed=11, params=IGHOAParams(population=6, two_opt_tries=3))
+print(json.dumps({"routes": r.routes, "history": r.history}))
+"""
+
+
+def test_compiled_and_pure_python_kernels_agree():
+    """The kernels under NUMBA_DISABLE_JIT=1 walk the same random stream to the same answer."""
+    out = {}
+    for jit in ("0", "1"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=jit)
+        proc = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True,
+                              text=True, timeout=300, check=True)
+        out[jit] = json.loads(proc.stdout)
+    assert out["0"] == out["1"]
