@@ -1,5 +1,155 @@
-"""agrifleet's command line (placeholder until the sub-commands land)."""
+"""agrifleet's command line: parses arguments and forwards to typed functions.
+
+Each sub-command is one ``cmd_*`` handler; the work itself lives in planner/ and dispatcher/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from planner.errors import PlannerError
+
+log = logging.getLogger("agrifleet")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_BAD_INPUT = 2
 
 
-def main() -> int:
-    return 0
+class ProgressBar:
+    """A progress line on stderr (generation, best cost, elapsed) once a run passes 1 s,
+    only when stderr is a terminal."""
+
+    def __init__(self, total: int, label: str) -> None:
+        self.total = total
+        self.label = label
+        self.enabled = sys.stderr.isatty()
+        self._progress = None
+        self._task = None
+        self._started = time.perf_counter()
+
+    def __call__(self, generation: int, best: float, elapsed: float) -> None:
+        if not self.enabled or elapsed < 1.0:
+            return
+        if self._progress is None:
+            from rich.console import Console
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self._progress = Progress(
+                TextColumn("{task.description}"), BarColumn(),
+                TextColumn("gen {task.completed:>5.0f}  best {task.fields[best]:.2f}"),
+                TimeElapsedColumn(), console=Console(stderr=True), transient=True,
+            )
+            self._progress.start()
+            self._task = self._progress.add_task(self.label, total=self.total, best=best)
+        self._progress.update(self._task, completed=generation, best=best)
+
+    def close(self) -> None:
+        if self._progress is not None:
+            self._progress.stop()
+
+
+def cmd_mtsp(args: argparse.Namespace) -> int:
+    from planner.solve import solve, stop_after
+    from planner.tsplib import read_instance
+
+    instance = read_instance(args.instance)
+    problem = instance.to_problem(args.salesmen, args.distance)
+    bar = ProgressBar(args.generations, f"{instance.name} m={args.salesmen}")
+    try:
+        result = solve(
+            problem, args.objective, args.algorithm,
+            stop_after(args.generations, args.time_limit), seed=args.seed, on_generation=bar,
+        )
+    finally:
+        bar.close()
+    routes = [[int(node) for node in route] for route in result.route_ids()]
+    if args.json:
+        print(json.dumps({
+            "instance": instance.name,
+            "salesmen": args.salesmen,
+            "objective": args.objective,
+            "algorithm": args.algorithm,
+            "distance": args.distance,
+            "cost": result.cost,
+            "routes": routes,
+            "elapsed_s": round(result.elapsed_s, 3),
+        }))
+        return EXIT_OK
+    figs = result.figures
+    print(f"{instance.name}: {args.salesmen} salesmen, {args.objective} by {args.algorithm}, "
+          f"{args.distance} distances, seed {args.seed}")
+    print(f"cost {result.cost:.2f} (total {figs.distance_m:.2f}, longest {figs.max_distance_m:.2f})"
+          f" after {result.generations} generations in {result.elapsed_s:.2f} s")
+    for k, (route, fig) in enumerate(zip(routes, figs.routes, strict=True), start=1):
+        print(f"  salesman {k}: {fig.distance_m:10.2f}  {len(route):4d} nodes: "
+              + " ".join(map(str, route)))
+    return EXIT_OK
+
+
+def cmd_bench_paper(args: argparse.Namespace) -> int:
+    from planner.paper import bench_report
+
+    tables = {int(t) for t in args.tables.split(",")}
+    report = bench_report(tables, args.runs, args.time_limit, args.generations,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+    if args.out:
+        Path(args.out).write_text(report)
+    print(report)
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
+    p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
+    p.add_argument("-m", "--salesmen", type=int, required=True)
+    p.add_argument("--objective", choices=["minsum", "minmax"], default="minsum")
+    p.add_argument("--algorithm", choices=["ighoa", "ga"], default="ighoa")
+    p.add_argument("--time-limit", type=float, default=None, help="seconds")
+    p.add_argument("--generations", type=int, default=2000)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--distance", choices=["euclidean", "tsplib"], default="euclidean")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=cmd_mtsp)
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    bench_sub = bench.add_subparsers(dest="suite", required=True)
+    p = bench_sub.add_parser("paper", help="rerun the paper's tables beside its figures")
+    p.add_argument("--tables", default="2,3,4,5,8,9,10")
+    p.add_argument("--runs", type=int, default=5, help="seeds per cell")
+    p.add_argument("--time-limit", type=float, default=30.0, help="seconds per run")
+    p.add_argument("--generations", type=int, default=2000)
+    p.add_argument("--out", type=Path, default=None, help="also write the report here")
+    p.set_defaults(handler=cmd_bench_paper)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.handler(args))
+    except PlannerError as exc:
+        print(f"agrifleet: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("agrifleet: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
