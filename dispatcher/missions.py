@@ -49,6 +49,7 @@ from typing import Literal, get_args
 from pyproj import Geod
 
 from dispatcher import mavlink_codec as mc
+from dispatcher.errors import DispatcherError
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +75,7 @@ PWM_RANGE = range(800, 2201)
 _GEOD = Geod(ellps="WGS84")
 
 
-class MissionError(ValueError):
+class MissionError(DispatcherError, ValueError):
     """A mission cannot be built from the given spec; the message names machine and field."""
 
     def __init__(self, machine_id: str, field_id: str | None, problem: str) -> None:

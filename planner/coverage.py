@@ -185,7 +185,7 @@ def cover_field(
     """
     field_poly = _checked_field(polygon, working_width_m, headland_passes, angle_deg, field_id)
     w = float(working_width_m)
-    rings_by_pass, region = _headland_and_region(field_poly, w, headland_passes, field_id)
+    rings_by_pass, region, lane = _headland_and_region(field_poly, w, headland_passes, field_id)
     ref = np.array(region.centroid.coords[0])  # work near the origin for precision
     edges = _edges(region, ref)
 
@@ -198,6 +198,8 @@ def cover_field(
         raise GeometryError(
             f"field {field_id!r}: no swath of working width {w:g} m fits in the field"
         )
+    if lane is not None:
+        cells = _extend_to_lane(cells, _edges(lane, ref), angle)
 
     paths = tuple(_drive(cells, corner, angle, ref) for corner in range(4))
     distance = _InFieldDistance(field_poly)
@@ -314,11 +316,12 @@ def _polygons(geom: shapely.Geometry) -> list[Polygon]:
 
 def _headland_and_region(
     field_poly: Polygon, w: float, passes: int, field_id: str
-) -> tuple[list[list[FloatArray]], MultiPolygon]:
-    """Headland ring centre lines per pass (outer first) and the region left for swaths."""
+) -> tuple[list[list[FloatArray]], MultiPolygon, MultiPolygon | None]:
+    """Headland ring centre lines per pass (outer first), the region left for swaths and the
+    area inside the innermost ring's centre line (``None`` without headland)."""
     min_area = 0.01 * w * w
     if passes == 0:
-        return [], MultiPolygon([field_poly])
+        return [], MultiPolygon([field_poly]), None
     inner = field_poly.buffer(-passes * w, join_style="mitre")
     parts = [orient(p, sign=1.0) for p in _polygons(inner) if p.area >= min_area]
     if not parts:
@@ -326,15 +329,21 @@ def _headland_and_region(
             f"field {field_id!r}: {passes} headland passes of {w:g} m consume the whole field"
         )
     rings_by_pass: list[list[FloatArray]] = []
+    lane: list[Polygon] = []
     for k in range(passes):
         offset = field_poly.buffer(-(k + 0.5) * w, join_style="mitre")
+        lane = [orient(part, sign=1.0) for part in _polygons(offset)]
         rings: list[FloatArray] = []
-        for part in _polygons(offset):
-            part = orient(part, sign=1.0)
+        for part in lane:
             rings.append(np.asarray(part.exterior.coords))
             rings.extend(np.asarray(hole.coords) for hole in part.interiors)
         rings_by_pass.append(rings)
-    return rings_by_pass, MultiPolygon(parts)
+    # swaths run on to the innermost ring's centre line, but only where it borders their
+    # own region (not through a neck the swath region does not have)
+    reach = shapely.intersection(
+        MultiPolygon(parts).buffer(w / 2, join_style="mitre"), MultiPolygon(lane)
+    )
+    return rings_by_pass, MultiPolygon(parts), MultiPolygon(_polygons(reach))
 
 
 def _order_rings(rings_by_pass: list[list[FloatArray]], after: XY) -> tuple[tuple[XY, ...], ...]:
@@ -615,6 +624,30 @@ def _decompose(edges: _Edges, angle_deg: float, w: float, field_id: str) -> list
         )[::-1]
         cells.append(_Cell(lines, np.vstack([left_chain, right_chain])))
     return cells
+
+
+def _extend_to_lane(cells: list[_Cell], lane: _Edges, angle_deg: float) -> list[_Cell]:
+    """Cells whose swaths run on, both ways, to the innermost headland ring's centre line.
+
+    The machine works into the headland by half a width, so the wedges a slanted border
+    leaves beside each swath end are covered by the headland pass.
+    """
+    ua, va = _rotate(lane.ax, lane.ay, angle_deg)
+    ub, vb = _rotate(lane.bx, lane.by, angle_deg)
+    slope = np.divide(ub - ua, vb - va, out=np.zeros_like(ua), where=vb != va)
+    extended: list[_Cell] = []
+    for cell in cells:
+        v, mid = cell.lines[:, 0], cell.lines[:, 1:].mean(axis=1)
+        a, b = va[:, None], vb[:, None]
+        cross = ((a <= v) & (v < b)) | ((b <= v) & (v < a))  # (edges, lines)
+        u = ua[:, None] + (v - a) * slope[:, None]
+        left = np.where(cross & (u <= mid), u, -np.inf).max(axis=0)
+        right = np.where(cross & (u >= mid), u, np.inf).min(axis=0)
+        lines = cell.lines.copy()
+        lines[:, 1] = np.where(np.isfinite(left), np.minimum(left, lines[:, 1]), lines[:, 1])
+        lines[:, 2] = np.where(np.isfinite(right), np.maximum(right, lines[:, 2]), lines[:, 2])
+        extended.append(_Cell(lines, cell.outline))
+    return extended
 
 
 def _to_polygon(outline: FloatArray, angle: float, ref: FloatArray) -> Polygon:

@@ -237,3 +237,57 @@ def improve_allocation(  # type: ignore[no-untyped-def]
         begin += sizes[r]
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
     return moves
+
+
+@njit(cache=True)
+def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[no-untyped-def]
+    """Re-cut the task order into routes optimally for the objective (Prins's Split,
+    with machine k taking the k-th stretch): dynamic programming over how many tasks the
+    first k machines take, O(m n^2). Changes ``counts`` only; returns the new cost
+    without the min-max tie-breaker."""
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
+    n = perm.shape[0]
+    m = counts.shape[0]
+    use_max = objective == 3 or objective == 4
+    prefix = np.zeros(n)
+    for t in range(1, n):
+        prefix[t] = prefix[t - 1] + dist[perm[t - 1], perm[t]]
+    task_x = task_f if objective == 2 else task_h
+    use_extra = objective == 1 or objective == 2 or objective == 3
+    extra = np.zeros((m, n + 1))
+    if use_extra:
+        for k in range(m):
+            for t in range(n):
+                extra[k, t + 1] = extra[k, t] + task_x[k, perm[t]]
+    inf = np.inf
+    best = np.full((m + 1, n + 1), inf)
+    cut = np.zeros((m + 1, n + 1), dtype=np.int64)
+    best[0, 0] = 0.0
+    for k in range(1, m + 1):
+        mk = k - 1
+        rate = 1.0
+        if objective == 1 or objective == 3:
+            rate = road_h[mk]
+        elif objective == 2:
+            rate = road_h[mk] * road_f[mk]
+        # Machine k takes tasks i..j-1; every later machine still needs min_count tasks.
+        for j in range(k * min_count, n - (m - k) * min_count + 1):
+            for i in range(max(0, (k - 1) * min_count), j - min_count + 1):
+                before = best[k - 1, i]
+                if before == inf:
+                    continue
+                if j == i:
+                    value = 0.0
+                else:
+                    s = start_dist[mk, perm[i]] + prefix[j - 1] - prefix[i] + end_dist[mk, perm[j - 1]]
+                    value = s * rate + (extra[mk, j] - extra[mk, i])
+                total = max(before, value) if use_max else before + value
+                if total < best[k, j]:
+                    best[k, j] = total
+                    cut[k, j] = i
+    j = n
+    for k in range(m, 0, -1):
+        i = cut[k, j]
+        counts[k - 1] = j - i
+        j = i
+    return best[m, n]

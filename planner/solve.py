@@ -25,7 +25,7 @@ from planner.cost import (
     figures,
     split_routes,
 )
-from planner.local_search import improve_allocation, nearest_neighbours
+from planner.local_search import improve_allocation, nearest_neighbours, optimal_split
 from planner.population import random_counts
 from planner.problem import Problem
 from planner.rng import make_state, randint, shuffle
@@ -258,6 +258,8 @@ def _polish(  # type: ignore[no-untyped-def]
             state, perm, cnt, objective, tables, params.two_opt_tries, route, route_nn
         )
         if params.local_search == "extended":
+            if idx == targets[0]:
+                optimal_split(perm, cnt, objective, tables, min_count)
             improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50)
             cost = evaluate(perm, cnt, objective, *tables, route)
         if cost < costs[idx] - 1e-12:

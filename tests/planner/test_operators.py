@@ -133,3 +133,33 @@ def test_similarity_matches_quadratic_definition():
     sim = (perms[:, None, :] == perms[None, :, :]).mean(axis=2)
     expected = (sim.sum(axis=1) - 1.0) / (9 - 1)  # formula (19), self excluded
     np.testing.assert_allclose(div, expected)
+
+
+@SETTINGS
+@given(chromosomes(min_count=1), st.sampled_from(list(Objective)))
+def test_optimal_split_is_optimal_for_its_order(case, objective):
+    import itertools
+
+    from planner.local_search import optimal_split
+
+    _, perm, counts = case
+    n, m = perm.size, counts.size
+    if n > 12:
+        perm, counts = perm[perm < 12], counts  # keep brute force small
+        n = perm.size
+        if n < m:
+            return
+        counts = np.ones(m, dtype=np.int64)
+        counts[0] += n - m
+    problem = problem_for(n, m, 11)
+    tables = CostTables.of(problem).kernel_args()
+    route = np.empty(m)
+    best = np.inf
+    for cuts in itertools.combinations(range(1, n), m - 1):
+        trial = np.diff(np.array((0, *cuts, n))).astype(np.int64)
+        best = min(best, evaluate(perm, trial, int(objective), *tables, route))
+    split = counts.copy()
+    optimal_split(perm, split, int(objective), tables, 1)
+    assert_valid(perm, split, n, m)
+    value = evaluate(perm, split, int(objective), *tables, route)
+    assert value <= best + 1e-6 * max(1.0, best)
