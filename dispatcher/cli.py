@@ -13,6 +13,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from dispatcher.errors import DispatcherError
 from planner.errors import PlannerError
 
 log = logging.getLogger("agrifleet")
@@ -105,6 +106,54 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """Load the scenario with the command line's overrides and plan it."""
+    from dispatcher.plan_output import dispatch_plan
+    from dispatcher.scenario import load_scenario
+    from planner.field_plan import plan_farm
+    from planner.solve import stop_after
+
+    scenario = load_scenario(args.scenario)
+    if args.fields:
+        scenario = scenario.with_farm(args.fields)
+    if args.machines:
+        scenario = scenario.with_machines(args.machines)
+    solver = scenario.solver
+    plan = plan_farm(
+        scenario.farm, [v.machine for v in scenario.vehicles],
+        args.objective or solver.objective, solver.algorithm,
+        stop_after(solver.generations, args.time_limit or solver.time_limit_s),
+        seed=solver.seed if args.seed is None else args.seed,
+    )
+    return dispatch_plan(scenario, plan)
+
+
+def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
+    doc = dispatch.document
+    print(f"plan {doc['plan_id']} for {doc['farm_id']}: objective {doc['objective']}, "
+          f"{len(doc['machines'])} machines, {len(doc['fields'])} fields")
+    print(f"{'machine':8} {'width m':>7} {'fields':>6} {'road km':>8} {'turns':>6} {'fuel L':>8} "
+          f"{'time h':>7}  order")
+    for m in doc["machines"]:
+        print(f"{m['id']:8} {m['working_width_m']:7.1f} {len(m['fields']):6d} "
+              f"{m['distance_m'] / 1000:8.2f} {m['turns']:6d} {m['fuel_l']:8.1f} {m['time_h']:7.2f}  "
+              + " ".join(m["fields"]))
+    t = doc["totals"]
+    print(f"{'total':8} {'':7} {len(doc['fields']):6d} {t['distance_m'] / 1000:8.2f} "
+          f"{sum(m['turns'] for m in doc['machines']):6d} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
+          f"makespan {t['makespan_h']:.2f} h")
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from dispatcher.plan_output import write_plan_files
+
+    dispatch = plan_scenario(args)
+    written = write_plan_files(dispatch, args.out)
+    print_plan_table(dispatch)
+    print(f"wrote {len(written)} files to {args.out}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -131,7 +180,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--generations", type=int, default=2000)
     p.add_argument("--out", type=Path, default=None, help="also write the report here")
     p.set_defaults(handler=cmd_bench_paper)
+    p = sub.add_parser("plan", help="plan a scenario and write missions, plan.json, map.png")
+    add_plan_arguments(p)
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.set_defaults(handler=cmd_plan)
     return parser
+
+
+def add_plan_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", type=Path, help="scenario TOML (see config/README.md)")
+    p.add_argument("--fields", type=Path, help="farm GeoJSON replacing the scenario's")
+    p.add_argument("--machines", type=int, help="use the first K machines of the fleet")
+    p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
+    p.add_argument("--time-limit", type=float, help="solver seconds")
+    p.add_argument("--seed", type=int)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -143,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return int(args.handler(args))
-    except PlannerError as exc:
+    except (PlannerError, DispatcherError) as exc:
         print(f"agrifleet: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

@@ -53,6 +53,7 @@ MIN_CELL_FRACTION = 0.1  # cells thinner than this many working widths are dropp
 MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
 _SNAP_M = 1e-3  # vertices closer than this across the sweep share one level
 _EPS_M = 1e-6
+_GRID_M = 1e-4  # precision grid of the overlays that score angles
 _EDGE_CANDIDATES = 90  # longest edges whose directions join the angle search
 
 # corner -> (start on the high-v side, first swath drives towards -u); CCW from (min u, min v)
@@ -329,20 +330,16 @@ def _headland_and_region(
             f"field {field_id!r}: {passes} headland passes of {w:g} m consume the whole field"
         )
     rings_by_pass: list[list[FloatArray]] = []
-    lane: list[Polygon] = []
     for k in range(passes):
         offset = field_poly.buffer(-(k + 0.5) * w, join_style="mitre")
-        lane = [orient(part, sign=1.0) for part in _polygons(offset)]
         rings: list[FloatArray] = []
-        for part in lane:
+        for part in (orient(p, sign=1.0) for p in _polygons(offset)):
             rings.append(np.asarray(part.exterior.coords))
             rings.extend(np.asarray(hole.coords) for hole in part.interiors)
         rings_by_pass.append(rings)
-    # swaths run on to the innermost ring's centre line, but only where it borders their
-    # own region (not through a neck the swath region does not have)
-    reach = shapely.intersection(
-        MultiPolygon(parts).buffer(w / 2, join_style="mitre"), MultiPolygon(lane)
-    )
+    # swaths run on to the innermost ring's centre line: the swath region grown by half a
+    # width is inside that ring, and does not pass through necks the swath region lacks
+    reach = MultiPolygon(parts).buffer(w / 2, join_style="mitre")
     return rings_by_pass, MultiPolygon(parts), MultiPolygon(_polygons(reach))
 
 
@@ -446,7 +443,10 @@ def _search_angle(
         lines = np.vstack([c.lines for c in cells])
         strips = shapely.box(lines[:, 1], lines[:, 0] - w / 2, lines[:, 2], lines[:, 0] + w / 2)
         rotated = shapely.affinity.rotate(region_uv, -angle, origin=(0.0, 0.0))
-        covered = shapely.union_all(strips).intersection(rotated).area
+        # fixed-precision overlay: strip borders can coincide with the outline to 1e-15
+        covered = shapely.intersection(
+            shapely.union_all(strips, grid_size=_GRID_M), rotated, grid_size=_GRID_M
+        ).area
         total = float((lines[:, 2] - lines[:, 1]).sum())
         return round(rotated.area - covered, 2), round(total, 3), angle
 

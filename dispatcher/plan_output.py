@@ -1,0 +1,153 @@
+"""From a farm plan to what leaves the planner: missions, plan.json and the files of
+`agrifleet plan` (per machine ``.waypoints`` and ``.plan``, and ``map.png``).
+
+Files are written into a temporary folder beside the output folder and moved into place
+only when all of them are written, so a failure leaves nothing half-done behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dispatcher.mission_files import write_qgc_plan, write_waypoints
+from dispatcher.missions import FieldVisit, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.scenario import Scenario, Vehicle
+from planner.farm import Farm
+from planner.field_plan import FarmPlan, MachinePlan, Visit
+
+
+@dataclass(frozen=True)
+class DispatchPlan:
+    """A farm plan with its missions and its JSON document; what the daemon dispatches."""
+
+    scenario: Scenario
+    plan: FarmPlan
+    missions: dict[str, Mission]  # by vehicle id
+    document: dict[str, Any]
+
+    @property
+    def plan_id(self) -> str:
+        return str(self.document["plan_id"])
+
+
+def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
+    """A field visit in WGS84: swaths in driving order, then the headland rings' edges."""
+    segments = [(s.start, s.end) for s in visit.swaths]
+    for ring in visit.headland:
+        segments += list(zip(ring[:-1], ring[1:], strict=True))
+    out = []
+    for (x0, y0), (x1, y1) in segments:
+        lon0, lat0 = farm.frame.to_lonlat(x0, y0)
+        lon1, lat1 = farm.frame.to_lonlat(x1, y1)
+        out.append((LatLon(lat0, lon0), LatLon(lat1, lon1)))
+    return FieldVisit(field_id=visit.field.id, swaths=tuple(out))
+
+
+def mission_for(farm: Farm, vehicle: Vehicle, route: MachinePlan) -> Mission:
+    glon, glat = farm.garage_lonlat
+    spec = MissionSpec(
+        machine_id=vehicle.id,
+        home=LatLon(glat, glon),
+        road_speed_kmh=vehicle.machine.road_speed_kmh,
+        work_speed_kmh=vehicle.machine.work_speed_kmh,
+        implement=vehicle.implement,
+        visits=tuple(visit_lonlat(farm, v) for v in route.visits),
+    )
+    return build_mission(spec)
+
+
+def dispatch_plan(scenario: Scenario, plan: FarmPlan) -> DispatchPlan:
+    """Missions for every machine and the plan document, with its id (a content hash)."""
+    vehicles = {v.id: v for v in scenario.vehicles}
+    missions = {
+        r.machine.id: mission_for(scenario.farm, vehicles[r.machine.id], r) for r in plan.machines
+    }
+    doc = plan_document(scenario, plan, missions)
+    return DispatchPlan(scenario=scenario, plan=plan, missions=missions, document=doc)
+
+
+def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Mission]) -> dict[str, Any]:
+    """plan.json: per machine its fields, figures and traceable mission items; totals."""
+    farm = scenario.farm
+    vehicles = {v.id: v for v in scenario.vehicles}
+    machines = []
+    for route in plan.machines:
+        mission = missions[route.machine.id]
+        machines.append({
+            "id": route.machine.id,
+            "system_id": vehicles[route.machine.id].system_id,
+            "working_width_m": route.machine.working_width_m,
+            "fields": route.field_ids,
+            "distance_m": round(route.road_m, 3),
+            "fuel_l": round(route.fuel_l, 4),
+            "time_h": round(route.time_h, 5),
+            "work_h": round(route.work_h, 5),
+            "turns": route.turns,
+            "visits": [
+                {"field": v.field.id, "corner": v.corner, "swaths": len(v.swaths),
+                 "headland_rings": len(v.headland), "angle_deg": round(v.coverage.angle_deg, 3)}
+                for v in route.visits
+            ],
+            "mission_items": len(mission),
+            "items": [
+                [item.seq, tr.field_id, tr.swath_index, tr.role, item.x, item.y]
+                for item, tr in zip(mission.items, mission.traces, strict=True)
+            ],
+        })
+    glon, glat = farm.garage_lonlat
+    doc: dict[str, Any] = {
+        "farm_id": scenario.farm_id,
+        "objective": plan.objective.name.lower(),
+        "algorithm": plan.solver.algorithm,
+        "seed": plan.solver.seed,
+        "garage": {"lat": glat, "lon": glon},
+        "fields": {
+            f.id: {"name": f.name, "area_m2": round(f.area_m2, 2),
+                   "polygon": [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]}
+            for f in farm.fields
+        },
+        "machines": machines,
+        "totals": {
+            "distance_m": round(plan.distance_m, 3),
+            "fuel_l": round(plan.fuel_l, 4),
+            "time_h": round(plan.time_h, 5),
+            "makespan_h": round(plan.makespan_h, 5),
+        },
+    }
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+    return {"plan_id": digest, **doc}
+
+
+def _round7(value: float) -> float:
+    return round(value, 7)
+
+
+def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
+    """Write plan.json, the missions and map.png into ``out_dir``, all or nothing."""
+    from dispatcher.maps import draw_plan_map
+
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent))
+    try:
+        (staging / "plan.json").write_text(json.dumps(dispatch.document, indent=1) + "\n")
+        for vehicle_id, mission in dispatch.missions.items():
+            write_waypoints(mission, staging / f"{vehicle_id}.waypoints")
+            write_qgc_plan(mission, staging / f"{vehicle_id}.plan")
+        draw_plan_map(dispatch.plan, staging / "map.png", title=dispatch.scenario.farm_id)
+        out_dir.mkdir(exist_ok=True)
+        written = []
+        for item in sorted(staging.iterdir()):
+            target = out_dir / item.name
+            os.replace(item, target)
+            written.append(target)
+        return written
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
