@@ -154,6 +154,70 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def zenoh_options(args: argparse.Namespace, default_listen: bool):  # type: ignore[no-untyped-def]
+    from dispatcher import wire
+
+    listen = tuple(args.listen or ())
+    connect = tuple(args.connect or ())
+    if not listen and not connect and args.mode != "router":
+        if default_listen:
+            listen = (wire.DEFAULT_ENDPOINT,)
+        else:
+            connect = (wire.DEFAULT_ENDPOINT,)
+    return wire.ZenohOptions(mode=args.mode, listen=listen, connect=connect,
+                             config_file=args.zenoh_config, extra=tuple(args.cfg or ()))
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
+    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT")
+    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
+    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from dispatcher.daemon import DaemonConfig, Dispatcher
+
+    dispatch = plan_scenario(args)
+    print_plan_table(dispatch)
+    daemon = Dispatcher(DaemonConfig(dispatch=dispatch, zenoh=zenoh_options(args, True),
+                                     log_dir=args.log_dir))
+    code = daemon.run()
+    print(f"log: {daemon.log_path}")
+    return code
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from dispatcher.scenario import load_scenario
+    from sim_vehicles.runner import run
+
+    scenario = load_scenario(args.scenario)
+    if args.machines:
+        scenario = scenario.with_machines(args.machines)
+    if args.all:
+        ids = [v.id for v in scenario.vehicles]
+    elif args.vehicle:
+        ids = [scenario.vehicle(v).id for v in args.vehicle]
+    else:
+        raise SystemExit("agrifleet sim: give --vehicle ID (repeatable) or --all")
+    return run(scenario, ids, zenoh_options(args, False), speedup=args.speedup,
+               telemetry_hz=args.telemetry_hz)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from dispatcher.demo import DEFAULT_SCENARIO, run_demo, summary
+
+    args.scenario = args.scenario or DEFAULT_SCENARIO
+    dispatch = plan_scenario(args)
+    print_plan_table(dispatch)
+    code, daemon = run_demo(Path(args.scenario), dispatch, args.speedup, args.log_dir)
+    print(summary(daemon))
+    print(f"log: {daemon.log_path}")
+    return code
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -184,6 +248,34 @@ def build_parser() -> argparse.ArgumentParser:
     add_plan_arguments(p)
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.set_defaults(handler=cmd_plan)
+
+    p = sub.add_parser("serve", help="the dispatcher daemon: plan, upload, follow, record")
+    add_plan_arguments(p)
+    p.add_argument("--log-dir", type=Path, default=Path("logs"))
+    add_zenoh_arguments(p)
+    p.set_defaults(handler=cmd_serve)
+
+    p = sub.add_parser("sim", help="simulated tractors speaking MAVLink over Zenoh")
+    p.add_argument("scenario", type=Path)
+    p.add_argument("--vehicle", action="append", help="machine id (repeatable)")
+    p.add_argument("--all", action="store_true", help="the whole fleet in one process")
+    p.add_argument("--machines", type=int, help="with --all: the first K machines")
+    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
+    p.add_argument("--telemetry-hz", type=float, default=10.0)
+    add_zenoh_arguments(p)
+    p.set_defaults(handler=cmd_sim)
+
+    p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
+    p.add_argument("scenario", type=Path, nargs="?", default=None,
+                   help="scenario TOML (default config/changji.toml)")
+    p.add_argument("--machines", type=int)
+    p.add_argument("--speedup", type=float, default=None,
+                   help="simulated seconds per second (default: fit the run into ~45 s)")
+    p.add_argument("--log-dir", type=Path, default=Path("logs"))
+    p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
+    p.add_argument("--time-limit", type=float, help="solver seconds")
+    p.add_argument("--seed", type=int)
+    p.set_defaults(handler=cmd_demo, fields=None)
     return parser
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import struct
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -49,6 +49,35 @@ _FLOAT_FRAME_OF_INT_FRAME: dict[int, int] = {
 }
 
 _FLOAT32 = struct.Struct("<f")
+
+
+def __getattr__(name: str) -> Any:
+    """Any other MAVLink constant of the dialect (``MAV_MISSION_ACCEPTED``, ``MAV_RESULT_*``,
+    ``MAV_STATE_*`` ...), so that callers need not import pymavlink."""
+    if name.isupper() and hasattr(mavlink2, name):
+        return getattr(mavlink2, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def message(name: str, **fields: Any) -> MAVLinkMessage:
+    """A message by its MAVLink name, e.g. ``message("HEARTBEAT", type=..., ...)``."""
+    cls = getattr(mavlink2, f"MAVLink_{name.lower()}_message", None)
+    if cls is None:
+        raise ValueError(f"unknown MAVLink message {name!r}")
+    return cls(**fields)
+
+
+def as_dict(msg: MAVLinkMessage) -> dict[str, Any]:
+    """A JSON-ready view of a message: its name and fields (bytes as lists)."""
+    out: dict[str, Any] = {"mavpackettype": msg.get_type()}
+    for name in msg.get_fieldnames():
+        value = getattr(msg, name)
+        if isinstance(value, bytes | bytearray):
+            value = list(value)
+        elif isinstance(value, float) and value != value:  # NaN is not JSON
+            value = None
+        out[name] = value
+    return out
 
 
 def float_frame(frame: int) -> int:
@@ -163,6 +192,11 @@ class Codec:
             i = start + frame_len
         self._pending = buf[tail_start:] if tail_start is not None else bytearray()
         return messages
+
+    def decode_one(self, frame: bytes) -> MAVLinkMessage | None:
+        """The message of one whole frame (one Zenoh sample), or None if it is not a
+        valid frame; keeps no state between calls."""
+        return self._decode_frame(bytearray(frame))
 
     def reset(self) -> None:
         """Drop any partial frame kept from earlier ``decode`` calls."""

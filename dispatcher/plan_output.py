@@ -151,3 +151,29 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
         return written
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
+    """Fields, garage and each machine's planned route as GeoJSON (lon, lat), for
+    Foxglove's Map panel and any GIS."""
+    from dispatcher.maps import colour
+
+    farm = dispatch.scenario.farm
+    features: list[dict[str, Any]] = [
+        {"type": "Feature", "properties": {"kind": "field", "id": f.id, "name": f.name},
+         "geometry": {"type": "Polygon", "coordinates": [
+             [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]]}}
+        for f in farm.fields
+    ]
+    features.append({"type": "Feature", "properties": {"kind": "garage"},
+                     "geometry": {"type": "Point", "coordinates": list(farm.garage_lonlat)}})
+    for k, route in enumerate(dispatch.plan.machines):
+        mission = dispatch.missions[route.machine.id]
+        line = [[_round7(it.lon), _round7(it.lat)] for it in mission.items if it.is_waypoint]
+        features.append({
+            "type": "Feature",
+            "properties": {"kind": "route", "machine": route.machine.id, "fields": route.field_ids,
+                           "style": {"color": colour(k), "weight": 2}},
+            "geometry": {"type": "LineString", "coordinates": line},
+        })
+    return {"type": "FeatureCollection", "features": features}

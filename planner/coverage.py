@@ -24,7 +24,6 @@ Outline (details in ``docs/coverage.md``):
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
 from collections.abc import Sequence
@@ -194,7 +193,7 @@ def cover_field(
         angle, cells = _search_angle(region, ref, edges, w, field_id)
     else:
         angle = _normalise_angle(angle_deg)
-        cells = _decompose(edges, angle, w, field_id)
+        cells = _sweep(edges, angle, field_id).cells(w)
     if not cells:
         raise GeometryError(
             f"field {field_id!r}: no swath of working width {w:g} m fits in the field"
@@ -339,7 +338,7 @@ def _headland_and_region(
         rings_by_pass.append(rings)
     # swaths run on to the innermost ring's centre line: the swath region grown by half a
     # width is inside that ring, and does not pass through necks the swath region lacks
-    reach = MultiPolygon(parts).buffer(w / 2, join_style="mitre")
+    reach = MultiPolygon(parts).buffer(w / 2)
     return rings_by_pass, MultiPolygon(parts), MultiPolygon(_polygons(reach))
 
 
@@ -408,9 +407,9 @@ def _search_angle(
     """Swath direction with the fewest swaths, then the least uncovered area, then the
     shortest total swath length, then the smallest angle; and its cells.
 
-    Every grid angle and long-edge direction is first counted quickly with sweep lines over
-    the whole region (exact for convex fields); the lowest counts are then decomposed
-    exactly, and the angles tied on the fewest swaths are compared by covered area.
+    Every grid angle and long-edge direction is first counted with sweep lines shared by the
+    whole region (exact for a convex region); for other regions the lowest estimates are
+    decomposed exactly. Angles tied on the fewest swaths are compared by covered area.
     """
     length = np.hypot(edges.bx - edges.ax, edges.by - edges.ay)
     longest = np.argsort(-length, kind="stable")[:_EDGE_CANDIDATES]
@@ -422,35 +421,56 @@ def _search_angle(
     candidates[candidates >= 180.0 - 1e-9] = 0.0
     candidates = np.unique(np.round(candidates, 9))
 
-    # the estimate runs on a lightly simplified outline: it only ranks angles
-    coarse = shapely.simplify(region, 0.05 * w, preserve_topology=True)
-    coarse_polys = [orient(p, sign=1.0) for p in _polygons(coarse)]
-    coarse_edges = _edges(MultiPolygon(coarse_polys), ref) if coarse_polys else edges
-    estimate = _estimate_swaths(coarse_edges, candidates, w)
-    pool = np.lexsort((candidates, estimate))[:EXACT_CANDIDATES]
+    convex = len(region.geoms) == 1 and region.area >= region.convex_hull.area * (1 - 1e-9)
+    if convex:
+        estimate = _estimate_swaths(edges, candidates, w)
+        pool = np.lexsort((candidates, estimate))
+        pool = pool[estimate[pool] == estimate[pool[0]]][:COVERAGE_CANDIDATES]
+    else:  # rank on a lightly simplified outline, then decompose the best exactly
+        coarse = shapely.simplify(region, 0.05 * w, preserve_topology=True)
+        coarse_polys = [orient(p, sign=1.0) for p in _polygons(coarse)]
+        coarse_edges = _edges(MultiPolygon(coarse_polys), ref) if coarse_polys else edges
+        estimate = _estimate_swaths(coarse_edges, candidates, w)
+        pool = np.lexsort((candidates, estimate))[:EXACT_CANDIDATES]
+        exact = np.array([_sweep(edges, float(candidates[i]), field_id).count(w) for i in pool])
+        fewest = exact[exact > 0].min() if np.any(exact > 0) else 0
+        pool = pool[exact == fewest][:COVERAGE_CANDIDATES]
 
-    decomposed = [
-        (float(candidates[i]), _decompose(edges, float(candidates[i]), w, field_id)) for i in pool
+    finalists = [
+        (float(candidates[i]), _sweep(edges, float(candidates[i]), field_id)) for i in pool
     ]
-    counts = [sum(len(c.lines) for c in cells) for _, cells in decomposed]
-    fewest = min((n for n in counts if n > 0), default=0)
-    if fewest == 0:
-        return decomposed[0]
-    finalists = [d for d, n in zip(decomposed, counts, strict=True) if n == fewest]
-    region_uv = shapely.affinity.translate(region, -ref[0], -ref[1])
+    if len(finalists) == 1:
+        return finalists[0][0], finalists[0][1].cells(w)
+    scored = []
+    for angle, sweep in finalists:
+        cells = sweep.cells(w)
+        scored.append((_score(cells, w, float(region.area)), angle, cells))
+    (_, _, _), angle, cells = min(scored, key=lambda item: (*item[0], item[1]))
+    return angle, cells
 
-    def score(angle: float, cells: list[_Cell]) -> tuple[float, float, float]:
-        lines = np.vstack([c.lines for c in cells])
-        strips = shapely.box(lines[:, 1], lines[:, 0] - w / 2, lines[:, 2], lines[:, 0] + w / 2)
-        rotated = shapely.affinity.rotate(region_uv, -angle, origin=(0.0, 0.0))
-        # fixed-precision overlay: strip borders can coincide with the outline to 1e-15
-        covered = shapely.intersection(
-            shapely.union_all(strips, grid_size=_GRID_M), rotated, grid_size=_GRID_M
-        ).area
-        total = float((lines[:, 2] - lines[:, 1]).sum())
-        return round(rotated.area - covered, 2), round(total, 3), angle
 
-    return min(finalists[:COVERAGE_CANDIDATES], key=lambda d: score(*d))
+def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, float]:
+    """(swath count, uncovered area, total swath length) of ``cells``, rounded for ties.
+
+    Each strip is clipped to its own cell (cells tile the region), and the overlap of each
+    cell's pulled-back last strip with the one before is removed.
+    """
+    if not cells:
+        return (0.0, area, 0.0)
+    lines = np.vstack([c.lines for c in cells])
+    sizes = np.array([len(c.lines) for c in cells])
+    outlines = np.array([Polygon(c.outline) for c in cells], dtype=object)
+    strips = shapely.box(lines[:, 1], lines[:, 0] - w / 2, lines[:, 2], lines[:, 0] + w / 2)
+    # fixed-precision overlays: strip borders can coincide with cell borders to 1e-15
+    clipped = shapely.intersection(strips, np.repeat(outlines, sizes), grid_size=_GRID_M)
+    covered = float(shapely.area(clipped).sum())
+    last = np.cumsum(sizes) - 1
+    pairs = last[sizes > 1]
+    if len(pairs):
+        overlap = shapely.intersection(clipped[pairs], clipped[pairs - 1], grid_size=_GRID_M)
+        covered -= float(shapely.area(overlap).sum())
+    total = float((lines[:, 2] - lines[:, 1]).sum())
+    return (float(len(lines)), round(area - covered, 2), round(total, 3))
 
 
 def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray[np.int64]:
@@ -522,108 +542,151 @@ def _snap_levels(values: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.unique(rep), rep[np.searchsorted(uniq, values)]
 
 
-def _decompose(edges: _Edges, angle_deg: float, w: float, field_id: str) -> list[_Cell]:
-    """Boustrophedon cells of the region at ``angle_deg`` and their swath lines.
+@dataclass(frozen=True)
+class _Sweep:
+    """Boustrophedon decomposition of the swath region at one angle, in the swath frame.
 
-    The region is cut at every vertex level into trapezoids (two boundary edges each).
-    A trapezoid continues its cell into the band above when it touches exactly one
-    trapezoid there, that one touches only it, and their widths match at the shared level
-    (so a step parallel to the swaths starts a new cell with its own swath offsets).
+    The region is cut at every vertex level into trapezoids bounded by two edges. A
+    trapezoid continues its cell into the band above when it touches exactly one trapezoid
+    there, that one touches only it, and their widths match at the shared level: a step
+    parallel to the swaths starts a new cell with its own swath offsets.
     """
+
+    levels: FloatArray  # sweep levels (v), increasing
+    ua: FloatArray  # edge ends in the swath frame, v snapped to the levels
+    va: FloatArray
+    ub: FloatArray
+    vb: FloatArray
+    band: NDArray[np.int64]  # per trapezoid, sorted by band then u
+    left: NDArray[np.int64]  # left and right edge of each trapezoid
+    right: NDArray[np.int64]
+    chain: NDArray[np.int64]  # trapezoids ordered by cell, bottom to top
+    cell_start: NDArray[np.int64]  # offsets of each cell in ``chain`` (plus the end)
+
+    def u_at(self, edge: NDArray[np.int64], v: FloatArray) -> FloatArray:
+        """Abscissa of ``edge`` at level ``v`` (exact at its ends)."""
+        va, vb, ua, ub = self.va[edge], self.vb[edge], self.ua[edge], self.ub[edge]
+        dv = np.where(vb != va, vb - va, 1.0)
+        u = ua + (v - va) * (ub - ua) / dv
+        return np.where(v == va, ua, np.where(v == vb, ub, u))
+
+    def _extent(self) -> tuple[FloatArray, FloatArray]:
+        first = self.chain[self.cell_start[:-1]]
+        last = self.chain[self.cell_start[1:] - 1]
+        return self.levels[self.band[first]], self.levels[self.band[last] + 1]
+
+    def count(self, w: float) -> int:
+        """Number of swaths :meth:`cells` lays out (before dropping degenerate ones)."""
+        bottom, top = self._extent()
+        height = top - bottom
+        n = np.maximum(np.ceil(height / w - 1e-9), 1)
+        return int(n[height >= MIN_CELL_FRACTION * w].sum())
+
+    def cells(self, w: float) -> list[_Cell]:
+        """Each cell's swath lines, from half a width above its bottom, every width."""
+        bottom, top = self._extent()
+        height = top - bottom
+        n = np.maximum(np.ceil(height / w - 1e-9), 1).astype(np.int64)
+        n[height < MIN_CELL_FRACTION * w] = 0
+        cell_of = np.repeat(np.arange(len(n)), n)
+        k = np.arange(len(cell_of)) - np.repeat(np.cumsum(n) - n, n)
+        ys = bottom[cell_of] + w / 2 + k * w
+        is_last = k == n[cell_of] - 1
+        ys = np.where(is_last, np.minimum(ys, top[cell_of] - w / 2), ys)
+        ys = np.where(height[cell_of] < w, (bottom[cell_of] + top[cell_of]) / 2, ys)
+        first_band = self.band[self.chain[self.cell_start[:-1]]]
+        last_band = self.band[self.chain[self.cell_start[1:] - 1]]
+        band = np.clip(
+            np.searchsorted(self.levels, ys, side="right") - 1,
+            first_band[cell_of],
+            last_band[cell_of],
+        )
+        trap = self.chain[self.cell_start[cell_of] + band - first_band[cell_of]]
+        u_left, u_right = self.u_at(self.left[trap], ys), self.u_at(self.right[trap], ys)
+        keep = u_right - u_left > MIN_SWATH_M
+
+        cells: list[_Cell] = []
+        for c in np.unique(cell_of[keep]):
+            mine = keep & (cell_of == c)
+            traps = self.chain[self.cell_start[c] : self.cell_start[c + 1]]
+            v_levels = np.append(self.levels[self.band[traps]], top[c])
+            lefts = np.append(self.left[traps], self.left[traps[-1]])
+            rights = np.append(self.right[traps], self.right[traps[-1]])
+            outline = np.vstack(
+                [
+                    np.column_stack([self.u_at(lefts, v_levels), v_levels]),
+                    np.column_stack([self.u_at(rights, v_levels), v_levels])[::-1],
+                ]
+            )
+            cells.append(_Cell(np.column_stack([ys, u_left, u_right])[mine], outline))
+        return cells
+
+
+def _sweep(edges: _Edges, angle_deg: float, field_id: str) -> _Sweep:
+    """Decompose the region bounded by ``edges`` for swaths along ``angle_deg``."""
     ua, va = _rotate(edges.ax, edges.ay, angle_deg)
     ub, vb = _rotate(edges.bx, edges.by, angle_deg)
     levels, snapped = _snap_levels(np.concatenate([va, vb]))
     va, vb = snapped[: len(va)], snapped[len(va) :]
     lo = np.searchsorted(levels, np.minimum(va, vb))
     hi = np.searchsorted(levels, np.maximum(va, vb))
-    slope = np.divide(ub - ua, vb - va, out=np.zeros_like(ua), where=vb != va)
-
-    def u_at(edge: NDArray[np.int64], v: FloatArray) -> FloatArray:
-        u = ua[edge] + (v - va[edge]) * slope[edge]
-        return np.where(v == va[edge], ua[edge], np.where(v == vb[edge], ub[edge], u))
-
     span = hi - lo
     edge_of = np.repeat(np.arange(len(ua)), span)
-    first = np.cumsum(span) - span
-    band_of = lo[edge_of] + (np.arange(len(edge_of)) - first[edge_of])
+    band_of = lo[edge_of] + np.arange(len(edge_of)) - np.repeat(np.cumsum(span) - span, span)
+    partial = _Sweep(levels, ua, va, ub, vb, *(np.empty(0, np.int64),) * 5)
     mid = (levels[band_of] + levels[band_of + 1]) / 2
-    order = np.lexsort((u_at(edge_of, mid), band_of))
+    order = np.lexsort((partial.u_at(edge_of, mid), band_of))
     left, right = order[0::2], order[1::2]
     if len(left) != len(right) or np.any(band_of[left] != band_of[right]):
         raise GeometryError(
             f"field {field_id!r}: the outline has features under {_SNAP_M * 1000:g} mm"
             " that cannot be decomposed; simplify it"
         )
-    band = band_of[left]
-    tl, tr = edge_of[left], edge_of[right]
-    bottom, top = levels[band], levels[band + 1]
-    bot_l, bot_r = u_at(tl, bottom), u_at(tr, bottom)
-    top_l, top_r = u_at(tl, top), u_at(tr, top)
+    band, tl, tr = band_of[left], edge_of[left], edge_of[right]
+    top = levels[band + 1]
+    bot_l, bot_r = partial.u_at(tl, levels[band]), partial.u_at(tr, levels[band])
+    top_l, top_r = partial.u_at(tl, top), partial.u_at(tr, top)
 
-    # link trapezoids across each level where their intervals overlap
-    n_traps = len(band)
-    up: list[list[int]] = [[] for _ in range(n_traps)]
-    down: list[list[int]] = [[] for _ in range(n_traps)]
-    band_start = np.searchsorted(band, np.arange(len(levels)))
-    for j in range(len(levels) - 2):
-        below = range(band_start[j], band_start[j + 1])
-        above = range(band_start[j + 1], band_start[j + 2])
-        i = k = 0
-        while i < len(below) and k < len(above):
-            a, b = below[i], above[k]
-            if min(top_r[a], bot_r[b]) - max(top_l[a], bot_l[b]) > _EPS_M:
-                up[a].append(b)
-                down[b].append(a)
-            if top_r[a] < bot_r[b]:
-                i += 1
-            else:
-                k += 1
+    # link each trapezoid to those of the band below whose intervals overlap its own; per
+    # band the intervals are disjoint and sorted, so the overlapping ones are contiguous
+    span_u = float(max(np.abs(ua).max(), np.abs(ub).max())) * 2 + 1.0
+    key_l = band * span_u * 2 + top_l
+    key_r = band * span_u * 2 + top_r
+    below = (band - 1) * span_u * 2
+    first = np.searchsorted(key_r, below + bot_l + _EPS_M, side="right")
+    last = np.searchsorted(key_l, below + bot_r - _EPS_M, side="left") - 1
+    has_below = band > 0
+    first = np.where(has_below, np.maximum(first, np.searchsorted(band, band - 1)), 0)
+    last = np.where(has_below, np.minimum(last, np.searchsorted(band, band) - 1), -1)
+    n_links = np.maximum(last - first + 1, 0)
+    upper = np.repeat(np.arange(len(band)), n_links)
+    lower = (
+        np.repeat(first, n_links)
+        + np.arange(len(upper))
+        - np.repeat(np.cumsum(n_links) - n_links, n_links)
+    )
+    real = (top_r[lower] - top_l[lower] > _EPS_M) & (bot_r[upper] - bot_l[upper] > _EPS_M)
+    upper, lower = upper[real], lower[real]
+    n_up = np.bincount(lower, minlength=len(band))
+    n_down = np.bincount(upper, minlength=len(band))
+    same_width = (np.abs(top_l[lower] - bot_l[upper]) <= 10 * _EPS_M) & (
+        np.abs(top_r[lower] - bot_r[upper]) <= 10 * _EPS_M
+    )
+    merge = (n_up[lower] == 1) & (n_down[upper] == 1) & same_width
+    below_of = np.full(len(band), -1)
+    below_of[upper[merge]] = lower[merge]
 
-    cell_of = np.full(n_traps, -1)
-    chains: list[list[int]] = []
-    for t in range(n_traps):  # trapezoids come sorted by band, so predecessors come first
-        if cell_of[t] < 0:
-            cell_of[t] = len(chains)
-            chains.append([t])
-        if len(up[t]) == 1:
-            nxt = up[t][0]
-            same_width = (
-                abs(top_l[t] - bot_l[nxt]) <= _EPS_M * 10
-                and abs(top_r[t] - bot_r[nxt]) <= _EPS_M * 10
-            )
-            if len(down[nxt]) == 1 and same_width:
-                cell_of[nxt] = cell_of[t]
-                chains[cell_of[t]].append(nxt)
-
-    cells: list[_Cell] = []
-    for chain in chains:
-        trap = np.asarray(chain)
-        v_lo, v_hi = float(bottom[trap[0]]), float(top[trap[-1]])
-        height = v_hi - v_lo
-        if height < MIN_CELL_FRACTION * w:
-            continue
-        n = max(math.ceil(height / w - 1e-9), 1)
-        ys: FloatArray = v_lo + w / 2 + np.arange(n, dtype=np.float64) * w
-        ys[-1] = min(ys[-1], v_hi - w / 2)
-        if height < w:
-            ys[:] = (v_lo + v_hi) / 2
-        which = np.clip(
-            np.searchsorted(levels, ys, side="right") - 1 - band[trap[0]], 0, len(trap) - 1
-        )
-        t = trap[which]
-        u_left, u_right = u_at(tl[t], ys), u_at(tr[t], ys)
-        keep = u_right - u_left > MIN_SWATH_M
-        if not np.any(keep):
-            continue
-        lines = np.column_stack([ys, u_left, u_right])[keep]
-        left_chain = np.column_stack(
-            [np.append(bot_l[trap], top_l[trap[-1]]), np.append(bottom[trap], v_hi)]
-        )
-        right_chain = np.column_stack(
-            [np.append(bot_r[trap], top_r[trap[-1]]), np.append(bottom[trap], v_hi)]
-        )[::-1]
-        cells.append(_Cell(lines, np.vstack([left_chain, right_chain])))
-    return cells
+    cell_of = np.empty(len(band), dtype=np.int64)
+    n_cells = 0
+    for t, b in enumerate(below_of.tolist()):  # sorted by band: the one below comes first
+        if b < 0:
+            cell_of[t] = n_cells
+            n_cells += 1
+        else:
+            cell_of[t] = cell_of[b]
+    chain = np.lexsort((band, cell_of))
+    cell_start = np.searchsorted(cell_of[chain], np.arange(n_cells + 1))
+    return _Sweep(levels, ua, va, ub, vb, band, tl, tr, chain, cell_start)
 
 
 def _extend_to_lane(cells: list[_Cell], lane: _Edges, angle_deg: float) -> list[_Cell]:
@@ -659,7 +722,7 @@ def _to_polygon(outline: FloatArray, angle: float, ref: FloatArray) -> Polygon:
 
 
 def _cell_swaths(cell: _Cell, from_top: bool, reverse_first: bool) -> FloatArray:
-    """(n, 5) rows u_start, u_end, v, index, 0 for one cell driven back and forth."""
+    """Rows ``u_start, u_end, v, index`` of one cell driven back and forth."""
     n = len(cell.lines)
     idx = np.arange(n)[::-1] if from_top else np.arange(n)
     forward = (np.arange(n) % 2 == 0) != reverse_first
@@ -668,7 +731,9 @@ def _cell_swaths(cell: _Cell, from_top: bool, reverse_first: bool) -> FloatArray
 
 
 def _drive(cells: Sequence[_Cell], corner: int, angle: float, ref: FloatArray) -> tuple[Swath, ...]:
-    """Swaths from ``corner``: start cell nearest that corner, then nearest next cell entry."""
+    """Swaths from ``corner``: the cell whose entry is nearest that corner of the swaths'
+    bounding box first, entered as the corner says; then, greedily, the cell and entry
+    nearest to where the previous cell was left."""
     every = np.vstack([c.lines for c in cells])
     u_min, u_max = float(every[:, 1].min()), float(every[:, 2].max())
     v_min, v_max = float(every[:, 0].min()), float(every[:, 0].max())
@@ -676,52 +741,48 @@ def _drive(cells: Sequence[_Cell], corner: int, angle: float, ref: FloatArray) -
     orientations = [_CORNER_ORIENTATION[corner]] + [
         o for o in _CORNER_ORIENTATION if o != _CORNER_ORIENTATION[corner]
     ]
+    # entry and exit point of every cell in every orientation: (cells, 4, 2)
+    entries = np.empty((len(cells), 4, 2))
+    exits = np.empty((len(cells), 4, 2))
+    for ci, cell in enumerate(cells):
+        bottom, top = cell.lines[0], cell.lines[-1]
+        odd = len(cell.lines) % 2 == 1
+        for oi, (from_top, reverse_first) in enumerate(orientations):
+            first, last = (top, bottom) if from_top else (bottom, top)
+            entries[ci, oi] = (first[2] if reverse_first else first[1], first[0])
+            ends_forward = reverse_first != odd  # the last swath drives +u
+            exits[ci, oi] = (last[2] if ends_forward else last[1], last[0])
 
-    plans = {(ci, o): _cell_swaths(cell, *o) for ci, cell in enumerate(cells) for o in orientations}
+    gaps = np.hypot(*(entries[:, 0] - target).T)
+    current = int(np.argmin(gaps))  # ties: the lowest cell index
+    sequence = [(current, 0)]
+    done = np.zeros(len(cells), dtype=bool)
+    done[current] = True
+    for _ in range(len(cells) - 1):
+        position = exits[current, sequence[-1][1]]
+        gaps = np.hypot(entries[..., 0] - position[0], entries[..., 1] - position[1])
+        gaps[done] = np.inf
+        current, oi = divmod(int(np.argmin(gaps)), 4)
+        sequence.append((current, oi))
+        done[current] = True
 
-    def entry(ci: int, o: tuple[bool, bool]) -> FloatArray:
-        row = plans[ci, o][0]
-        return np.array([row[0], row[2]])
-
-    def exit_(ci: int, o: tuple[bool, bool]) -> FloatArray:
-        row = plans[ci, o][-1]
-        return np.array([row[1], row[2]])
-
-    first_o = orientations[0]
-    first = min(
-        range(len(cells)), key=lambda ci: (float(np.hypot(*(entry(ci, first_o) - target))), ci)
-    )
-    sequence = [(first, first_o)]
-    left = [ci for ci in range(len(cells)) if ci != first]
-    position = exit_(first, first_o)
-    while left:
-        best = min(
-            (
-                (float(np.hypot(*(entry(ci, o) - position))), ci, oi)
-                for ci in left
-                for oi, o in enumerate(orientations)
-            ),
+    rows = np.vstack([_cell_swaths(cells[ci], *orientations[oi]) for ci, oi in sequence])
+    cell_ids = np.concatenate([np.full(len(cells[ci].lines), ci) for ci, _ in sequence])
+    x0, y0 = _unrotate(rows[:, 0], rows[:, 2], angle)
+    x1, y1 = _unrotate(rows[:, 1], rows[:, 2], angle)
+    rx, ry = float(ref[0]), float(ref[1])
+    return tuple(
+        Swath((xa + rx, ya + ry), (xb + rx, yb + ry), c, i)
+        for xa, ya, xb, yb, c, i in zip(
+            x0.tolist(),
+            y0.tolist(),
+            x1.tolist(),
+            y1.tolist(),
+            cell_ids.tolist(),
+            rows[:, 3].astype(np.int64).tolist(),
+            strict=True,
         )
-        _, ci, oi = best
-        sequence.append((ci, orientations[oi]))
-        left.remove(ci)
-        position = exit_(ci, orientations[oi])
-
-    swaths: list[Swath] = []
-    for ci, o in sequence:
-        rows = plans[ci, o]
-        x0, y0 = _unrotate(rows[:, 0], rows[:, 2], angle)
-        x1, y1 = _unrotate(rows[:, 1], rows[:, 2], angle)
-        for k in range(len(rows)):
-            swaths.append(
-                Swath(
-                    (float(x0[k] + ref[0]), float(y0[k] + ref[1])),
-                    (float(x1[k] + ref[0]), float(y1[k] + ref[1])),
-                    ci,
-                    int(rows[k, 3]),
-                )
-            )
-    return tuple(swaths)
+    )
 
 
 def _transit_m(
@@ -741,8 +802,9 @@ def _transit_m(
 class _InFieldDistance:
     """Shortest driving distance between two points without leaving the field.
 
-    Straight when the segment stays inside; otherwise Dijkstra over the field's
-    visibility graph (paths bend only at vertices where the free space is reflex).
+    Straight when the segment stays inside; otherwise Dijkstra over the field's visibility
+    graph, whose nodes are the vertices where the free space is reflex (exterior vertices
+    turning right, hole vertices turning right in the holes' clockwise order).
     """
 
     def __init__(self, field_poly: Polygon) -> None:
@@ -754,11 +816,13 @@ class _InFieldDistance:
             into, out = c - np.roll(c, 1, axis=0), np.roll(c, -1, axis=0) - c
             turn = into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0]
             corners.append(c[turn < 0.0])
-        self._nodes = np.vstack(corners) if corners else np.empty((0, 2))
+        self._nodes = np.vstack(corners)
         self._graph: FloatArray | None = None
+        self._known: dict[tuple[XY, XY], float] = {}
 
     def _visible(self, a: FloatArray, b: FloatArray) -> NDArray[np.bool_]:
-        lines = shapely.linestrings(np.stack([a, b], axis=1))
+        a, b = np.broadcast_arrays(a, b)
+        lines = shapely.linestrings(np.stack([a, b], axis=-2))
         return np.asarray(shapely.covers(self._inside, lines), dtype=bool)
 
     def _node_graph(self) -> FloatArray:
@@ -775,37 +839,32 @@ class _InFieldDistance:
         return self._graph
 
     def __call__(self, a: XY, b: XY) -> float:
-        pa, pb = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-        straight = float(np.hypot(*(pb - pa)))
-        if straight < _EPS_M or self._visible(pa[None], pb[None])[0]:
+        if (a, b) not in self._known:
+            self._known[a, b] = self._shortest(np.asarray(a), np.asarray(b))
+        return self._known[a, b]
+
+    def _shortest(self, a: FloatArray, b: FloatArray) -> float:
+        straight = float(np.hypot(*(b - a)))
+        if straight < _EPS_M or self._visible(a, b):
             return straight
         nodes = self._nodes
-        n = len(nodes)
-        if n == 0:
-            logger.warning("no in-field path between %s and %s; using the straight line", a, b)
+        if len(nodes) == 0:
+            logger.warning("no in-field path from %s to %s; counting the straight line", a, b)
             return straight
         graph = self._node_graph()
-        dist_a = np.where(
-            self._visible(np.repeat(pa[None], n, 0), nodes), np.hypot(*(nodes - pa).T), np.inf
-        )
-        dist_b = np.where(
-            self._visible(np.repeat(pb[None], n, 0), nodes), np.hypot(*(nodes - pb).T), np.inf
-        )
-        best: dict[int, float] = {}
-        heap = [(float(d), i) for i, d in enumerate(dist_a) if math.isfinite(d)]
-        heapq.heapify(heap)
-        result = math.inf
-        while heap:
-            d, i = heapq.heappop(heap)
-            if i in best or d >= result:
-                continue
-            best[i] = d
-            result = min(result, d + float(dist_b[i]))
-            row = graph[i]
-            for j in np.flatnonzero(np.isfinite(row)):
-                if int(j) not in best:
-                    heapq.heappush(heap, (d + float(row[j]), int(j)))
-        if not math.isfinite(result):
-            logger.warning("no in-field path between %s and %s; using the straight line", a, b)
+        to_b = np.where(self._visible(nodes, b), np.hypot(*(nodes - b).T), np.inf)
+        dist = np.where(self._visible(a, nodes), np.hypot(*(nodes - a).T), np.inf)
+        settled = np.zeros(len(nodes), dtype=bool)
+        best = math.inf
+        while True:  # dense Dijkstra, stopped once no unsettled node can improve on best
+            tentative = np.where(settled, np.inf, dist)
+            i = int(np.argmin(tentative))
+            if tentative[i] >= best:
+                break
+            settled[i] = True
+            best = min(best, float(dist[i] + to_b[i]))
+            dist = np.minimum(dist, dist[i] + graph[i])
+        if not math.isfinite(best):
+            logger.warning("no in-field path from %s to %s; counting the straight line", a, b)
             return straight
-        return result
+        return best

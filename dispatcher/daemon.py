@@ -1,0 +1,306 @@
+"""The dispatcher daemon: plan → upload every mission over Zenoh → start → follow → record.
+
+Shaped like uvicorn's server: :class:`DaemonConfig` → :class:`Dispatcher` with
+``startup`` / ``main_loop`` / ``shutdown`` and ``run()``. Signal handlers only set a
+flag; shutdown is bounded by a timeout. Zenoh callbacks only queue what arrives (with its
+receive time); the main loop decodes, records, updates :class:`FleetState` and answers.
+
+Every frame sent or received is recorded to MCAP with its key expression: the raw bytes
+and a decoded JSON view; positions as foxglove.LocationFix; plan and status JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from dispatcher import mavlink_codec as mc
+from dispatcher import wire
+from dispatcher.mission_client import CommandSequence, MissionUpload, Outcome, start_mission_commands
+from dispatcher.plan_output import DispatchPlan, plan_geojson
+from dispatcher.recording import Recorder
+from dispatcher.state import ACTIVE, FleetState, Phase
+
+log = logging.getLogger(__name__)
+
+EXIT_OK = 0
+EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lost)
+EXIT_INTERRUPTED = 130
+
+
+@dataclass
+class DaemonConfig:
+    dispatch: DispatchPlan
+    zenoh: wire.ZenohOptions = field(default_factory=wire.dispatcher_options)
+    log_dir: Path = Path("logs")
+    heartbeat_timeout_s: float = 5.0  # wall seconds without a message: vehicle lost
+    alive_timeout_s: float = 60.0  # wall seconds for every vehicle to show up
+    status_period_s: float = 1.0
+    shutdown_timeout_s: float = 5.0
+    exit_when_done: bool = True
+    on_progress: Callable[[FleetState], None] | None = None  # called at status_period_s
+
+
+@dataclass
+class _Link:
+    """Per-vehicle protocol state: the upload, then the start commands."""
+
+    upload: MissionUpload | None = None
+    start: CommandSequence | None = None
+
+
+class Dispatcher:
+    def __init__(self, config: DaemonConfig) -> None:
+        self.config = config
+        self.dispatch = config.dispatch
+        self.farm = self.dispatch.scenario.farm_id
+        self.state = FleetState(self.dispatch)
+        self.codec = mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID)
+        self.should_exit = threading.Event()
+        self.inbox: queue.Queue[tuple[str, str, bytes, int]] = queue.Queue()
+        self.links = {vid: _Link() for vid in self.state.vehicles}
+        self.session: zenoh.Session | None = None
+        self.recorder: Recorder | None = None
+        self.publishers: dict[str, Any] = {}
+        self._entities: list[Any] = []
+        self._last_status = 0.0
+        self._started = time.monotonic()
+        self.log_path: Path | None = None
+        self._status_snapshot: dict[str, Any] = {}
+        self.upload_started: float | None = None
+        self.all_acknowledged: float | None = None
+
+    # --- lifecycle -----------------------------------------------------------------------
+    def run(self) -> int:
+        """Start, run until every field is done (or a signal), shut down; an exit code."""
+        installed = self._install_signal_handlers()
+        try:
+            self.startup()
+            code = self.main_loop()
+        finally:
+            self.shutdown()
+            for sig, handler in installed:
+                signal.signal(sig, handler)
+        return code
+
+    def startup(self) -> None:
+        cfg = self.config
+        self._started = time.monotonic()
+        self.recorder = Recorder.create_in(
+            cfg.log_dir, self.farm, metadata={"plan_id": self.dispatch.plan_id}
+        )
+        self.log_path = Path(self.recorder.path) if self.recorder.path else None
+        log.info("recording to %s", self.log_path)
+        self.session = zenoh.open(cfg.zenoh.config())
+        s = self.session
+        self._entities.append(s.declare_subscriber(
+            f"{wire.PREFIX}/{self.farm}/vehicle/*/mavlink/from", self._on_frame))
+        self._entities.append(s.liveliness().declare_subscriber(
+            f"{wire.PREFIX}/{self.farm}/vehicle/*/alive", self._on_liveliness, history=True))
+        self._entities.append(s.declare_queryable(wire.dispatcher_status(self.farm), self._on_query))
+        for vid in self.state.vehicles:
+            self.publishers[vid] = s.declare_publisher(wire.vehicle_to(self.farm, vid))
+        self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
+        now_ns = time.time_ns()
+        self.recorder.record_plan(self.dispatch.document, plan_geojson(self.dispatch), now_ns)
+        self.publishers["plan"].put(json.dumps(self.dispatch.document))
+        self._log("info", f"plan {self.dispatch.plan_id} published; waiting for "
+                          f"{len(self.state.vehicles)} vehicles")
+
+    def main_loop(self) -> int:
+        while not self.should_exit.is_set():
+            try:
+                item = self.inbox.get(timeout=0.05)
+            except queue.Empty:
+                item = None
+            now = time.monotonic()
+            while item is not None:
+                self._handle(item, now)
+                try:
+                    item = self.inbox.get_nowait()
+                except queue.Empty:
+                    item = None
+            self._tick(now)
+            if self.config.exit_when_done and self.state.finished():
+                self._publish_status(now)
+                break
+        if self.should_exit.is_set():
+            self._log("warning", "interrupted")
+            return EXIT_INTERRUPTED
+        return EXIT_OK if self.state.all_fields_done() else EXIT_INCOMPLETE
+
+    def shutdown(self) -> None:
+        """Undeclare, close the session and finish the MCAP file, within the timeout."""
+        done = threading.Event()
+
+        def close() -> None:
+            try:
+                for entity in self._entities:
+                    entity.undeclare()
+                for pub in self.publishers.values():
+                    pub.undeclare()
+                if self.session is not None:
+                    self.session.close()
+            except Exception:  # noqa: BLE001 - shutting down anyway
+                log.exception("closing the zenoh session")
+            done.set()
+
+        closer = threading.Thread(target=close, daemon=True)
+        closer.start()
+        done.wait(self.config.shutdown_timeout_s)
+        if not done.is_set():
+            log.warning("zenoh session did not close within %.1f s", self.config.shutdown_timeout_s)
+        # Drain what arrived in the meantime so the log holds every received frame.
+        while True:
+            try:
+                self._record_only(self.inbox.get_nowait())
+            except queue.Empty:
+                break
+        if self.recorder is not None:
+            self.recorder.record_status(self.state.status_doc(), time.time_ns())
+            self.recorder.finish()
+            log.info("log finished: %s", self.log_path)
+
+    def _install_signal_handlers(self) -> list[tuple[int, Any]]:
+        if threading.current_thread() is not threading.main_thread():
+            return []
+        installed = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            installed.append((sig, signal.getsignal(sig)))
+            signal.signal(sig, lambda *_: self.should_exit.set())
+        return installed
+
+    # --- zenoh callbacks (other threads): queue only ------------------------------------
+    def _on_frame(self, sample: zenoh.Sample) -> None:
+        self.inbox.put(("frame", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
+        self.inbox.put((kind, str(sample.key_expr), b"", time.time_ns()))
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, json.dumps(self._status_snapshot))
+
+    # --- main loop -----------------------------------------------------------------------
+    def _handle(self, item: tuple[str, str, bytes, int], now: float) -> None:
+        kind, key, payload, t_ns = item
+        vid = wire.vehicle_of(key)
+        if vid not in self.state.vehicles:
+            self._record_only(item)
+            return
+        if kind == "alive":
+            self._log("info", f"{vid} is alive")
+            self.state.on_alive(vid, now)
+            return
+        if kind == "gone":
+            self._log("warning", f"{vid} dropped its liveliness token")
+            self.state.on_gone(vid, now, "liveliness token dropped")
+            return
+        msg = self._record_only(item)
+        if msg is None:
+            return
+        v = self.state.vehicles[vid]
+        if msg.get_srcSystem() != v.system_id:
+            return
+        self.state.on_message(vid, msg, now)
+        if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
+            self.recorder.record_location(vid, msg.lat / 1e7, msg.lon / 1e7, t_ns,
+                                          msg.time_boot_ms / 1000.0)
+        link = self.links[vid]
+        for machine in (link.upload, link.start):
+            if machine is not None and machine.outcome is Outcome.RUNNING:
+                self._send(vid, machine.on_message(msg, now))
+        self._advance(vid, now)
+
+    def _record_only(self, item: tuple[str, str, bytes, int]) -> mc.MAVLinkMessage | None:
+        kind, key, payload, t_ns = item
+        if kind != "frame":
+            return None
+        msg = self.codec.decode_one(payload)
+        if self.recorder is not None:
+            self.recorder.record_frame(key, payload, t_ns, mc.as_dict(msg) if msg else None)
+        return msg
+
+    def _tick(self, now: float) -> None:
+        for vid, v in self.state.vehicles.items():
+            link = self.links[vid]
+            for machine in (link.upload, link.start):
+                if machine is not None and machine.outcome is Outcome.RUNNING:
+                    self._send(vid, machine.on_tick(now))
+            self._advance(vid, now)
+            if (v.phase in ACTIVE and v.last_seen is not None
+                    and now - v.last_seen > self.config.heartbeat_timeout_s):
+                self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
+                self.state.on_gone(vid, now, "heartbeats stopped")
+            if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
+                self._log("error", f"{vid}: never came alive")
+                self.state.on_gone(vid, now, "never came alive")
+        if now - self._last_status >= self.config.status_period_s:
+            self._publish_status(now)
+
+    def _advance(self, vid: str, now: float) -> None:
+        """Move a vehicle's link on: upload once alive, start once uploaded."""
+        v = self.state.vehicles[vid]
+        link = self.links[vid]
+        if v.phase is Phase.ALIVE and link.upload is None:
+            v.phase = Phase.UPLOADING
+            v.upload_attempts += 1
+            if self.upload_started is None:
+                self.upload_started = now
+            link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
+            self._log("info", f"{vid}: uploading {len(v.mission)} mission items")
+            self._send(vid, link.upload.start(now))
+        elif v.phase is Phase.UPLOADING and link.upload is not None:
+            v.upload_retries = link.upload.stats.retries
+            if link.upload.outcome is Outcome.DONE:
+                self._log("info", f"{vid}: mission acknowledged")
+                if all(lk.upload is not None and lk.upload.outcome is Outcome.DONE
+                       for lk in self.links.values()):
+                    self.all_acknowledged = now
+                v.phase = Phase.STARTING
+                link.start = CommandSequence(start_mission_commands(), v.system_id)
+                self._send(vid, link.start.start(now))
+            elif link.upload.outcome is Outcome.FAILED:
+                v.phase = Phase.FAILED
+                v.error = f"upload failed: {link.upload.reason}"
+                self._log("error", f"{vid}: {v.error}")
+        elif v.phase is Phase.STARTING and link.start is not None:
+            if link.start.outcome is Outcome.DONE:
+                v.phase = Phase.RUNNING
+                self._log("info", f"{vid}: armed and in AUTO, mission started")
+            elif link.start.outcome is Outcome.FAILED:
+                v.phase = Phase.FAILED
+                v.error = f"start failed: {link.start.reason}"
+                self._log("error", f"{vid}: {v.error}")
+
+    def _send(self, vid: str, messages: list[mc.MAVLinkMessage]) -> None:
+        key = wire.vehicle_to(self.farm, vid)
+        for msg in messages:
+            frame = self.codec.encode(msg)
+            self.publishers[vid].put(frame)
+            if self.recorder is not None:
+                self.recorder.record_frame(key, frame, time.time_ns(), mc.as_dict(msg))
+
+    def _publish_status(self, now: float) -> None:
+        self._last_status = now
+        doc = self.state.status_doc()
+        self._status_snapshot = doc
+        if self.recorder is not None:
+            self.recorder.record_status(doc, time.time_ns())
+        if self.config.on_progress is not None:
+            self.config.on_progress(self.state)
+
+    def _log(self, level: str, text: str) -> None:
+        getattr(log, level)(text)
+        if self.recorder is not None:
+            self.recorder.record_log(level, text, time.time_ns())

@@ -1,0 +1,224 @@
+"""The ground-station side of the MAVLink mission and command protocols, without I/O.
+
+Each machine here is fed the vehicle's messages (``on_message``) and the clock
+(``on_tick``) and answers with the messages to send; the daemon does the sending. That
+keeps the protocol testable against recorded exchanges and a simulated vehicle alike.
+
+Mission upload (https://mavlink.io/en/services/mission.html): MISSION_COUNT, then the
+vehicle pulls each item with MISSION_REQUEST_INT(seq) and ends with MISSION_ACK. Timeouts
+follow the protocol: 1.5 s without an answer resends the last message, at most 5 times.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from dispatcher import mavlink_codec as mc
+
+log = logging.getLogger(__name__)
+
+REQUEST_TIMEOUT_S = 1.5
+MAX_RETRIES = 5
+
+# ArduPilot Rover flight modes (Rover/mode.h).
+ROVER_MODE_MANUAL = 0
+ROVER_MODE_HOLD = 4
+ROVER_MODE_AUTO = 10
+ROVER_MODE_RTL = 11
+
+
+class Outcome(enum.Enum):
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+
+
+@dataclass
+class Stats:
+    attempts: int = 1  # times the whole exchange was (re)started
+    retries: int = 0  # messages resent after a timeout
+
+
+class MissionUpload:
+    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+
+    def __init__(
+        self,
+        items: Sequence[mc.MAVLinkMessage],
+        target_system: int,
+        target_component: int = mc.MAV_COMP_ID_AUTOPILOT1,
+        timeout_s: float = REQUEST_TIMEOUT_S,
+        max_retries: int = MAX_RETRIES,
+    ) -> None:
+        self.items = list(items)
+        self.target_system = target_system
+        self.target_component = target_component
+        self.timeout_s = timeout_s
+        self.max_retries = max_retries
+        self.outcome = Outcome.RUNNING
+        self.reason = ""
+        self.stats = Stats()
+        self._last: mc.MAVLinkMessage | None = None
+        self._deadline = 0.0
+        self._retries_left = max_retries
+        self._sent_seqs: set[int] = set()
+
+    @property
+    def progress(self) -> float:
+        return len(self._sent_seqs) / max(len(self.items), 1)
+
+    def start(self, now: float) -> list[mc.MAVLinkMessage]:
+        count = mc.message(
+            "MISSION_COUNT", target_system=self.target_system,
+            target_component=self.target_component, count=len(self.items),
+            mission_type=mc.MAV_MISSION_TYPE_MISSION,
+        )
+        return self._send(count, now)
+
+    def on_message(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING:
+            return []
+        kind = msg.get_type()
+        if getattr(msg, "mission_type", 0) != mc.MAV_MISSION_TYPE_MISSION:
+            return []
+        if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            seq = int(msg.seq)
+            if not 0 <= seq < len(self.items):
+                return self._fail(f"vehicle asked for item {seq} of {len(self.items)}")
+            self._sent_seqs.add(seq)
+            self._retries_left = self.max_retries
+            return self._send(self.items[seq], now)
+        if kind == "MISSION_ACK":
+            result = int(msg.type)
+            if result == mc.MAV_MISSION_ACCEPTED:
+                if len(self._sent_seqs) < len(self.items):
+                    return self._fail(
+                        f"vehicle accepted after {len(self._sent_seqs)} of {len(self.items)} items"
+                    )
+                self.outcome = Outcome.DONE
+                return []
+            if result == mc.MAV_MISSION_INVALID_SEQUENCE:
+                # ArduPilot says so for an item it did not ask for and goes on with the
+                # transfer: keep waiting for its next request.
+                return []
+            return self._fail(f"vehicle refused the mission: {_mission_result(result)}")
+        return []
+
+    def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
+            return []
+        if self._retries_left <= 0:
+            return self._fail(
+                f"no answer to {self._last.get_type()} after {self.max_retries} retries"
+            )
+        self._retries_left -= 1
+        self.stats.retries += 1
+        log.debug("resending %s to system %d", self._last.get_type(), self.target_system)
+        return self._send(self._last, now)
+
+    def _send(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+        self._last = msg
+        self._deadline = now + self.timeout_s
+        return [msg]
+
+    def _fail(self, reason: str) -> list[mc.MAVLinkMessage]:
+        self.outcome = Outcome.FAILED
+        self.reason = reason
+        return []
+
+
+@dataclass(frozen=True)
+class Command:
+    command: int
+    params: tuple[float, ...] = ()
+
+
+class CommandSequence:
+    """Send COMMAND_LONGs one after another, each confirmed by its COMMAND_ACK; resend
+    (``confirmation`` + 1) after a timeout."""
+
+    def __init__(
+        self,
+        commands: Sequence[Command],
+        target_system: int,
+        target_component: int = mc.MAV_COMP_ID_AUTOPILOT1,
+        timeout_s: float = REQUEST_TIMEOUT_S,
+        max_retries: int = MAX_RETRIES,
+    ) -> None:
+        self.commands = list(commands)
+        self.target_system = target_system
+        self.target_component = target_component
+        self.timeout_s = timeout_s
+        self.max_retries = max_retries
+        self.outcome = Outcome.RUNNING
+        self.reason = ""
+        self.stats = Stats()
+        self._index = 0
+        self._confirmation = 0
+        self._deadline = 0.0
+
+    def start(self, now: float) -> list[mc.MAVLinkMessage]:
+        return [self._current(now)]
+
+    def on_message(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING or msg.get_type() != "COMMAND_ACK":
+            return []
+        if int(msg.command) != self.commands[self._index].command:
+            return []
+        result = int(msg.result)
+        if result == mc.MAV_RESULT_IN_PROGRESS:
+            self._deadline = now + self.timeout_s
+            return []
+        if result != mc.MAV_RESULT_ACCEPTED:
+            self.outcome = Outcome.FAILED
+            self.reason = (f"command {self.commands[self._index].command} refused "
+                           f"(MAV_RESULT {result})")
+            return []
+        self._index += 1
+        self._confirmation = 0
+        if self._index == len(self.commands):
+            self.outcome = Outcome.DONE
+            return []
+        return [self._current(now)]
+
+    def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING or now < self._deadline:
+            return []
+        if self._confirmation >= self.max_retries:
+            self.outcome = Outcome.FAILED
+            self.reason = f"no COMMAND_ACK for command {self.commands[self._index].command}"
+            return []
+        self._confirmation += 1
+        self.stats.retries += 1
+        return [self._current(now)]
+
+    def _current(self, now: float) -> mc.MAVLinkMessage:
+        cmd = self.commands[self._index]
+        params = (list(cmd.params) + [0.0] * 7)[:7]
+        self._deadline = now + self.timeout_s
+        return mc.message(
+            "COMMAND_LONG", target_system=self.target_system,
+            target_component=self.target_component, command=cmd.command,
+            confirmation=self._confirmation, param1=params[0], param2=params[1],
+            param3=params[2], param4=params[3], param5=params[4], param6=params[5],
+            param7=params[6],
+        )
+
+
+def start_mission_commands() -> list[Command]:
+    """Arm, then switch to AUTO: how a ground station starts an ArduPilot Rover mission."""
+    return [
+        Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
+        Command(mc.MAV_CMD_DO_SET_MODE,
+                (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO))),
+    ]
+
+
+def _mission_result(code: int) -> str:
+    for name in dir(mc.mavlink2):
+        if name.startswith("MAV_MISSION_") and getattr(mc.mavlink2, name) == code:
+            return name
+    return str(code)

@@ -1,0 +1,223 @@
+"""The dispatcher's state, kept in one place: every vehicle and every field.
+
+The daemon changes it only through the ``on_*`` methods, each fed one fact from the
+link (a heartbeat, an item reached, a lost token); status JSON, progress lines and the
+end-of-run summary are read from it. Times are simulated (vehicle) seconds where they
+come from the vehicle and wall seconds (``time.monotonic``) for link liveness.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from dispatcher import mavlink_codec as mc
+from dispatcher.missions import Mission
+from dispatcher.plan_output import DispatchPlan
+
+
+class Phase(str, enum.Enum):
+    WAITING = "waiting"  # no liveliness token yet
+    ALIVE = "alive"
+    UPLOADING = "uploading"
+    STARTING = "starting"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"  # upload or start refused or timed out
+    LOST = "lost"  # token gone or heartbeats stopped before the end
+
+
+ACTIVE = (Phase.UPLOADING, Phase.STARTING, Phase.RUNNING)
+
+
+@dataclass
+class VehicleState:
+    id: str
+    system_id: int
+    mission: Mission
+    planned_s: list[float]  # simulated seconds from the start to reaching each item
+    phase: Phase = Phase.WAITING
+    reached: int = 0  # highest item seq reached
+    current: int = 0
+    sim_time_s: float = 0.0
+    lat: float | None = None
+    lon: float | None = None
+    mode: int | None = None
+    armed: bool = False
+    last_seen: float | None = None  # wall clock of the last message
+    lost_at: float | None = None
+    lost_s: float = 0.0  # wall seconds without link, over the run
+    upload_attempts: int = 0
+    upload_retries: int = 0
+    error: str = ""
+    fields_done: list[str] = field(default_factory=list)
+
+    @property
+    def share_done(self) -> float:
+        total = self.planned_s[-1] if self.planned_s else 0.0
+        return 1.0 if total <= 0 else min(self.planned_s[self.reached] / total, 1.0)
+
+    @property
+    def eta_s(self) -> float:
+        """Simulated seconds of planned work left."""
+        return max(self.planned_s[-1] - self.planned_s[self.reached], 0.0) if self.planned_s else 0.0
+
+    @property
+    def current_field(self) -> str | None:
+        _, trace = self.mission.item_for_seq(min(max(self.current, self.reached), len(self.mission) - 1))
+        return trace.field_id
+
+
+@dataclass
+class FieldState:
+    id: str
+    vehicle: str
+    status: str = "pending"  # pending, working, done
+    started_s: float | None = None
+    finished_s: float | None = None
+    swaths_done: int = 0
+
+
+class FleetState:
+    def __init__(self, dispatch: DispatchPlan) -> None:
+        self.plan_id = dispatch.plan_id
+        vehicles = {v.id: v for v in dispatch.scenario.vehicles}
+        self.vehicles: dict[str, VehicleState] = {}
+        self.fields: dict[str, FieldState] = {}
+        for vid, mission in dispatch.missions.items():
+            self.vehicles[vid] = VehicleState(
+                id=vid, system_id=vehicles[vid].system_id, mission=mission,
+                planned_s=planned_times(mission, vehicles[vid].machine.road_speed_kmh),
+            )
+        for route in dispatch.plan.machines:
+            for fid in route.field_ids:
+                self.fields[fid] = FieldState(fid, route.machine.id)
+        self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
+
+    # --- facts from the link -------------------------------------------------------------
+    def on_alive(self, vid: str, now: float) -> None:
+        v = self.vehicles[vid]
+        if v.lost_at is not None:
+            v.lost_s += now - v.lost_at
+            v.lost_at = None
+        if v.phase in (Phase.WAITING, Phase.LOST) and v.reached == 0:
+            v.phase = Phase.ALIVE
+        elif v.phase is Phase.LOST:
+            v.phase = Phase.RUNNING
+        v.last_seen = now
+
+    def on_gone(self, vid: str, now: float, why: str) -> None:
+        v = self.vehicles[vid]
+        if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
+            return
+        v.phase = Phase.LOST
+        v.lost_at = now
+        v.error = why
+
+    def on_message(self, vid: str, msg: mc.MAVLinkMessage, now: float) -> None:
+        """Telemetry that any phase may bring."""
+        v = self.vehicles[vid]
+        v.last_seen = now
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            v.mode = int(msg.custom_mode)
+            v.armed = bool(msg.base_mode & mc.MAV_MODE_FLAG_SAFETY_ARMED)
+            if v.phase is Phase.WAITING:
+                v.phase = Phase.ALIVE
+        elif kind == "GLOBAL_POSITION_INT":
+            v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
+            v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
+        elif kind == "SYSTEM_TIME":
+            v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
+        elif kind == "MISSION_CURRENT":
+            v.current = int(msg.seq)
+        elif kind == "MISSION_ITEM_REACHED":
+            self.on_item_reached(vid, int(msg.seq))
+
+    def on_item_reached(self, vid: str, seq: int) -> None:
+        v = self.vehicles[vid]
+        if not 0 <= seq < len(v.mission) or v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST):
+            return
+        for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
+            self._item_done(v, s)
+        v.reached = max(v.reached, seq)
+        if v.reached == len(v.mission) - 1:
+            v.phase = Phase.DONE
+
+    def _item_done(self, v: VehicleState, seq: int) -> None:
+        _, trace = v.mission.item_for_seq(seq)
+        if trace.field_id is None or trace.field_id not in self.fields:
+            return
+        f = self.fields[trace.field_id]
+        if trace.role == "implement_down" and f.status == "pending":
+            f.status = "working"
+            f.started_s = v.sim_time_s
+        elif trace.role == "swath_end":
+            f.swaths_done += 1
+        elif trace.role == "implement_up" and f.status != "done":
+            f.status = "done"
+            f.finished_s = v.sim_time_s
+            if f.started_s is None:
+                f.started_s = v.sim_time_s
+            v.fields_done.append(f.id)
+
+    # --- reading -------------------------------------------------------------------------
+    def finished(self) -> bool:
+        """Nothing more will happen: every vehicle done, failed or lost."""
+        return all(v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST) for v in self.vehicles.values())
+
+    def all_fields_done(self) -> bool:
+        return all(f.status == "done" for f in self.fields.values())
+
+    def status_doc(self) -> dict[str, Any]:
+        return {
+            "plan_id": self.plan_id,
+            "vehicles": {
+                v.id: {
+                    "phase": v.phase.value, "system_id": v.system_id, "mode": v.mode,
+                    "armed": v.armed, "reached": v.reached, "items": len(v.mission),
+                    "current_field": v.current_field, "share_done": round(v.share_done, 4),
+                    "eta_s": round(v.eta_s, 1), "sim_time_s": round(v.sim_time_s, 1),
+                    "lat": v.lat, "lon": v.lon, "fields_done": v.fields_done,
+                    "upload_attempts": v.upload_attempts, "upload_retries": v.upload_retries,
+                    "lost_s": round(v.lost_s, 3), "error": v.error,
+                }
+                for v in self.vehicles.values()
+            },
+            "fields": {
+                f.id: {"status": f.status, "vehicle": f.vehicle, "started_s": f.started_s,
+                       "finished_s": f.finished_s, "swaths_done": f.swaths_done}
+                for f in self.fields.values()
+            },
+        }
+
+
+def planned_times(mission: Mission, road_speed_kmh: float) -> list[float]:
+    """Simulated seconds to reach each item when driving the mission's straight legs at
+    the speeds its DO_CHANGE_SPEED items set (the road speed until the first one)."""
+    speed = road_speed_kmh / 3.6
+    out = [0.0]
+    last: tuple[float, float] | None = None
+    t = 0.0
+    for item in mission.items[1:]:
+        if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
+            speed = float(item.param2)
+        elif item.is_waypoint:
+            here = (item.lat, item.lon)
+            if last is None:
+                first = mission.items[0]
+                last = (first.lat, first.lon)
+            t += _metres(last, here) / speed
+            last = here
+        out.append(t)
+    return out
+
+
+def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Equirectangular distance, ample for legs of a farm."""
+    lat = math.radians((a[0] + b[0]) / 2)
+    dy = math.radians(b[0] - a[0]) * 6371008.8
+    dx = math.radians(b[1] - a[1]) * 6371008.8 * math.cos(lat)
+    return math.hypot(dx, dy)

@@ -1,0 +1,136 @@
+"""`agrifleet plan`: every file, traceable missions, and each bad input rejected cleanly."""
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from pymavlink import mavwp
+
+from dispatcher.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+MACHINE = """
+[[machine]]
+id = "{id}"
+system_id = {sysid}
+working_width_m = {width}
+capacity_m2h = 5000
+work_speed_kmh = 0.9
+road_speed_kmh = 10
+turn_time_h = 0.003
+road_fuel_lh = 2.5
+work_fuel_lh = 5.0
+[machine.implement]
+kind = "relay"
+channel = 0
+"""
+
+
+def rect(lon0, lat0, w_m, h_m):
+    dlon = w_m / (111320 * math.cos(math.radians(lat0)))
+    dlat = h_m / 110540
+    return [[lon0, lat0], [lon0 + dlon, lat0], [lon0 + dlon, lat0 + dlat], [lon0, lat0 + dlat],
+            [lon0, lat0]]
+
+
+def field(fid, ring, **props):
+    return {"type": "Feature", "properties": {"kind": "field", "id": fid, **props},
+            "geometry": {"type": "Polygon", "coordinates": [ring]}}
+
+
+def garage(lon=87.2990, lat=44.0005):
+    return {"type": "Feature", "properties": {"kind": "garage"},
+            "geometry": {"type": "Point", "coordinates": [lon, lat]}}
+
+
+def good_features():
+    return [field("north", rect(87.300, 44.0010, 120, 60)),
+            field("south", rect(87.300, 44.0000, 90, 80), headland_passes=1), garage()]
+
+
+def write_scenario(tmp_path, features, machines=None, extra=""):
+    (tmp_path / "farm.geojson").write_text(
+        json.dumps({"type": "FeatureCollection", "features": features}))
+    machines = machines if machines is not None else [("a", 1, 5.5), ("b", 2, 3.7)]
+    text = f'farm_id = "test"\nfarm = "farm.geojson"\n{extra}\n'
+    text += "".join(MACHINE.format(id=i, sysid=s, width=w) for i, s, w in machines)
+    text += "\n[solver]\ntime_limit_s = 1.0\ngenerations = 50\n"
+    path = tmp_path / "scenario.toml"
+    path.write_text(text)
+    return path
+
+
+def test_plan_writes_every_file_with_traceable_missions(tmp_path, capsys):
+    scenario = write_scenario(tmp_path, good_features())
+    out = tmp_path / "out"
+    assert main(["plan", str(scenario), "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["a.plan", "a.waypoints", "b.plan", "b.waypoints", "map.png", "plan.json"]
+    doc = json.loads((out / "plan.json").read_text())
+    assert {"machines", "totals", "plan_id"} <= set(doc)
+    for m in doc["machines"]:
+        assert {"id", "working_width_m", "fields", "distance_m", "fuel_l", "time_h", "turns"} <= set(m)
+        seqs = [item[0] for item in m["items"]]
+        assert seqs == list(range(len(seqs)))  # contiguous from 0
+        for seq, fid, swath, role, *_ in m["items"]:
+            if role in ("swath_start", "swath_end"):
+                assert fid in m["fields"] and swath is not None
+    assert sorted(f for m in doc["machines"] for f in m["fields"]) == ["north", "south"]
+    assert set(doc["totals"]) == {"distance_m", "fuel_l", "time_h", "makespan_h"}
+    # The .waypoints files load in pymavlink and hold the same items as plan.json.
+    for m in doc["machines"]:
+        loader = mavwp.MAVWPLoader()
+        loader.load(str(out / f"{m['id']}.waypoints"))
+        assert loader.count() == m["mission_items"]
+        for k, (_, _, _, _, x, y) in enumerate(m["items"]):
+            wp = loader.wp(k)
+            assert abs(wp.x - x / 1e7) < 1e-7 and abs(wp.y - y / 1e7) < 1e-7
+    assert "makespan" in capsys.readouterr().out
+
+
+def bowtie():
+    a = rect(87.300, 44.0010, 100, 60)
+    return [a[0], a[2], a[1], a[3], a[0]]
+
+
+BAD_CASES = {
+    "self-intersecting": (lambda: [field("bow", bowtie()), garage()], None, "", "'bow'"),
+    "narrow": (lambda: [field("strip", rect(87.300, 44.001, 200, 3.0)), garage()], None, "",
+               "'strip'"),
+    "unknown machine": (good_features, None, 'machines = ["a", "zz"]', "'zz'"),
+    "projected": (lambda: [field("utm", [[524939.0, 4872244.0], [525039.0, 4872244.0],
+                                         [525039.0, 4872344.0], [524939.0, 4872244.0]]), garage()],
+                  None, "", "'utm'"),
+    "far garage": (lambda: [field("f", rect(87.300, 44.001, 100, 60)), garage(44.0005, 87.299)],
+                   None, "", "garage"),
+    "duplicate ids": (lambda: [field("x", rect(87.300, 44.001, 100, 60)),
+                               field("x", rect(87.302, 44.001, 100, 60)), garage()],
+                      None, "", "'x'"),
+    "no garage": (lambda: [field("f", rect(87.300, 44.001, 100, 60))], None, "", "no garage"),
+    "empty fleet": (good_features, [], "", "fleet is empty"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_input_names_the_culprit_and_writes_nothing(tmp_path, capsys, case):
+    features, machines, extra, needle = BAD_CASES[case]
+    scenario = write_scenario(tmp_path, features(), machines, extra)
+    out = tmp_path / "out"
+    code = main(["plan", str(scenario), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert needle in err
+    assert "error:" in err
+    assert not out.exists() or not any(out.iterdir())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out-")]  # no staging left
+
+
+def test_shipped_scenario_plans_three_machines(tmp_path):
+    out = tmp_path / "p3"
+    assert main(["plan", str(REPO / "config/changji.toml"), "--machines", "3",
+                 "--time-limit", "2", "--out", str(out)]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    assert len(doc["machines"]) == 3
+    assert sorted(f for m in doc["machines"] for f in m["fields"]) == [f"F{k:02d}" for k in range(1, 16)]
