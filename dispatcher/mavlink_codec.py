@@ -59,6 +59,14 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def constant_name(prefix: str, value: int) -> str:
+    """The name of a constant of the dialect, e.g. ("MAV_MISSION_", 4) -> "MAV_MISSION_NO_SPACE"."""
+    for name in dir(mavlink2):
+        if name.startswith(prefix) and getattr(mavlink2, name) == value:
+            return name
+    return f"{prefix}{value}"
+
+
 def message(name: str, **fields: Any) -> MAVLinkMessage:
     """A message by its MAVLink name, e.g. ``message("HEARTBEAT", type=..., ...)``."""
     cls = getattr(mavlink2, f"MAVLink_{name.lower()}_message", None)

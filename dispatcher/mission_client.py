@@ -104,7 +104,7 @@ class MissionUpload:
                 # ArduPilot says so for an item it did not ask for and goes on with the
                 # transfer: keep waiting for its next request.
                 return []
-            return self._fail(f"vehicle refused the mission: {_mission_result(result)}")
+            return self._fail(f"vehicle refused the mission: {mc.constant_name('MAV_MISSION_', result)}")
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
@@ -174,8 +174,8 @@ class CommandSequence:
             return []
         if result != mc.MAV_RESULT_ACCEPTED:
             self.outcome = Outcome.FAILED
-            self.reason = (f"command {self.commands[self._index].command} refused "
-                           f"(MAV_RESULT {result})")
+            name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
+            self.reason = f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}"
             return []
         self._index += 1
         self._confirmation = 0
@@ -215,10 +215,3 @@ def start_mission_commands() -> list[Command]:
         Command(mc.MAV_CMD_DO_SET_MODE,
                 (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO))),
     ]
-
-
-def _mission_result(code: int) -> str:
-    for name in dir(mc.mavlink2):
-        if name.startswith("MAV_MISSION_") and getattr(mc.mavlink2, name) == code:
-            return name
-    return str(code)

@@ -7,16 +7,17 @@ headland rings around the border, and the driving order from each of four start 
 
 Outline (details in ``docs/coverage.md``):
 
-* headlands: ``headland_passes`` rings at ``(k + 1/2)`` working widths inside the border;
-  the swaths cover the field shrunk by ``headland_passes`` working widths. The rings are
-  driven *after* the swaths, innermost first, so the machine turns on unworked ground and
-  leaves the field on its border.
-* swath direction: given, or searched like Fields2Cover's brute force with the "NSwath"
-  objective (fewest swaths, then shortest total length, then smallest angle).
-* cells: a boustrophedon decomposition along the sweep; every sweep line meets a cell in
+* headland: ``headland_passes`` rings at ``(k + 1/2)`` working widths inside the border;
+  the swaths are laid out on the field shrunk by ``headland_passes`` working widths and
+  run on to the innermost ring's centre line. The rings are driven *after* the swaths,
+  innermost first, so the machine turns on unworked ground and leaves on the border.
+* swath direction: given, or searched like Fields2Cover's brute force with its "NSwath"
+  objective: every 1° and every long edge direction; fewest swaths wins, ties go to the
+  least uncovered area, then the shortest total swath length, then the smallest angle.
+* cells: a boustrophedon decomposition along the sweep, so a sweep line meets a cell in
   one segment. Each cell has its own swaths: the first half a width inside its lower
   border, then one every working width; the last one is pulled back to lie half a width
-  inside the upper border (so it may overlap its neighbour, never the outside).
+  inside the upper border (it may overlap its neighbour, never the outside).
 * turns: every move from one swath to the next counts as one turn, ``len(swaths) - 1``;
   ``cell_transitions`` of them are moves to another cell, whose in-field driving is
   reported by :meth:`FieldCoverage.transit_inside_m`.
@@ -32,7 +33,7 @@ from numbers import Real
 
 import numpy as np
 import shapely
-import shapely.affinity
+import shapely.errors
 from numpy.typing import NDArray
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 from shapely.geometry.polygon import orient
@@ -51,6 +52,7 @@ COVERAGE_CANDIDATES = 12  # angles tied on the fewest swaths, compared by covere
 MIN_CELL_FRACTION = 0.1  # cells thinner than this many working widths are dropped
 MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
 _SNAP_M = 1e-3  # vertices closer than this across the sweep share one level
+SIMPLIFY_FRACTION = 0.25  # default outline simplification for the layout, in working widths
 _EPS_M = 1e-6
 _GRID_M = 1e-4  # precision grid of the overlays that score angles
 _EDGE_CANDIDATES = 90  # longest edges whose directions join the angle search
@@ -104,7 +106,7 @@ class FieldCoverage:
     angle_deg: float  # swath direction, degrees counter-clockwise from +x, in [0, 180)
     swaths: tuple[Swath, ...]
     headland: tuple[tuple[XY, ...], ...]  # closed rings, in driving order
-    cells: tuple[Polygon, ...]  # cell outlines in local metres, indexed by Swath.cell
+    cells: tuple[Polygon, ...]  # cell outlines (of the simplified outline), by Swath.cell
     turns: int  # len(swaths) - 1: every move to the next swath, cell changes included
     cell_transitions: int  # how many of the turns move to another cell
     swath_length_m: float
@@ -176,30 +178,39 @@ def cover_field(
     field_id: str,
     angle_deg: float | None = None,
     headland_passes: int = 0,
+    simplify_m: float | None = None,
 ) -> FieldCoverage:
     """Plan boustrophedon coverage of ``polygon`` (local metres) for one working width.
 
     ``angle_deg`` fixes the swath direction (degrees counter-clockwise from +x, taken
     modulo 180); ``None`` searches the direction with the fewest swaths.
+    ``headland_passes`` rings are laid around the border (and around holes).
+    ``simplify_m`` (default a quarter of the working width) smooths a non-convex outline
+    before the cells are laid out, so that GPS noise does not split the field into many
+    cells; swath ends are always put on the real outline.
     Raises :class:`GeometryError` naming ``field_id`` when the field cannot be covered.
     """
-    field_poly = _checked_field(polygon, working_width_m, headland_passes, angle_deg, field_id)
+    field_poly = _checked_field(
+        polygon, working_width_m, headland_passes, angle_deg, simplify_m, field_id
+    )
     w = float(working_width_m)
     rings_by_pass, region, lane = _headland_and_region(field_poly, w, headland_passes, field_id)
     ref = np.array(region.centroid.coords[0])  # work near the origin for precision
-    edges = _edges(region, ref)
+    tolerance = SIMPLIFY_FRACTION * w if simplify_m is None else float(simplify_m)
+    outline = _simplified(region, tolerance)
+    edges = _edges(outline, ref)
 
     if angle_deg is None:
-        angle, cells = _search_angle(region, ref, edges, w, field_id)
+        angle, cells = _search_angle(outline, ref, edges, w, field_id)
     else:
         angle = _normalise_angle(angle_deg)
         cells = _sweep(edges, angle, field_id).cells(w)
+    if cells:
+        cells = _clip_lines(cells, _edges(region if lane is None else lane, ref), angle)
     if not cells:
         raise GeometryError(
             f"field {field_id!r}: no swath of working width {w:g} m fits in the field"
         )
-    if lane is not None:
-        cells = _extend_to_lane(cells, _edges(lane, ref), angle)
 
     paths = tuple(_drive(cells, corner, angle, ref) for corner in range(4))
     distance = _InFieldDistance(field_poly)
@@ -253,6 +264,7 @@ def _checked_field(
     working_width_m: float,
     headland_passes: int,
     angle_deg: float | None,
+    simplify_m: float | None,
     field_id: str,
 ) -> Polygon:
     """The polygon, oriented (exterior CCW, holes CW), after every input check."""
@@ -267,8 +279,12 @@ def _checked_field(
         raise GeometryError(f"{where}: headland passes must be an integer, got {headland_passes!r}")
     if headland_passes < 0:
         raise GeometryError(f"{where}: headland passes must be >= 0, got {headland_passes}")
-    if angle_deg is not None and not math.isfinite(angle_deg):
-        raise GeometryError(f"{where}: swath angle must be finite, got {angle_deg!r}")
+    if angle_deg is not None and not (isinstance(angle_deg, Real) and math.isfinite(angle_deg)):
+        raise GeometryError(f"{where}: swath angle must be a finite number, got {angle_deg!r}")
+    if simplify_m is not None and not (
+        isinstance(simplify_m, Real) and math.isfinite(simplify_m) and simplify_m >= 0.0
+    ):
+        raise GeometryError(f"{where}: simplify_m must be a number >= 0, got {simplify_m!r}")
     if not isinstance(polygon, Polygon):
         raise GeometryError(f"{where}: expected one shapely Polygon, got {type(polygon).__name__}")
     if polygon.is_empty:
@@ -290,7 +306,8 @@ def _checked_field(
 
 def _narrowest_m(polygon: Polygon) -> float:
     """Short side of the minimum rotated rectangle."""
-    rect = shapely.minimum_rotated_rectangle(polygon)
+    with np.errstate(divide="ignore", invalid="ignore"):  # GEOS on near-collinear outlines
+        rect = shapely.minimum_rotated_rectangle(polygon)
     if not isinstance(rect, Polygon):  # a degenerate (line or point) outline
         return 0.0
     c = np.asarray(rect.exterior.coords)
@@ -304,6 +321,22 @@ def _normalise_angle(angle_deg: float) -> float:
 
 
 # ----------------------------------------------------------------------------- headland
+
+
+def _simplified(region: MultiPolygon, tolerance: float) -> MultiPolygon:
+    """``region`` without the wiggles under ``tolerance`` that would each start a new cell.
+
+    A convex region has no such wiggles and is kept as it is.
+    """
+    if tolerance <= 0.0 or _is_convex(region):
+        return region
+    simple = shapely.simplify(region, tolerance, preserve_topology=True)
+    parts = [orient(p, sign=1.0) for p in _polygons(simple) if p.is_valid and p.area > 0.0]
+    return MultiPolygon(parts) if parts else region
+
+
+def _is_convex(region: MultiPolygon) -> bool:
+    return len(region.geoms) == 1 and region.area >= region.convex_hull.area * (1 - 1e-9)
 
 
 def _polygons(geom: shapely.Geometry) -> list[Polygon]:
@@ -365,12 +398,11 @@ def _start_ring_near(ring: FloatArray, point: FloatArray) -> FloatArray:
     nearest = np.asarray(line.interpolate(along).coords[0])
     seg = np.hypot(*np.diff(ring, axis=0).T)
     i = int(np.clip(np.searchsorted(np.cumsum(seg), along, side="left"), 0, len(seg) - 1))
-    body = np.vstack([ring[i + 1 :], ring[1 : i + 1]])
-    out = np.vstack([nearest, body, nearest])
-    keep = np.ones(len(out), dtype=bool)
-    keep[1:] = np.hypot(*np.diff(out, axis=0).T) > _EPS_M
-    keep[-1] = True
-    return out[keep]
+    out = np.vstack([nearest, ring[i + 1 :], ring[1 : i + 1]])
+    out = out[np.r_[True, np.hypot(*np.diff(out, axis=0).T) > _EPS_M]]
+    if math.dist(out[-1], out[0]) <= _EPS_M:
+        out = out[:-1]
+    return np.vstack([out, out[:1]])
 
 
 # ----------------------------------------------------------------------------- angle search
@@ -421,8 +453,7 @@ def _search_angle(
     candidates[candidates >= 180.0 - 1e-9] = 0.0
     candidates = np.unique(np.round(candidates, 9))
 
-    convex = len(region.geoms) == 1 and region.area >= region.convex_hull.area * (1 - 1e-9)
-    if convex:
+    if _is_convex(region):
         estimate = _estimate_swaths(edges, candidates, w)
         pool = np.lexsort((candidates, estimate))
         pool = pool[estimate[pool] == estimate[pool[0]]][:COVERAGE_CANDIDATES]
@@ -452,25 +483,34 @@ def _search_angle(
 def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, float]:
     """(swath count, uncovered area, total swath length) of ``cells``, rounded for ties.
 
-    Each strip is clipped to its own cell (cells tile the region), and the overlap of each
-    cell's pulled-back last strip with the one before is removed.
+    Each strip is clipped to its own cell (cells tile the region), less the overlap of each
+    cell's pulled-back last strip with the one before. An overlay GEOS cannot compute
+    scores the angle as covering nothing.
     """
-    if not cells:
-        return (0.0, area, 0.0)
     lines = np.vstack([c.lines for c in cells])
+    total = round(float((lines[:, 2] - lines[:, 1]).sum()), 3)
     sizes = np.array([len(c.lines) for c in cells])
-    outlines = np.array([Polygon(c.outline) for c in cells], dtype=object)
+    outlines = np.repeat(np.array([Polygon(c.outline) for c in cells], dtype=object), sizes)
+    last = (np.cumsum(sizes) - 1)[sizes > 1]
+    before = last - 1
+    overlaps = shapely.box(
+        np.maximum(lines[last, 1], lines[before, 1]),
+        lines[last, 0] - w / 2,
+        np.minimum(lines[last, 2], lines[before, 2]),
+        lines[before, 0] + w / 2,
+    )
+    real = (
+        np.minimum(lines[last, 2], lines[before, 2]) > np.maximum(lines[last, 1], lines[before, 1])
+    ) & (lines[before, 0] + w / 2 > lines[last, 0] - w / 2)
     strips = shapely.box(lines[:, 1], lines[:, 0] - w / 2, lines[:, 2], lines[:, 0] + w / 2)
-    # fixed-precision overlays: strip borders can coincide with cell borders to 1e-15
-    clipped = shapely.intersection(strips, np.repeat(outlines, sizes), grid_size=_GRID_M)
-    covered = float(shapely.area(clipped).sum())
-    last = np.cumsum(sizes) - 1
-    pairs = last[sizes > 1]
-    if len(pairs):
-        overlap = shapely.intersection(clipped[pairs], clipped[pairs - 1], grid_size=_GRID_M)
-        covered -= float(shapely.area(overlap).sum())
-    total = float((lines[:, 2] - lines[:, 1]).sum())
-    return (float(len(lines)), round(area - covered, 2), round(total, 3))
+    try:  # fixed precision: strip borders can coincide with cell borders to 1e-15
+        covered = shapely.area(shapely.intersection(strips, outlines, grid_size=_GRID_M)).sum()
+        doubled = shapely.intersection(overlaps[real], outlines[last][real], grid_size=_GRID_M)
+        covered -= shapely.area(doubled).sum()
+    except shapely.errors.GEOSException as error:
+        logger.debug("cannot score a swath angle: %s", error)
+        covered = 0.0
+    return (float(len(lines)), round(area - float(covered), 2), total)
 
 
 def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray[np.int64]:
@@ -689,28 +729,36 @@ def _sweep(edges: _Edges, angle_deg: float, field_id: str) -> _Sweep:
     return _Sweep(levels, ua, va, ub, vb, band, tl, tr, chain, cell_start)
 
 
-def _extend_to_lane(cells: list[_Cell], lane: _Edges, angle_deg: float) -> list[_Cell]:
-    """Cells whose swaths run on, both ways, to the innermost headland ring's centre line.
+def _clip_lines(cells: list[_Cell], clip: _Edges, angle_deg: float) -> list[_Cell]:
+    """Cells whose swath lines end where the line leaves ``clip`` around its middle.
 
-    The machine works into the headland by half a width, so the wedges a slanted border
-    leaves beside each swath end are covered by the headland pass.
+    Lines are laid out on the simplified outline; this puts their ends on the real one (or,
+    with headland, on the innermost ring's centre line). Lines whose middle falls outside
+    ``clip`` are dropped, and so are cells left without lines.
     """
-    ua, va = _rotate(lane.ax, lane.ay, angle_deg)
-    ub, vb = _rotate(lane.bx, lane.by, angle_deg)
+    ua, va = _rotate(clip.ax, clip.ay, angle_deg)
+    ub, vb = _rotate(clip.bx, clip.by, angle_deg)
     slope = np.divide(ub - ua, vb - va, out=np.zeros_like(ua), where=vb != va)
-    extended: list[_Cell] = []
-    for cell in cells:
-        v, mid = cell.lines[:, 0], cell.lines[:, 1:].mean(axis=1)
-        a, b = va[:, None], vb[:, None]
-        cross = ((a <= v) & (v < b)) | ((b <= v) & (v < a))  # (edges, lines)
-        u = ua[:, None] + (v - a) * slope[:, None]
-        left = np.where(cross & (u <= mid), u, -np.inf).max(axis=0)
-        right = np.where(cross & (u >= mid), u, np.inf).min(axis=0)
-        lines = cell.lines.copy()
-        lines[:, 1] = np.where(np.isfinite(left), np.minimum(left, lines[:, 1]), lines[:, 1])
-        lines[:, 2] = np.where(np.isfinite(right), np.maximum(right, lines[:, 2]), lines[:, 2])
-        extended.append(_Cell(lines, cell.outline))
-    return extended
+    lines = np.vstack([c.lines for c in cells])
+    v, mid = lines[:, 0], lines[:, 1:].mean(axis=1)
+    a, b = va[:, None], vb[:, None]
+    cross = ((a <= v) & (v < b)) | ((b <= v) & (v < a))  # (edges, lines), half-open spans
+    u = ua[:, None] + (v - a) * slope[:, None]
+    before = cross & (u <= mid)
+    left = np.where(before, u, -np.inf).max(axis=0)
+    right = np.where(cross & ~before, u, np.inf).min(axis=0)
+    keep = (before.sum(axis=0) % 2 == 1) & (right - left > MIN_SWATH_M)
+    clipped = np.column_stack([v, left, right])
+    out: list[_Cell] = []
+    for cell, rows, kept in zip(
+        cells,
+        np.split(clipped, np.cumsum([len(c.lines) for c in cells])[:-1]),
+        np.split(keep, np.cumsum([len(c.lines) for c in cells])[:-1]),
+        strict=True,
+    ):
+        if np.any(kept):
+            out.append(_Cell(rows[kept], cell.outline))
+    return out
 
 
 def _to_polygon(outline: FloatArray, angle: float, ref: FloatArray) -> Polygon:

@@ -1,0 +1,114 @@
+"""`make bench`: speed and quality goals, measured side by side in one run.
+
+Sections (all by default, or name them): ``solver`` — IGHOA (ours), IGHOA as the paper
+has it, and the classic GA on a few of the paper's cells at equal time, as ratios to the
+paper's figures and to the best-known solutions; ``upload`` — time from "plan ready" to
+"every mission acknowledged" for 6 vehicles with ~300 items each on loopback;
+``telemetry`` — 100 simulated vehicles sending telemetry at 10 Hz for 60 s into one
+dispatcher: share of messages in the MCAP, dispatcher CPU.
+
+The report is printed and appended to benchmarks/RESULTS.md with date, machine and command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import platform
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+
+def machine_line() -> str:
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    cores = len(__import__("os").sched_getaffinity(0))
+    return f"{platform.node()} · {cpu} · {cores} cores · Python {platform.python_version()}"
+
+
+def bench_solver(seconds: float, seeds: int) -> str:
+    from planner.ighoa import IGHOAParams
+    from planner.paper import BKS_MINSUM, MTSP_CELLS
+    from planner.solve import solve, stop_after
+    from planner.tsplib import read_instance
+
+    picks = [("eil51", 3), ("eil76", 5), ("kroA100", 5), ("kroA150", 3), ("kroA200", 4)]
+    variants = {
+        "IGHOA (ours)": ("ighoa", IGHOAParams()),
+        "IGHOA (paper only)": ("ighoa", IGHOAParams(local_search="paper", memetic=0,
+                                                     shift_counts=False)),
+        "GA": ("ga", None),
+    }
+    lines = [
+        f"### Solver: min-sum mTSP, {seeds} seeds, {seconds:g} s (or 2000 generations) each",
+        "",
+        "| instance | m | " + " | ".join(f"{v} mean" for v in variants)
+        + " | paper IGHOA | ours / paper | ours / paper-only | BKS |",
+        "|---|---|" + "---|" * (len(variants) + 4),
+    ]
+    for name, m in picks:
+        cell = next(c for c in MTSP_CELLS if c.instance == name and c.salesmen == m)
+        problem = read_instance(HERE / "tsplib" / f"{name}.tsp").to_problem(m)
+        means = {}
+        for label, (alg, params) in variants.items():
+            costs = [solve(problem, "distance", alg, stop_after(2000, seconds), seed=s,
+                           params=params).cost for s in range(1, seeds + 1)]
+            means[label] = statistics.fmean(costs)
+        ours, paper_only = means["IGHOA (ours)"], means["IGHOA (paper only)"]
+        bks = BKS_MINSUM.get((name, m))
+        lines.append(
+            f"| {name} | {m} | " + " | ".join(f"{v:.2f}" for v in means.values())
+            + f" | {cell.ighoa:.2f} | {ours / cell.ighoa:.3f} | {ours / paper_only:.3f} "
+            f"| {f'{bks:.2f}' if bks else '–'} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+SECTIONS = {"solver": bench_solver}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("sections", nargs="*", default=list(SECTIONS), choices=[*SECTIONS, []])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--no-save", action="store_true")
+    args = parser.parse_args()
+    from planner.solve import warm_up
+
+    warm_up()
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True, cwd=HERE.parent).stdout.strip()
+    report = [f"## {stamp} · commit {commit}", "", f"Machine: {machine_line()}",
+              f"Command: `python benchmarks/run.py {' '.join(sys.argv[1:])}`", ""]
+    for name in args.sections:
+        fn = SECTIONS[name]
+        if name == "solver":
+            report.append(fn(args.seconds, args.seeds))
+        else:
+            report.append(fn())
+        print(report[-1], flush=True)
+    text = "\n".join(report) + "\n"
+    if not args.no_save:
+        results = HERE / "RESULTS.md"
+        if not results.exists():
+            results.write_text("# Benchmark results\n\nNewest last. `make bench` appends.\n\n")
+        with results.open("a") as f:
+            f.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

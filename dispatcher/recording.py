@@ -1,0 +1,1005 @@
+"""Recording a run to MCAP, and reading it back.
+
+One run, one MCAP file: every MAVLink frame sent or received (raw, and as JSON when
+decoded), the vehicles' positions, the plan, the status documents and the dispatcher's
+log lines, all stamped with integer nanoseconds since the Unix epoch (the receive or send
+time). Topics and schemas are listed in ``docs/recording.md``; the JSON ones follow
+Foxglove's schemas so the file opens in Foxglove as it is.
+
+The file is written in chunks of at most ``chunk_size`` bytes or ``max_chunk_age_s``
+seconds, each handed to the operating system as soon as it is complete, so a run that
+dies mid-way still leaves a readable file holding everything up to its last finished
+chunk. :func:`read_log` and :func:`open_log` read finished files through the summary
+(seeking reader) and fall back to a streaming read up to the first broken record for
+files cut short, saying so with ``complete=False``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import os
+import struct
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Final, NamedTuple, Self, cast
+
+from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from dispatcher import wire
+from dispatcher.errors import DispatcherError
+
+try:  # Chunk compression codecs are optional: mcap works (uncompressed) without them.
+    import zstandard
+except ImportError:  # pragma: no cover - zstandard comes with mcap's own requirements
+    zstandard = None  # type: ignore[assignment]
+try:
+    import lz4.frame as lz4_frame
+except ImportError:  # pragma: no cover
+    lz4_frame = None
+
+logger = logging.getLogger(__name__)
+
+PROFILE: Final = "agrifleet"
+METADATA_NAME: Final = "agrifleet"
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+DEFAULT_CHUNK_SIZE: Final = 256 * 1024
+DEFAULT_MAX_CHUNK_AGE_S: Final = 2.0
+MAVLINK_ENCODING: Final = "mavlink2"
+JSON_ENCODING: Final = "json"
+JSONSCHEMA_ENCODING: Final = "jsonschema"
+LOG_TOPIC: Final = "/log"
+PLAN_GEOJSON_TOPIC: Final = "/plan/geojson"
+# Records longer than this are taken as corruption rather than read into memory.
+_RECORD_SIZE_LIMIT: Final = 256 * 2**20
+
+
+
+def _software_version() -> str:
+    try:
+        return version("agrifleet")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "0+unknown"
+
+
+SOFTWARE_VERSION: Final = _software_version()
+LIBRARY: Final = f"agrifleet {SOFTWARE_VERSION}"
+
+
+class RecordingError(DispatcherError, ValueError):
+    """A log file that cannot be read as an agrifleet log, or a value that cannot be recorded;
+    the message names the file or the value."""
+
+
+class RecorderStateError(DispatcherError, RuntimeError):
+    """A record call on a recorder that is not started yet or already finished."""
+
+
+def location_topic(vehicle_id: str) -> str:
+    """The topic of a vehicle's position fixes (``foxglove.LocationFix``)."""
+    return f"/vehicle/{vehicle_id}/fix"
+
+
+def json_topic(key: str) -> str:
+    """The topic of the decoded (JSON) twin of the frames on Zenoh key ``key``."""
+    return f"{key}/json"
+
+
+# --- schemas ---------------------------------------------------------------------------
+
+_TIME_SCHEMA: Final[dict[str, Any]] = {
+    "type": "object",
+    "title": "time",
+    "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+    },
+}
+
+# Foxglove's schemas (github.com/foxglove/foxglove-sdk, schemas/jsonschema), with the fields
+# we write; later optional additions (lineage, message_id, colour ...) are left out.
+LOCATION_FIX_SCHEMA: Final[dict[str, Any]] = {
+    "title": "foxglove.LocationFix",
+    "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object",
+    "properties": {
+        "timestamp": {**_TIME_SCHEMA, "description": "Timestamp of the message"},
+        "frame_id": {
+            "type": "string",
+            "description": "Frame for the sensor. Latitude and longitude readings are at the "
+            "origin of the frame.",
+        },
+        "latitude": {"type": "number", "description": "Latitude in degrees"},
+        "longitude": {"type": "number", "description": "Longitude in degrees"},
+        "altitude": {"type": "number", "description": "Altitude in meters"},
+        "position_covariance": {
+            "type": "array",
+            "items": {"type": "number"},
+            "minItems": 9,
+            "maxItems": 9,
+            "description": "Position covariance (m^2) defined relative to a tangential plane "
+            "through the reported position. The components are East, North, and Up (ENU), "
+            "in row-major order.",
+        },
+        "position_covariance_type": {
+            "title": "foxglove.PositionCovarianceType",
+            "description": "If `position_covariance` is available, `position_covariance_type` "
+            "must be set to indicate the type of covariance.",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0},
+                {"title": "APPROXIMATED", "const": 1},
+                {"title": "DIAGONAL_KNOWN", "const": 2},
+                {"title": "KNOWN", "const": 3},
+            ],
+        },
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+            "description": "Additional user-provided metadata associated with the location "
+            "fix. Keys must be unique.",
+        },
+    },
+    "required": [
+        "timestamp",
+        "frame_id",
+        "latitude",
+        "longitude",
+        "altitude",
+        "position_covariance",
+        "position_covariance_type",
+    ],
+}
+
+GEOJSON_SCHEMA: Final[dict[str, Any]] = {
+    "title": "foxglove.GeoJSON",
+    "description": "GeoJSON data for annotating maps",
+    "type": "object",
+    "properties": {
+        "geojson": {"type": "string", "description": "GeoJSON data encoded as a UTF-8 string"}
+    },
+    "required": ["geojson"],
+}
+
+LOG_SCHEMA: Final[dict[str, Any]] = {
+    "title": "foxglove.Log",
+    "description": "A log message",
+    "type": "object",
+    "properties": {
+        "timestamp": {**_TIME_SCHEMA, "description": "Timestamp of log message"},
+        "level": {
+            "title": "foxglove.LogLevel",
+            "description": "Log level",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0},
+                {"title": "DEBUG", "const": 1},
+                {"title": "INFO", "const": 2},
+                {"title": "WARNING", "const": 3},
+                {"title": "ERROR", "const": 4},
+                {"title": "FATAL", "const": 5},
+            ],
+        },
+        "message": {"type": "string", "description": "Log message"},
+        "name": {"type": "string", "description": "Process or node name"},
+        "file": {"type": "string", "description": "Filename"},
+        "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+    },
+    "required": ["timestamp", "level", "message", "name", "file", "line"],
+}
+
+MAVLINK_JSON_SCHEMA: Final[dict[str, Any]] = {
+    "title": "agrifleet.MAVLink",
+    "description": "One decoded MAVLink message: its name and fields (bytes as lists of ints)",
+    "type": "object",
+    "properties": {"mavpackettype": {"type": "string", "description": "MAVLink message name"}},
+    "required": ["mavpackettype"],
+    "additionalProperties": True,
+}
+
+PLAN_SCHEMA: Final[dict[str, Any]] = {
+    "title": "agrifleet.Plan",
+    "description": "The dispatcher's plan document (plan.json)",
+    "type": "object",
+    "properties": {
+        "plan_id": {"type": "string"},
+        "farm_id": {"type": "string"},
+        "objective": {"type": "string"},
+        "fields": {"type": "object"},
+        "machines": {"type": "array"},
+        "totals": {"type": "object"},
+    },
+    "additionalProperties": True,
+}
+
+STATUS_SCHEMA: Final[dict[str, Any]] = {
+    "title": "agrifleet.Status",
+    "description": "The dispatcher's status of every vehicle and field",
+    "type": "object",
+    "properties": {
+        "plan_id": {"type": "string"},
+        "vehicles": {"type": "object"},
+        "fields": {"type": "object"},
+    },
+    "additionalProperties": True,
+}
+
+SCHEMAS: Final[dict[str, dict[str, Any]]] = {
+    s["title"]: s
+    for s in (
+        LOCATION_FIX_SCHEMA,
+        GEOJSON_SCHEMA,
+        LOG_SCHEMA,
+        MAVLINK_JSON_SCHEMA,
+        PLAN_SCHEMA,
+        STATUS_SCHEMA,
+    )
+}
+
+_LOG_LEVELS: Final[dict[str, int]] = {
+    "debug": 1,
+    "info": 2,
+    "warn": 3,
+    "warning": 3,
+    "error": 4,
+    "critical": 5,
+    "fatal": 5,
+}
+
+
+# --- writing ---------------------------------------------------------------------------
+
+
+class _DirectFile:
+    """An unbuffered output file: each batch of records the writer emits goes straight to
+    the OS, so a crash loses only the chunk still being built in memory."""
+
+    def __init__(self, path: Path, mode: str) -> None:
+        self.path = path
+        self._raw = open(path, mode, buffering=0)  # noqa: SIM115 - closed by Recorder.finish
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data)
+        while view:
+            written = self._raw.write(view)
+            view = view[written or 0 :]
+        return len(data)
+
+    def tell(self) -> int:
+        return self._raw.tell()
+
+    def flush(self) -> None:
+        """Nothing is buffered here."""
+
+    def close(self) -> None:
+        self._raw.close()
+
+
+def _compression_type(name: str) -> CompressionType:
+    if name == "auto":
+        if zstandard is not None:
+            return CompressionType.ZSTD
+        if lz4_frame is not None:
+            return CompressionType.LZ4
+        return CompressionType.NONE
+    types = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+    if name not in types:
+        raise RecordingError(f"compression must be auto, zstd, lz4 or none, not {name!r}")
+    if (name == "zstd" and zstandard is None) or (name == "lz4" and lz4_frame is None):
+        raise RecordingError(f"{name} compression needs the {name} package, which is missing")
+    return types[name]
+
+
+def _check_farm_id(farm_id: str) -> str:
+    if not isinstance(farm_id, str) or not farm_id or "/" in farm_id or "*" in farm_id:
+        raise RecordingError(
+            f"farm_id must be a non-empty string without '/' or '*', not {farm_id!r}"
+        )
+    return farm_id
+
+
+def _stamp(ns: int) -> dict[str, int]:
+    """A Foxglove ``time``: seconds and nanoseconds."""
+    sec, nsec = divmod(ns, 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def _json_default(value: Any) -> Any:
+    tolist = getattr(value, "tolist", None)  # numpy scalars and arrays
+    if callable(tolist):
+        return tolist()
+    if isinstance(value, bytes | bytearray):
+        return list(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every NaN or infinity replaced by None (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _dumps(doc: Any, what: str) -> bytes:
+    """Compact JSON bytes of ``doc``; NaN and infinities become null."""
+    try:
+        try:
+            text = json.dumps(doc, separators=(",", ":"), allow_nan=False, default=_json_default)
+        except ValueError:  # a NaN somewhere: rare, so only then walk the document
+            text = json.dumps(
+                _finite(json.loads(json.dumps(doc, default=_json_default))),
+                separators=(",", ":"),
+                allow_nan=False,
+            )
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise RecordingError(f"cannot record {what}: not JSON-serialisable ({exc})") from exc
+    return text.encode()
+
+
+def _metadata_value(value: object) -> str:
+    if isinstance(value, str):
+        return value
+    try:
+        return json.dumps(value, default=_json_default)
+    except (TypeError, ValueError) as exc:
+        raise RecordingError(f"metadata value {value!r} is not JSON-serialisable") from exc
+
+
+def _check_time(log_time_ns: int) -> None:
+    if type(log_time_ns) is not int or not 0 <= log_time_ns < 2**64:
+        raise RecordingError(
+            f"log_time_ns must be integer nanoseconds since the epoch, got {log_time_ns!r}"
+        )
+
+
+class Recorder:
+    """Writes one run to one MCAP file: ``start()`` → ``record_*()`` → ``finish()``.
+
+    ``output`` is a path (created or truncated) or a binary stream (left open by
+    ``finish``). Every ``record_*`` takes ``log_time_ns``, integer nanoseconds since the
+    epoch. All methods are thread-safe. Records go into chunks of ``chunk_size`` bytes
+    (compressed with ``compression``: auto, zstd, lz4 or none); a chunk is also closed by
+    the first record that comes ``max_chunk_age_s`` or more after the previous chunk was
+    closed, so a crash loses at most about that much. Used as a context manager it starts
+    on entry and finishes on exit.
+    """
+
+    def __init__(
+        self,
+        output: str | os.PathLike[str] | IO[bytes],
+        farm_id: str,
+        metadata: Mapping[str, object] | None = None,
+        *,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        compression: str = "auto",
+        max_chunk_age_s: float | None = DEFAULT_MAX_CHUNK_AGE_S,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.farm_id = _check_farm_id(farm_id)
+        if chunk_size < 1:
+            raise RecordingError(f"chunk_size must be positive, got {chunk_size}")
+        if max_chunk_age_s is not None and max_chunk_age_s < 0:
+            raise RecordingError(f"max_chunk_age_s must be >= 0 or None, got {max_chunk_age_s}")
+        compression_type = _compression_type(compression)
+        self._initial_metadata = {k: _metadata_value(v) for k, v in (metadata or {}).items()}
+        # Checked everything: only now create the file.
+        self.path: Path | None = None
+        self._file: _DirectFile | None = None
+        stream: Any = output
+        if isinstance(output, str | os.PathLike):
+            stream = _DirectFile(Path(output), "wb")
+        if isinstance(stream, _DirectFile):  # ours: closed by finish()
+            self.path, self._file = stream.path, stream
+        self._stream = stream
+        self._writer = Writer(
+            cast(IO[Any], stream), chunk_size=chunk_size, compression=compression_type
+        )
+        self._clock = clock
+        self._max_chunk_age_s = max_chunk_age_s
+        self._metadata: dict[str, str] = {}
+        self._lock = threading.Lock()
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, list[int]] = {}  # topic -> [channel id, next sequence]
+        self._started = False
+        self._finished = False
+        self._last_flush = time.monotonic()
+        self.message_count = 0
+
+    @classmethod
+    def create_in(
+        cls,
+        log_dir: str | os.PathLike[str],
+        farm_id: str,
+        metadata: Mapping[str, object] | None = None,
+        **options: Any,
+    ) -> Recorder:
+        """A started recorder writing a new ``log_dir/<farm_id>-<YYYYmmdd-HHMMSS>.mcap``
+        (UTC; ``-1``, ``-2`` ... appended if that name is taken)."""
+        _check_farm_id(farm_id)
+        clock: Callable[[], int] = options.get("clock", time.time_ns)
+        directory = Path(log_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        stamp = datetime.fromtimestamp(clock() / 1e9, UTC).strftime("%Y%m%d-%H%M%S")
+        for n in range(10_000):
+            path = directory / f"{farm_id}-{stamp}{'' if n == 0 else f'-{n}'}.mcap"
+            try:
+                file = _DirectFile(path, "xb")  # claims the name even against other processes
+            except FileExistsError:
+                continue
+            break
+        else:  # pragma: no cover - ten thousand runs in one second
+            raise RecordingError(f"no free log file name for {farm_id}-{stamp} in {directory}")
+        try:
+            recorder = cls(cast(IO[bytes], file), farm_id, metadata, **options)
+            recorder.start()
+        except BaseException:
+            file.close()
+            path.unlink(missing_ok=True)
+            raise
+        return recorder
+
+    # --- lifecycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        """Write the MCAP header and the "agrifleet" metadata record."""
+        with self._lock:
+            if self._started:
+                raise RecorderStateError(f"recorder for {self._name()} is already started")
+            self._start_locked()
+
+    def _start_locked(self) -> None:
+        self._started = True
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        start_ns = self._clock()
+        base = {
+            "farm_id": self.farm_id,
+            "software_version": SOFTWARE_VERSION,
+            "start_time": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
+            "start_time_ns": str(start_ns),
+        }
+        self._add_metadata_locked({**base, **self._initial_metadata})
+
+    def record_metadata(self, values: Mapping[str, object]) -> None:
+        """Add keys to the log's "agrifleet" metadata (a later value wins on reading)."""
+        with self._lock:
+            self._check_open()
+            self._add_metadata_locked({k: _metadata_value(v) for k, v in values.items()})
+
+    def flush(self) -> None:
+        """Close the chunk being built and hand everything to the OS now."""
+        with self._lock:
+            self._check_open()
+            self._flush_locked()
+
+    def finish(self) -> None:
+        """Write the summary and index and close the file (not a caller's stream).
+        Idempotent; a recorder never started is started first, so the file is a valid log."""
+        with self._lock:
+            if self._finished:
+                return
+            self._finished = True
+            try:
+                if not self._started:
+                    self._start_locked()
+                self._writer.finish()
+                if self._file is None:
+                    self._stream.flush()
+            finally:
+                if self._file is not None:
+                    self._file.close()
+        logger.debug("finished %s: %d messages", self._name(), self.message_count)
+
+    @property
+    def finished(self) -> bool:
+        return self._finished
+
+    @property
+    def metadata(self) -> dict[str, str]:
+        """The "agrifleet" metadata written so far."""
+        with self._lock:
+            return dict(self._metadata)
+
+    def __enter__(self) -> Self:
+        if not self._started:
+            self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.finish()
+
+    # --- records -------------------------------------------------------------------------
+    def record_frame(
+        self, key: str, frame: bytes, log_time_ns: int, decoded: Mapping[str, Any] | None = None
+    ) -> None:
+        """One MAVLink frame on Zenoh key ``key``: the raw bytes on topic ``key``, and when
+        ``decoded`` (from ``mavlink_codec.as_dict``) is given, that JSON on ``key/json``."""
+        _check_time(log_time_ns)
+        if decoded is None:
+            self._write(((key, MAVLINK_ENCODING, None, bytes(frame)),), log_time_ns)
+            return
+        self._write(
+            (
+                (key, MAVLINK_ENCODING, None, bytes(frame)),
+                (json_topic(key), JSON_ENCODING, "agrifleet.MAVLink", _dumps(decoded, key)),
+            ),
+            log_time_ns,
+        )
+
+    def record_location(
+        self,
+        vehicle_id: str,
+        lat: float,
+        lon: float,
+        log_time_ns: int,
+        sim_time_s: float | None = None,
+        *,
+        altitude_m: float = 0.0,
+    ) -> None:
+        """A position fix (degrees) on ``/vehicle/<id>/fix`` as ``foxglove.LocationFix``,
+        stamped with the log time; ``sim_time_s`` (the vehicle's own clock) goes into the
+        fix's metadata. A fix with a non-finite coordinate is skipped (JSON cannot hold it;
+        the raw frame is on the MAVLink topic anyway)."""
+        _check_time(log_time_ns)
+        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(altitude_m)):
+            logger.debug("skipping non-finite fix of %s: %s, %s", vehicle_id, lat, lon)
+            return
+        fix: dict[str, Any] = {
+            "timestamp": _stamp(log_time_ns),
+            "frame_id": vehicle_id,
+            "latitude": float(lat),
+            "longitude": float(lon),
+            "altitude": float(altitude_m),
+            "position_covariance": [0.0] * 9,
+            "position_covariance_type": 0,
+        }
+        if sim_time_s is not None and math.isfinite(sim_time_s):
+            fix["metadata"] = [{"key": "sim_time_s", "value": repr(float(sim_time_s))}]
+        data = _dumps(fix, "location fix")
+        self._write(
+            ((location_topic(vehicle_id), JSON_ENCODING, "foxglove.LocationFix", data),),
+            log_time_ns,
+        )
+
+    def record_plan(
+        self, plan_doc: Mapping[str, Any], geojson: Mapping[str, Any], log_time_ns: int
+    ) -> None:
+        """The plan document on ``agrifleet/<farm>/dispatcher/plan`` and its fields and
+        routes as ``foxglove.GeoJSON`` on ``/plan/geojson``; a new ``plan_id`` in the plan
+        is added to the metadata."""
+        _check_time(log_time_ns)
+        plan = _dumps(plan_doc, "plan document")
+        geo = _dumps({"geojson": _dumps(geojson, "plan GeoJSON").decode()}, "plan GeoJSON")
+        self._write(
+            (
+                (wire.dispatcher_plan(self.farm_id), JSON_ENCODING, "agrifleet.Plan", plan),
+                (PLAN_GEOJSON_TOPIC, JSON_ENCODING, "foxglove.GeoJSON", geo),
+            ),
+            log_time_ns,
+        )
+        plan_id = plan_doc.get("plan_id")
+        if plan_id is not None:
+            with self._lock:
+                value = _metadata_value(plan_id)
+                if self._metadata.get("plan_id") != value:
+                    self._add_metadata_locked({"plan_id": value})
+
+    def record_status(self, status_doc: Mapping[str, Any], log_time_ns: int) -> None:
+        """A status document on ``agrifleet/<farm>/dispatcher/status``."""
+        _check_time(log_time_ns)
+        data = _dumps(status_doc, "status document")
+        self._write(
+            ((wire.dispatcher_status(self.farm_id), JSON_ENCODING, "agrifleet.Status", data),),
+            log_time_ns,
+        )
+
+    def record_log(
+        self,
+        level: str,
+        text: str,
+        log_time_ns: int,
+        *,
+        name: str = "dispatcher",
+        file: str = "",
+        line: int = 0,
+    ) -> None:
+        """A log line on ``/log`` as ``foxglove.Log``; ``level`` is a ``logging`` level
+        name (debug, info, warning, error, critical), anything else is UNKNOWN."""
+        _check_time(log_time_ns)
+        entry = {
+            "timestamp": _stamp(log_time_ns),
+            "level": _LOG_LEVELS.get(level.lower(), 0),
+            "message": text,
+            "name": name,
+            "file": file,
+            "line": max(int(line), 0),
+        }
+        self._write(((LOG_TOPIC, JSON_ENCODING, "foxglove.Log", _dumps(entry, "log line")),),
+                    log_time_ns)
+
+    # --- internals -----------------------------------------------------------------------
+    def _write(
+        self, items: Iterable[tuple[str, str, str | None, bytes]], log_time_ns: int
+    ) -> None:
+        with self._lock:
+            self._check_open()
+            for topic, encoding, schema_name, data in items:
+                entry = self._channels.get(topic)
+                if entry is None:
+                    entry = self._register_locked(topic, encoding, schema_name)
+                self._writer.add_message(entry[0], log_time_ns, data, log_time_ns, entry[1])
+                entry[1] = (entry[1] + 1) & 0xFFFFFFFF
+                self.message_count += 1
+            if self._max_chunk_age_s is not None:
+                now = time.monotonic()
+                if now - self._last_flush >= self._max_chunk_age_s:
+                    self._flush_locked(now)
+
+    def _register_locked(self, topic: str, encoding: str, schema_name: str | None) -> list[int]:
+        schema_id = 0
+        if schema_name is not None:
+            schema_id = self._schemas.get(schema_name, 0)
+            if not schema_id:
+                data = json.dumps(SCHEMAS[schema_name], separators=(",", ":")).encode()
+                schema_id = self._writer.register_schema(schema_name, JSONSCHEMA_ENCODING, data)
+                self._schemas[schema_name] = schema_id
+        entry = [self._writer.register_channel(topic, encoding, schema_id), 0]
+        self._channels[topic] = entry
+        return entry
+
+    def _add_metadata_locked(self, values: dict[str, str]) -> None:
+        self._writer.add_metadata(METADATA_NAME, values)
+        self._metadata.update(values)
+
+    def _flush_locked(self, now: float | None = None) -> None:
+        flush = getattr(self._writer, "flush", None)  # Writer.flush is new in mcap 1.6
+        if flush is not None:
+            flush()
+        elif self._max_chunk_age_s is not None:
+            logger.warning("this mcap cannot close a chunk early (needs mcap>=1.6)")
+            self._max_chunk_age_s = None
+        self._last_flush = time.monotonic() if now is None else now
+
+    def _check_open(self) -> None:
+        if not self._started:
+            raise RecorderStateError(f"recorder for {self._name()} is not started: call start()")
+        if self._finished:
+            raise RecorderStateError(
+                f"recorder for {self._name()} is finished; nothing more can be recorded"
+            )
+
+    def _name(self) -> str:
+        return str(self.path) if self.path is not None else "<stream>"
+
+
+class RecorderLogHandler(logging.Handler):
+    """Copies ``logging`` records into a recorder's ``/log`` topic (dropped once it is
+    finished)."""
+
+    def __init__(self, recorder: Recorder, level: int = logging.INFO) -> None:
+        super().__init__(level)
+        self.recorder = recorder
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.name == __name__ or self.recorder.finished:
+            return  # never feed the recorder's own messages back into it
+        try:
+            self.recorder.record_log(
+                record.levelname,
+                record.getMessage(),
+                int(record.created * 1e9),
+                name=record.name,
+                file=record.pathname,
+                line=record.lineno or 0,
+            )
+        except Exception:  # a log handler must not raise into the code that logs
+            self.handleError(record)
+
+
+# --- reading ---------------------------------------------------------------------------
+
+
+class LogRecord(NamedTuple):
+    """One message of a log."""
+
+    topic: str
+    schema_name: str  # "" for a schema-less channel (the raw MAVLink frames)
+    message_encoding: str
+    log_time_ns: int
+    data: bytes
+
+    def decode_json(self) -> Any:
+        """The message as JSON (for the json-encoded topics)."""
+        return json.loads(self.data)
+
+
+@dataclass(frozen=True)
+class LogContents:
+    """Everything in a log. ``complete`` is False when the file was cut short or has a
+    broken record; ``records`` then holds what came before it and ``problem`` says why."""
+
+    source: str
+    profile: str
+    library: str
+    metadata: dict[str, str]
+    records: list[LogRecord]
+    complete: bool
+    problem: str | None
+
+    def topic_counts(self) -> dict[str, int]:
+        """Number of messages per topic."""
+        return dict(Counter(r.topic for r in self.records))
+
+    def on(self, topic: str) -> list[LogRecord]:
+        """The messages of one topic, in file order."""
+        return [r for r in self.records if r.topic == topic]
+
+
+# Everything a damaged MCAP makes the mcap readers raise.
+_BROKEN: tuple[type[BaseException], ...] = (
+    McapError,
+    struct.error,
+    ValueError,  # includes mcap's CRCValidationError and bad UTF-8
+    EOFError,
+    KeyError,
+    IndexError,
+    RuntimeError,  # lz4
+    OverflowError,
+)
+if zstandard is not None:
+    _BROKEN += (zstandard.ZstdError,)
+
+
+def _describe(exc: BaseException, name: str) -> str:
+    if isinstance(exc, EndOfFile | struct.error | EOFError):
+        return f"{name} is cut short (the recorder did not finish: crash, kill or full disk)"
+    detail = str(exc) or type(exc).__name__
+    return f"{name} has a broken record ({detail}); what follows it cannot be read"
+
+
+class LogReader:
+    """An open agrifleet log: ``header``, ``metadata`` at once, messages from
+    :meth:`records`. A seekable stream is read from its start.
+
+    Finished files are read through their summary (``reader_kind == "seeking"``); others,
+    or all with ``streaming=True``, record by record up to the first broken one
+    (``"streaming"``). ``complete`` is False for a file cut short or damaged, and
+    ``problem`` says why; :meth:`records` may find damage the open did not and clears
+    ``complete`` then. Raises :class:`RecordingError` for a file that is not an MCAP or
+    not an agrifleet log.
+    """
+
+    def __init__(self, source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = False):
+        self._owned: IO[bytes] | None = None
+        if isinstance(source, str | os.PathLike):
+            self.name = str(source)
+            try:
+                self._owned = open(source, "rb")  # noqa: SIM115 - closed by close()
+            except OSError as exc:
+                raise RecordingError(f"cannot open log {self.name}: {exc.strerror}") from exc
+            stream: IO[bytes] = self._owned
+        else:
+            self.name = str(getattr(source, "name", "<stream>"))
+            stream = source if source.seekable() else io.BytesIO(source.read())
+        self._stream = stream
+        self.header: Header | None = None
+        self.metadata: dict[str, str] = {}
+        self.complete = False
+        self.problem: str | None = None
+        self.reader_kind = "streaming"
+        self._seeking: SeekingReader | None = None
+        try:
+            self._open(streaming)
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def profile(self) -> str:
+        return self.header.profile if self.header else ""
+
+    @property
+    def library(self) -> str:
+        return self.header.library if self.header else ""
+
+    def _open(self, streaming: bool) -> None:
+        stream = self._stream
+        size = stream.seek(0, io.SEEK_END)
+        stream.seek(0)
+        start = stream.read(len(MCAP_MAGIC))
+        if not start:
+            raise RecordingError(f"{self.name} is empty: not an agrifleet log")
+        if not MCAP_MAGIC.startswith(start):
+            raise RecordingError(f"{self.name} is not an MCAP file (no MCAP magic at its start)")
+        if not streaming and size >= 2 * len(MCAP_MAGIC):
+            stream.seek(-len(MCAP_MAGIC), io.SEEK_END)
+            if stream.read(len(MCAP_MAGIC)) == MCAP_MAGIC and self._open_seeking():
+                return
+        self._open_streaming()
+
+    def _open_seeking(self) -> bool:
+        """Read header, summary and metadata of a finished file; False to read it as a stream."""
+        try:
+            self._stream.seek(0)
+            reader = SeekingReader(
+                self._stream, validate_crcs=True, record_size_limit=_RECORD_SIZE_LIMIT
+            )
+            header = reader.get_header()
+            self._check_header(header)
+            summary = reader.get_summary()
+            if summary is None or not summary.chunk_indexes:
+                return False
+            metadata: dict[str, str] = {}
+            for record in reader.iter_metadata():
+                if record.name == METADATA_NAME:
+                    metadata.update(record.metadata)
+        except RecordingError:
+            raise
+        except _BROKEN as exc:
+            logger.debug("%s: summary unreadable (%s), reading it as a stream", self.name, exc)
+            return False
+        self.header, self.metadata, self._seeking = header, metadata, reader
+        self.complete, self.problem, self.reader_kind = True, None, "seeking"
+        return True
+
+    def _open_streaming(self) -> None:
+        """One pass over the records (chunks left compressed) for header, metadata and
+        whether the file ends properly."""
+        self._stream.seek(0)
+        reader = StreamReader(self._stream, emit_chunks=True, record_size_limit=_RECORD_SIZE_LIMIT)
+        try:
+            for record in reader.records:
+                if isinstance(record, Header):
+                    self._check_header(record)
+                    self.header = record
+                elif isinstance(record, Metadata) and record.name == METADATA_NAME:
+                    self.metadata.update(record.metadata)
+        except RecordingError:
+            raise
+        except _BROKEN as exc:
+            self.complete, self.problem = False, _describe(exc, self.name)
+        else:
+            self.complete, self.problem = True, None
+
+    def _check_header(self, header: Header) -> None:
+        if header.profile != PROFILE:
+            profile = header.profile or "none"
+            raise RecordingError(
+                f"{self.name} is an MCAP file but not an agrifleet log "
+                f"(profile {profile!r}, written by {header.library!r})"
+            )
+
+    def records(self, topics: Iterable[str] | None = None) -> Iterator[LogRecord]:
+        """The messages (of ``topics`` only, if given), up to the first broken record:
+        in log-time order from a finished file, in the order written from one cut short
+        (the same order unless threads recorded out of time order)."""
+        wanted = None if topics is None else set(topics)
+        if self._seeking is not None:
+            yield from self._records_seeking(self._seeking, wanted)
+        else:
+            yield from self._records_streaming(wanted)
+
+    def _records_seeking(
+        self, reader: SeekingReader, wanted: set[str] | None
+    ) -> Iterator[LogRecord]:
+        try:
+            # Log-time order reads chunk by chunk; insert order would read them all first.
+            for schema, channel, message in reader.iter_messages(wanted, log_time_order=True):
+                yield LogRecord(
+                    channel.topic,
+                    schema.name if schema is not None else "",
+                    channel.message_encoding,
+                    message.log_time,
+                    message.data,
+                )
+        except _BROKEN as exc:
+            self._broken(exc)
+
+    def _records_streaming(self, wanted: set[str] | None) -> Iterator[LogRecord]:
+        self._stream.seek(0)
+        reader = StreamReader(
+            self._stream, validate_crcs=True, record_size_limit=_RECORD_SIZE_LIMIT
+        )
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        try:
+            for record in reader.records:
+                if isinstance(record, Message):
+                    channel = channels[record.channel_id]
+                    if wanted is not None and channel.topic not in wanted:
+                        continue
+                    schema = schemas.get(channel.schema_id)
+                    yield LogRecord(
+                        channel.topic,
+                        schema.name if schema is not None else "",
+                        channel.message_encoding,
+                        record.log_time,
+                        record.data,
+                    )
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record
+        except _BROKEN as exc:
+            self._broken(exc)
+
+    def _broken(self, exc: BaseException) -> None:
+        if self.complete or self.problem is None:
+            self.problem = _describe(exc, self.name)
+        self.complete = False
+
+    def close(self) -> None:
+        if self._owned is not None:
+            self._owned.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def open_log(source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = False) -> LogReader:
+    """An agrifleet log opened for reading (a context manager); see :class:`LogReader`."""
+    return LogReader(source, streaming=streaming)
+
+
+def read_log(source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = False) -> LogContents:
+    """Everything in an agrifleet log, in memory. Raises :class:`RecordingError` if
+    ``source`` is not an MCAP file or not an agrifleet log."""
+    with LogReader(source, streaming=streaming) as log:
+        records = list(log.records())
+        return LogContents(
+            source=log.name,
+            profile=log.profile,
+            library=log.library,
+            metadata=dict(log.metadata),
+            records=records,
+            complete=log.complete,
+            problem=log.problem,
+        )
+
+
+def iter_records(
+    source: str | os.PathLike[str] | IO[bytes], topics: Iterable[str] | None = None
+) -> Iterator[LogRecord]:
+    """The messages of an agrifleet log one by one (of ``topics`` only, if given); a log
+    cut short yields what it holds and a warning is logged."""
+    with LogReader(source) as log:
+        yield from log.records(topics)
+        if not log.complete:
+            logger.warning("%s", log.problem)
+
+
+def metadata(source: str | os.PathLike[str] | IO[bytes]) -> dict[str, str]:
+    """The "agrifleet" metadata of a log (farm_id, software_version, start_time, plan_id ...)."""
+    with LogReader(source) as log:
+        return dict(log.metadata)

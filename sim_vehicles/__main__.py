@@ -1,0 +1,99 @@
+"""``python -m sim_vehicles SCENARIO --vehicle ID|--all --connect ENDPOINT --speedup X``:
+simulated tractors on Zenoh. Parses arguments and calls :func:`sim_vehicles.runner.run`."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import zenoh
+
+from dispatcher import wire
+from dispatcher.errors import DispatcherError
+
+EXIT_BAD_INPUT = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m sim_vehicles", description=__doc__)
+    p.add_argument("scenario", type=Path, help="scenario TOML (farm and fleet)")
+    who = p.add_mutually_exclusive_group(required=True)
+    who.add_argument("--vehicle", action="append", metavar="ID", help="machine id (repeatable)")
+    who.add_argument("--all", action="store_true", help="the whole fleet in one process")
+    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
+    p.add_argument("--telemetry-hz", type=float, default=10.0,
+                   help="GLOBAL_POSITION_INT per wall second")
+    p.add_argument("--fail-after", action="append", metavar="ID:SECONDS", default=[],
+                   help="fault injection: machine ID breaks down after SECONDS simulated")
+    p.add_argument("--mission-done", choices=["stop", "hold"], default="stop",
+                   help="at mission end stay in AUTO stopped (Rover >= 4.1) or switch to HOLD")
+    p.add_argument("--request-int", action="store_true",
+                   help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's "
+                        "MISSION_REQUEST")
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
+    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"default {wire.DEFAULT_ENDPOINT} when neither --listen nor --connect")
+    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
+    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+    return p
+
+
+def parse_fail_after(items: Sequence[str]) -> dict[str, float]:
+    """``["t1:600", ...]`` as ``{"t1": 600.0}``."""
+    out: dict[str, float] = {}
+    for item in items:
+        vid, sep, seconds = item.rpartition(":")
+        try:
+            value = float(seconds)
+        except ValueError:
+            value = -1.0
+        if not sep or not vid or not value >= 0.0:
+            raise ValueError(f"--fail-after wants ID:SECONDS (seconds >= 0), got {item!r}")
+        out[vid] = value
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from dispatcher.scenario import load_scenario
+    from sim_vehicles.runner import run
+    from sim_vehicles.tractor import RoverParams
+
+    log = logging.getLogger("sim_vehicles")
+    try:
+        scenario = load_scenario(args.scenario)
+        ids = [v.id for v in scenario.vehicles] if args.all else [
+            scenario.vehicle(vid).id for vid in args.vehicle]
+        listen = tuple(args.listen or ())
+        connect = tuple(args.connect or ())
+        if not listen and not connect and args.mode != "router":
+            connect = (wire.DEFAULT_ENDPOINT,)
+        options = wire.ZenohOptions(mode=args.mode, listen=listen, connect=connect,
+                                    config_file=args.zenoh_config, extra=tuple(args.cfg or ()))
+        options.config()  # a bad --cfg or --mode fails here, with a message
+        params = RoverParams(
+            mission_done=args.mission_done,
+            upload_request="MISSION_REQUEST_INT" if args.request_int else "MISSION_REQUEST",
+        )
+        fail_after = parse_fail_after(args.fail_after)
+        unknown = sorted(set(fail_after) - set(ids))
+        if unknown:
+            raise ValueError(f"--fail-after names {', '.join(unknown)}, not simulated here")
+        if not args.speedup > 0.0 or not args.telemetry_hz > 0.0:
+            raise ValueError("--speedup and --telemetry-hz must be > 0")
+    except (DispatcherError, ValueError, zenoh.ZError) as exc:
+        log.error("%s", exc)
+        return EXIT_BAD_INPUT
+    return run(scenario, ids, options, speedup=args.speedup, telemetry_hz=args.telemetry_hz,
+               fail_after=fail_after, params=params)
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,197 @@
+"""Zenoh I/O around :class:`~sim_vehicles.tractor.SimTractor`: one process, any number of
+simulated tractors, each on the wire contract of :mod:`dispatcher.wire`.
+
+Per vehicle: a subscriber on ``vehicle_to`` (frames go to a FIFO queue, never dropped),
+a publisher on ``vehicle_from`` (one MAVLink 2 frame per sample) and a liveliness token
+on ``vehicle_alive`` held while the process runs. A vehicle broken down by fault
+injection keeps its token (its radio lives, its autopilot is silent): the ground
+station sees heartbeats stop.
+
+Clocks: vehicles move in simulated time, ``speedup`` simulated seconds per wall second;
+heartbeats (1 Hz), positions (``telemetry_hz``) and the mission protocol's timeouts run in
+wall time, as a ground station on the other end of the link does.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from types import FrameType
+
+import zenoh
+
+from dispatcher import mavlink_codec as mc
+from dispatcher import wire
+from dispatcher.errors import ConfigError
+from dispatcher.scenario import Scenario
+from sim_vehicles.tractor import RoverParams, SimTractor
+
+logger = logging.getLogger(__name__)
+
+EXIT_OK = 0
+
+HEARTBEAT_PERIOD_S = 1.0
+MAX_WAIT_S = 0.05
+"""Longest wait for a frame before vehicles are moved on (wall seconds)."""
+
+
+@dataclass
+class _Link:
+    """One simulated vehicle and its Zenoh entities."""
+
+    vid: str
+    tractor: SimTractor
+    codec: mc.Codec  # encodes what the vehicle sends (main thread only)
+    inbound: mc.Codec  # decodes what it receives (main thread only)
+    publisher: zenoh.Publisher
+    subscriber: zenoh.Subscriber[None]
+    token: zenoh.LivelinessToken
+
+    def send(self, messages: Sequence[mc.MAVLinkMessage]) -> None:
+        for msg in messages:
+            self.publisher.put(self.codec.encode(msg))
+
+
+def run(
+    scenario: Scenario,
+    vehicle_ids: list[str],
+    options: wire.ZenohOptions,
+    speedup: float = 1.0,
+    telemetry_hz: float = 10.0,
+    stop: threading.Event | None = None,
+    fail_after: dict[str, float] | None = None,
+    params: RoverParams | None = None,
+) -> int:
+    """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
+
+    ``fail_after`` maps a vehicle id to the simulated second it breaks down at.
+    Returns the exit code (0). Raises :class:`ConfigError` for an unknown vehicle id.
+    """
+    if not vehicle_ids:
+        raise ConfigError(f"{scenario.source}: no vehicle to simulate")
+    vehicles = [scenario.vehicle(vid) for vid in vehicle_ids]
+    fail_after = dict(fail_after or {})
+    for vid in fail_after:
+        if vid not in vehicle_ids:
+            raise ConfigError(f"fail_after names {vid!r}, which is not simulated here")
+    if not speedup > 0.0:
+        raise ValueError(f"speedup must be > 0, got {speedup}")
+    if not telemetry_hz > 0.0:
+        raise ValueError(f"telemetry_hz must be > 0, got {telemetry_hz}")
+    stop = stop if stop is not None else threading.Event()
+    restore_signals = _install_signal_handlers(stop)
+    inbox: queue.Queue[tuple[int, bytes]] = queue.Queue()
+    farm = scenario.farm_id
+    links: list[_Link] = []
+    boot_unix_s = time.time()
+    try:
+        with zenoh.open(options.config()) as session:
+            try:
+                for index, vehicle in enumerate(vehicles):
+                    tractor = SimTractor(
+                        vehicle, scenario.farm.garage_lonlat, params=params,
+                        fail_after_s=fail_after.get(vehicle.id), unix_epoch_s=boot_unix_s,
+                    )
+                    links.append(_Link(
+                        vid=vehicle.id,
+                        tractor=tractor,
+                        codec=mc.Codec(vehicle.system_id, tractor.component_id),
+                        inbound=mc.Codec(vehicle.system_id, tractor.component_id),
+                        publisher=session.declare_publisher(wire.vehicle_from(farm, vehicle.id)),
+                        subscriber=session.declare_subscriber(
+                            wire.vehicle_to(farm, vehicle.id), _enqueue(inbox, index)),
+                        token=session.liveliness().declare_token(
+                            wire.vehicle_alive(farm, vehicle.id)),
+                    ))
+                    logger.info("simulating %s (system %d) at home %s", vehicle.id,
+                                vehicle.system_id, scenario.farm.garage_lonlat)
+                logger.info("%d vehicle(s) on farm %r at %gx", len(links), farm, speedup)
+                _main_loop(links, inbox, stop, speedup, 1.0 / telemetry_hz)
+            finally:
+                for link in links:
+                    link.token.undeclare()
+                    link.subscriber.undeclare()
+                    link.publisher.undeclare()
+    finally:
+        restore_signals()
+    logger.info("simulator stopped")
+    return EXIT_OK
+
+
+def _main_loop(
+    links: list[_Link],
+    inbox: queue.Queue[tuple[int, bytes]],
+    stop: threading.Event,
+    speedup: float,
+    telemetry_period_s: float,
+) -> None:
+    last = time.monotonic()
+    next_heartbeat = last
+    next_telemetry = last
+    while not stop.is_set():
+        wait = min(next_heartbeat, next_telemetry) - time.monotonic()
+        frames: list[tuple[int, bytes]] = []
+        try:
+            frames.append(inbox.get(timeout=min(max(wait, 0.0), MAX_WAIT_S)))
+            while True:
+                frames.append(inbox.get_nowait())
+        except queue.Empty:
+            pass
+        now = time.monotonic()
+        sim_dt = (now - last) * speedup
+        last = now
+        for link in links:
+            link.send(link.tractor.advance(sim_dt))
+        for index, frame in frames:
+            link = links[index]
+            msg = link.inbound.decode_one(frame)
+            if msg is None:
+                logger.debug("%s: dropped a sample that is not a MAVLink frame", link.vid)
+                continue
+            link.send(link.tractor.handle(msg, link.tractor.sim_time, link_now=now))
+        for link in links:
+            link.send(link.tractor.on_link_tick(now))
+        if now >= next_heartbeat:
+            next_heartbeat = _next_time(next_heartbeat, HEARTBEAT_PERIOD_S, now)
+            for link in links:
+                link.send(link.tractor.heartbeat(link.tractor.sim_time))
+        if now >= next_telemetry:
+            next_telemetry = _next_time(next_telemetry, telemetry_period_s, now)
+            for link in links:
+                link.send(link.tractor.telemetry(link.tractor.sim_time))
+
+
+def _next_time(scheduled: float, period: float, now: float) -> float:
+    """The next tick of a regular clock, without bursts to catch up after a stall."""
+    following = scheduled + period
+    return following if following > now else now + period
+
+
+def _enqueue(inbox: queue.Queue[tuple[int, bytes]], index: int) -> Callable[[zenoh.Sample], None]:
+    def on_sample(sample: zenoh.Sample) -> None:
+        inbox.put((index, sample.payload.to_bytes()))
+
+    return on_sample
+
+
+def _install_signal_handlers(stop: threading.Event) -> Callable[[], None]:
+    """SIGINT/SIGTERM set ``stop`` (main thread only); returns what puts them back."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        logger.info("signal %d: stopping", signum)
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore

@@ -1,0 +1,129 @@
+"""The ground-station side of the mission protocol against recorded ArduPilot-style
+exchanges: what a Rover sends, in the order it sends it."""
+
+from dispatcher import mavlink_codec as mc
+from dispatcher.mission_client import (
+    Command,
+    CommandSequence,
+    MissionUpload,
+    Outcome,
+    start_mission_commands,
+)
+
+VEHICLE = 7
+
+
+def items(n):
+    return [
+        mc.mission_item_int(target_system=VEHICLE, target_component=1, seq=k,
+                            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                            command=mc.MAV_CMD_NAV_WAYPOINT, current=0, autocontinue=1,
+                            param1=0, param2=0, param3=0, param4=0,
+                            x=440000000 + k, y=873000000 + k, z=0)
+        for k in range(n)
+    ]
+
+
+def request(seq):
+    return mc.message("MISSION_REQUEST_INT", target_system=255, target_component=190, seq=seq,
+                      mission_type=0)
+
+
+def ack(result):
+    return mc.message("MISSION_ACK", target_system=255, target_component=190, type=result,
+                      mission_type=0)
+
+
+def wire(msg):
+    """Through a real MAVLink 2 frame, as the vehicle's message would arrive."""
+    codec = mc.Codec(VEHICLE, 1)
+    return mc.Codec(255, 190).decode_one(codec.encode(msg))
+
+
+def test_full_upload():
+    up = MissionUpload(items(3), VEHICLE)
+    (count,) = up.start(0.0)
+    assert count.get_type() == "MISSION_COUNT" and count.count == 3
+    assert count.target_system == VEHICLE
+    for k in range(3):
+        (item,) = up.on_message(wire(request(k)), 0.1 * k)
+        assert item.get_type() == "MISSION_ITEM_INT" and item.seq == k
+    assert up.on_message(wire(ack(mc.MAV_MISSION_ACCEPTED)), 0.5) == []
+    assert up.outcome is Outcome.DONE and up.stats.retries == 0
+
+
+def test_vehicle_asks_again_for_an_item_and_flags_an_out_of_sequence_one():
+    up = MissionUpload(items(3), VEHICLE)
+    up.start(0.0)
+    up.on_message(request(0), 0.0)
+    up.on_message(request(1), 0.1)
+    # ArduPilot re-requests an item it did not get ...
+    (again,) = up.on_message(request(1), 0.2)
+    assert again.seq == 1
+    # ... and answers an item it did not ask for with INVALID_SEQUENCE, going on.
+    assert up.on_message(ack(mc.MAV_MISSION_INVALID_SEQUENCE), 0.3) == []
+    assert up.outcome is Outcome.RUNNING
+    up.on_message(request(2), 0.4)
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.5)
+    assert up.outcome is Outcome.DONE
+
+
+def test_timeout_then_retry_then_success():
+    up = MissionUpload(items(2), VEHICLE)
+    up.start(0.0)
+    assert up.on_tick(1.0) == []  # not yet 1.5 s
+    (resent,) = up.on_tick(1.6)  # no request came: resend the count
+    assert resent.get_type() == "MISSION_COUNT"
+    up.on_message(request(0), 1.7)
+    (item,) = up.on_tick(3.3)  # item 0 lost on the way: resend it
+    assert item.get_type() == "MISSION_ITEM_INT" and item.seq == 0
+    up.on_message(request(1), 3.4)
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 3.5)
+    assert up.outcome is Outcome.DONE and up.stats.retries == 2
+
+
+def test_gives_up_after_five_retries():
+    up = MissionUpload(items(2), VEHICLE)
+    up.start(0.0)
+    now, sent = 0.0, 0
+    while up.outcome is Outcome.RUNNING:
+        now += 1.6
+        sent += len(up.on_tick(now))
+    assert sent == 5 and up.outcome is Outcome.FAILED
+    assert "after 5 retries" in up.reason
+
+
+def test_refusal_and_early_accept_fail_the_upload():
+    up = MissionUpload(items(2), VEHICLE)
+    up.start(0.0)
+    up.on_message(ack(mc.MAV_MISSION_NO_SPACE), 0.1)
+    assert up.outcome is Outcome.FAILED and "MAV_MISSION_NO_SPACE" in up.reason
+    up = MissionUpload(items(2), VEHICLE)
+    up.start(0.0)
+    up.on_message(request(0), 0.1)
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.2)
+    assert up.outcome is Outcome.FAILED
+
+
+def command_ack(command, result):
+    return mc.message("COMMAND_ACK", command=command, result=result, progress=0,
+                      result_param2=0, target_system=255, target_component=190)
+
+
+def test_start_sequence_arms_then_sets_auto_with_retries():
+    seq = CommandSequence(start_mission_commands(), VEHICLE)
+    (arm,) = seq.start(0.0)
+    assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM and arm.param1 == 1
+    (again,) = seq.on_tick(1.6)
+    assert again.confirmation == 1  # a resend counts up its confirmation
+    (mode,) = seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_ACCEPTED), 1.7)
+    assert mode.command == mc.MAV_CMD_DO_SET_MODE and mode.param2 == 10  # Rover AUTO
+    seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, mc.MAV_RESULT_ACCEPTED), 1.8)
+    assert seq.outcome is Outcome.DONE
+
+
+def test_refused_command_fails():
+    seq = CommandSequence([Command(mc.MAV_CMD_MISSION_START)], VEHICLE)
+    seq.start(0.0)
+    seq.on_message(command_ack(mc.MAV_CMD_MISSION_START, mc.MAV_RESULT_DENIED), 0.1)
+    assert seq.outcome is Outcome.FAILED and "refused" in seq.reason

@@ -1,0 +1,54 @@
+"""Fixtures for the simulator tests: a tiny real mission, its machine, a MAVLink wire."""
+
+from __future__ import annotations
+
+import pytest
+
+from dispatcher.missions import FieldVisit, Implement, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.scenario import Vehicle
+from planner.problem import Machine
+from sim_vehicles.testing import Wire
+
+VEHICLE_SYSTEM = 7
+GARAGE = LatLon(44.0030000, 87.2995000)  # near the Changji demo farm
+SERVO = Implement(kind="servo", channel=9, pwm_down=1900, pwm_up=1100)
+
+# One field, three ~160 m swaths going east/west 6 m apart, ~200 m north of the garage.
+FIELD = FieldVisit(
+    field_id="f1",
+    swaths=(
+        (LatLon(44.0045000, 87.3000000), LatLon(44.0045000, 87.3020000)),
+        (LatLon(44.0045540, 87.3020000), LatLon(44.0045540, 87.3000000)),
+        (LatLon(44.0046080, 87.3000000), LatLon(44.0046080, 87.3020000)),
+    ),
+)
+
+
+@pytest.fixture
+def wire() -> Wire:
+    return Wire(VEHICLE_SYSTEM)
+
+
+@pytest.fixture
+def home_lonlat() -> tuple[float, float]:
+    return GARAGE.lon, GARAGE.lat
+
+
+@pytest.fixture
+def mission() -> Mission:
+    """11 items: home, road speed, entry, work speed, implement down, 5 swath waypoints
+    (the first swath start is the entry), implement up, road speed, garage."""
+    spec = MissionSpec(
+        machine_id="t7", home=GARAGE, road_speed_kmh=10.0, work_speed_kmh=3.6,
+        implement=SERVO, visits=(FIELD,),
+    )
+    return build_mission(spec)
+
+
+@pytest.fixture
+def vehicle() -> Vehicle:
+    machine = Machine(
+        "t7", working_width_m=6.0, capacity_m2h=20000.0, road_speed_kmh=10.0,
+        turn_time_h=0.004, road_fuel_lh=3.0, work_fuel_lh=7.0, work_speed_kmh=3.6,
+    )
+    return Vehicle(machine, VEHICLE_SYSTEM, SERVO)
