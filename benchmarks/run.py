@@ -46,14 +46,17 @@ def bench_solver(seconds: float, seeds: int) -> str:
     picks = [("eil51", 3), ("eil76", 5), ("kroA100", 5), ("kroA150", 3), ("kroA200", 4)]
     variants = {
         "IGHOA (ours)": ("ighoa", IGHOAParams()),
-        "IGHOA (paper only)": ("ighoa", IGHOAParams(local_search="paper", memetic=0,
-                                                     shift_counts=False)),
+        "IGHOA (paper only)": (
+            "ighoa",
+            IGHOAParams(local_search="paper", memetic=0, shift_counts=False),
+        ),
         "GA": ("ga", None),
     }
     lines = [
         f"### Solver: min-sum mTSP, {seeds} seeds, {seconds:g} s (or 2000 generations) each",
         "",
-        "| instance | m | " + " | ".join(f"{v} mean" for v in variants)
+        "| instance | m | "
+        + " | ".join(f"{v} mean" for v in variants)
         + " | paper IGHOA | ours / paper | ours / paper-only | BKS |",
         "|---|---|" + "---|" * (len(variants) + 4),
     ]
@@ -62,13 +65,18 @@ def bench_solver(seconds: float, seeds: int) -> str:
         problem = read_instance(HERE / "tsplib" / f"{name}.tsp").to_problem(m)
         means = {}
         for label, (alg, params) in variants.items():
-            costs = [solve(problem, "distance", alg, stop_after(2000, seconds), seed=s,
-                           params=params).cost for s in range(1, seeds + 1)]
+            costs = [
+                solve(
+                    problem, "distance", alg, stop_after(2000, seconds), seed=s, params=params
+                ).cost
+                for s in range(1, seeds + 1)
+            ]
             means[label] = statistics.fmean(costs)
         ours, paper_only = means["IGHOA (ours)"], means["IGHOA (paper only)"]
         bks = BKS_MINSUM.get((name, m))
         lines.append(
-            f"| {name} | {m} | " + " | ".join(f"{v:.2f}" for v in means.values())
+            f"| {name} | {m} | "
+            + " | ".join(f"{v:.2f}" for v in means.values())
             + f" | {cell.ighoa:.2f} | {ours / cell.ighoa:.3f} | {ours / paper_only:.3f} "
             f"| {f'{bks:.2f}' if bks else '–'} |"
         )
@@ -88,11 +96,17 @@ def main() -> int:
     from planner.solve import warm_up
 
     warm_up()
-    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, cwd=HERE.parent).stdout.strip()
-    report = [f"## {stamp} · commit {commit}", "", f"Machine: {machine_line()}",
-              f"Command: `python benchmarks/run.py {' '.join(sys.argv[1:])}`", ""]
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE.parent
+    ).stdout.strip()
+    report = [
+        f"## {stamp} · commit {commit}",
+        "",
+        f"Machine: {machine_line()}",
+        f"Command: `python benchmarks/run.py {' '.join(sys.argv[1:])}`",
+        "",
+    ]
     for name in args.sections:
         fn = SECTIONS[name]
         if name == "solver":

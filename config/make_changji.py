@@ -16,9 +16,21 @@ import random
 from pyproj import Transformer
 
 TABLE11 = [  # task, width m, length m (area = width * length as printed)
-    (1, 241, 178), (2, 277, 172), (3, 216, 166), (4, 214, 160), (5, 234, 188),
-    (6, 275, 183), (7, 212, 177), (8, 218, 174), (9, 233, 153), (10, 273, 153),
-    (11, 207, 153), (12, 219, 153), (13, 307, 173), (14, 302, 172), (15, 316, 157),
+    (1, 241, 178),
+    (2, 277, 172),
+    (3, 216, 166),
+    (4, 214, 160),
+    (5, 234, 188),
+    (6, 275, 183),
+    (7, 212, 177),
+    (8, 218, 174),
+    (9, 233, 153),
+    (10, 273, 153),
+    (11, 207, 153),
+    (12, 219, 153),
+    (13, 307, 173),
+    (14, 302, 172),
+    (15, 316, 157),
 ]
 ORIGIN = (87.3, 44.0)  # lon, lat of the farm's south-west corner
 ROAD = 24.0
@@ -46,18 +58,27 @@ def main() -> None:
             lon, lat = to_wgs.transform(rx, ry)
             corners.append([round(lon, 7), round(lat, 7)])
         corners.append(corners[0])
-        features.append({
-            "type": "Feature",
-            "properties": {"kind": "field", "id": f"F{task:02d}", "name": f"Table 11 field {task}",
-                           "paper_width_m": width, "paper_length_m": length},
-            "geometry": {"type": "Polygon", "coordinates": [corners]},
-        })
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {
+                    "kind": "field",
+                    "id": f"F{task:02d}",
+                    "name": f"Table 11 field {task}",
+                    "paper_width_m": width,
+                    "paper_length_m": length,
+                },
+                "geometry": {"type": "Polygon", "coordinates": [corners]},
+            }
+        )
     glon, glat = to_wgs.transform(ox - 40.0, oy + 1.5 * ROW_PITCH)
-    features.append({
-        "type": "Feature",
-        "properties": {"kind": "garage", "name": "machine yard"},
-        "geometry": {"type": "Point", "coordinates": [round(glon, 7), round(glat, 7)]},
-    })
+    features.append(
+        {
+            "type": "Feature",
+            "properties": {"kind": "garage", "name": "machine yard"},
+            "geometry": {"type": "Point", "coordinates": [round(glon, 7), round(glat, 7)]},
+        }
+    )
     print(json.dumps({"type": "FeatureCollection", "features": features}, indent=1))
 
 

@@ -1,1 +1,2 @@
-"""agrifleet's dispatcher: missions, the MAVLink-over-Zenoh link, the daemon, recording, review, CLI."""
+"""agrifleet's dispatcher: missions, the MAVLink-over-Zenoh link, the daemon, recording,
+review and the command line."""

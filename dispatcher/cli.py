@@ -43,9 +43,12 @@ class ProgressBar:
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
             self._progress = Progress(
-                TextColumn("{task.description}"), BarColumn(),
+                TextColumn("{task.description}"),
+                BarColumn(),
                 TextColumn("gen {task.completed:>5.0f}  best {task.fields[best]:.2f}"),
-                TimeElapsedColumn(), console=Console(stderr=True), transient=True,
+                TimeElapsedColumn(),
+                console=Console(stderr=True),
+                transient=True,
             )
             self._progress.start()
             self._task = self._progress.add_task(self.label, total=self.total, best=best)
@@ -65,32 +68,46 @@ def cmd_mtsp(args: argparse.Namespace) -> int:
     bar = ProgressBar(args.generations, f"{instance.name} m={args.salesmen}")
     try:
         result = solve(
-            problem, args.objective, args.algorithm,
-            stop_after(args.generations, args.time_limit), seed=args.seed, on_generation=bar,
+            problem,
+            args.objective,
+            args.algorithm,
+            stop_after(args.generations, args.time_limit),
+            seed=args.seed,
+            on_generation=bar,
         )
     finally:
         bar.close()
     routes = [[int(node) for node in route] for route in result.route_ids()]
     if args.json:
-        print(json.dumps({
-            "instance": instance.name,
-            "salesmen": args.salesmen,
-            "objective": args.objective,
-            "algorithm": args.algorithm,
-            "distance": args.distance,
-            "cost": result.cost,
-            "routes": routes,
-            "elapsed_s": round(result.elapsed_s, 3),
-        }))
+        print(
+            json.dumps(
+                {
+                    "instance": instance.name,
+                    "salesmen": args.salesmen,
+                    "objective": args.objective,
+                    "algorithm": args.algorithm,
+                    "distance": args.distance,
+                    "cost": result.cost,
+                    "routes": routes,
+                    "elapsed_s": round(result.elapsed_s, 3),
+                }
+            )
+        )
         return EXIT_OK
     figs = result.figures
-    print(f"{instance.name}: {args.salesmen} salesmen, {args.objective} by {args.algorithm}, "
-          f"{args.distance} distances, seed {args.seed}")
-    print(f"cost {result.cost:.2f} (total {figs.distance_m:.2f}, longest {figs.max_distance_m:.2f})"
-          f" after {result.generations} generations in {result.elapsed_s:.2f} s")
+    print(
+        f"{instance.name}: {args.salesmen} salesmen, {args.objective} by {args.algorithm}, "
+        f"{args.distance} distances, seed {args.seed}"
+    )
+    print(
+        f"cost {result.cost:.2f} (total {figs.distance_m:.2f}, longest {figs.max_distance_m:.2f})"
+        f" after {result.generations} generations in {result.elapsed_s:.2f} s"
+    )
     for k, (route, fig) in enumerate(zip(routes, figs.routes, strict=True), start=1):
-        print(f"  salesman {k}: {fig.distance_m:10.2f}  {len(route):4d} nodes: "
-              + " ".join(map(str, route)))
+        print(
+            f"  salesman {k}: {fig.distance_m:10.2f}  {len(route):4d} nodes: "
+            + " ".join(map(str, route))
+        )
     return EXIT_OK
 
 
@@ -98,8 +115,13 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
     from planner.paper import bench_report
 
     tables = {int(t) for t in args.tables.split(",")}
-    report = bench_report(tables, args.runs, args.time_limit, args.generations,
-                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+    report = bench_report(
+        tables,
+        args.runs,
+        args.time_limit,
+        args.generations,
+        progress=lambda line: print(line, file=sys.stderr, flush=True),
+    )
     if args.out:
         Path(args.out).write_text(report)
     print(report)
@@ -120,8 +142,10 @@ def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         scenario = scenario.with_machines(args.machines)
     solver = scenario.solver
     plan = plan_farm(
-        scenario.farm, [v.machine for v in scenario.vehicles],
-        args.objective or solver.objective, solver.algorithm,
+        scenario.farm,
+        [v.machine for v in scenario.vehicles],
+        args.objective or solver.objective,
+        solver.algorithm,
         stop_after(solver.generations, args.time_limit or solver.time_limit_s),
         seed=solver.seed if args.seed is None else args.seed,
     )
@@ -130,18 +154,26 @@ def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
     doc = dispatch.document
-    print(f"plan {doc['plan_id']} for {doc['farm_id']}: objective {doc['objective']}, "
-          f"{len(doc['machines'])} machines, {len(doc['fields'])} fields")
-    print(f"{'machine':8} {'width m':>7} {'fields':>6} {'road km':>8} {'turns':>6} {'fuel L':>8} "
-          f"{'time h':>7}  order")
+    print(
+        f"plan {doc['plan_id']} for {doc['farm_id']}: objective {doc['objective']}, "
+        f"{len(doc['machines'])} machines, {len(doc['fields'])} fields"
+    )
+    print(
+        f"{'machine':8} {'width m':>7} {'fields':>6} {'road km':>8} {'turns':>6} {'fuel L':>8} "
+        f"{'time h':>7}  order"
+    )
     for m in doc["machines"]:
-        print(f"{m['id']:8} {m['working_width_m']:7.1f} {len(m['fields']):6d} "
-              f"{m['distance_m'] / 1000:8.2f} {m['turns']:6d} {m['fuel_l']:8.1f} {m['time_h']:7.2f}  "
-              + " ".join(m["fields"]))
+        print(
+            f"{m['id']:8} {m['working_width_m']:7.1f} {len(m['fields']):6d} "
+            f"{m['distance_m'] / 1000:8.2f} {m['turns']:6d} {m['fuel_l']:8.1f} {m['time_h']:7.2f}  "
+            + " ".join(m["fields"])
+        )
     t = doc["totals"]
-    print(f"{'total':8} {'':7} {len(doc['fields']):6d} {t['distance_m'] / 1000:8.2f} "
-          f"{sum(m['turns'] for m in doc['machines']):6d} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
-          f"makespan {t['makespan_h']:.2f} h")
+    print(
+        f"{'total':8} {'':7} {len(doc['fields']):6d} {t['distance_m'] / 1000:8.2f} "
+        f"{sum(m['turns'] for m in doc['machines']):6d} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
+        f"makespan {t['makespan_h']:.2f} h"
+    )
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -164,8 +196,13 @@ def zenoh_options(args: argparse.Namespace, default_listen: bool):  # type: igno
             listen = (wire.DEFAULT_ENDPOINT,)
         else:
             connect = (wire.DEFAULT_ENDPOINT,)
-    return wire.ZenohOptions(mode=args.mode, listen=listen, connect=connect,
-                             config_file=args.zenoh_config, extra=tuple(args.cfg or ()))
+    return wire.ZenohOptions(
+        mode=args.mode,
+        listen=listen,
+        connect=connect,
+        config_file=args.zenoh_config,
+        extra=tuple(args.cfg or ()),
+    )
 
 
 def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
@@ -182,8 +219,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     dispatch = plan_scenario(args)
     print_plan_table(dispatch)
-    daemon = Dispatcher(DaemonConfig(dispatch=dispatch, zenoh=zenoh_options(args, True),
-                                     log_dir=args.log_dir))
+    daemon = Dispatcher(
+        DaemonConfig(dispatch=dispatch, zenoh=zenoh_options(args, True), log_dir=args.log_dir)
+    )
     code = daemon.run()
     print(f"log: {daemon.log_path}")
     return code
@@ -202,8 +240,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
         ids = [scenario.vehicle(v).id for v in args.vehicle]
     else:
         raise SystemExit("agrifleet sim: give --vehicle ID (repeatable) or --all")
-    return run(scenario, ids, zenoh_options(args, False), speedup=args.speedup,
-               telemetry_hz=args.telemetry_hz)
+    return run(
+        scenario,
+        ids,
+        zenoh_options(args, False),
+        speedup=args.speedup,
+        telemetry_hz=args.telemetry_hz,
+    )
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -266,11 +309,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_sim)
 
     p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
-    p.add_argument("scenario", type=Path, nargs="?", default=None,
-                   help="scenario TOML (default config/changji.toml)")
+    p.add_argument(
+        "scenario",
+        type=Path,
+        nargs="?",
+        default=None,
+        help="scenario TOML (default config/changji.toml)",
+    )
     p.add_argument("--machines", type=int)
-    p.add_argument("--speedup", type=float, default=None,
-                   help="simulated seconds per second (default: fit the run into ~45 s)")
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=None,
+        help="simulated seconds per second (default: fit the run into ~45 s)",
+    )
     p.add_argument("--log-dir", type=Path, default=Path("logs"))
     p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
     p.add_argument("--time-limit", type=float, help="solver seconds")

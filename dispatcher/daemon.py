@@ -26,7 +26,12 @@ import zenoh
 
 from dispatcher import mavlink_codec as mc
 from dispatcher import wire
-from dispatcher.mission_client import CommandSequence, MissionUpload, Outcome, start_mission_commands
+from dispatcher.mission_client import (
+    CommandSequence,
+    MissionUpload,
+    Outcome,
+    start_mission_commands,
+)
 from dispatcher.plan_output import DispatchPlan, plan_geojson
 from dispatcher.recording import Recorder
 from dispatcher.state import ACTIVE, FleetState, Phase
@@ -103,19 +108,30 @@ class Dispatcher:
         log.info("recording to %s", self.log_path)
         self.session = zenoh.open(cfg.zenoh.config())
         s = self.session
-        self._entities.append(s.declare_subscriber(
-            f"{wire.PREFIX}/{self.farm}/vehicle/*/mavlink/from", self._on_frame))
-        self._entities.append(s.liveliness().declare_subscriber(
-            f"{wire.PREFIX}/{self.farm}/vehicle/*/alive", self._on_liveliness, history=True))
-        self._entities.append(s.declare_queryable(wire.dispatcher_status(self.farm), self._on_query))
+        self._entities.append(
+            s.declare_subscriber(
+                f"{wire.PREFIX}/{self.farm}/vehicle/*/mavlink/from", self._on_frame
+            )
+        )
+        self._entities.append(
+            s.liveliness().declare_subscriber(
+                f"{wire.PREFIX}/{self.farm}/vehicle/*/alive", self._on_liveliness, history=True
+            )
+        )
+        self._entities.append(
+            s.declare_queryable(wire.dispatcher_status(self.farm), self._on_query)
+        )
         for vid in self.state.vehicles:
             self.publishers[vid] = s.declare_publisher(wire.vehicle_to(self.farm, vid))
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
         self.recorder.record_plan(self.dispatch.document, plan_geojson(self.dispatch), now_ns)
         self.publishers["plan"].put(json.dumps(self.dispatch.document))
-        self._log("info", f"plan {self.dispatch.plan_id} published; waiting for "
-                          f"{len(self.state.vehicles)} vehicles")
+        self._log(
+            "info",
+            f"plan {self.dispatch.plan_id} published; waiting for "
+            f"{len(self.state.vehicles)} vehicles",
+        )
 
     def main_loop(self) -> int:
         while not self.should_exit.is_set():
@@ -214,8 +230,9 @@ class Dispatcher:
             return
         self.state.on_message(vid, msg, now)
         if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
-            self.recorder.record_location(vid, msg.lat / 1e7, msg.lon / 1e7, t_ns,
-                                          msg.time_boot_ms / 1000.0)
+            self.recorder.record_location(
+                vid, msg.lat / 1e7, msg.lon / 1e7, t_ns, msg.time_boot_ms / 1000.0
+            )
         link = self.links[vid]
         for machine in (link.upload, link.start):
             if machine is not None and machine.outcome is Outcome.RUNNING:
@@ -238,8 +255,11 @@ class Dispatcher:
                 if machine is not None and machine.outcome is Outcome.RUNNING:
                     self._send(vid, machine.on_tick(now))
             self._advance(vid, now)
-            if (v.phase in ACTIVE and v.last_seen is not None
-                    and now - v.last_seen > self.config.heartbeat_timeout_s):
+            if (
+                v.phase in ACTIVE
+                and v.last_seen is not None
+                and now - v.last_seen > self.config.heartbeat_timeout_s
+            ):
                 self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
                 self.state.on_gone(vid, now, "heartbeats stopped")
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
@@ -264,8 +284,10 @@ class Dispatcher:
             v.upload_retries = link.upload.stats.retries
             if link.upload.outcome is Outcome.DONE:
                 self._log("info", f"{vid}: mission acknowledged")
-                if all(lk.upload is not None and lk.upload.outcome is Outcome.DONE
-                       for lk in self.links.values()):
+                if all(
+                    lk.upload is not None and lk.upload.outcome is Outcome.DONE
+                    for lk in self.links.values()
+                ):
                     self.all_acknowledged = now
                 v.phase = Phase.STARTING
                 link.start = CommandSequence(start_mission_commands(), v.system_id)

@@ -59,8 +59,15 @@ class Supervisor:
         try:
             for cmd in commands:
                 out = open(log_dir / f"{Path(cmd[-1]).name}.log", "ab")  # noqa: SIM115
-                procs.append(subprocess.Popen(list(cmd), stdout=out, stderr=subprocess.STDOUT,
-                                              stdin=subprocess.DEVNULL, env=env))
+                procs.append(
+                    subprocess.Popen(
+                        list(cmd),
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                        stdin=subprocess.DEVNULL,
+                        env=env,
+                    )
+                )
                 out.close()
         except BaseException:
             cls(procs).stop()
@@ -84,8 +91,19 @@ class Supervisor:
 
 
 def sim_command(scenario: Path, vehicle: str, endpoint: str, speedup: float) -> list[str]:
-    return [sys.executable, "-m", "dispatcher.cli", "sim", str(scenario), "--connect", endpoint,
-            "--speedup", f"{speedup:.3f}", "--vehicle", vehicle]
+    return [
+        sys.executable,
+        "-m",
+        "dispatcher.cli",
+        "sim",
+        str(scenario),
+        "--connect",
+        endpoint,
+        "--speedup",
+        f"{speedup:.3f}",
+        "--vehicle",
+        vehicle,
+    ]
 
 
 class ProgressPrinter:
@@ -106,10 +124,15 @@ class ProgressPrinter:
         parts = []
         for v in state.vehicles.values():
             field = v.current_field or "-"
-            parts.append(f"{v.id} {v.phase.value:<9} {field:<4} {100 * v.share_done:5.1f}% "
-                         f"eta {v.eta_s / 3600:5.2f} h")
-        print(f"[{done}/{len(state.fields)} fields] " + " | ".join(parts), file=self.stream,
-              flush=True)
+            parts.append(
+                f"{v.id} {v.phase.value:<9} {field:<4} {100 * v.share_done:5.1f}% "
+                f"eta {v.eta_s / 3600:5.2f} h"
+            )
+        print(
+            f"[{done}/{len(state.fields)} fields] " + " | ".join(parts),
+            file=self.stream,
+            flush=True,
+        )
 
 
 def run_demo(
@@ -122,9 +145,12 @@ def run_demo(
     """Run the demo; returns the exit code and the finished dispatcher (for the summary)."""
     speed = speedup or auto_speedup(dispatch)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    print(f"plan {dispatch.plan_id}: {len(dispatch.missions)} tractors, "
-          f"{len(dispatch.plan.farm.fields)} fields, planned makespan "
-          f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}", flush=True)
+    print(
+        f"plan {dispatch.plan_id}: {len(dispatch.missions)} tractors, "
+        f"{len(dispatch.plan.farm.fields)} fields, planned makespan "
+        f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}",
+        flush=True,
+    )
     config = DaemonConfig(
         dispatch=dispatch,
         zenoh=wire.dispatcher_options((endpoint,)),
@@ -165,6 +191,8 @@ def summary(daemon: Dispatcher) -> str:
     done = sum(f.status == "done" for f in state.fields.values())
     lines.append(f"  fields done: {done}/{len(state.fields)}")
     if daemon.upload_started is not None and daemon.all_acknowledged is not None:
-        lines.append(f"  every mission acknowledged {daemon.all_acknowledged - daemon.upload_started:.2f} s "
-                     "after the first upload began")
+        lines.append(
+            f"  every mission acknowledged {daemon.all_acknowledged - daemon.upload_started:.2f} s "
+            "after the first upload began"
+        )
     return "\n".join(lines)

@@ -14,8 +14,18 @@ from matplotlib.lines import Line2D  # noqa: E402
 from planner.farm import Farm  # noqa: E402
 from planner.field_plan import FarmPlan  # noqa: E402
 
-COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b",
-           "#e377c2", "#7f7f7f", "#bcbd22"]
+COLOURS = [
+    "#1f77b4",
+    "#d62728",
+    "#2ca02c",
+    "#9467bd",
+    "#ff7f0e",
+    "#17becf",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+]
 
 
 def colour(k: int) -> str:
@@ -31,13 +41,22 @@ def draw_fields(ax: Axes, farm: Farm) -> None:
             hx, hy = hole.xy
             ax.fill(hx, hy, facecolor="white", edgecolor="#6b5b3e", linewidth=0.8, zorder=1)
         c = f.boundary.representative_point()
-        ax.annotate(f.id, (c.x, c.y), ha="center", va="center", fontsize=8, color="#3d3325",
-                    fontweight="bold", zorder=6,
-                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7})
+        ax.annotate(
+            f.id,
+            (c.x, c.y),
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="#3d3325",
+            fontweight="bold",
+            zorder=6,
+            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+        )
     gx, gy = farm.garage
     ax.plot([gx], [gy], marker="s", markersize=11, color="black", zorder=7)
-    ax.annotate("garage", (gx, gy), xytext=(6, -14), textcoords="offset points", fontsize=9,
-                zorder=7)
+    ax.annotate(
+        "garage", (gx, gy), xytext=(6, -14), textcoords="offset points", fontsize=9, zorder=7
+    )
 
 
 def draw_scale_bar(ax: Axes) -> None:
@@ -47,14 +66,28 @@ def draw_scale_bar(ax: Axes) -> None:
     span = (x1 - x0) / 5
     length = next(v for v in (5000, 2000, 1000, 500, 200, 100, 50, 20, 10, 5, 2, 1) if v <= span)
     bx, by = x0 + 0.04 * (x1 - x0), y0 + 0.05 * (y1 - y0)
-    ax.plot([bx, bx + length], [by, by], color="black", linewidth=3, solid_capstyle="butt",
-            zorder=8)
+    ax.plot(
+        [bx, bx + length], [by, by], color="black", linewidth=3, solid_capstyle="butt", zorder=8
+    )
     label = f"{length // 1000} km" if length >= 1000 else f"{length} m"
-    ax.text(bx + length / 2, by + 0.02 * (y1 - y0), label, ha="center", va="bottom",
-            fontsize=9, zorder=8)
-    ax.annotate("N", xy=(x1 - 0.04 * (x1 - x0), y1 - 0.05 * (y1 - y0)),
-                xytext=(x1 - 0.04 * (x1 - x0), y1 - 0.14 * (y1 - y0)), ha="center",
-                fontsize=10, fontweight="bold", arrowprops={"arrowstyle": "-|>", "color": "black"})
+    ax.text(
+        bx + length / 2,
+        by + 0.02 * (y1 - y0),
+        label,
+        ha="center",
+        va="bottom",
+        fontsize=9,
+        zorder=8,
+    )
+    ax.annotate(
+        "N",
+        xy=(x1 - 0.04 * (x1 - x0), y1 - 0.05 * (y1 - y0)),
+        xytext=(x1 - 0.04 * (x1 - x0), y1 - 0.14 * (y1 - y0)),
+        ha="center",
+        fontsize=10,
+        fontweight="bold",
+        arrowprops={"arrowstyle": "-|>", "color": "black"},
+    )
 
 
 def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2D]:
@@ -66,21 +99,46 @@ def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2
         col = colour(k)
         for visit in route.visits:
             for s in visit.swaths:
-                ax.plot([s.start[0], s.end[0]], [s.start[1], s.end[1]], color=col, linewidth=0.5,
-                        alpha=0.8, zorder=2)
+                ax.plot(
+                    [s.start[0], s.end[0]],
+                    [s.start[1], s.end[1]],
+                    color=col,
+                    linewidth=0.5,
+                    alpha=0.8,
+                    zorder=2,
+                )
             for ring in visit.headland:
-                ax.plot([p[0] for p in ring], [p[1] for p in ring], color=col, linewidth=0.5,
-                        alpha=0.8, zorder=2)
+                ax.plot(
+                    [p[0] for p in ring],
+                    [p[1] for p in ring],
+                    color=col,
+                    linewidth=0.5,
+                    alpha=0.8,
+                    zorder=2,
+                )
         points = [garage]
         for visit in route.visits:
             points += [visit.entry, visit.exit]
         points.append(garage)
         for a, b in zip(points[0::2], points[1::2], strict=True):
-            ax.annotate("", xy=b, xytext=a, zorder=4,
-                        arrowprops={"arrowstyle": "-|>", "color": col, "linewidth": 1.8,
-                                    "linestyle": planned_style, "shrinkA": 0, "shrinkB": 0})
-        label = (f"{route.machine.id} ({route.machine.working_width_m:g} m): "
-                 f"{len(route.visits)} fields, {route.time_h:.1f} h, {route.road_m / 1000:.1f} km road")
+            ax.annotate(
+                "",
+                xy=b,
+                xytext=a,
+                zorder=4,
+                arrowprops={
+                    "arrowstyle": "-|>",
+                    "color": col,
+                    "linewidth": 1.8,
+                    "linestyle": planned_style,
+                    "shrinkA": 0,
+                    "shrinkB": 0,
+                },
+            )
+        label = (
+            f"{route.machine.id} ({route.machine.working_width_m:g} m): "
+            f"{len(route.visits)} fields, {route.time_h:.1f} h, {route.road_m / 1000:.1f} km road"
+        )
         handles.append(Line2D([], [], color=col, linewidth=2, label=label))
     return handles
 
@@ -104,12 +162,26 @@ def draw_plan_map(plan: FarmPlan, path: str | Path, title: str = "") -> None:
     ax.set_xticks([])
     ax.set_yticks([])
     draw_scale_bar(ax)
-    handles.append(Line2D([], [], color="grey", linestyle="--", linewidth=1.8,
-                          label="road between fields (arrow: driving direction)"))
+    handles.append(
+        Line2D(
+            [],
+            [],
+            color="grey",
+            linestyle="--",
+            linewidth=1.8,
+            label="road between fields (arrow: driving direction)",
+        )
+    )
     handles.append(Line2D([], [], color="grey", linewidth=0.6, label="swaths worked in a field"))
     handles.append(Line2D([], [], color="black", marker="s", linestyle="", label="garage"))
-    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), fontsize=9,
-              frameon=False, ncol=2)
+    ax.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.02),
+        fontsize=9,
+        frameon=False,
+        ncol=2,
+    )
     ax.set_title(
         f"{title}: {len(plan.machines)} machines, {len(plan.farm.fields)} fields — "
         f"all done in {plan.makespan_h:.1f} h, {plan.distance_m / 1000:.1f} km on roads, "

@@ -72,8 +72,10 @@ class MissionUpload:
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
         count = mc.message(
-            "MISSION_COUNT", target_system=self.target_system,
-            target_component=self.target_component, count=len(self.items),
+            "MISSION_COUNT",
+            target_system=self.target_system,
+            target_component=self.target_component,
+            count=len(self.items),
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
         return self._send(count, now)
@@ -104,7 +106,9 @@ class MissionUpload:
                 # ArduPilot says so for an item it did not ask for and goes on with the
                 # transfer: keep waiting for its next request.
                 return []
-            return self._fail(f"vehicle refused the mission: {mc.constant_name('MAV_MISSION_', result)}")
+            return self._fail(
+                f"vehicle refused the mission: {mc.constant_name('MAV_MISSION_', result)}"
+            )
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
@@ -200,10 +204,17 @@ class CommandSequence:
         params = (list(cmd.params) + [0.0] * 7)[:7]
         self._deadline = now + self.timeout_s
         return mc.message(
-            "COMMAND_LONG", target_system=self.target_system,
-            target_component=self.target_component, command=cmd.command,
-            confirmation=self._confirmation, param1=params[0], param2=params[1],
-            param3=params[2], param4=params[3], param5=params[4], param6=params[5],
+            "COMMAND_LONG",
+            target_system=self.target_system,
+            target_component=self.target_component,
+            command=cmd.command,
+            confirmation=self._confirmation,
+            param1=params[0],
+            param2=params[1],
+            param3=params[2],
+            param4=params[3],
+            param5=params[4],
+            param6=params[5],
             param7=params[6],
         )
 
@@ -212,6 +223,8 @@ def start_mission_commands() -> list[Command]:
     """Arm, then switch to AUTO: how a ground station starts an ArduPilot Rover mission."""
     return [
         Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
-        Command(mc.MAV_CMD_DO_SET_MODE,
-                (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO))),
+        Command(
+            mc.MAV_CMD_DO_SET_MODE,
+            (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO)),
+        ),
     ]

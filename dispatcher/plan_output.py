@@ -73,34 +73,43 @@ def dispatch_plan(scenario: Scenario, plan: FarmPlan) -> DispatchPlan:
     return DispatchPlan(scenario=scenario, plan=plan, missions=missions, document=doc)
 
 
-def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Mission]) -> dict[str, Any]:
+def plan_document(
+    scenario: Scenario, plan: FarmPlan, missions: dict[str, Mission]
+) -> dict[str, Any]:
     """plan.json: per machine its fields, figures and traceable mission items; totals."""
     farm = scenario.farm
     vehicles = {v.id: v for v in scenario.vehicles}
     machines = []
     for route in plan.machines:
         mission = missions[route.machine.id]
-        machines.append({
-            "id": route.machine.id,
-            "system_id": vehicles[route.machine.id].system_id,
-            "working_width_m": route.machine.working_width_m,
-            "fields": route.field_ids,
-            "distance_m": round(route.road_m, 3),
-            "fuel_l": round(route.fuel_l, 4),
-            "time_h": round(route.time_h, 5),
-            "work_h": round(route.work_h, 5),
-            "turns": route.turns,
-            "visits": [
-                {"field": v.field.id, "corner": v.corner, "swaths": len(v.swaths),
-                 "headland_rings": len(v.headland), "angle_deg": round(v.coverage.angle_deg, 3)}
-                for v in route.visits
-            ],
-            "mission_items": len(mission),
-            "items": [
-                [item.seq, tr.field_id, tr.swath_index, tr.role, item.x, item.y]
-                for item, tr in zip(mission.items, mission.traces, strict=True)
-            ],
-        })
+        machines.append(
+            {
+                "id": route.machine.id,
+                "system_id": vehicles[route.machine.id].system_id,
+                "working_width_m": route.machine.working_width_m,
+                "fields": route.field_ids,
+                "distance_m": round(route.road_m, 3),
+                "fuel_l": round(route.fuel_l, 4),
+                "time_h": round(route.time_h, 5),
+                "work_h": round(route.work_h, 5),
+                "turns": route.turns,
+                "visits": [
+                    {
+                        "field": v.field.id,
+                        "corner": v.corner,
+                        "swaths": len(v.swaths),
+                        "headland_rings": len(v.headland),
+                        "angle_deg": round(v.coverage.angle_deg, 3),
+                    }
+                    for v in route.visits
+                ],
+                "mission_items": len(mission),
+                "items": [
+                    [item.seq, tr.field_id, tr.swath_index, tr.role, item.x, item.y]
+                    for item, tr in zip(mission.items, mission.traces, strict=True)
+                ],
+            }
+        )
     glon, glat = farm.garage_lonlat
     doc: dict[str, Any] = {
         "farm_id": scenario.farm_id,
@@ -109,8 +118,11 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
         "seed": plan.solver.seed,
         "garage": {"lat": glat, "lon": glon},
         "fields": {
-            f.id: {"name": f.name, "area_m2": round(f.area_m2, 2),
-                   "polygon": [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]}
+            f.id: {
+                "name": f.name,
+                "area_m2": round(f.area_m2, 2),
+                "polygon": [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords],
+            }
             for f in farm.fields
         },
         "machines": machines,
@@ -160,20 +172,36 @@ def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
 
     farm = dispatch.scenario.farm
     features: list[dict[str, Any]] = [
-        {"type": "Feature", "properties": {"kind": "field", "id": f.id, "name": f.name},
-         "geometry": {"type": "Polygon", "coordinates": [
-             [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]]}}
+        {
+            "type": "Feature",
+            "properties": {"kind": "field", "id": f.id, "name": f.name},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [[list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]],
+            },
+        }
         for f in farm.fields
     ]
-    features.append({"type": "Feature", "properties": {"kind": "garage"},
-                     "geometry": {"type": "Point", "coordinates": list(farm.garage_lonlat)}})
+    features.append(
+        {
+            "type": "Feature",
+            "properties": {"kind": "garage"},
+            "geometry": {"type": "Point", "coordinates": list(farm.garage_lonlat)},
+        }
+    )
     for k, route in enumerate(dispatch.plan.machines):
         mission = dispatch.missions[route.machine.id]
         line = [[_round7(it.lon), _round7(it.lat)] for it in mission.items if it.is_waypoint]
-        features.append({
-            "type": "Feature",
-            "properties": {"kind": "route", "machine": route.machine.id, "fields": route.field_ids,
-                           "style": {"color": colour(k), "weight": 2}},
-            "geometry": {"type": "LineString", "coordinates": line},
-        })
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {
+                    "kind": "route",
+                    "machine": route.machine.id,
+                    "fields": route.field_ids,
+                    "style": {"color": colour(k), "weight": 2},
+                },
+                "geometry": {"type": "LineString", "coordinates": line},
+            }
+        )
     return {"type": "FeatureCollection", "features": features}

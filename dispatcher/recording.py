@@ -67,7 +67,6 @@ PLAN_GEOJSON_TOPIC: Final = "/plan/geojson"
 _RECORD_SIZE_LIMIT: Final = 256 * 2**20
 
 
-
 def _software_version() -> str:
     try:
         return version("agrifleet")
@@ -637,13 +636,12 @@ class Recorder:
             "file": file,
             "line": max(int(line), 0),
         }
-        self._write(((LOG_TOPIC, JSON_ENCODING, "foxglove.Log", _dumps(entry, "log line")),),
-                    log_time_ns)
+        self._write(
+            ((LOG_TOPIC, JSON_ENCODING, "foxglove.Log", _dumps(entry, "log line")),), log_time_ns
+        )
 
     # --- internals -----------------------------------------------------------------------
-    def _write(
-        self, items: Iterable[tuple[str, str, str | None, bytes]], log_time_ns: int
-    ) -> None:
+    def _write(self, items: Iterable[tuple[str, str, str | None, bytes]], log_time_ns: int) -> None:
         with self._lock:
             self._check_open()
             for topic, encoding, schema_name, data in items:

@@ -20,8 +20,13 @@ from planner.problem import Machine
 from planner.solve import ALGORITHMS
 
 MACHINE_PARAMS = (
-    "working_width_m", "capacity_m2h", "road_speed_kmh", "work_speed_kmh", "turn_time_h",
-    "road_fuel_lh", "work_fuel_lh",
+    "working_width_m",
+    "capacity_m2h",
+    "road_speed_kmh",
+    "work_speed_kmh",
+    "turn_time_h",
+    "road_fuel_lh",
+    "work_fuel_lh",
 )
 
 
@@ -95,7 +100,9 @@ def load_scenario(path: str | Path) -> Scenario:
     fleet_src = src
     if "fleet" in doc:
         if machines is not None:
-            raise ConfigError(f"{src}: give either 'fleet' (a file) or [[machine]] tables, not both")
+            raise ConfigError(
+                f"{src}: give either 'fleet' (a file) or [[machine]] tables, not both"
+            )
         fleet_path = path.parent / str(doc["fleet"])
         fleet_src = str(fleet_path)
         machines = _read_toml(fleet_path).get("machine")
@@ -114,8 +121,13 @@ def load_scenario(path: str | Path) -> Scenario:
         vehicles = tuple(by_id[c] for c in chosen)
     if not vehicles:
         raise ConfigError(f"{src}: the fleet is empty")
-    return Scenario(farm_id=farm_id, farm=farm, vehicles=vehicles,
-                    solver=_solver(doc.get("solver", {}), src), source=src)
+    return Scenario(
+        farm_id=farm_id,
+        farm=farm,
+        vehicles=vehicles,
+        solver=_solver(doc.get("solver", {}), src),
+        source=src,
+    )
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -151,10 +163,13 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
             raise ConfigError(f"{src}: {exc}") from exc
         sysid = entry["system_id"]
         if not isinstance(sysid, int) or not 1 <= sysid <= 254:
-            raise ConfigError(f"{where}: key 'system_id' must be an integer 1..254 "
-                              "(255 is the dispatcher)")
+            raise ConfigError(
+                f"{where}: key 'system_id' must be an integer 1..254 (255 is the dispatcher)"
+            )
         if sysid in system_ids:
-            raise ConfigError(f"{where}: system_id {sysid} is already used by {system_ids[sysid]!r}")
+            raise ConfigError(
+                f"{where}: system_id {sysid} is already used by {system_ids[sysid]!r}"
+            )
         if ident in {v.id for v in out}:
             raise ConfigError(f"{where}: duplicate machine id")
         system_ids[sysid] = ident

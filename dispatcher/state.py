@@ -18,7 +18,7 @@ from dispatcher.missions import Mission
 from dispatcher.plan_output import DispatchPlan
 
 
-class Phase(str, enum.Enum):
+class Phase(enum.StrEnum):
     WAITING = "waiting"  # no liveliness token yet
     ALIVE = "alive"
     UPLOADING = "uploading"
@@ -62,11 +62,15 @@ class VehicleState:
     @property
     def eta_s(self) -> float:
         """Simulated seconds of planned work left."""
-        return max(self.planned_s[-1] - self.planned_s[self.reached], 0.0) if self.planned_s else 0.0
+        return (
+            max(self.planned_s[-1] - self.planned_s[self.reached], 0.0) if self.planned_s else 0.0
+        )
 
     @property
     def current_field(self) -> str | None:
-        _, trace = self.mission.item_for_seq(min(max(self.current, self.reached), len(self.mission) - 1))
+        _, trace = self.mission.item_for_seq(
+            min(max(self.current, self.reached), len(self.mission) - 1)
+        )
         return trace.field_id
 
 
@@ -88,7 +92,9 @@ class FleetState:
         self.fields: dict[str, FieldState] = {}
         for vid, mission in dispatch.missions.items():
             self.vehicles[vid] = VehicleState(
-                id=vid, system_id=vehicles[vid].system_id, mission=mission,
+                id=vid,
+                system_id=vehicles[vid].system_id,
+                mission=mission,
                 planned_s=planned_times(mission, vehicles[vid].machine.road_speed_kmh),
             )
         for route in dispatch.plan.machines:
@@ -138,7 +144,11 @@ class FleetState:
 
     def on_item_reached(self, vid: str, seq: int) -> None:
         v = self.vehicles[vid]
-        if not 0 <= seq < len(v.mission) or v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST):
+        if not 0 <= seq < len(v.mission) or v.phase not in (
+            Phase.RUNNING,
+            Phase.STARTING,
+            Phase.LOST,
+        ):
             return
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
             self._item_done(v, s)
@@ -166,7 +176,9 @@ class FleetState:
     # --- reading -------------------------------------------------------------------------
     def finished(self) -> bool:
         """Nothing more will happen: every vehicle done, failed or lost."""
-        return all(v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST) for v in self.vehicles.values())
+        return all(
+            v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST) for v in self.vehicles.values()
+        )
 
     def all_fields_done(self) -> bool:
         return all(f.status == "done" for f in self.fields.values())
@@ -176,19 +188,34 @@ class FleetState:
             "plan_id": self.plan_id,
             "vehicles": {
                 v.id: {
-                    "phase": v.phase.value, "system_id": v.system_id, "mode": v.mode,
-                    "armed": v.armed, "reached": v.reached, "items": len(v.mission),
-                    "current_field": v.current_field, "share_done": round(v.share_done, 4),
-                    "eta_s": round(v.eta_s, 1), "sim_time_s": round(v.sim_time_s, 1),
-                    "lat": v.lat, "lon": v.lon, "fields_done": v.fields_done,
-                    "upload_attempts": v.upload_attempts, "upload_retries": v.upload_retries,
-                    "lost_s": round(v.lost_s, 3), "error": v.error,
+                    "phase": v.phase.value,
+                    "system_id": v.system_id,
+                    "mode": v.mode,
+                    "armed": v.armed,
+                    "reached": v.reached,
+                    "items": len(v.mission),
+                    "current_field": v.current_field,
+                    "share_done": round(v.share_done, 4),
+                    "eta_s": round(v.eta_s, 1),
+                    "sim_time_s": round(v.sim_time_s, 1),
+                    "lat": v.lat,
+                    "lon": v.lon,
+                    "fields_done": v.fields_done,
+                    "upload_attempts": v.upload_attempts,
+                    "upload_retries": v.upload_retries,
+                    "lost_s": round(v.lost_s, 3),
+                    "error": v.error,
                 }
                 for v in self.vehicles.values()
             },
             "fields": {
-                f.id: {"status": f.status, "vehicle": f.vehicle, "started_s": f.started_s,
-                       "finished_s": f.finished_s, "swaths_done": f.swaths_done}
+                f.id: {
+                    "status": f.status,
+                    "vehicle": f.vehicle,
+                    "started_s": f.started_s,
+                    "finished_s": f.finished_s,
+                    "swaths_done": f.swaths_done,
+                }
                 for f in self.fields.values()
             },
         }

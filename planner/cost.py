@@ -166,8 +166,17 @@ def evaluate_population(perms, counts, objective, tables, costs, route_costs):  
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     for p in range(perms.shape[0]):
         costs[p] = evaluate(
-            perms[p], counts[p], objective, dist, start_dist, end_dist, road_h, road_f,
-            task_h, task_f, route_costs[p],
+            perms[p],
+            counts[p],
+            objective,
+            dist,
+            start_dist,
+            end_dist,
+            road_h,
+            road_f,
+            task_h,
+            task_f,
+            route_costs[p],
         )
 
 

@@ -125,8 +125,9 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
             f"(limit {MAX_GARAGE_DISTANCE_M / 1000:.0f} km); are its longitude and latitude "
             "swapped? GeoJSON wants [longitude, latitude]"
         )
-    return Farm(fields=fields, garage=(gx, gy), garage_lonlat=(glon, glat), frame=frame,
-                source=source)
+    return Farm(
+        fields=fields, garage=(gx, gy), garage_lonlat=(glon, glat), frame=frame, source=source
+    )
 
 
 def _lonlat(value: Any, where: str) -> tuple[float, float]:
@@ -142,7 +143,10 @@ def _lonlat(value: Any, where: str) -> tuple[float, float]:
 
 
 def _field(
-    frame: LocalFrame, source: str, field_id: str, props: dict[str, Any],
+    frame: LocalFrame,
+    source: str,
+    field_id: str,
+    props: dict[str, Any],
     rings: list[list[tuple[float, float]]],
 ) -> Field:
     where = f"{source}: field {field_id!r}"
@@ -158,8 +162,10 @@ def _field(
     if boundary.is_empty or boundary.area <= 0.0:
         raise GeometryError(f"{where}: the polygon has no area")
     if not boundary.is_valid:
-        raise GeometryError(f"{where}: invalid polygon ({explain_validity(boundary)}); "
-                            "is its boundary self-intersecting?")
+        raise GeometryError(
+            f"{where}: invalid polygon ({explain_validity(boundary)}); "
+            "is its boundary self-intersecting?"
+        )
     angle = props.get("work_angle_deg")
     if angle is not None and (not isinstance(angle, int | float) or not math.isfinite(angle)):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
@@ -168,6 +174,10 @@ def _field(
         raise GeometryError(f"{where}: headland_passes must be a whole number >= 0, not {passes!r}")
     name = props.get("name", field_id)
     return Field(
-        id=field_id, name=str(name), boundary=boundary, boundary_lonlat=lonlat,
-        work_angle_deg=None if angle is None else float(angle), headland_passes=passes,
+        id=field_id,
+        name=str(name),
+        boundary=boundary,
+        boundary_lonlat=lonlat,
+        work_angle_deg=None if angle is None else float(angle),
+        headland_passes=passes,
     )

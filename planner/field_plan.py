@@ -109,7 +109,10 @@ def cover_farm(farm: Farm, machines: Sequence[Machine]) -> dict[tuple[str, str],
             for f in farm.fields:
                 try:
                     by_width[width][f.id] = cover_field(
-                        f.boundary, width, field_id=f.id, angle_deg=f.work_angle_deg,
+                        f.boundary,
+                        width,
+                        field_id=f.id,
+                        angle_deg=f.work_angle_deg,
                         headland_passes=f.headland_passes,
                     )
                 except GeometryError as exc:
@@ -130,9 +133,7 @@ def farm_problem(
         c = f.boundary.centroid
         rect = f.boundary.minimum_rotated_rectangle
         xs, ys = rect.exterior.coords.xy
-        sides = sorted(
-            float(np.hypot(xs[k + 1] - xs[k], ys[k + 1] - ys[k])) for k in range(2)
-        )
+        sides = sorted(float(np.hypot(xs[k + 1] - xs[k], ys[k + 1] - ys[k])) for k in range(2))
         tasks.append(Task(f.id, float(c.x), float(c.y), f.area_m2, sides[0], sides[1]))
     turns = np.array(
         [[coverage[(mc.id, f.id)].turns for f in farm.fields] for mc in machines], dtype=np.float64

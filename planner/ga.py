@@ -34,9 +34,21 @@ class GAParams:
 
 @njit(cache=True)
 def generation(  # type: ignore[no-untyped-def]
-    state, perms, counts, costs, route_costs, objective, tables, min_count,
-    crossover_rate, mutation_rate, tournament_size,
-    elite_perm, elite_counts, elite_route, elite_cost,
+    state,
+    perms,
+    counts,
+    costs,
+    route_costs,
+    objective,
+    tables,
+    min_count,
+    crossover_rate,
+    mutation_rate,
+    tournament_size,
+    elite_perm,
+    elite_counts,
+    elite_route,
+    elite_cost,
 ):
     """One classic GA generation in place."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
@@ -64,7 +76,16 @@ def generation(  # type: ignore[no-untyped-def]
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, False)
         costs[p] = evaluate(
-            perms[p], counts[p], objective, dist, start_dist, end_dist, road_h, road_f,
-            task_h, task_f, route_costs[p],
+            perms[p],
+            counts[p],
+            objective,
+            dist,
+            start_dist,
+            end_dist,
+            road_h,
+            road_f,
+            task_h,
+            task_f,
+            route_costs[p],
         )
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)

@@ -129,7 +129,6 @@ def generation(  # type: ignore[no-untyped-def]
     crossovers and mutations done (for statistics)."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     pop, n = perms.shape
-    m = counts.shape[1]
 
     # §4.2 tournament selection into a new population.
     winners = np.empty(pop, dtype=np.int64)
@@ -156,7 +155,13 @@ def generation(  # type: ignore[no-untyped-def]
             kind2 = OX if overshoot(sel_route[mo]) < sp else PMX
             crossover(state, kind1, sel_perms[d], sel_perms[mo], sel_counts[d], perms[k], counts[k])
             crossover(
-                state, kind2, sel_perms[mo], sel_perms[d], sel_counts[mo], perms[k + 1], counts[k + 1]
+                state,
+                kind2,
+                sel_perms[mo],
+                sel_perms[d],
+                sel_counts[mo],
+                perms[k + 1],
+                counts[k + 1],
             )
         else:
             perms[k] = sel_perms[d]
@@ -165,8 +170,17 @@ def generation(  # type: ignore[no-untyped-def]
             counts[k + 1] = sel_counts[mo]
     for p in range(pop):
         costs[p] = evaluate(
-            perms[p], counts[p], objective, dist, start_dist, end_dist, road_h, road_f,
-            task_h, task_f, route_costs[p],
+            perms[p],
+            counts[p],
+            objective,
+            dist,
+            start_dist,
+            end_dist,
+            road_h,
+            road_f,
+            task_h,
+            task_f,
+            route_costs[p],
         )
 
     # §4.4 adaptive mutation: formula (19) diversity and (20) rate per individual.
@@ -184,8 +198,17 @@ def generation(  # type: ignore[no-untyped-def]
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, shift_counts)
             costs[p] = evaluate(
-                perms[p], counts[p], objective, dist, start_dist, end_dist, road_h, road_f,
-                task_h, task_f, route_costs[p],
+                perms[p],
+                counts[p],
+                objective,
+                dist,
+                start_dist,
+                end_dist,
+                road_h,
+                road_f,
+                task_h,
+                task_f,
+                route_costs[p],
             )
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)
     return crossovers, mutations
@@ -198,7 +221,16 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
     (neighbour-list 2-opt when ``neighbours`` has columns). Returns the new cost."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     cost = evaluate(
-        perm, counts, objective, dist, start_dist, end_dist, road_h, road_f, task_h, task_f,
+        perm,
+        counts,
+        objective,
+        dist,
+        start_dist,
+        end_dist,
+        road_h,
+        road_f,
+        task_h,
+        task_f,
         route_cost,
     )
     trial_perm = perm.copy()
@@ -209,8 +241,17 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
         trial_counts[:] = counts
         random_two_opt(state, trial_perm, trial_counts)
         trial = evaluate(
-            trial_perm, trial_counts, objective, dist, start_dist, end_dist, road_h, road_f,
-            task_h, task_f, trial_route,
+            trial_perm,
+            trial_counts,
+            objective,
+            dist,
+            start_dist,
+            end_dist,
+            road_h,
+            road_f,
+            task_h,
+            task_f,
+            trial_route,
         )
         if trial < cost - 1e-12:
             perm[:] = trial_perm
@@ -219,6 +260,15 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
             cost = trial
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
     return evaluate(
-        perm, counts, objective, dist, start_dist, end_dist, road_h, road_f, task_h, task_f,
+        perm,
+        counts,
+        objective,
+        dist,
+        start_dist,
+        end_dist,
+        road_h,
+        road_f,
+        task_h,
+        task_f,
         route_cost,
     )

@@ -141,8 +141,12 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                         trial_lengths[b] = lengths[b] + insertion
                         ea = extras[a] - (task_x[a, t] if use_extra else 0.0)
                         eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
-                        trial_values[a] = _route_value(objective, a, trial_lengths[a], ea, road_h, road_f)
-                        trial_values[b] = _route_value(objective, b, trial_lengths[b], eb, road_h, road_f)
+                        trial_values[a] = _route_value(
+                            objective, a, trial_lengths[a], ea, road_h, road_f
+                        )
+                        trial_values[b] = _route_value(
+                            objective, b, trial_lengths[b], eb, road_h, road_f
+                        )
                         gain = current - _objective(objective, trial_values, trial_lengths)
                         if gain > best_gain:
                             best_gain, best_kind, best_b, best_p, best_w = gain, 0, b, pw + side, w
@@ -279,7 +283,12 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
                 if j == i:
                     value = 0.0
                 else:
-                    s = start_dist[mk, perm[i]] + prefix[j - 1] - prefix[i] + end_dist[mk, perm[j - 1]]
+                    s = (
+                        start_dist[mk, perm[i]]
+                        + prefix[j - 1]
+                        - prefix[i]
+                        + end_dist[mk, perm[j - 1]]
+                    )
                     value = s * rate + (extra[mk, j] - extra[mk, i])
                 total = max(before, value) if use_max else before + value
                 if total < best[k, j]:

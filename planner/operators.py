@@ -285,8 +285,11 @@ def two_opt_neighbours(perm, begin, count, machine, dist, start_dist, end_dist, 
                     if j < 0 or j == i + step or j == i:
                         continue
                     d = nodes[j + step]
-                    delta = d_ac + edge(b, d, machine, dist, start_dist, end_dist) - d_ab - edge(
-                        c, d, machine, dist, start_dist, end_dist
+                    delta = (
+                        d_ac
+                        + edge(b, d, machine, dist, start_dist, end_dist)
+                        - d_ab
+                        - edge(c, d, machine, dist, start_dist, end_dist)
                     )
                     if delta < -1e-10:
                         if direction == 0:

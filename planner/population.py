@@ -62,7 +62,9 @@ def positional_similarity(perms, div):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route):  # type: ignore[no-untyped-def]
+def keep_elite(
+    perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route
+):  # type: ignore[no-untyped-def]
     """Put the best chromosome found so far back in place of the worst one if the
     population lost it."""
     best = np.argmin(costs)

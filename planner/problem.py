@@ -163,7 +163,10 @@ class Problem:
         start = np.tile(np.asarray(depot_dist, dtype=np.float64), (m, 1))
         if turns is None:
             turns = np.array(
-                [[rectangle_turns(t.width_m, mc.working_width_m) for t in tasks] for mc in machines],
+                [
+                    [rectangle_turns(t.width_m, mc.working_width_m) for t in tasks]
+                    for mc in machines
+                ],
                 dtype=np.float64,
             )
         if work_hours is None:

@@ -180,8 +180,16 @@ def solve(
     started = time.perf_counter()
     stop.start()
     _initial_population(
-        state, perms, counts, min_count, tables,
-        algorithm == "ighoa", annealing.t_start, annealing.t_end, annealing.alpha, annealing.chain,
+        state,
+        perms,
+        counts,
+        min_count,
+        tables,
+        algorithm == "ighoa",
+        annealing.t_start,
+        annealing.t_end,
+        annealing.alpha,
+        annealing.chain,
     )
     costs = np.empty(pop)
     route_costs = np.empty((pop, m))
@@ -200,19 +208,58 @@ def solve(
                 stop.progress(), pop, stop.max_generations, params.tol_min, params.tol_max
             )
             cx, mu = ighoa.generation(
-                state, perms, counts, costs, route_costs, int(obj), tables, min_count, sp,
-                params.pc_min, params.pc_mid, params.pc_max, params.pm, params.tournament_size,
-                params.shift_counts, elite_perm, elite_counts, elite_route, elite_cost,
+                state,
+                perms,
+                counts,
+                costs,
+                route_costs,
+                int(obj),
+                tables,
+                min_count,
+                sp,
+                params.pc_min,
+                params.pc_mid,
+                params.pc_max,
+                params.pm,
+                params.tournament_size,
+                params.shift_counts,
+                elite_perm,
+                elite_counts,
+                elite_route,
+                elite_cost,
             )
             stats["crossovers"] += cx
             stats["mutations"] += mu
-            _polish(state, perms, counts, costs, route_costs, int(obj), tables, params,
-                    neighbours, min_count, stats)
+            _polish(
+                state,
+                perms,
+                counts,
+                costs,
+                route_costs,
+                int(obj),
+                tables,
+                params,
+                neighbours,
+                min_count,
+                stats,
+            )
         else:
             ga.generation(
-                state, perms, counts, costs, route_costs, int(obj), tables, min_count,
-                params.crossover_rate, params.mutation_rate, params.tournament_size,
-                elite_perm, elite_counts, elite_route, elite_cost,
+                state,
+                perms,
+                counts,
+                costs,
+                route_costs,
+                int(obj),
+                tables,
+                min_count,
+                params.crossover_rate,
+                params.mutation_rate,
+                params.tournament_size,
+                elite_perm,
+                elite_counts,
+                elite_route,
+                elite_cost,
             )
         best = int(np.argmin(costs))
         if costs[best] < elite_cost:
@@ -226,8 +273,14 @@ def solve(
     elapsed = time.perf_counter() - started
     routes = tuple(tuple(r) for r in split_routes(elite_perm, elite_counts))
     figs = figures(problem, routes)
-    log.debug("%s on %s: %.6g after %d generations, %.2fs", algorithm, problem.name,
-              figs.value(obj), gen, elapsed)
+    log.debug(
+        "%s on %s: %.6g after %d generations, %.2fs",
+        algorithm,
+        problem.name,
+        figs.value(obj),
+        gen,
+        elapsed,
+    )
     return Result(
         problem=problem,
         objective=obj,
@@ -243,7 +296,16 @@ def solve(
 
 
 def _polish(  # type: ignore[no-untyped-def]
-    state, perms, counts, costs, route_costs, objective, tables, params, neighbours, min_count,
+    state,
+    perms,
+    counts,
+    costs,
+    route_costs,
+    objective,
+    tables,
+    params,
+    neighbours,
+    min_count,
     stats,
 ) -> None:
     """§4.5 on the generation's best (and, with the extended local search, on
@@ -303,5 +365,12 @@ def warm_up() -> None:
         ("ighoa", ighoa.IGHOAParams(population=4)),
         ("ga", ga.GAParams(population=4)),
     ):
-        solve(tiny, Objective.DISTANCE, algorithm, stop_after(2), seed=0, params=params,
-              annealing=AnnealingParams(t_start=2.0, t_end=1.0))
+        solve(
+            tiny,
+            Objective.DISTANCE,
+            algorithm,
+            stop_after(2),
+            seed=0,
+            params=params,
+            annealing=AnnealingParams(t_start=2.0, t_end=1.0),
+        )

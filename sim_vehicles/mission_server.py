@@ -218,8 +218,8 @@ class MissionServer:
             self._upload = None
             logger.warning("mission upload timed out waiting for item %d", up.next_seq)
             return [
-                _ack(up.dest_system, up.dest_component, mc.MAV_MISSION_OPERATION_CANCELLED),
                 _text(mc.MAV_SEVERITY_WARNING, "Mission upload timeout"),
+                _ack(up.dest_system, up.dest_component, mc.MAV_MISSION_OPERATION_CANCELLED),
             ]
         if now_s - up.last_request_s > RE_REQUEST_S:
             up.last_request_s = now_s

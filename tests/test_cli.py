@@ -12,8 +12,16 @@ def test_mtsp_json_is_one_object_with_the_contract_keys(capsys):
     code = main(["mtsp", str(DATA / "eil51.tsp"), "-m", "3", "--generations", "50", "--json"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"instance", "salesmen", "objective", "algorithm", "distance", "cost",
-                        "routes", "elapsed_s"}
+    assert set(out) == {
+        "instance",
+        "salesmen",
+        "objective",
+        "algorithm",
+        "distance",
+        "cost",
+        "routes",
+        "elapsed_s",
+    }
     assert out["instance"] == "eil51" and out["salesmen"] == 3
     nodes = sorted(n for route in out["routes"] for n in route)
     assert nodes == list(range(2, 52))  # every city once, depot 1 excluded
@@ -21,8 +29,22 @@ def test_mtsp_json_is_one_object_with_the_contract_keys(capsys):
 
 
 def test_mtsp_readable_summary_and_minmax(capsys):
-    code = main(["mtsp", str(DATA / "att48.tsp"), "-m", "2", "--objective", "minmax",
-                 "--algorithm", "ga", "--generations", "20", "--distance", "tsplib"])
+    code = main(
+        [
+            "mtsp",
+            str(DATA / "att48.tsp"),
+            "-m",
+            "2",
+            "--objective",
+            "minmax",
+            "--algorithm",
+            "ga",
+            "--generations",
+            "20",
+            "--distance",
+            "tsplib",
+        ]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert "att48: 2 salesmen, minmax by ga, tsplib distances" in out

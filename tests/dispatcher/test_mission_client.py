@@ -15,23 +15,36 @@ VEHICLE = 7
 
 def items(n):
     return [
-        mc.mission_item_int(target_system=VEHICLE, target_component=1, seq=k,
-                            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                            command=mc.MAV_CMD_NAV_WAYPOINT, current=0, autocontinue=1,
-                            param1=0, param2=0, param3=0, param4=0,
-                            x=440000000 + k, y=873000000 + k, z=0)
+        mc.mission_item_int(
+            target_system=VEHICLE,
+            target_component=1,
+            seq=k,
+            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            command=mc.MAV_CMD_NAV_WAYPOINT,
+            current=0,
+            autocontinue=1,
+            param1=0,
+            param2=0,
+            param3=0,
+            param4=0,
+            x=440000000 + k,
+            y=873000000 + k,
+            z=0,
+        )
         for k in range(n)
     ]
 
 
 def request(seq):
-    return mc.message("MISSION_REQUEST_INT", target_system=255, target_component=190, seq=seq,
-                      mission_type=0)
+    return mc.message(
+        "MISSION_REQUEST_INT", target_system=255, target_component=190, seq=seq, mission_type=0
+    )
 
 
 def ack(result):
-    return mc.message("MISSION_ACK", target_system=255, target_component=190, type=result,
-                      mission_type=0)
+    return mc.message(
+        "MISSION_ACK", target_system=255, target_component=190, type=result, mission_type=0
+    )
 
 
 def wire(msg):
@@ -106,8 +119,15 @@ def test_refusal_and_early_accept_fail_the_upload():
 
 
 def command_ack(command, result):
-    return mc.message("COMMAND_ACK", command=command, result=result, progress=0,
-                      result_param2=0, target_system=255, target_component=190)
+    return mc.message(
+        "COMMAND_ACK",
+        command=command,
+        result=result,
+        progress=0,
+        result_param2=0,
+        target_system=255,
+        target_component=190,
+    )
 
 
 def test_start_sequence_arms_then_sets_auto_with_retries():
@@ -116,7 +136,9 @@ def test_start_sequence_arms_then_sets_auto_with_retries():
     assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM and arm.param1 == 1
     (again,) = seq.on_tick(1.6)
     assert again.confirmation == 1  # a resend counts up its confirmation
-    (mode,) = seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_ACCEPTED), 1.7)
+    (mode,) = seq.on_message(
+        command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_ACCEPTED), 1.7
+    )
     assert mode.command == mc.MAV_CMD_DO_SET_MODE and mode.param2 == 10  # Rover AUTO
     seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, mc.MAV_RESULT_ACCEPTED), 1.8)
     assert seq.outcome is Outcome.DONE

@@ -31,28 +31,43 @@ channel = 0
 def rect(lon0, lat0, w_m, h_m):
     dlon = w_m / (111320 * math.cos(math.radians(lat0)))
     dlat = h_m / 110540
-    return [[lon0, lat0], [lon0 + dlon, lat0], [lon0 + dlon, lat0 + dlat], [lon0, lat0 + dlat],
-            [lon0, lat0]]
+    return [
+        [lon0, lat0],
+        [lon0 + dlon, lat0],
+        [lon0 + dlon, lat0 + dlat],
+        [lon0, lat0 + dlat],
+        [lon0, lat0],
+    ]
 
 
 def field(fid, ring, **props):
-    return {"type": "Feature", "properties": {"kind": "field", "id": fid, **props},
-            "geometry": {"type": "Polygon", "coordinates": [ring]}}
+    return {
+        "type": "Feature",
+        "properties": {"kind": "field", "id": fid, **props},
+        "geometry": {"type": "Polygon", "coordinates": [ring]},
+    }
 
 
 def garage(lon=87.2990, lat=44.0005):
-    return {"type": "Feature", "properties": {"kind": "garage"},
-            "geometry": {"type": "Point", "coordinates": [lon, lat]}}
+    return {
+        "type": "Feature",
+        "properties": {"kind": "garage"},
+        "geometry": {"type": "Point", "coordinates": [lon, lat]},
+    }
 
 
 def good_features():
-    return [field("north", rect(87.300, 44.0010, 120, 60)),
-            field("south", rect(87.300, 44.0000, 90, 80), headland_passes=1), garage()]
+    return [
+        field("north", rect(87.300, 44.0010, 120, 60)),
+        field("south", rect(87.300, 44.0000, 90, 80), headland_passes=1),
+        garage(),
+    ]
 
 
 def write_scenario(tmp_path, features, machines=None, extra=""):
     (tmp_path / "farm.geojson").write_text(
-        json.dumps({"type": "FeatureCollection", "features": features}))
+        json.dumps({"type": "FeatureCollection", "features": features})
+    )
     machines = machines if machines is not None else [("a", 1, 5.5), ("b", 2, 3.7)]
     text = f'farm_id = "test"\nfarm = "farm.geojson"\n{extra}\n'
     text += "".join(MACHINE.format(id=i, sysid=s, width=w) for i, s, w in machines)
@@ -71,10 +86,18 @@ def test_plan_writes_every_file_with_traceable_missions(tmp_path, capsys):
     doc = json.loads((out / "plan.json").read_text())
     assert {"machines", "totals", "plan_id"} <= set(doc)
     for m in doc["machines"]:
-        assert {"id", "working_width_m", "fields", "distance_m", "fuel_l", "time_h", "turns"} <= set(m)
+        assert {
+            "id",
+            "working_width_m",
+            "fields",
+            "distance_m",
+            "fuel_l",
+            "time_h",
+            "turns",
+        } <= set(m)
         seqs = [item[0] for item in m["items"]]
         assert seqs == list(range(len(seqs)))  # contiguous from 0
-        for seq, fid, swath, role, *_ in m["items"]:
+        for _seq, fid, swath, role, *_ in m["items"]:
             if role in ("swath_start", "swath_end"):
                 assert fid in m["fields"] and swath is not None
     assert sorted(f for m in doc["machines"] for f in m["fields"]) == ["north", "south"]
@@ -97,17 +120,46 @@ def bowtie():
 
 BAD_CASES = {
     "self-intersecting": (lambda: [field("bow", bowtie()), garage()], None, "", "'bow'"),
-    "narrow": (lambda: [field("strip", rect(87.300, 44.001, 200, 3.0)), garage()], None, "",
-               "'strip'"),
+    "narrow": (
+        lambda: [field("strip", rect(87.300, 44.001, 200, 3.0)), garage()],
+        None,
+        "",
+        "'strip'",
+    ),
     "unknown machine": (good_features, None, 'machines = ["a", "zz"]', "'zz'"),
-    "projected": (lambda: [field("utm", [[524939.0, 4872244.0], [525039.0, 4872244.0],
-                                         [525039.0, 4872344.0], [524939.0, 4872244.0]]), garage()],
-                  None, "", "'utm'"),
-    "far garage": (lambda: [field("f", rect(87.300, 44.001, 100, 60)), garage(44.0005, 87.299)],
-                   None, "", "garage"),
-    "duplicate ids": (lambda: [field("x", rect(87.300, 44.001, 100, 60)),
-                               field("x", rect(87.302, 44.001, 100, 60)), garage()],
-                      None, "", "'x'"),
+    "projected": (
+        lambda: [
+            field(
+                "utm",
+                [
+                    [524939.0, 4872244.0],
+                    [525039.0, 4872244.0],
+                    [525039.0, 4872344.0],
+                    [524939.0, 4872244.0],
+                ],
+            ),
+            garage(),
+        ],
+        None,
+        "",
+        "'utm'",
+    ),
+    "far garage": (
+        lambda: [field("f", rect(87.300, 44.001, 100, 60)), garage(44.0005, 87.299)],
+        None,
+        "",
+        "garage",
+    ),
+    "duplicate ids": (
+        lambda: [
+            field("x", rect(87.300, 44.001, 100, 60)),
+            field("x", rect(87.302, 44.001, 100, 60)),
+            garage(),
+        ],
+        None,
+        "",
+        "'x'",
+    ),
     "no garage": (lambda: [field("f", rect(87.300, 44.001, 100, 60))], None, "", "no garage"),
     "empty fleet": (good_features, [], "", "fleet is empty"),
 }
@@ -129,8 +181,23 @@ def test_bad_input_names_the_culprit_and_writes_nothing(tmp_path, capsys, case):
 
 def test_shipped_scenario_plans_three_machines(tmp_path):
     out = tmp_path / "p3"
-    assert main(["plan", str(REPO / "config/changji.toml"), "--machines", "3",
-                 "--time-limit", "2", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "plan",
+                str(REPO / "config/changji.toml"),
+                "--machines",
+                "3",
+                "--time-limit",
+                "2",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     doc = json.loads((out / "plan.json").read_text())
     assert len(doc["machines"]) == 3
-    assert sorted(f for m in doc["machines"] for f in m["fields"]) == [f"F{k:02d}" for k in range(1, 16)]
+    assert sorted(f for m in doc["machines"] for f in m["fields"]) == [
+        f"F{k:02d}" for k in range(1, 16)
+    ]

@@ -41,8 +41,13 @@ TO_T1 = wire.vehicle_to(FARM, "t1")
 PLAN_DOC = {"plan_id": "abc123", "farm_id": FARM, "machines": [{"id": "t1"}]}
 GEOJSON = {
     "type": "FeatureCollection",
-    "features": [{"type": "Feature", "properties": {"kind": "garage"},
-                  "geometry": {"type": "Point", "coordinates": [87.0, 44.0]}}],
+    "features": [
+        {
+            "type": "Feature",
+            "properties": {"kind": "garage"},
+            "geometry": {"type": "Point", "coordinates": [87.0, 44.0]},
+        }
+    ],
 }
 
 
@@ -51,9 +56,15 @@ def _clock() -> int:
 
 
 def _heartbeat() -> mc.MAVLinkMessage:
-    return mc.message("HEARTBEAT", type=mc.MAV_TYPE_GROUND_ROVER,
-                      autopilot=mc.MAV_AUTOPILOT_ARDUPILOTMEGA, base_mode=0, custom_mode=0,
-                      system_status=4, mavlink_version=3)
+    return mc.message(
+        "HEARTBEAT",
+        type=mc.MAV_TYPE_GROUND_ROVER,
+        autopilot=mc.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        base_mode=0,
+        custom_mode=0,
+        system_status=4,
+        mavlink_version=3,
+    )
 
 
 def _write_run(rec: Recorder) -> None:
@@ -108,15 +119,18 @@ def test_seeking_reader_sees_channels_schemas_counts_and_metadata(small_log: byt
     assert summary is not None and summary.statistics is not None
     channels = {c.topic: c for c in summary.channels.values()}
     assert set(channels) == set(EXPECTED_COUNTS)
-    counts = {summary.channels[cid].topic: n
-              for cid, n in summary.statistics.channel_message_counts.items()}
+    counts = {
+        summary.channels[cid].topic: n
+        for cid, n in summary.statistics.channel_message_counts.items()
+    }
     assert counts == EXPECTED_COUNTS
     assert len(summary.chunk_indexes) > 1  # small chunks: the truncation tests need several
 
     raw = channels[FROM_T1]
     assert (raw.message_encoding, raw.schema_id) == ("mavlink2", 0)
-    schema_of = {topic: summary.schemas[c.schema_id] for topic, c in channels.items()
-                 if c.schema_id}
+    schema_of = {
+        topic: summary.schemas[c.schema_id] for topic, c in channels.items() if c.schema_id
+    }
     assert {t: s.name for t, s in schema_of.items()} == {
         wire.dispatcher_plan(FARM): "agrifleet.Plan",
         "/plan/geojson": "foxglove.GeoJSON",
@@ -217,8 +231,10 @@ def test_plan_geojson_status_and_log_content(small_log: bytes) -> None:
     }
 
 
-@pytest.mark.parametrize(("level", "number"), [("debug", 1), ("INFO", 2), ("warn", 3),
-                                                ("error", 4), ("critical", 5), ("chatty", 0)])
+@pytest.mark.parametrize(
+    ("level", "number"),
+    [("debug", 1), ("INFO", 2), ("warn", 3), ("error", 4), ("critical", 5), ("chatty", 0)],
+)
 def test_log_levels(level: str, number: int) -> None:
     buf = io.BytesIO()
     with Recorder(buf, FARM) as rec:

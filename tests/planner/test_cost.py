@@ -74,14 +74,26 @@ def problems_and_chromosomes(draw):
     m = draw(st.integers(1, min(n, 4)))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     machines = [
-        Machine(f"m{i}", float(rng.uniform(2, 8)), float(rng.uniform(3000, 8000)),
-                float(rng.uniform(5, 20)), float(rng.uniform(0, 0.01)),
-                float(rng.uniform(1, 4)), float(rng.uniform(4, 9)))
+        Machine(
+            f"m{i}",
+            float(rng.uniform(2, 8)),
+            float(rng.uniform(3000, 8000)),
+            float(rng.uniform(5, 20)),
+            float(rng.uniform(0, 0.01)),
+            float(rng.uniform(1, 4)),
+            float(rng.uniform(4, 9)),
+        )
         for i in range(m)
     ]
     tasks = [
-        Task(f"t{j}", float(rng.uniform(0, 2000)), float(rng.uniform(0, 2000)),
-             float(rng.uniform(1000, 20000)), float(rng.uniform(20, 200)), float(rng.uniform(20, 200)))
+        Task(
+            f"t{j}",
+            float(rng.uniform(0, 2000)),
+            float(rng.uniform(0, 2000)),
+            float(rng.uniform(1000, 20000)),
+            float(rng.uniform(20, 200)),
+            float(rng.uniform(20, 200)),
+        )
         for j in range(n)
     ]
     problem = Problem.build(machines, tasks, (float(rng.uniform(0, 2000)), 0.0))
@@ -98,12 +110,16 @@ def slow_value(problem, routes, objective):
         mc = problem.machines[i]
         pts = [problem.depot] + [(problem.tasks[j].x, problem.tasks[j].y) for j in route]
         pts.append(problem.depot)
-        s = sum(math.dist(a, b) for a, b in zip(pts, pts[1:])) if route else 0.0
+        s = sum(math.dist(a, b) for a, b in zip(pts, pts[1:], strict=False)) if route else 0.0
         turns = sum(rectangle_turns(problem.tasks[j].width_m, mc.working_width_m) for j in route)
         work = sum(problem.tasks[j].area_m2 / mc.capacity_m2h for j in route)
         drive = s / (mc.road_speed_kmh * 1000)
         t = drive + turns * mc.turn_time_h + work
-        c = drive * mc.road_fuel_lh + turns * mc.turn_time_h * mc.road_fuel_lh + work * mc.work_fuel_lh
+        c = (
+            drive * mc.road_fuel_lh
+            + turns * mc.turn_time_h * mc.road_fuel_lh
+            + work * mc.work_fuel_lh
+        )
         per_route.append((s, t, c))
     s_all = [r[0] for r in per_route]
     return {

@@ -44,7 +44,9 @@ def test_crossovers_keep_a_permutation(case, kind):
     other = np.random.default_rng(int(perm.sum())).permutation(n).astype(np.int64)
     child = np.full(n, -1, dtype=np.int64)
     child_counts = np.zeros(m, dtype=np.int64)
-    ops.crossover(state, ops.OX if kind == "ox" else ops.PMX, perm, other, counts, child, child_counts)
+    ops.crossover(
+        state, ops.OX if kind == "ox" else ops.PMX, perm, other, counts, child, child_counts
+    )
     assert_valid(child, child_counts, n, m)
     assert sorted(child_counts.tolist()) == sorted(counts.tolist())
 
@@ -79,7 +81,9 @@ def test_random_two_opt_keeps_validity(case):
 
 def problem_for(n, m, seed):
     rng = np.random.default_rng(seed)
-    machines = [Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)]
+    machines = [
+        Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)
+    ]
     tasks = [
         Task(f"t{j}", float(x), float(y), 10000.0, 100.0, 80.0)
         for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))

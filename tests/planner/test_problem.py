@@ -10,8 +10,14 @@ from planner.problem import Machine, Problem, Task
 
 
 def machine(ident="m1", **kw):
-    args = dict(working_width_m=5.0, capacity_m2h=5000.0, road_speed_kmh=10.0, turn_time_h=0.003,
-                road_fuel_lh=2.5, work_fuel_lh=5.0)
+    args = dict(
+        working_width_m=5.0,
+        capacity_m2h=5000.0,
+        road_speed_kmh=10.0,
+        turn_time_h=0.003,
+        road_fuel_lh=2.5,
+        work_fuel_lh=5.0,
+    )
     args.update(kw)
     return Machine(ident, **args)
 

@@ -30,8 +30,10 @@ def test_real_distances_are_the_default():
 
 def test_malformed_file_names_the_line(tmp_path):
     bad = tmp_path / "bad.tsp"
-    bad.write_text("NAME : bad\nTYPE : TSP\nDIMENSION : 3\nEDGE_WEIGHT_TYPE : EUC_2D\n"
-                   "NODE_COORD_SECTION\n1 0 0\n2 1 x\n3 2 2\nEOF\n")
+    bad.write_text(
+        "NAME : bad\nTYPE : TSP\nDIMENSION : 3\nEDGE_WEIGHT_TYPE : EUC_2D\n"
+        "NODE_COORD_SECTION\n1 0 0\n2 1 x\n3 2 2\nEOF\n"
+    )
     with pytest.raises(TSPLIBError, match=r"bad\.tsp:7: not a node id and two numbers"):
         read_instance(bad)
 
@@ -50,8 +52,9 @@ def test_unsupported_type_and_missing_nodes(tmp_path):
 
 def test_geo_rules():
     # Two points one degree of latitude apart on TSPLIB's sphere: about 111 km.
-    from planner.tsplib import Instance
     import numpy as np
+
+    from planner.tsplib import Instance
 
     inst = Instance("geo", "GEO", np.array([[10.0, 20.0], [11.0, 20.0]]))
     assert inst.distance_matrix("tsplib")[0, 1] == 112.0  # trunc(111.3 + 1)
