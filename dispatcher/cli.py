@@ -11,6 +11,7 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 from pathlib import Path
 
 from dispatcher.errors import DispatcherError
@@ -31,8 +32,8 @@ class ProgressBar:
         self.total = total
         self.label = label
         self.enabled = sys.stderr.isatty()
-        self._progress = None
-        self._task = None
+        self._progress: Any = None
+        self._task: Any = None
         self._started = time.perf_counter()
 
     def __call__(self, generation: int, best: float, elapsed: float) -> None:

@@ -190,7 +190,7 @@ class Dispatcher:
     def _install_signal_handlers(self) -> list[tuple[int, Any]]:
         if threading.current_thread() is not threading.main_thread():
             return []
-        installed = []
+        installed: list[tuple[int, Any]] = []
         for sig in (signal.SIGINT, signal.SIGTERM):
             installed.append((sig, signal.getsignal(sig)))
             signal.signal(sig, lambda *_: self.should_exit.set())

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import shapely
 from shapely.geometry import Point, Polygon
 from shapely.validation import explain_validity
@@ -152,7 +153,9 @@ def _field(
     where = f"{source}: field {field_id!r}"
     local_rings = []
     for ring in rings:
-        xs, ys = frame.to_local([p[0] for p in ring], [p[1] for p in ring])
+        xs, ys = frame.to_local(
+            np.array([p[0] for p in ring]), np.array([p[1] for p in ring])
+        )
         local_rings.append(list(zip(xs.tolist(), ys.tolist(), strict=True)))
     try:
         boundary = Polygon(local_rings[0], local_rings[1:])

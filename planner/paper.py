@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import statistics
 import tomllib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -228,11 +228,6 @@ def run_fleet_cell(cell: FleetCell, runs: int, time_limit: float, generations: i
     )
 
 
-def cells_of(tables: set[int]) -> Iterator[MTSPCell | FleetCell]:
-    yield from (c for c in MTSP_CELLS if c.table in tables)
-    yield from (c for c in FLEET_CELLS if c.table in tables)
-
-
 # Best-known min-sum solutions (benchmarks/mtsp-bks.md) for the cells that have one.
 BKS_MINSUM: dict[tuple[str, int], float] = {
     ("eil51", 3): 445.99,
@@ -284,15 +279,15 @@ def bench_report(
             "| ours Σt h | paper Σt | Σs ours/paper |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
-        for cell in fleet:
-            run = run_fleet_cell(cell, runs, time_limit, generations)
+        for fc in fleet:
+            run = run_fleet_cell(fc, runs, time_limit, generations)
             s = run.mean(lambda r: r.figures.distance_m)
             row = (
-                f"| {cell.table} | {cell.machines} | {cell.method} | {s:.1f} "
-                f"({run.best(lambda r: r.figures.distance_m):.1f}) | {cell.distance_m:.1f} "
-                f"| {run.mean(lambda r: r.figures.fuel_l):.2f} | {cell.fuel_l:.2f} "
-                f"| {run.mean(lambda r: r.figures.time_h):.2f} | {cell.time_h:.2f} "
-                f"| {s / cell.distance_m:.3f} |"
+                f"| {fc.table} | {fc.machines} | {fc.method} | {s:.1f} "
+                f"({run.best(lambda r: r.figures.distance_m):.1f}) | {fc.distance_m:.1f} "
+                f"| {run.mean(lambda r: r.figures.fuel_l):.2f} | {fc.fuel_l:.2f} "
+                f"| {run.mean(lambda r: r.figures.time_h):.2f} | {fc.time_h:.2f} "
+                f"| {s / fc.distance_m:.3f} |"
             )
             lines.append(row)
             progress(row)
