@@ -11,8 +11,8 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 from dispatcher.errors import DispatcherError
 from planner.errors import PlannerError

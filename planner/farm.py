@@ -153,9 +153,7 @@ def _field(
     where = f"{source}: field {field_id!r}"
     local_rings = []
     for ring in rings:
-        xs, ys = frame.to_local(
-            np.array([p[0] for p in ring]), np.array([p[1] for p in ring])
-        )
+        xs, ys = frame.to_local(np.array([p[0] for p in ring]), np.array([p[1] for p in ring]))
         local_rings.append(list(zip(xs.tolist(), ys.tolist(), strict=True)))
     try:
         boundary = Polygon(local_rings[0], local_rings[1:])
