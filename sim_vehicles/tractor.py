@@ -23,15 +23,19 @@ ArduPilot behaviour followed (sources are ArduPilot files):
   DENIED) and a mode that can be entered (else FAILED); MISSION_START with a non-zero
   param1/param2 is DENIED, else it is "set mode AUTO" (ACCEPTED or FAILED)
   (``Rover/GCS_MAVLink_Rover.cpp``); NAV_RETURN_TO_LAUNCH is "set mode RTL"; DO_CHANGE_SPEED
-  is ACCEPTED in AUTO/RTL/GUIDED, FAILED elsewhere, DENIED for climb/descent speed.
-  Unknown commands: UNSUPPORTED.
+  is ACCEPTED in AUTO/RTL/GUIDED, FAILED elsewhere, DENIED for climb/descent speed;
+  DO_SET_MISSION_CURRENT (param2 = 1 resets a finished mission) and the deprecated
+  MISSION_SET_CURRENT message move the current item. Unknown commands: UNSUPPORTED.
 * SET_MODE (the message) is acknowledged with COMMAND_ACK whose command is 11, the
   message id, as ArduPilot does (``GCS_MAVLINK::handle_set_mode``).
 * AUTO cannot be entered without a mission beyond home ("No Mission. Can't set AUTO.",
   ``Rover/mode_auto.cpp``); it can be entered disarmed (the vehicle then does not move).
   Entering AUTO resets the speed to the default cruise speed (``AR_WPNav::init``) and
   resumes the mission where it stopped (MIS_RESTART = 0, ``AP_Mission::start_or_resume``);
-  a completed mission starts again from item 1. Leaving AUTO stops the mission.
+  a completed mission starts again from item 1. Leaving AUTO stops the mission. So a new
+  mission uploaded to a vehicle stopped half-way resumes at the old index: send
+  DO_SET_MISSION_CURRENT(1, 1) first (or set ``mission_restart``). MISSION_START in AUTO
+  changes nothing (the mode is already AUTO).
 * Mission execution (``AP_Mission::update``, ``advance_current_nav_cmd``): item 0 (home)
   never runs; the DO items after a navigation item run as soon as that item completes
   (so the implement drops as the tractor sets off along the swath); NAV_WAYPOINT param1 is
@@ -57,7 +61,6 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -255,7 +258,12 @@ class SimTractor:
         if self._failed or not self._addressed_to_me(msg):
             return out
         kind = msg.get_type()
-        if kind.startswith("MISSION_"):
+        if kind == "MISSION_SET_CURRENT":  # deprecated; answered with MISSION_CURRENT
+            result, events = self._set_current(int(msg.seq), reset=False)
+            out += events
+            if result == mc.MAV_RESULT_ACCEPTED and "MISSION_CURRENT" not in _types(events):
+                out.append(self._mission_current())
+        elif kind.startswith("MISSION_"):
             out += self.mission.on_message(msg, sim_now if link_now is None else link_now)
             out += self._sync_mission()
             if not self.mission.receiving:
@@ -270,6 +278,7 @@ class SimTractor:
 
     def on_link_tick(self, link_now: float) -> list[mc.MAVLinkMessage]:
         """Mission-protocol re-requests and timeouts, on the link clock."""
+        self._check_breakdown()
         if self._failed:
             return []
         return self.mission.on_tick(link_now)
@@ -286,9 +295,8 @@ class SimTractor:
         if self.fail_after_s is not None and self.fail_after_s < end:
             limit = max(self._t, self.fail_after_s)
         out = self._drive_until(limit)
-        if self.fail_after_s is not None and end >= self.fail_after_s:
-            self._break_down()
         self._t = end
+        self._check_breakdown()
         return out
 
     def heartbeat(self, sim_now: float) -> list[mc.MAVLinkMessage]:
@@ -309,7 +317,13 @@ class SimTractor:
 
     # --- driving ---------------------------------------------------------------------------
     def _catch_up(self, sim_now: float) -> list[mc.MAVLinkMessage]:
-        return self.advance(sim_now - self._t) if sim_now > self._t else []
+        out = self.advance(sim_now - self._t) if sim_now > self._t else []
+        self._check_breakdown()
+        return out
+
+    def _check_breakdown(self) -> None:
+        if self.fail_after_s is not None and self._t >= self.fail_after_s:
+            self._break_down()
 
     def _drive_until(self, limit: float) -> list[mc.MAVLinkMessage]:
         out: list[mc.MAVLinkMessage] = []
@@ -490,6 +504,8 @@ class SimTractor:
         """MAV_CMD_DO_SET_MISSION_CURRENT (``handle_command_do_set_mission_current``)."""
         if not 0 <= seq < self.mission.count:
             return mc.MAV_RESULT_DENIED, []
+        if self.mission.count <= 1:
+            return mc.MAV_RESULT_FAILED, []  # nothing but home
         seq = max(seq, 1)
         if self._mode == Mode.AUTO and (self._state is MissionState.RUNNING or reset):
             self._state = MissionState.RUNNING
@@ -687,6 +703,5 @@ def _statustext(severity: int, text: str) -> mc.MAVLinkMessage:
                       chunk_seq=0)
 
 
-def message_types(messages: Iterable[mc.MAVLinkMessage]) -> list[str]:
-    """The MAVLink names of ``messages`` (handy in logs and tests)."""
+def _types(messages: list[mc.MAVLinkMessage]) -> list[str]:
     return [m.get_type() for m in messages]

@@ -36,8 +36,8 @@ def home_lonlat() -> tuple[float, float]:
 
 @pytest.fixture
 def mission() -> Mission:
-    """11 items: home, road speed, entry, work speed, implement down, 5 swath waypoints
-    (the first swath start is the entry), implement up, road speed, garage."""
+    """13 items: home, road speed, entry (= first swath start), work speed, implement
+    down, 5 swath waypoints, implement up, road speed, garage."""
     spec = MissionSpec(
         machine_id="t7", home=GARAGE, road_speed_kmh=10.0, work_speed_kmh=3.6,
         implement=SERVO, visits=(FIELD,),

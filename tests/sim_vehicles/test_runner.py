@@ -62,34 +62,43 @@ class Inbox:
                 return m
         return None
 
+    def count_from(self, system_id: int, kind: str | None = None) -> int:
+        return sum(1 for m in self.messages if m.get_srcSystem() == system_id
+                   and (kind is None or m.get_type() == kind))
+
 
 def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
+    """t1 is served; t2 breaks down at once (fault injection): token, but no messages."""
     scenario = load_scenario(SCENARIO)
-    vehicle = scenario.vehicle("t1")
+    vehicle, broken = scenario.vehicle("t1"), scenario.vehicle("t2")
     farm = scenario.farm_id
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     inbox = Inbox()
     stop = threading.Event()
     codes: list[int] = []
     alive_key = contract.vehicle_alive(farm, vehicle.id)
+    broken_key = contract.vehicle_alive(farm, broken.id)
 
     test_side = contract.ZenohOptions(mode="peer", listen=(endpoint,))
     with zenoh.open(test_side.config()) as session:
-        tokens = session.liveliness().declare_subscriber(alive_key, inbox.on_token)
-        frames = session.declare_subscriber(contract.vehicle_from(farm, vehicle.id),
-                                            inbox.on_frame)
+        tokens = session.liveliness().declare_subscriber(
+            contract.vehicle_alive(farm, "*"), inbox.on_token)
+        frames = session.declare_subscriber(contract.vehicle_from(farm, "*"), inbox.on_frame)
         to_vehicle = session.declare_publisher(contract.vehicle_to(farm, vehicle.id))
         sim = threading.Thread(
             target=lambda: codes.append(run(
-                scenario, [vehicle.id], contract.ZenohOptions(mode="peer", connect=(endpoint,)),
-                speedup=50.0, telemetry_hz=20.0, stop=stop)),
+                scenario, [vehicle.id, broken.id],
+                contract.ZenohOptions(mode="peer", connect=(endpoint,)),
+                speedup=50.0, telemetry_hz=20.0, stop=stop, fail_after={broken.id: 0.0})),
             name="sim-runner",
         )
         sim.start()
         try:
-            inbox.wait("the liveliness token",
-                       lambda: (alive_key, zenoh.SampleKind.PUT) in inbox.tokens)
-            inbox.wait("a heartbeat", lambda: inbox.first("HEARTBEAT") is not None)
+            inbox.wait("the liveliness tokens", lambda: all(
+                (key, zenoh.SampleKind.PUT) in inbox.tokens for key in (alive_key, broken_key)))
+            inbox.wait("two heartbeats",
+                       lambda: inbox.count_from(vehicle.system_id, "HEARTBEAT") >= 2)
+            assert inbox.count_from(broken.system_id) == 0
             hb = inbox.first("HEARTBEAT")
             assert hb is not None
             assert (hb.get_srcSystem(), hb.get_srcComponent()) == (
@@ -117,8 +126,9 @@ def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
             sim.join(TIMEOUT_S)
         assert not sim.is_alive()
         assert codes == [0]
-        inbox.wait("the token to go",
-                   lambda: (alive_key, zenoh.SampleKind.DELETE) in inbox.tokens)
+        inbox.wait("the tokens to go", lambda: all(
+            (key, zenoh.SampleKind.DELETE) in inbox.tokens for key in (alive_key, broken_key)))
+        assert inbox.count_from(broken.system_id) == 0
         tokens.undeclare()
         frames.undeclare()
         to_vehicle.undeclare()

@@ -345,6 +345,26 @@ def test_breakdown_silences_and_stops_the_vehicle(
     assert tractor.on_link_tick(1000.0) == []
 
 
+def test_broken_from_boot_never_speaks(vehicle: Vehicle, home_lonlat: tuple[float, float]
+                                       ) -> None:
+    tractor = SimTractor(vehicle, home_lonlat, fail_after_s=0.0)
+    assert tractor.heartbeat(0.0) == [] and tractor.failed
+
+
+def test_mission_set_current_message_moves_the_next_start(
+    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire
+) -> None:
+    tractor = SimTractor(vehicle, home_lonlat)
+    upload(tractor, wire, mission)
+    set_current = mc.message("MISSION_SET_CURRENT", target_system=wire.vehicle_system,
+                             target_component=wire.vehicle_component, seq=6)
+    replies = send(tractor, wire, set_current)
+    (current,) = only(replies, "MISSION_CURRENT")
+    assert (current.seq, current.mission_state) == (6, mc.MISSION_STATE_NOT_STARTED)
+    events = arm_and_start(tractor, wire) + tractor.advance(1e5)
+    assert [m.seq for m in only(events, "MISSION_ITEM_REACHED")] == list(range(6, len(mission)))
+
+
 def test_params_are_checked() -> None:
     with pytest.raises(ValueError, match="initial_mode"):
         RoverParams(initial_mode=Mode.AUTO)
