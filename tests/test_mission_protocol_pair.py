@@ -1,0 +1,83 @@
+"""Both sides of the mission protocol against each other: our ground-station client
+(dispatcher) and our ArduPilot-style server (simulated vehicle), frame by frame, with
+messages lost on the way."""
+
+import pytest
+
+from dispatcher.mission_client import MissionUpload, Outcome
+from sim_vehicles.mission_server import MissionServer, StoredItem
+from sim_vehicles.testing import Wire
+
+VEHICLE = 21
+
+
+def home() -> StoredItem:
+    return StoredItem(seq=0, frame=0, command=16, current=0, autocontinue=1, param1=0,
+                      param2=0, param3=0, param4=0, x=440000000, y=873000000, z=0,
+                      mission_type=0)
+
+
+def mission(n):
+    from dispatcher import mavlink_codec as mc
+
+    return [
+        mc.mission_item_int(target_system=VEHICLE, target_component=1, seq=k,
+                            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                            command=mc.MAV_CMD_NAV_WAYPOINT, current=0, autocontinue=1,
+                            param1=0, param2=0, param3=0, param4=0,
+                            x=440000000 + 10 * k, y=873000000 + 7 * k, z=0)
+        for k in range(n)
+    ]
+
+
+def run_pair(n, lose=(), request="MISSION_REQUEST"):
+    """Drive client and server on a shared clock; ``lose`` numbers the messages (in send
+    order, both directions) that never arrive."""
+    wire = Wire(VEHICLE)
+    server = MissionServer(home, request_message=request)
+    client = MissionUpload(mission(n), VEHICLE)
+    sent = 0
+    now = 0.0
+    to_vehicle = client.start(now)
+    to_gcs: list = []
+    while client.outcome is Outcome.RUNNING and now < 120:
+        delivered_up = []
+        for msg in to_vehicle:
+            sent += 1
+            if sent not in lose:
+                delivered_up.append(wire.up(msg))
+        to_vehicle = []
+        for msg in delivered_up:
+            to_gcs += server.on_message(msg, now)
+        delivered_down = []
+        for msg in wire.down(to_gcs):
+            sent += 1
+            if sent not in lose:
+                delivered_down.append(msg)
+        to_gcs = []
+        for msg in delivered_down:
+            to_vehicle += client.on_message(msg, now)
+        now += 0.1
+        to_vehicle += client.on_tick(now)
+        to_gcs += server.on_tick(now)
+    return client, server
+
+
+@pytest.mark.parametrize("request_kind", ["MISSION_REQUEST", "MISSION_REQUEST_INT"])
+def test_clean_upload(request_kind):
+    client, server = run_pair(40, request=request_kind)
+    assert client.outcome is Outcome.DONE and client.stats.retries == 0
+    assert server.count == 40
+    assert [it.x for it in server.items[1:]] == [440000000 + 10 * k for k in range(1, 40)]
+
+
+@pytest.mark.parametrize("lost", [(1,), (4,), (5,), (2, 3), (81,)])
+def test_lost_messages_are_recovered(lost):
+    client, server = run_pair(40, lose=set(lost))
+    assert client.outcome is Outcome.DONE, client.reason
+    assert server.count == 40 and not server.receiving
+
+
+def test_a_dead_link_fails_after_the_retries():
+    client, _ = run_pair(5, lose=set(range(2, 100)))
+    assert client.outcome is Outcome.FAILED
