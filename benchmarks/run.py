@@ -83,7 +83,19 @@ def bench_solver(seconds: float, seeds: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-SECTIONS = {"solver": bench_solver}
+def bench_upload() -> str:
+    from benchmarks.dispatcher_bench import bench_upload as run
+
+    return run()
+
+
+def bench_telemetry() -> str:
+    from benchmarks.dispatcher_bench import bench_telemetry as run
+
+    return run()
+
+
+SECTIONS = {"solver": bench_solver, "upload": bench_upload, "telemetry": bench_telemetry}
 
 
 def main() -> int:

@@ -247,6 +247,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         zenoh_options(args, False),
         speedup=args.speedup,
         telemetry_hz=args.telemetry_hz,
+        stats_path=args.stats,
     )
 
 
@@ -306,6 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--machines", type=int, help="with --all: the first K machines")
     p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
     p.add_argument("--telemetry-hz", type=float, default=10.0)
+    p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle (JSON) at exit")
     add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_sim)
 

@@ -122,7 +122,9 @@ class Dispatcher:
             s.declare_queryable(wire.dispatcher_status(self.farm), self._on_query)
         )
         for vid in self.state.vehicles:
-            self.publishers[vid] = s.declare_publisher(wire.vehicle_to(self.farm, vid))
+            self.publishers[vid] = s.declare_publisher(
+                wire.vehicle_to(self.farm, vid), congestion_control=zenoh.CongestionControl.BLOCK
+            )
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
         self.recorder.record_plan(self.dispatch.document, plan_geojson(self.dispatch), now_ns)
@@ -272,7 +274,7 @@ class Dispatcher:
         """Move a vehicle's link on: upload once alive, start once uploaded."""
         v = self.state.vehicles[vid]
         link = self.links[vid]
-        if v.phase is Phase.ALIVE and link.upload is None:
+        if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
             v.phase = Phase.UPLOADING
             v.upload_attempts += 1
             if self.upload_started is None:
@@ -304,6 +306,10 @@ class Dispatcher:
                 v.phase = Phase.FAILED
                 v.error = f"start failed: {link.start.reason}"
                 self._log("error", f"{vid}: {v.error}")
+
+    def _fleet_ready(self) -> bool:
+        """Uploads begin once every vehicle has shown up (or been given up on)."""
+        return all(v.phase is not Phase.WAITING for v in self.state.vehicles.values())
 
     def _send(self, vid: str, messages: list[mc.MAVLinkMessage]) -> None:
         key = wire.vehicle_to(self.farm, vid)

@@ -24,21 +24,37 @@ def build_parser() -> argparse.ArgumentParser:
     who.add_argument("--vehicle", action="append", metavar="ID", help="machine id (repeatable)")
     who.add_argument("--all", action="store_true", help="the whole fleet in one process")
     p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
-    p.add_argument("--telemetry-hz", type=float, default=10.0,
-                   help="GLOBAL_POSITION_INT per wall second")
-    p.add_argument("--fail-after", action="append", metavar="ID:SECONDS", default=[],
-                   help="fault injection: machine ID breaks down after SECONDS simulated")
-    p.add_argument("--mission-done", choices=["stop", "hold"], default="stop",
-                   help="at mission end stay in AUTO stopped (Rover >= 4.1) or switch to HOLD")
-    p.add_argument("--request-int", action="store_true",
-                   help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's "
-                        "MISSION_REQUEST")
+    p.add_argument(
+        "--telemetry-hz", type=float, default=10.0, help="GLOBAL_POSITION_INT per wall second"
+    )
+    p.add_argument(
+        "--fail-after",
+        action="append",
+        metavar="ID:SECONDS",
+        default=[],
+        help="fault injection: machine ID breaks down after SECONDS simulated",
+    )
+    p.add_argument(
+        "--mission-done",
+        choices=["stop", "hold"],
+        default="stop",
+        help="at mission end stay in AUTO stopped (Rover >= 4.1) or switch to HOLD",
+    )
+    p.add_argument(
+        "--request-int",
+        action="store_true",
+        help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's MISSION_REQUEST",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     g = p.add_argument_group("zenoh")
     g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
     g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help=f"default {wire.DEFAULT_ENDPOINT} when neither --listen nor --connect")
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"default {wire.DEFAULT_ENDPOINT} when neither --listen nor --connect",
+    )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
     g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
     return p
@@ -61,8 +77,10 @@ def parse_fail_after(items: Sequence[str]) -> dict[str, float]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
     from dispatcher.scenario import load_scenario
     from sim_vehicles.runner import run
     from sim_vehicles.tractor import RoverParams
@@ -70,14 +88,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     log = logging.getLogger("sim_vehicles")
     try:
         scenario = load_scenario(args.scenario)
-        ids = [v.id for v in scenario.vehicles] if args.all else [
-            scenario.vehicle(vid).id for vid in args.vehicle]
+        ids = (
+            [v.id for v in scenario.vehicles]
+            if args.all
+            else [scenario.vehicle(vid).id for vid in args.vehicle]
+        )
         listen = tuple(args.listen or ())
         connect = tuple(args.connect or ())
         if not listen and not connect and args.mode != "router":
             connect = (wire.DEFAULT_ENDPOINT,)
-        options = wire.ZenohOptions(mode=args.mode, listen=listen, connect=connect,
-                                    config_file=args.zenoh_config, extra=tuple(args.cfg or ()))
+        options = wire.ZenohOptions(
+            mode=args.mode,
+            listen=listen,
+            connect=connect,
+            config_file=args.zenoh_config,
+            extra=tuple(args.cfg or ()),
+        )
         options.config()  # a bad --cfg or --mode fails here, with a message
         params = RoverParams(
             mission_done=args.mission_done,
@@ -92,8 +118,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DispatcherError, ValueError, zenoh.ZError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
-    return run(scenario, ids, options, speedup=args.speedup, telemetry_hz=args.telemetry_hz,
-               fail_after=fail_after, params=params)
+    return run(
+        scenario,
+        ids,
+        options,
+        speedup=args.speedup,
+        telemetry_hz=args.telemetry_hz,
+        fail_after=fail_after,
+        params=params,
+    )
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -99,28 +99,49 @@ class StoredItem:
     def is_nav(self) -> bool:
         """A navigation command (``AP_Mission::is_nav_cmd``: ids up to MAV_CMD_NAV_LAST)."""
         return self.command <= mc.MAV_CMD_NAV_LAST or self.command in (
-            mc.MAV_CMD_NAV_SET_YAW_SPEED, mc.MAV_CMD_NAV_SCRIPT_TIME,
+            mc.MAV_CMD_NAV_SET_YAW_SPEED,
+            mc.MAV_CMD_NAV_SCRIPT_TIME,
             mc.MAV_CMD_NAV_ATTITUDE_TIME,
         )
 
     def to_item_int(self, target_system: int, target_component: int) -> mc.MAVLinkMessage:
         """This item as MISSION_ITEM_INT addressed to the ground station."""
         return mc.mission_item_int(
-            target_system=target_system, target_component=target_component, seq=self.seq,
-            frame=self.frame, command=self.command, current=self.current,
-            autocontinue=self.autocontinue, param1=self.param1, param2=self.param2,
-            param3=self.param3, param4=self.param4, x=self.x, y=self.y, z=self.z,
+            target_system=target_system,
+            target_component=target_component,
+            seq=self.seq,
+            frame=self.frame,
+            command=self.command,
+            current=self.current,
+            autocontinue=self.autocontinue,
+            param1=self.param1,
+            param2=self.param2,
+            param3=self.param3,
+            param4=self.param4,
+            x=self.x,
+            y=self.y,
+            z=self.z,
         )
 
     def to_item(self, target_system: int, target_component: int) -> mc.MAVLinkMessage:
         """This item as legacy MISSION_ITEM (float lat/lon)."""
         scale = 1.0 if self.command in _XY_NOT_LATLON else 1e-7
         return mc.message(
-            "MISSION_ITEM", target_system=target_system, target_component=target_component,
-            seq=self.seq, frame=mc.float_frame(self.frame), command=self.command,
-            current=self.current, autocontinue=self.autocontinue, param1=self.param1,
-            param2=self.param2, param3=self.param3, param4=self.param4,
-            x=self.x * scale, y=self.y * scale, z=self.z,
+            "MISSION_ITEM",
+            target_system=target_system,
+            target_component=target_component,
+            seq=self.seq,
+            frame=mc.float_frame(self.frame),
+            command=self.command,
+            current=self.current,
+            autocontinue=self.autocontinue,
+            param1=self.param1,
+            param2=self.param2,
+            param3=self.param3,
+            param4=self.param4,
+            x=self.x * scale,
+            y=self.y * scale,
+            z=self.z,
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
 
@@ -277,8 +298,9 @@ class MissionServer:
             result = self._store(item)
         if result != mc.MAV_MISSION_ACCEPTED:
             self._upload = None
-            logger.warning("mission upload refused item %d (MAV_MISSION_RESULT %d)",
-                           item.seq, result)
+            logger.warning(
+                "mission upload refused item %d (MAV_MISSION_RESULT %d)", item.seq, result
+            )
             return [_ack(*sender, result)]
         up.last_receive_s = now_s
         up.next_seq += 1
@@ -330,15 +352,20 @@ class MissionServer:
 
     def _request(self, up: _Upload) -> mc.MAVLinkMessage:
         return mc.message(
-            self.request_message, target_system=up.dest_system,
-            target_component=up.dest_component, seq=up.next_seq,
+            self.request_message,
+            target_system=up.dest_system,
+            target_component=up.dest_component,
+            seq=up.next_seq,
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
 
     def _count_message(self, sender: tuple[int, int]) -> mc.MAVLinkMessage:
         return mc.message(
-            "MISSION_COUNT", target_system=sender[0], target_component=sender[1],
-            count=self.count, mission_type=mc.MAV_MISSION_TYPE_MISSION,
+            "MISSION_COUNT",
+            target_system=sender[0],
+            target_component=sender[1],
+            count=self.count,
+            mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
 
     def _truncate(self, count: int) -> None:
@@ -368,23 +395,33 @@ def _ack(
     mission_type: int = mc.MAV_MISSION_TYPE_MISSION,
 ) -> mc.MAVLinkMessage:
     return mc.message(
-        "MISSION_ACK", target_system=target_system, target_component=target_component,
-        type=result, mission_type=mission_type,
+        "MISSION_ACK",
+        target_system=target_system,
+        target_component=target_component,
+        type=result,
+        mission_type=mission_type,
     )
 
 
 def _text(severity: int, text: str) -> mc.MAVLinkMessage:
     """A STATUSTEXT as ArduPilot words it (at most 50 characters)."""
-    return mc.message("STATUSTEXT", severity=severity, text=text.encode()[:50], id=0,
-                      chunk_seq=0)
+    return mc.message("STATUSTEXT", severity=severity, text=text.encode()[:50], id=0, chunk_seq=0)
 
 
 def _from_int_item(msg: mc.MAVLinkMessage) -> StoredItem:
     return StoredItem(
-        seq=int(msg.seq), frame=int(msg.frame), command=int(msg.command),
-        current=int(msg.current), autocontinue=int(msg.autocontinue),
-        param1=float(msg.param1), param2=float(msg.param2), param3=float(msg.param3),
-        param4=float(msg.param4), x=int(msg.x), y=int(msg.y), z=float(msg.z),
+        seq=int(msg.seq),
+        frame=int(msg.frame),
+        command=int(msg.command),
+        current=int(msg.current),
+        autocontinue=int(msg.autocontinue),
+        param1=float(msg.param1),
+        param2=float(msg.param2),
+        param3=float(msg.param3),
+        param4=float(msg.param4),
+        x=int(msg.x),
+        y=int(msg.y),
+        z=float(msg.z),
     )
 
 
@@ -400,10 +437,18 @@ def _from_float_item(msg: mc.MAVLinkMessage) -> StoredItem | int:
             return int(mc.MAV_MISSION_INVALID_PARAM6_Y)
         ix, iy = round(x * 1e7), round(y * 1e7)
     return StoredItem(
-        seq=int(msg.seq), frame=int(msg.frame), command=int(msg.command),
-        current=int(msg.current), autocontinue=int(msg.autocontinue),
-        param1=float(msg.param1), param2=float(msg.param2), param3=float(msg.param3),
-        param4=float(msg.param4), x=ix, y=iy, z=float(msg.z),
+        seq=int(msg.seq),
+        frame=int(msg.frame),
+        command=int(msg.command),
+        current=int(msg.current),
+        autocontinue=int(msg.autocontinue),
+        param1=float(msg.param1),
+        param2=float(msg.param2),
+        param3=float(msg.param3),
+        param4=float(msg.param4),
+        x=ix,
+        y=iy,
+        z=float(msg.z),
     )
 
 

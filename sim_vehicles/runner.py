@@ -14,6 +14,7 @@ wall time, as a ground station on the other end of the link does.
 
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import signal
@@ -51,10 +52,12 @@ class _Link:
     publisher: zenoh.Publisher
     subscriber: zenoh.Subscriber[None]
     token: zenoh.LivelinessToken
+    sent: int = 0  # frames published
 
     def send(self, messages: Sequence[mc.MAVLinkMessage]) -> None:
         for msg in messages:
             self.publisher.put(self.codec.encode(msg))
+            self.sent += 1
 
 
 def run(
@@ -66,10 +69,12 @@ def run(
     stop: threading.Event | None = None,
     fail_after: dict[str, float] | None = None,
     params: RoverParams | None = None,
+    stats_path: str | None = None,
 ) -> int:
     """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
 
     ``fail_after`` maps a vehicle id to the simulated second it breaks down at.
+    ``stats_path``, if given, receives a JSON object of frames sent per vehicle at exit.
     Returns the exit code (0). Raises :class:`ConfigError` for an unknown vehicle id.
     """
     if not vehicle_ids:
@@ -94,22 +99,36 @@ def run(
             try:
                 for index, vehicle in enumerate(vehicles):
                     tractor = SimTractor(
-                        vehicle, scenario.farm.garage_lonlat, params=params,
-                        fail_after_s=fail_after.get(vehicle.id), unix_epoch_s=boot_unix_s,
+                        vehicle,
+                        scenario.farm.garage_lonlat,
+                        params=params,
+                        fail_after_s=fail_after.get(vehicle.id),
+                        unix_epoch_s=boot_unix_s,
                     )
-                    links.append(_Link(
-                        vid=vehicle.id,
-                        tractor=tractor,
-                        codec=mc.Codec(vehicle.system_id, tractor.component_id),
-                        inbound=mc.Codec(vehicle.system_id, tractor.component_id),
-                        publisher=session.declare_publisher(wire.vehicle_from(farm, vehicle.id)),
-                        subscriber=session.declare_subscriber(
-                            wire.vehicle_to(farm, vehicle.id), _enqueue(inbox, index)),
-                        token=session.liveliness().declare_token(
-                            wire.vehicle_alive(farm, vehicle.id)),
-                    ))
-                    logger.info("simulating %s (system %d) at home %s", vehicle.id,
-                                vehicle.system_id, scenario.farm.garage_lonlat)
+                    links.append(
+                        _Link(
+                            vid=vehicle.id,
+                            tractor=tractor,
+                            codec=mc.Codec(vehicle.system_id, tractor.component_id),
+                            inbound=mc.Codec(vehicle.system_id, tractor.component_id),
+                            publisher=session.declare_publisher(
+                                wire.vehicle_from(farm, vehicle.id),
+                                congestion_control=zenoh.CongestionControl.BLOCK,
+                            ),
+                            subscriber=session.declare_subscriber(
+                                wire.vehicle_to(farm, vehicle.id), _enqueue(inbox, index)
+                            ),
+                            token=session.liveliness().declare_token(
+                                wire.vehicle_alive(farm, vehicle.id)
+                            ),
+                        )
+                    )
+                    logger.info(
+                        "simulating %s (system %d) at home %s",
+                        vehicle.id,
+                        vehicle.system_id,
+                        scenario.farm.garage_lonlat,
+                    )
                 logger.info("%d vehicle(s) on farm %r at %gx", len(links), farm, speedup)
                 _main_loop(links, inbox, stop, speedup, 1.0 / telemetry_hz)
             finally:
@@ -119,7 +138,11 @@ def run(
                     link.publisher.undeclare()
     finally:
         restore_signals()
-    logger.info("simulator stopped")
+    sent = {link.vid: link.sent for link in links}
+    logger.info("simulator stopped after sending %d frames", sum(sent.values()))
+    if stats_path:
+        with open(stats_path, "w") as f:
+            json.dump(sent, f)
     return EXIT_OK
 
 

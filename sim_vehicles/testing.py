@@ -27,8 +27,12 @@ class Wire:
     def __post_init__(self) -> None:
         gcs = (self.gcs_system, self.gcs_component)
         vehicle = (self.vehicle_system, self.vehicle_component)
-        self._codecs = {"gcs": mc.Codec(*gcs), "gcs_rx": mc.Codec(*gcs),
-                        "vehicle": mc.Codec(*vehicle), "vehicle_rx": mc.Codec(*vehicle)}
+        self._codecs = {
+            "gcs": mc.Codec(*gcs),
+            "gcs_rx": mc.Codec(*gcs),
+            "vehicle": mc.Codec(*vehicle),
+            "vehicle_rx": mc.Codec(*vehicle),
+        }
 
     def up(self, msg: mc.MAVLinkMessage) -> mc.MAVLinkMessage:
         """``msg`` from the ground station, as the vehicle decodes it."""
@@ -51,17 +55,29 @@ class Wire:
         """COMMAND_LONG to the vehicle; missing params are 0."""
         p = (list(params) + [0.0] * 7)[:7]
         return mc.message(
-            "COMMAND_LONG", target_system=self.vehicle_system,
-            target_component=self.vehicle_component, command=command, confirmation=0,
-            param1=p[0], param2=p[1], param3=p[2], param4=p[3], param5=p[4], param6=p[5],
+            "COMMAND_LONG",
+            target_system=self.vehicle_system,
+            target_component=self.vehicle_component,
+            command=command,
+            confirmation=0,
+            param1=p[0],
+            param2=p[1],
+            param3=p[2],
+            param4=p[3],
+            param5=p[4],
+            param6=p[5],
             param7=p[6],
         )
 
     def mission_msg(self, name: str, **fields: object) -> mc.MAVLinkMessage:
         """A mission-protocol message to the vehicle (mission_type MISSION unless given)."""
         fields.setdefault("mission_type", mc.MAV_MISSION_TYPE_MISSION)
-        return mc.message(name, target_system=self.vehicle_system,
-                          target_component=self.vehicle_component, **fields)
+        return mc.message(
+            name,
+            target_system=self.vehicle_system,
+            target_component=self.vehicle_component,
+            **fields,
+        )
 
 
 def types(messages: Iterable[mc.MAVLinkMessage]) -> list[str]:

@@ -93,18 +93,29 @@ class Mode(enum.IntEnum):
     INITIALISING = 16
 
 
-SIMULATED_MODES = frozenset({Mode.MANUAL, Mode.HOLD, Mode.LOITER, Mode.AUTO, Mode.RTL,
-                             Mode.GUIDED})
+SIMULATED_MODES = frozenset({Mode.MANUAL, Mode.HOLD, Mode.LOITER, Mode.AUTO, Mode.RTL, Mode.GUIDED})
 _AUTOPILOT_MODES = frozenset({Mode.AUTO, Mode.GUIDED, Mode.RTL, Mode.SMART_RTL})
 _MANUAL_INPUT_MODES = frozenset({Mode.MANUAL, Mode.ACRO, Mode.STEERING, Mode.SIMPLE})
 _SPEED_MODES = frozenset({Mode.AUTO, Mode.RTL, Mode.GUIDED})  # set_desired_speed works
 
 # DO items AP_Mission completes itself, without the vehicle's verify callback, hence
 # without MISSION_ITEM_REACHED on a real ArduPilot.
-_SILENT_DO = frozenset({mc.MAV_CMD_DO_SET_SERVO, mc.MAV_CMD_DO_SET_RELAY,
-                        mc.MAV_CMD_DO_REPEAT_SERVO, mc.MAV_CMD_DO_REPEAT_RELAY})
-_DRIVEN_NAV = frozenset({mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_NAV_LOITER_UNLIM,
-                         mc.MAV_CMD_NAV_LOITER_TIME, mc.MAV_CMD_NAV_RETURN_TO_LAUNCH})
+_SILENT_DO = frozenset(
+    {
+        mc.MAV_CMD_DO_SET_SERVO,
+        mc.MAV_CMD_DO_SET_RELAY,
+        mc.MAV_CMD_DO_REPEAT_SERVO,
+        mc.MAV_CMD_DO_REPEAT_RELAY,
+    }
+)
+_DRIVEN_NAV = frozenset(
+    {
+        mc.MAV_CMD_NAV_WAYPOINT,
+        mc.MAV_CMD_NAV_LOITER_UNLIM,
+        mc.MAV_CMD_NAV_LOITER_TIME,
+        mc.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    }
+)
 
 MissionDone = Literal["stop", "hold"]
 Outcome = tuple[int, list[mc.MAVLinkMessage]]  # a MAV_RESULT and the events it caused
@@ -136,8 +147,10 @@ class RoverParams:
         if self.mission_done not in ("stop", "hold"):
             raise ValueError(f"mission_done must be 'stop' or 'hold', not {self.mission_done!r}")
         if self.upload_request not in ("MISSION_REQUEST", "MISSION_REQUEST_INT"):
-            raise ValueError("upload_request must be MISSION_REQUEST or MISSION_REQUEST_INT, "
-                             f"not {self.upload_request!r}")
+            raise ValueError(
+                "upload_request must be MISSION_REQUEST or MISSION_REQUEST_INT, "
+                f"not {self.upload_request!r}"
+            )
 
 
 class SimTractor:
@@ -174,7 +187,8 @@ class SimTractor:
         self.unix_epoch_s = unix_epoch_s
         self.cruise_speed_ms = vehicle.machine.road_speed_kmh / 3.6  # WP_SPEED
         self.mission = MissionServer(
-            self._home_item, is_running=lambda: self._state is MissionState.RUNNING,
+            self._home_item,
+            is_running=lambda: self._state is MissionState.RUNNING,
             request_message=self.params.upload_request,
         )
         self._t = 0.0
@@ -388,13 +402,13 @@ class SimTractor:
             hold_s = math.inf
         if hold_s > 0.0:
             self._dwell_until = self._t + hold_s
-            return [position, *self._texts(f"Reached waypoint #{self._nav_index}. "
-                                           f"Loiter for {hold_s:g} seconds")]
+            return [
+                position,
+                *self._texts(f"Reached waypoint #{self._nav_index}. Loiter for {hold_s:g} seconds"),
+            ]
         return self._nav_complete(position)
 
-    def _nav_complete(
-        self, position: mc.MAVLinkMessage | None = None
-    ) -> list[mc.MAVLinkMessage]:
+    def _nav_complete(self, position: mc.MAVLinkMessage | None = None) -> list[mc.MAVLinkMessage]:
         """The current navigation item is done: report it and move on."""
         seq = self._nav_index
         assert seq is not None
@@ -585,8 +599,10 @@ class SimTractor:
             return False, self._texts("Flight mode change failed")
         new = Mode(number)
         if new == Mode.AUTO and self.mission.count <= 1:
-            return False, [*self._texts("No Mission. Can't set AUTO."),
-                           *self._texts("Flight mode change failed")]
+            return False, [
+                *self._texts("No Mission. Can't set AUTO."),
+                *self._texts("Flight mode change failed"),
+            ]
         if self._mode == Mode.AUTO and self._state is MissionState.RUNNING:
             self._state = MissionState.STOPPED
         self._dwell_until = None
@@ -607,8 +623,11 @@ class SimTractor:
         if not self._failed:
             self._failed = True
             self._velocity_ne = (0.0, 0.0)
-            logger.warning("system %d broke down at t=%.1f s (fault injection)",
-                           self.system_id, self.fail_after_s or 0.0)
+            logger.warning(
+                "system %d broke down at t=%.1f s (fault injection)",
+                self.system_id,
+                self.fail_after_s or 0.0,
+            )
 
     def _addressed_to_me(self, msg: mc.MAVLinkMessage) -> bool:
         system = getattr(msg, "target_system", None)
@@ -623,9 +642,18 @@ class SimTractor:
     def _home_item(self) -> StoredItem:
         """Item 0 as ArduPilot reports it: its home, NAV_WAYPOINT in MAV_FRAME_GLOBAL."""
         return StoredItem(
-            seq=0, frame=mc.MAV_FRAME_GLOBAL, command=mc.MAV_CMD_NAV_WAYPOINT, current=0,
-            autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
-            x=round(self.home_lat * 1e7), y=round(self.home_lon * 1e7), z=0.0,
+            seq=0,
+            frame=mc.MAV_FRAME_GLOBAL,
+            command=mc.MAV_CMD_NAV_WAYPOINT,
+            current=0,
+            autocontinue=1,
+            param1=0.0,
+            param2=0.0,
+            param3=0.0,
+            param4=0.0,
+            x=round(self.home_lat * 1e7),
+            y=round(self.home_lon * 1e7),
+            z=0.0,
         )
 
     def _time_boot_ms(self) -> int:
@@ -641,22 +669,31 @@ class SimTractor:
             base |= mc.MAV_MODE_FLAG_SAFETY_ARMED
         status = mc.MAV_STATE_STANDBY if self._mode == Mode.HOLD else mc.MAV_STATE_ACTIVE
         return mc.message(
-            "HEARTBEAT", type=mc.MAV_TYPE_GROUND_ROVER, autopilot=mc.MAV_AUTOPILOT_ARDUPILOTMEGA,
-            base_mode=base, custom_mode=int(self._mode), system_status=status,
+            "HEARTBEAT",
+            type=mc.MAV_TYPE_GROUND_ROVER,
+            autopilot=mc.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base_mode=base,
+            custom_mode=int(self._mode),
+            system_status=status,
             mavlink_version=3,
         )
 
     def _system_time(self) -> mc.MAVLinkMessage:
         unix_us = 0 if self.unix_epoch_s is None else round((self.unix_epoch_s + self._t) * 1e6)
-        return mc.message("SYSTEM_TIME", time_unix_usec=unix_us,
-                          time_boot_ms=self._time_boot_ms())
+        return mc.message("SYSTEM_TIME", time_unix_usec=unix_us, time_boot_ms=self._time_boot_ms())
 
     def _position(self) -> mc.MAVLinkMessage:
         vn, ve = self._velocity_ne
         return mc.message(
-            "GLOBAL_POSITION_INT", time_boot_ms=self._time_boot_ms(),
-            lat=round(self._lat * 1e7), lon=round(self._lon * 1e7), alt=0, relative_alt=0,
-            vx=round(vn * 100.0), vy=round(ve * 100.0), vz=0,
+            "GLOBAL_POSITION_INT",
+            time_boot_ms=self._time_boot_ms(),
+            lat=round(self._lat * 1e7),
+            lon=round(self._lon * 1e7),
+            alt=0,
+            relative_alt=0,
+            vx=round(vn * 100.0),
+            vy=round(ve * 100.0),
+            vz=0,
             hdg=round(self._heading_deg * 100.0) % 36000,
         )
 
@@ -676,8 +713,9 @@ class SimTractor:
     def _mission_current(self) -> mc.MAVLinkMessage:
         seq, total, state, mission_mode = self._mission_current_fields()
         self._last_mission_current = (seq, total, state, mission_mode)
-        return mc.message("MISSION_CURRENT", seq=seq, total=total, mission_state=state,
-                          mission_mode=mission_mode)
+        return mc.message(
+            "MISSION_CURRENT", seq=seq, total=total, mission_state=state, mission_mode=mission_mode
+        )
 
     def _note_mission_current(self, out: list[mc.MAVLinkMessage]) -> None:
         """Append MISSION_CURRENT to ``out`` if what it says changed."""
@@ -692,15 +730,18 @@ class SimTractor:
 
 def _command_ack(command: int, result: int, request: mc.MAVLinkMessage) -> mc.MAVLinkMessage:
     return mc.message(
-        "COMMAND_ACK", command=command, result=result, progress=0, result_param2=0,
+        "COMMAND_ACK",
+        command=command,
+        result=result,
+        progress=0,
+        result_param2=0,
         target_system=int(request.get_srcSystem()),
         target_component=int(request.get_srcComponent()),
     )
 
 
 def _statustext(severity: int, text: str) -> mc.MAVLinkMessage:
-    return mc.message("STATUSTEXT", severity=severity, text=text.encode()[:50], id=0,
-                      chunk_seq=0)
+    return mc.message("STATUSTEXT", severity=severity, text=text.encode()[:50], id=0, chunk_seq=0)
 
 
 def _types(messages: list[mc.MAVLinkMessage]) -> list[str]:

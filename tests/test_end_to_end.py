@@ -38,8 +38,9 @@ class Processes:
 
     def start(self, *args: str, quiet: bool = False) -> subprocess.Popen[str]:
         out = subprocess.DEVNULL if quiet else subprocess.PIPE
-        proc = subprocess.Popen([sys.executable, "-m", "dispatcher.cli", *args],
-                                stdout=out, stderr=out, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "dispatcher.cli", *args], stdout=out, stderr=out, text=True
+        )
         self.procs.append(proc)
         return proc
 
@@ -66,8 +67,17 @@ def procs():
 
 
 def serve(procs, port, log_dir, *extra):
-    return procs.start("serve", str(SCENARIO), "--listen", f"tcp/127.0.0.1:{port}",
-                       "--log-dir", str(log_dir), "--time-limit", "1", *extra)
+    return procs.start(
+        "serve",
+        str(SCENARIO),
+        "--listen",
+        f"tcp/127.0.0.1:{port}",
+        "--log-dir",
+        str(log_dir),
+        "--time-limit",
+        "1",
+        *extra,
+    )
 
 
 def sim(procs, port, speedup, *vehicles):

@@ -12,20 +12,43 @@ VEHICLE = 21
 
 
 def home() -> StoredItem:
-    return StoredItem(seq=0, frame=0, command=16, current=0, autocontinue=1, param1=0,
-                      param2=0, param3=0, param4=0, x=440000000, y=873000000, z=0,
-                      mission_type=0)
+    return StoredItem(
+        seq=0,
+        frame=0,
+        command=16,
+        current=0,
+        autocontinue=1,
+        param1=0,
+        param2=0,
+        param3=0,
+        param4=0,
+        x=440000000,
+        y=873000000,
+        z=0,
+        mission_type=0,
+    )
 
 
 def mission(n):
     from dispatcher import mavlink_codec as mc
 
     return [
-        mc.mission_item_int(target_system=VEHICLE, target_component=1, seq=k,
-                            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                            command=mc.MAV_CMD_NAV_WAYPOINT, current=0, autocontinue=1,
-                            param1=0, param2=0, param3=0, param4=0,
-                            x=440000000 + 10 * k, y=873000000 + 7 * k, z=0)
+        mc.mission_item_int(
+            target_system=VEHICLE,
+            target_component=1,
+            seq=k,
+            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            command=mc.MAV_CMD_NAV_WAYPOINT,
+            current=0,
+            autocontinue=1,
+            param1=0,
+            param2=0,
+            param3=0,
+            param4=0,
+            x=440000000 + 10 * k,
+            y=873000000 + 7 * k,
+            z=0,
+        )
         for k in range(n)
     ]
 

@@ -39,8 +39,12 @@ def mission() -> Mission:
     """13 items: home, road speed, entry (= first swath start), work speed, implement
     down, 5 swath waypoints, implement up, road speed, garage."""
     spec = MissionSpec(
-        machine_id="t7", home=GARAGE, road_speed_kmh=10.0, work_speed_kmh=3.6,
-        implement=SERVO, visits=(FIELD,),
+        machine_id="t7",
+        home=GARAGE,
+        road_speed_kmh=10.0,
+        work_speed_kmh=3.6,
+        implement=SERVO,
+        visits=(FIELD,),
     )
     return build_mission(spec)
 
@@ -48,7 +52,13 @@ def mission() -> Mission:
 @pytest.fixture
 def vehicle() -> Vehicle:
     machine = Machine(
-        "t7", working_width_m=6.0, capacity_m2h=20000.0, road_speed_kmh=10.0,
-        turn_time_h=0.004, road_fuel_lh=3.0, work_fuel_lh=7.0, work_speed_kmh=3.6,
+        "t7",
+        working_width_m=6.0,
+        capacity_m2h=20000.0,
+        road_speed_kmh=10.0,
+        turn_time_h=0.004,
+        road_fuel_lh=3.0,
+        work_fuel_lh=7.0,
+        work_speed_kmh=3.6,
     )
     return Vehicle(machine, VEHICLE_SYSTEM, SERVO)

@@ -19,24 +19,38 @@ from sim_vehicles.mission_server import (
 )
 from sim_vehicles.testing import Wire, only, types
 
-HOME = StoredItem(seq=0, frame=mc.MAV_FRAME_GLOBAL, command=mc.MAV_CMD_NAV_WAYPOINT,
-                  current=0, autocontinue=1, param1=0.0, param2=0.0, param3=0.0, param4=0.0,
-                  x=440030000, y=872995000, z=0.0)
+HOME = StoredItem(
+    seq=0,
+    frame=mc.MAV_FRAME_GLOBAL,
+    command=mc.MAV_CMD_NAV_WAYPOINT,
+    current=0,
+    autocontinue=1,
+    param1=0.0,
+    param2=0.0,
+    param3=0.0,
+    param4=0.0,
+    x=440030000,
+    y=872995000,
+    z=0.0,
+)
 
 
-def make_server(request: RequestMessage = "MISSION_REQUEST_INT", running: bool = False
-                ) -> MissionServer:
+def make_server(
+    request: RequestMessage = "MISSION_REQUEST_INT", running: bool = False
+) -> MissionServer:
     return MissionServer(lambda: HOME, is_running=lambda: running, request_message=request)
 
 
-def send(server: MissionServer, wire: Wire, msg: mc.MAVLinkMessage, now: float = 0.0
-         ) -> list[mc.MAVLinkMessage]:
+def send(
+    server: MissionServer, wire: Wire, msg: mc.MAVLinkMessage, now: float = 0.0
+) -> list[mc.MAVLinkMessage]:
     """One ground-station message in, the vehicle's answers out (both through frames)."""
     return wire.down(server.on_message(wire.up(msg), now))
 
 
-def count_msg(wire: Wire, count: int, mission_type: int = mc.MAV_MISSION_TYPE_MISSION
-              ) -> mc.MAVLinkMessage:
+def count_msg(
+    wire: Wire, count: int, mission_type: int = mc.MAV_MISSION_TYPE_MISSION
+) -> mc.MAVLinkMessage:
     return wire.mission_msg("MISSION_COUNT", count=count, mission_type=mission_type)
 
 
@@ -54,8 +68,9 @@ def upload(server: MissionServer, wire: Wire, items: list[mc.MAVLinkMessage]) ->
     return int(ack.type)
 
 
-def assert_ack(reply: mc.MAVLinkMessage, result: int,
-               mission_type: int = mc.MAV_MISSION_TYPE_MISSION) -> None:
+def assert_ack(
+    reply: mc.MAVLinkMessage, result: int, mission_type: int = mc.MAV_MISSION_TYPE_MISSION
+) -> None:
     assert reply.get_type() == "MISSION_ACK"
     assert (reply.type, reply.mission_type) == (result, mission_type)
     assert (reply.target_system, reply.target_component) == (255, 190)
@@ -84,9 +99,18 @@ def test_full_upload_pulls_every_item_in_order_then_accepts(
     assert len(stored) == len(mission)
     for got, want in zip(stored, mission.items, strict=True):
         assert (got.seq, got.frame, got.command, got.x, got.y) == (
-            want.seq, want.frame, want.command, want.x, want.y)
+            want.seq,
+            want.frame,
+            want.command,
+            want.x,
+            want.y,
+        )
         assert (got.param1, got.param2, got.param3, got.param4) == (
-            want.param1, want.param2, want.param3, want.param4)
+            want.param1,
+            want.param2,
+            want.param3,
+            want.param4,
+        )
 
 
 def test_out_of_sequence_item_is_refused_and_the_transfer_goes_on(
@@ -163,10 +187,19 @@ def test_download_round_trip(wire: Wire, mission: Mission) -> None:
         downloaded.append(item)
     # Item 0 is the vehicle's own home in MAV_FRAME_GLOBAL, the rest as uploaded.
     assert (downloaded[0].x, downloaded[0].y, downloaded[0].frame) == (
-        HOME.x, HOME.y, mc.MAV_FRAME_GLOBAL)
+        HOME.x,
+        HOME.y,
+        mc.MAV_FRAME_GLOBAL,
+    )
     for got, sent in zip(downloaded[1:], items[1:], strict=True):
         assert (got.command, got.frame, got.x, got.y, got.param1, got.param2) == (
-            sent.command, sent.frame, sent.x, sent.y, sent.param1, sent.param2)
+            sent.command,
+            sent.frame,
+            sent.x,
+            sent.y,
+            sent.param1,
+            sent.param2,
+        )
     # The ground station's final ACK needs no answer.
     assert send(server, wire, wire.mission_msg("MISSION_ACK", type=mc.MAV_MISSION_ACCEPTED)) == []
 
@@ -178,10 +211,20 @@ def test_legacy_messages_both_ways(wire: Wire, mission: Mission) -> None:
     for item in items:
         assert types(replies) == ["MISSION_REQUEST"]
         legacy = wire.mission_msg(
-            "MISSION_ITEM", seq=item.seq, frame=mc.float_frame(item.frame),
-            command=item.command, current=0, autocontinue=1, param1=item.param1,
-            param2=item.param2, param3=item.param3, param4=item.param4,
-            x=item.x / 1e7, y=item.y / 1e7, z=0.0)
+            "MISSION_ITEM",
+            seq=item.seq,
+            frame=mc.float_frame(item.frame),
+            command=item.command,
+            current=0,
+            autocontinue=1,
+            param1=item.param1,
+            param2=item.param2,
+            param3=item.param3,
+            param4=item.param4,
+            x=item.x / 1e7,
+            y=item.y / 1e7,
+            z=0.0,
+        )
         replies = send(server, wire, legacy)
     assert_ack(replies[-1], mc.MAV_MISSION_ACCEPTED)
     for stored, sent in zip(server.items[1:], items[1:], strict=True):
@@ -211,14 +254,20 @@ def test_count_zero_clears_the_mission(wire: Wire, mission: Mission) -> None:
 @pytest.mark.parametrize("mission_type", [mc.MAV_MISSION_TYPE_FENCE, mc.MAV_MISSION_TYPE_RALLY])
 def test_other_mission_types_are_unsupported(wire: Wire, mission_type: int) -> None:
     server = make_server()
-    for name, fields in (("MISSION_COUNT", {"count": 3}), ("MISSION_REQUEST_LIST", {}),
-                         ("MISSION_CLEAR_ALL", {})):
-        (reply,) = send(server, wire, wire.mission_msg(name, mission_type=mission_type,
-                                                       **fields))
+    for name, fields in (
+        ("MISSION_COUNT", {"count": 3}),
+        ("MISSION_REQUEST_LIST", {}),
+        ("MISSION_CLEAR_ALL", {}),
+    ):
+        (reply,) = send(server, wire, wire.mission_msg(name, mission_type=mission_type, **fields))
         assert_ack(reply, mc.MAV_MISSION_UNSUPPORTED, mission_type)
     # ArduPilot ignores an item request for a type it has no protocol for
-    assert send(server, wire, wire.mission_msg("MISSION_REQUEST_INT", seq=0,
-                                               mission_type=mission_type)) == []
+    assert (
+        send(
+            server, wire, wire.mission_msg("MISSION_REQUEST_INT", seq=0, mission_type=mission_type)
+        )
+        == []
+    )
     assert not server.receiving
 
 
@@ -248,10 +297,21 @@ def test_item_without_upload_and_bad_items(wire: Wire, mission: Mission) -> None
     assert_ack(reply, mc.MAV_MISSION_ERROR)
     send(server, wire, count_msg(wire, 3))
     send(server, wire, items[0])
-    bad = wire.mission_msg("MISSION_ITEM_INT", seq=1, frame=items[2].frame,
-                           command=mc.MAV_CMD_NAV_WAYPOINT, current=0, autocontinue=1,
-                           param1=0.0, param2=0.0, param3=0.0, param4=0.0,
-                           x=950_000_000, y=items[2].y, z=0.0)
+    bad = wire.mission_msg(
+        "MISSION_ITEM_INT",
+        seq=1,
+        frame=items[2].frame,
+        command=mc.MAV_CMD_NAV_WAYPOINT,
+        current=0,
+        autocontinue=1,
+        param1=0.0,
+        param2=0.0,
+        param3=0.0,
+        param4=0.0,
+        x=950_000_000,
+        y=items[2].y,
+        z=0.0,
+    )
     (reply,) = send(server, wire, bad)
     assert_ack(reply, mc.MAV_MISSION_INVALID_PARAM5_X)
     assert not server.receiving  # a bad item ends the upload

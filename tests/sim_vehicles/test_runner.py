@@ -63,8 +63,11 @@ class Inbox:
         return None
 
     def count_from(self, system_id: int, kind: str | None = None) -> int:
-        return sum(1 for m in self.messages if m.get_srcSystem() == system_id
-                   and (kind is None or m.get_type() == kind))
+        return sum(
+            1
+            for m in self.messages
+            if m.get_srcSystem() == system_id and (kind is None or m.get_type() == kind)
+        )
 
 
 def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
@@ -82,37 +85,61 @@ def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
     test_side = contract.ZenohOptions(mode="peer", listen=(endpoint,))
     with zenoh.open(test_side.config()) as session:
         tokens = session.liveliness().declare_subscriber(
-            contract.vehicle_alive(farm, "*"), inbox.on_token)
+            contract.vehicle_alive(farm, "*"), inbox.on_token
+        )
         frames = session.declare_subscriber(contract.vehicle_from(farm, "*"), inbox.on_frame)
         to_vehicle = session.declare_publisher(contract.vehicle_to(farm, vehicle.id))
         sim = threading.Thread(
-            target=lambda: codes.append(run(
-                scenario, [vehicle.id, broken.id],
-                contract.ZenohOptions(mode="peer", connect=(endpoint,)),
-                speedup=50.0, telemetry_hz=20.0, stop=stop, fail_after={broken.id: 0.0})),
+            target=lambda: codes.append(
+                run(
+                    scenario,
+                    [vehicle.id, broken.id],
+                    contract.ZenohOptions(mode="peer", connect=(endpoint,)),
+                    speedup=50.0,
+                    telemetry_hz=20.0,
+                    stop=stop,
+                    fail_after={broken.id: 0.0},
+                )
+            ),
             name="sim-runner",
         )
         sim.start()
         try:
-            inbox.wait("the liveliness tokens", lambda: all(
-                (key, zenoh.SampleKind.PUT) in inbox.tokens for key in (alive_key, broken_key)))
-            inbox.wait("two heartbeats",
-                       lambda: inbox.count_from(vehicle.system_id, "HEARTBEAT") >= 2)
+            inbox.wait(
+                "the liveliness tokens",
+                lambda: all(
+                    (key, zenoh.SampleKind.PUT) in inbox.tokens for key in (alive_key, broken_key)
+                ),
+            )
+            inbox.wait(
+                "two heartbeats", lambda: inbox.count_from(vehicle.system_id, "HEARTBEAT") >= 2
+            )
             assert inbox.count_from(broken.system_id) == 0
             hb = inbox.first("HEARTBEAT")
             assert hb is not None
             assert (hb.get_srcSystem(), hb.get_srcComponent()) == (
-                vehicle.system_id, mc.MAV_COMP_ID_AUTOPILOT1)
-            assert (hb.type, hb.autopilot) == (mc.MAV_TYPE_GROUND_ROVER,
-                                               mc.MAV_AUTOPILOT_ARDUPILOTMEGA)
+                vehicle.system_id,
+                mc.MAV_COMP_ID_AUTOPILOT1,
+            )
+            assert (hb.type, hb.autopilot) == (
+                mc.MAV_TYPE_GROUND_ROVER,
+                mc.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            )
             inbox.wait("a position", lambda: inbox.first("GLOBAL_POSITION_INT") is not None)
 
             gcs = mc.Codec(contract.DISPATCHER_SYSTEM_ID, contract.DISPATCHER_COMPONENT_ID)
             items = three_items(vehicle.system_id, scenario.farm.garage_lonlat)
-            to_vehicle.put(gcs.encode(mc.message(
-                "MISSION_COUNT", target_system=vehicle.system_id,
-                target_component=mc.MAV_COMP_ID_AUTOPILOT1, count=len(items),
-                mission_type=mc.MAV_MISSION_TYPE_MISSION)))
+            to_vehicle.put(
+                gcs.encode(
+                    mc.message(
+                        "MISSION_COUNT",
+                        target_system=vehicle.system_id,
+                        target_component=mc.MAV_COMP_ID_AUTOPILOT1,
+                        count=len(items),
+                        mission_type=mc.MAV_MISSION_TYPE_MISSION,
+                    )
+                )
+            )
             for seq, item in enumerate(items):
                 inbox.wait(f"the request for item {seq}", requested(inbox, seq))
                 to_vehicle.put(gcs.encode(item))
@@ -120,14 +147,20 @@ def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
             ack = inbox.first("MISSION_ACK")
             assert ack is not None and ack.type == mc.MAV_MISSION_ACCEPTED
             assert (ack.target_system, ack.target_component) == (
-                contract.DISPATCHER_SYSTEM_ID, contract.DISPATCHER_COMPONENT_ID)
+                contract.DISPATCHER_SYSTEM_ID,
+                contract.DISPATCHER_COMPONENT_ID,
+            )
         finally:
             stop.set()
             sim.join(TIMEOUT_S)
         assert not sim.is_alive()
         assert codes == [0]
-        inbox.wait("the tokens to go", lambda: all(
-            (key, zenoh.SampleKind.DELETE) in inbox.tokens for key in (alive_key, broken_key)))
+        inbox.wait(
+            "the tokens to go",
+            lambda: all(
+                (key, zenoh.SampleKind.DELETE) in inbox.tokens for key in (alive_key, broken_key)
+            ),
+        )
         assert inbox.count_from(broken.system_id) == 0
         tokens.undeclare()
         frames.undeclare()
@@ -136,27 +169,48 @@ def test_runner_lives_on_zenoh_and_serves_an_upload() -> None:
 
 def requested(inbox: Inbox, seq: int) -> Callable[[], bool]:
     """Whether the vehicle has asked for item ``seq`` (ArduPilot's MISSION_REQUEST, or INT)."""
-    return lambda: any(m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT")
-                       and m.seq == seq for m in inbox.messages)
+    return lambda: any(
+        m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT") and m.seq == seq
+        for m in inbox.messages
+    )
 
 
 def three_items(system_id: int, garage_lonlat: tuple[float, float]) -> list[mc.MAVLinkMessage]:
     """Home, a speed, one waypoint 100 m north of the garage."""
     lon, lat = garage_lonlat
 
-    def item(seq: int, command: int, frame: int, p2: float = 0.0, x: int = 0, y: int = 0
-             ) -> mc.MAVLinkMessage:
+    def item(
+        seq: int, command: int, frame: int, p2: float = 0.0, x: int = 0, y: int = 0
+    ) -> mc.MAVLinkMessage:
         return mc.mission_item_int(
-            target_system=system_id, target_component=mc.MAV_COMP_ID_AUTOPILOT1, seq=seq,
-            frame=frame, command=command, current=0, autocontinue=1, param1=0.0, param2=p2,
-            param3=0.0, param4=0.0, x=x, y=y, z=0.0)
+            target_system=system_id,
+            target_component=mc.MAV_COMP_ID_AUTOPILOT1,
+            seq=seq,
+            frame=frame,
+            command=command,
+            current=0,
+            autocontinue=1,
+            param1=0.0,
+            param2=p2,
+            param3=0.0,
+            param4=0.0,
+            x=x,
+            y=y,
+            z=0.0,
+        )
 
     return [
-        item(0, mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_FRAME_GLOBAL, x=round(lat * 1e7),
-             y=round(lon * 1e7)),
+        item(
+            0, mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_FRAME_GLOBAL, x=round(lat * 1e7), y=round(lon * 1e7)
+        ),
         item(1, mc.MAV_CMD_DO_CHANGE_SPEED, mc.MAV_FRAME_MISSION, p2=2.0),
-        item(2, mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-             x=round((lat + 0.0009) * 1e7), y=round(lon * 1e7)),
+        item(
+            2,
+            mc.MAV_CMD_NAV_WAYPOINT,
+            mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            x=round((lat + 0.0009) * 1e7),
+            y=round(lon * 1e7),
+        ),
     ]
 
 
@@ -174,13 +228,26 @@ def test_command_line_process_stops_cleanly_on_sigterm() -> None:
     with zenoh.open(contract.ZenohOptions(mode="peer", listen=(endpoint,)).config()) as session:
         tokens = session.liveliness().declare_subscriber(alive_key, inbox.on_token)
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sim_vehicles", str(SCENARIO), "--vehicle", "t2",
-             "--connect", endpoint, "--speedup", "20"],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            [
+                sys.executable,
+                "-m",
+                "sim_vehicles",
+                str(SCENARIO),
+                "--vehicle",
+                "t2",
+                "--connect",
+                endpoint,
+                "--speedup",
+                "20",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
         )
         try:
-            inbox.wait("the process's token",
-                       lambda: (alive_key, zenoh.SampleKind.PUT) in inbox.tokens)
+            inbox.wait(
+                "the process's token", lambda: (alive_key, zenoh.SampleKind.PUT) in inbox.tokens
+            )
             proc.send_signal(signal.SIGTERM)
             output, _ = proc.communicate(timeout=TIMEOUT_S)
         finally:
@@ -189,6 +256,5 @@ def test_command_line_process_stops_cleanly_on_sigterm() -> None:
                 proc.wait()
         assert proc.returncode == 0, output
         assert "simulator stopped" in output
-        inbox.wait("the token to go",
-                   lambda: (alive_key, zenoh.SampleKind.DELETE) in inbox.tokens)
+        inbox.wait("the token to go", lambda: (alive_key, zenoh.SampleKind.DELETE) in inbox.tokens)
         tokens.undeclare()

@@ -85,8 +85,12 @@ def heartbeat_of(tractor: SimTractor) -> mc.MAVLinkMessage:
 @pytest.mark.parametrize("step_s", [0.5, 37.0, 1e6])
 @pytest.mark.parametrize("done", ["stop", "hold"])
 def test_drives_a_real_mission_to_the_end(
-    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire,
-    step_s: float, done: str,
+    vehicle: Vehicle,
+    home_lonlat: tuple[float, float],
+    mission: Mission,
+    wire: Wire,
+    step_s: float,
+    done: str,
 ) -> None:
     tractor = SimTractor(vehicle, home_lonlat, params=RoverParams(mission_done=done))  # type: ignore[arg-type]
     upload(tractor, wire, mission)
@@ -140,8 +144,12 @@ def test_drives_a_real_mission_to_the_end(
         assert final.mission_mode == 1
     assert not tractor.implement_down
     later = tractor.telemetry(tractor.sim_time + 60.0)[-1]
-    assert (later.lat, later.lon, later.vx, later.vy) == (mission.items[-1].x,
-                                                          mission.items[-1].y, 0, 0)
+    assert (later.lat, later.lon, later.vx, later.vy) == (
+        mission.items[-1].x,
+        mission.items[-1].y,
+        0,
+        0,
+    )
 
 
 def test_speeds_and_implement_along_the_way(
@@ -203,10 +211,12 @@ def test_refusals_as_ardupilot(
         assert ack_of(replies, set_mode) == mc.MAV_RESULT_FAILED
     # arming: 1 arms (again: still accepted), 0 disarms, anything else is unsupported
     arm = mc.MAV_CMD_COMPONENT_ARM_DISARM
-    for p1, result, armed in ((0.5, mc.MAV_RESULT_UNSUPPORTED, False),
-                              (1.0, mc.MAV_RESULT_ACCEPTED, True),
-                              (1.0, mc.MAV_RESULT_ACCEPTED, True),
-                              (0.0, mc.MAV_RESULT_ACCEPTED, False)):
+    for p1, result, armed in (
+        (0.5, mc.MAV_RESULT_UNSUPPORTED, False),
+        (1.0, mc.MAV_RESULT_ACCEPTED, True),
+        (1.0, mc.MAV_RESULT_ACCEPTED, True),
+        (0.0, mc.MAV_RESULT_ACCEPTED, False),
+    ):
         assert ack_of(send(tractor, wire, wire.command_long(arm, p1)), arm) == result
         assert tractor.armed is armed
     # speed changes only where a mode has a speed to change
@@ -228,7 +238,10 @@ def test_auto_while_disarmed_waits_and_arming_sets_off(
     assert ack_of(replies, mc.MAV_CMD_DO_SET_MODE) == mc.MAV_RESULT_ACCEPTED
     (current,) = only(replies, "MISSION_CURRENT")
     assert (current.seq, current.mission_state, current.mission_mode) == (
-        2, mc.MISSION_STATE_ACTIVE, 1)
+        2,
+        mc.MISSION_STATE_ACTIVE,
+        1,
+    )
     tractor.advance(120.0)
     assert (tractor.lat, tractor.lon) == (home_lonlat[1], home_lonlat[0])
     hb = heartbeat_of(tractor)
@@ -291,8 +304,12 @@ def test_set_mode_message_and_rtl(
     upload(tractor, wire, mission)
     arm_and_start(tractor, wire)
     tractor.advance(60.0)
-    set_mode = mc.message("SET_MODE", target_system=wire.vehicle_system,
-                          base_mode=mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode=Mode.RTL)
+    set_mode = mc.message(
+        "SET_MODE",
+        target_system=wire.vehicle_system,
+        base_mode=mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        custom_mode=Mode.RTL,
+    )
     replies = send(tractor, wire, set_mode)
     assert ack_of(replies, 11) == mc.MAV_RESULT_ACCEPTED  # ArduPilot acks SET_MODE as "11"
     assert tractor.mode is Mode.RTL
@@ -317,12 +334,17 @@ def test_heartbeat_time_and_addressing(
     assert (current.mission_state, current.total) == (mc.MISSION_STATE_NO_MISSION, 0)
     (fix,) = wire.down(tractor.telemetry(20.0))
     assert (fix.time_boot_ms, fix.lat, fix.lon) == (
-        20000, round(home_lonlat[1] * 1e7), round(home_lonlat[0] * 1e7))
+        20000,
+        round(home_lonlat[1] * 1e7),
+        round(home_lonlat[0] * 1e7),
+    )
     assert (fix.get_srcSystem(), fix.get_srcComponent()) == (7, mc.MAV_COMP_ID_AUTOPILOT1)
     # addressed to someone else: ignored; to everyone (0): answered
     other = Wire(8)
-    assert tractor.handle(other.up(other.command_long(mc.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)),
-                          20.0) == []
+    assert (
+        tractor.handle(other.up(other.command_long(mc.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)), 20.0)
+        == []
+    )
     broadcast = wire.command_long(mc.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
     broadcast.target_system = 0
     assert types(send(tractor, wire, broadcast)) == ["COMMAND_ACK"]
@@ -345,8 +367,7 @@ def test_breakdown_silences_and_stops_the_vehicle(
     assert tractor.on_link_tick(1000.0) == []
 
 
-def test_broken_from_boot_never_speaks(vehicle: Vehicle, home_lonlat: tuple[float, float]
-                                       ) -> None:
+def test_broken_from_boot_never_speaks(vehicle: Vehicle, home_lonlat: tuple[float, float]) -> None:
     tractor = SimTractor(vehicle, home_lonlat, fail_after_s=0.0)
     assert tractor.heartbeat(0.0) == [] and tractor.failed
 
@@ -356,8 +377,12 @@ def test_mission_set_current_message_moves_the_next_start(
 ) -> None:
     tractor = SimTractor(vehicle, home_lonlat)
     upload(tractor, wire, mission)
-    set_current = mc.message("MISSION_SET_CURRENT", target_system=wire.vehicle_system,
-                             target_component=wire.vehicle_component, seq=6)
+    set_current = mc.message(
+        "MISSION_SET_CURRENT",
+        target_system=wire.vehicle_system,
+        target_component=wire.vehicle_component,
+        seq=6,
+    )
     replies = send(tractor, wire, set_current)
     (current,) = only(replies, "MISSION_CURRENT")
     assert (current.seq, current.mission_state) == (6, mc.MISSION_STATE_NOT_STARTED)
