@@ -263,6 +263,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
+def cmd_router(args: argparse.Namespace) -> int:
+    from dispatcher.router import DEFAULT_ROUTER_ENDPOINT, run_router
+
+    if not args.listen:
+        args.listen = [DEFAULT_ROUTER_ENDPOINT]
+    return run_router(zenoh_options(args, False))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -331,6 +339,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=float, help="solver seconds")
     p.add_argument("--seed", type=int)
     p.set_defaults(handler=cmd_demo, fields=None)
+
+    p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
+    add_zenoh_arguments(p, mode="router")
+    p.set_defaults(handler=cmd_router)
     return parser
 
 

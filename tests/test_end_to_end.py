@@ -156,3 +156,20 @@ def test_status_queryable_and_sigterm_leaves_a_readable_log(procs, tmp_path):
     log = read_log(log_path(out))
     assert log.complete  # finished properly: summary written
     assert log.topic_counts()["agrifleet/tiny/vehicle/v1/mavlink/from"] > 0
+
+
+def test_router_with_dispatcher_and_vehicles_in_client_mode(procs, tmp_path):
+    """Beyond one gateway: everyone is a client of a Zenoh router."""
+    port = free_port()
+    router = procs.start("router", "--listen", f"tcp/127.0.0.1:{port}", quiet=True)
+    endpoint = f"tcp/127.0.0.1:{port}"
+    dispatcher = procs.start("serve", str(SCENARIO), "--mode", "client", "--connect", endpoint,
+                             "--log-dir", str(tmp_path), "--time-limit", "1")
+    for vid in ("v1", "v2"):
+        procs.start("sim", str(SCENARIO), "--mode", "client", "--connect", endpoint,
+                    "--speedup", "400", "--vehicle", vid, quiet=True)
+    out, err = dispatcher.communicate(timeout=120)
+    assert dispatcher.returncode == 0, err[-3000:]
+    status = read_log(log_path(out)).on("agrifleet/tiny/dispatcher/status")[-1].decode_json()
+    assert {f["status"] for f in status["fields"].values()} == {"done"}
+    assert router.poll() is None  # the router outlives its clients

@@ -1,0 +1,47 @@
+"""`agrifleet router`: a Zenoh router for deployments beyond one gateway.
+
+zenohd is not installable from the package registries here, so this is a Zenoh session in
+router mode, which routes between the clients and peers connected to it (and other
+routers it connects to). Dispatchers, vehicles and bridges then run in client mode with
+``--mode client --connect tcp/<router>:7447``.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from types import FrameType
+
+import zenoh
+
+from dispatcher.wire import ZenohOptions
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ROUTER_ENDPOINT = "tcp/0.0.0.0:7447"
+
+
+def run_router(options: ZenohOptions, stop: threading.Event | None = None) -> int:
+    """Route until ``stop`` is set or SIGINT/SIGTERM; returns the exit code (0)."""
+    if options.mode != "router":
+        raise ValueError(f"a router runs in router mode, not {options.mode!r}")
+    stop = stop if stop is not None else threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+
+        def on_signal(signum: int, frame: FrameType | None) -> None:
+            stop.set()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_signal)
+    try:
+        with zenoh.open(options.config()) as session:
+            log.info("zenoh router %s listening on %s, connected to %s", session.zid(),
+                     ", ".join(options.listen) or "-", ", ".join(options.connect) or "-")
+            stop.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    log.info("router stopped")
+    return 0
