@@ -111,24 +111,14 @@ def route_distance(perm, begin, count, machine, dist, start_dist, end_dist):  # 
 
 
 @njit(cache=True)
-def evaluate(  # type: ignore[no-untyped-def]
-    perm,
-    counts,
-    objective,
-    dist,
-    start_dist,
-    end_dist,
-    road_hours_per_m,
-    road_fuel_lh,
-    task_hours,
-    task_fuel,
-    route_cost,
-):
+def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-untyped-def]
     """The objective value of one chromosome; fills ``route_cost[i]`` with machine i's share.
 
-    A route's share is the figure the objective adds up or maximises: s_i for distance and
-    minmax, t_i for time and makespan, c_i for fuel (the "path cost" of §4.3's overshoot).
+    ``tables`` is :meth:`CostTables.kernel_args`. A route's share is the figure the
+    objective adds up or maximises: s_i for distance and minmax, t_i for time and makespan,
+    c_i for fuel (the "path cost" of §4.3's overshoot).
     """
+    dist, start_dist, end_dist, road_hours_per_m, road_fuel_lh, task_hours, task_fuel = tables
     m = counts.shape[0]
     total = 0.0
     worst = 0.0
@@ -163,21 +153,8 @@ def evaluate(  # type: ignore[no-untyped-def]
 @njit(cache=True)
 def evaluate_population(perms, counts, objective, tables, costs, route_costs):  # type: ignore[no-untyped-def]
     """Evaluate every row of a population in place."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     for p in range(perms.shape[0]):
-        costs[p] = evaluate(
-            perms[p],
-            counts[p],
-            objective,
-            dist,
-            start_dist,
-            end_dist,
-            road_h,
-            road_f,
-            task_h,
-            task_f,
-            route_costs[p],
-        )
+        costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
 
 
 @dataclass(frozen=True)

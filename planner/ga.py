@@ -51,7 +51,6 @@ def generation(  # type: ignore[no-untyped-def]
     elite_cost,
 ):
     """One classic GA generation in place."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     pop = perms.shape[0]
     winners = np.empty(pop, dtype=np.int64)
     tournament(state, costs, tournament_size, winners)
@@ -75,17 +74,5 @@ def generation(  # type: ignore[no-untyped-def]
         if uniform(state) < mutation_rate:
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, False)
-        costs[p] = evaluate(
-            perms[p],
-            counts[p],
-            objective,
-            dist,
-            start_dist,
-            end_dist,
-            road_h,
-            road_f,
-            task_h,
-            task_f,
-            route_costs[p],
-        )
+        costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)

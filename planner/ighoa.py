@@ -127,7 +127,6 @@ def generation(  # type: ignore[no-untyped-def]
 ):
     """One IGHOA generation in place on the population arrays; returns the number of
     crossovers and mutations done (for statistics)."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
     pop, n = perms.shape
 
     # §4.2 tournament selection into a new population.
@@ -169,19 +168,7 @@ def generation(  # type: ignore[no-untyped-def]
             perms[k + 1] = sel_perms[mo]
             counts[k + 1] = sel_counts[mo]
     for p in range(pop):
-        costs[p] = evaluate(
-            perms[p],
-            counts[p],
-            objective,
-            dist,
-            start_dist,
-            end_dist,
-            road_h,
-            road_f,
-            task_h,
-            task_f,
-            route_costs[p],
-        )
+        costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
 
     # §4.4 adaptive mutation: formula (19) diversity and (20) rate per individual.
     div = np.empty(pop)
@@ -197,19 +184,7 @@ def generation(  # type: ignore[no-untyped-def]
             mutations += 1
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, shift_counts)
-            costs[p] = evaluate(
-                perms[p],
-                counts[p],
-                objective,
-                dist,
-                start_dist,
-                end_dist,
-                road_h,
-                road_f,
-                task_h,
-                task_f,
-                route_costs[p],
-            )
+            costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)
     return crossovers, mutations
 
@@ -219,20 +194,8 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
     """§4.5 on one chromosome in place: ``tries`` random 2-opt reversals of both parts,
     each kept only if it lowers the cost, then the circle modification of every route
     (neighbour-list 2-opt when ``neighbours`` has columns). Returns the new cost."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
-    cost = evaluate(
-        perm,
-        counts,
-        objective,
-        dist,
-        start_dist,
-        end_dist,
-        road_h,
-        road_f,
-        task_h,
-        task_f,
-        route_cost,
-    )
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    cost = evaluate(perm, counts, objective, tables, route_cost)
     trial_perm = perm.copy()
     trial_counts = counts.copy()
     trial_route = route_cost.copy()
@@ -240,35 +203,11 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
         trial_perm[:] = perm
         trial_counts[:] = counts
         random_two_opt(state, trial_perm, trial_counts)
-        trial = evaluate(
-            trial_perm,
-            trial_counts,
-            objective,
-            dist,
-            start_dist,
-            end_dist,
-            road_h,
-            road_f,
-            task_h,
-            task_f,
-            trial_route,
-        )
+        trial = evaluate(trial_perm, trial_counts, objective, tables, trial_route)
         if trial < cost - 1e-12:
             perm[:] = trial_perm
             counts[:] = trial_counts
             route_cost[:] = trial_route
             cost = trial
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
-    return evaluate(
-        perm,
-        counts,
-        objective,
-        dist,
-        start_dist,
-        end_dist,
-        road_h,
-        road_f,
-        task_h,
-        task_f,
-        route_cost,
-    )
+    return evaluate(perm, counts, objective, tables, route_cost)

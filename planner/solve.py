@@ -323,7 +323,7 @@ def _polish(  # type: ignore[no-untyped-def]
             if idx == targets[0]:
                 optimal_split(perm, cnt, objective, tables, min_count)
             improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50)
-            cost = evaluate(perm, cnt, objective, *tables, route)  # type: ignore[call-arg]
+            cost = evaluate(perm, cnt, objective, tables, route)
         if cost < costs[idx] - 1e-12:
             stats["polish_gains"] += 1
             perms[idx], counts[idx], route_costs[idx], costs[idx] = perm, cnt, route, cost

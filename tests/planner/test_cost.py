@@ -137,7 +137,7 @@ def test_compiled_cost_equals_slow_recomputation(case, objective):
     problem, perm, counts = case
     tables = CostTables.of(problem).kernel_args()
     route_cost = np.empty(problem.num_machines)
-    value = evaluate(perm, counts, int(objective), *tables, route_cost)
+    value = evaluate(perm, counts, int(objective), tables, route_cost)
     routes = split_routes(perm, counts)
     expected = slow_value(problem, routes, objective)
     tie = 0.0

@@ -99,17 +99,17 @@ def test_local_search_keeps_validity_and_reports_true_cost(case, objective):
     problem = problem_for(n, m, int(perm[0]) + 7 * n)
     tables = CostTables.of(problem).kernel_args()
     route = np.empty(m)
-    before = evaluate(perm, counts, int(objective), *tables, route)
+    before = evaluate(perm, counts, int(objective), tables, route)
     nn = nearest_neighbours(problem.dist, 5)
     cost = polish(state, perm, counts, int(objective), tables, 20, route, nn[:, :0])
     assert_valid(perm, counts, n, m)
     check = np.empty(m)
-    assert cost == pytest.approx(evaluate(perm, counts, int(objective), *tables, check), rel=1e-12)
+    assert cost == pytest.approx(evaluate(perm, counts, int(objective), tables, check), rel=1e-12)
     assert cost <= before + 1e-9 * max(1.0, before)
     np.testing.assert_allclose(route, check)
     improve_allocation(perm, counts, int(objective), tables, nn, 1, 20)
     assert_valid(perm, counts, n, m)
-    after = evaluate(perm, counts, int(objective), *tables, check)
+    after = evaluate(perm, counts, int(objective), tables, check)
     assert after <= cost + 1e-9 * max(1.0, cost)
 
 
@@ -120,10 +120,10 @@ def test_route_improvement_never_lengthens_a_route(case, with_neighbours):
     problem = problem_for(perm.size, counts.size, 3)
     tables = CostTables.of(problem)
     route = np.empty(counts.size)
-    before = evaluate(perm, counts, 0, *tables.kernel_args(), route)
+    before = evaluate(perm, counts, 0, tables.kernel_args(), route)
     nn = nearest_neighbours(tables.dist, 4)[:, : 4 if with_neighbours else 0]
     ops.improve_routes(perm, counts, tables.dist, tables.start_dist, tables.end_dist, nn)
-    after = evaluate(perm, counts, 0, *tables.kernel_args(), route)
+    after = evaluate(perm, counts, 0, tables.kernel_args(), route)
     assert after <= before + 1e-9
     assert sorted(perm.tolist()) == list(range(perm.size))
 
@@ -161,9 +161,9 @@ def test_optimal_split_is_optimal_for_its_order(case, objective):
     best = np.inf
     for cuts in itertools.combinations(range(1, n), m - 1):
         trial = np.diff(np.array((0, *cuts, n))).astype(np.int64)
-        best = min(best, evaluate(perm, trial, int(objective), *tables, route))
+        best = min(best, evaluate(perm, trial, int(objective), tables, route))
     split = counts.copy()
     optimal_split(perm, split, int(objective), tables, 1)
     assert_valid(perm, split, n, m)
-    value = evaluate(perm, split, int(objective), *tables, route)
+    value = evaluate(perm, split, int(objective), tables, route)
     assert value <= best + 1e-6 * max(1.0, best)
