@@ -42,18 +42,16 @@ class Stats:
     retries: int = 0  # messages resent after a timeout
 
 
-class MissionUpload:
-    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+class _Exchange:
+    """What every exchange with one vehicle has: its address, timeouts and outcome."""
 
     def __init__(
         self,
-        items: Sequence[mc.MAVLinkMessage],
         target_system: int,
         target_component: int = mc.MAV_COMP_ID_AUTOPILOT1,
         timeout_s: float = REQUEST_TIMEOUT_S,
         max_retries: int = MAX_RETRIES,
     ) -> None:
-        self.items = list(items)
         self.target_system = target_system
         self.target_component = target_component
         self.timeout_s = timeout_s
@@ -61,9 +59,22 @@ class MissionUpload:
         self.outcome = Outcome.RUNNING
         self.reason = ""
         self.stats = Stats()
+
+    def _fail(self, reason: str) -> list[mc.MAVLinkMessage]:
+        self.outcome = Outcome.FAILED
+        self.reason = reason
+        return []
+
+
+class MissionUpload(_Exchange):
+    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+
+    def __init__(self, items: Sequence[mc.MAVLinkMessage], target_system: int, **kw: float) -> None:
+        super().__init__(target_system, **kw)  # type: ignore[arg-type]
+        self.items = list(items)
         self._last: mc.MAVLinkMessage | None = None
         self._deadline = 0.0
-        self._retries_left = max_retries
+        self._retries_left = self.max_retries
         self._sent_seqs: set[int] = set()
 
     @property
@@ -128,11 +139,6 @@ class MissionUpload:
         self._deadline = now + self.timeout_s
         return [msg]
 
-    def _fail(self, reason: str) -> list[mc.MAVLinkMessage]:
-        self.outcome = Outcome.FAILED
-        self.reason = reason
-        return []
-
 
 @dataclass(frozen=True)
 class Command:
@@ -140,26 +146,13 @@ class Command:
     params: tuple[float, ...] = ()
 
 
-class CommandSequence:
+class CommandSequence(_Exchange):
     """Send COMMAND_LONGs one after another, each confirmed by its COMMAND_ACK; resend
     (``confirmation`` + 1) after a timeout."""
 
-    def __init__(
-        self,
-        commands: Sequence[Command],
-        target_system: int,
-        target_component: int = mc.MAV_COMP_ID_AUTOPILOT1,
-        timeout_s: float = REQUEST_TIMEOUT_S,
-        max_retries: int = MAX_RETRIES,
-    ) -> None:
+    def __init__(self, commands: Sequence[Command], target_system: int, **kw: float) -> None:
+        super().__init__(target_system, **kw)  # type: ignore[arg-type]
         self.commands = list(commands)
-        self.target_system = target_system
-        self.target_component = target_component
-        self.timeout_s = timeout_s
-        self.max_retries = max_retries
-        self.outcome = Outcome.RUNNING
-        self.reason = ""
-        self.stats = Stats()
         self._index = 0
         self._confirmation = 0
         self._deadline = 0.0
@@ -177,10 +170,8 @@ class CommandSequence:
             self._deadline = now + self.timeout_s
             return []
         if result != mc.MAV_RESULT_ACCEPTED:
-            self.outcome = Outcome.FAILED
             name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
-            self.reason = f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}"
-            return []
+            return self._fail(f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}")
         self._index += 1
         self._confirmation = 0
         if self._index == len(self.commands):
@@ -192,9 +183,8 @@ class CommandSequence:
         if self.outcome is not Outcome.RUNNING or now < self._deadline:
             return []
         if self._confirmation >= self.max_retries:
-            self.outcome = Outcome.FAILED
-            self.reason = f"no COMMAND_ACK for command {self.commands[self._index].command}"
-            return []
+            name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
+            return self._fail(f"no COMMAND_ACK for {name} after {self.max_retries} retries")
         self._confirmation += 1
         self.stats.retries += 1
         return [self._current(now)]
