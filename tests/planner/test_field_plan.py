@@ -1,0 +1,104 @@
+"""Planning with field geometry: agreement with formulas (5)-(6), corner choice, the plan."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from shapely.geometry import Polygon
+
+from planner.cost import figures
+from planner.coverage import cover_field, rectangle_field
+from planner.farm import Farm, Field
+from planner.field_plan import Visit, best_corners, machine_figures, plan_farm
+from planner.geo import LocalFrame
+from planner.problem import Machine, Problem, Task, rectangle_turns
+from planner.solve import stop_after
+
+MACHINE = Machine("m", 6.0, 5000.0, 10.0, 0.003, 2.5, 5.0, work_speed_kmh=0.83)
+
+
+def one_field_farm(poly: Polygon, fid: str = "f") -> Farm:
+    frame = LocalFrame.around(87.3, 44.0)
+    return Farm(
+        fields=(Field(fid, fid, poly, poly),),
+        garage=(0.0, 0.0),
+        garage_lonlat=(87.3, 44.0),
+        frame=frame,
+    )
+
+
+def test_geometry_agrees_with_formulas_5_and_6_on_a_rectangle():
+    # 100 m along the swaths, 60 m across: 10 swaths of 6 m, 9 U-turns, as n_turn + 1 = 10.
+    poly = rectangle_field(60.0, 100.0)
+    cov = cover_field(poly, MACHINE.working_width_m, field_id="f")
+    assert len(cov.swaths) == 10
+    assert cov.turns == rectangle_turns(60.0, MACHINE.working_width_m) == 9
+    field = one_field_farm(poly).fields[0]
+    geo = machine_figures(MACHINE, (Visit(field, cov, 0),), road_m=0.0)
+    # The paper's model: the same field as a rectangle task at the depot (no driving).
+    problem = Problem.build([MACHINE], [Task("f", 0.0, 0.0, poly.area, 60.0, 100.0)], (0.0, 0.0))
+    paper = figures(problem, [[0]]).routes[0]
+    assert geo.turns == paper.turns
+    assert geo.time_h == pytest.approx(paper.time_h, rel=1e-12)
+    assert geo.fuel_l == pytest.approx(paper.fuel_l, rel=1e-12)
+    assert geo.time_h == pytest.approx(9 * 0.003 + 6000.0 / 5000.0)
+
+
+def test_corner_choice_is_the_best_of_all_combinations():
+    rng = np.random.default_rng(4)
+    covs = [
+        cover_field(
+            rectangle_field(float(w), float(h), float(a), (float(x), float(y))),
+            6.0,
+            field_id=f"f{k}",
+        )
+        for k, (w, h, a, x, y) in enumerate(
+            zip(
+                rng.uniform(40, 90, 4),
+                rng.uniform(60, 120, 4),
+                rng.uniform(0, 90, 4),
+                rng.uniform(0, 800, 4),
+                rng.uniform(0, 800, 4),
+                strict=True,
+            )
+        )
+    ]
+    garage = (-50.0, -50.0)
+    corners, road = best_corners(garage, covs)
+
+    def length(choice):
+        pts = [garage]
+        total = 0.0
+        for cov, c in zip(covs, choice, strict=True):
+            total += math.dist(pts[-1], cov.entry(c)) + cov.transit_inside_m(c)
+            pts.append(cov.exit(c))
+        return total + math.dist(pts[-1], garage)
+
+    brute = min(itertools.product(range(4), repeat=len(covs)), key=length)
+    assert road == pytest.approx(length(brute))
+    assert road == pytest.approx(length(corners))
+
+
+def test_plan_farm_covers_every_field_once():
+    frame = LocalFrame.around(87.3, 44.0)
+    fields = tuple(
+        Field(
+            f"f{k}",
+            f"f{k}",
+            rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)),
+            rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)),
+        )
+        for k in range(5)
+    )
+    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    machines = [MACHINE, Machine("n", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)]
+    plan = plan_farm(farm, machines, "makespan", "ighoa", stop_after(50), seed=2)
+    done = sorted(fid for m in plan.machines for fid in m.field_ids)
+    assert done == [f"f{k}" for k in range(5)]
+    assert plan.makespan_h == max(m.time_h for m in plan.machines)
+    # Narrower machine, more turns on the same field.
+    by_id = {m.machine.id: m for m in plan.machines}
+    for m in by_id.values():
+        for v in m.visits:
+            assert v.coverage.working_width_m == m.machine.working_width_m
