@@ -40,9 +40,15 @@ def check_wgs84(lon: ArrayLike, lat: ArrayLike, where: str) -> None:
         bad = ~np.isfinite(values) | (np.abs(values) > limit)
         if np.any(bad):
             first = float(values.reshape(-1)[np.flatnonzero(bad.reshape(-1))[0]])
+            hint = (
+                "these look like projected metres (UTM or another CRS): GeoJSON wants WGS84 "
+                "longitude and latitude in degrees"
+                if np.isfinite(first) and abs(first) > 1000.0
+                else "are longitude and latitude swapped?"
+            )
             raise GeometryError(
-                f"{where}: {name} {first!r} is not a finite WGS84 value in [-{limit:g}, {limit:g}]"
-                " degrees (are longitude and latitude swapped?)"
+                f"{where}: {name} {first!r} is not a finite WGS84 value in "
+                f"[-{limit:g}, {limit:g}] degrees ({hint})"
             )
 
 
