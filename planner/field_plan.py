@@ -138,7 +138,12 @@ def farm_problem(
     turns = np.array(
         [[coverage[(mc.id, f.id)].turns for f in farm.fields] for mc in machines], dtype=np.float64
     )
-    return Problem.build(machines, tasks, farm.garage, turns=turns, name="farm")
+    # The paper has every machine work (its assumption 2: more tasks than machines); with
+    # more machines than fields the spare ones simply stay in the garage.
+    min_tasks = 1 if len(tasks) >= len(machines) else 0
+    return Problem.build(
+        machines, tasks, farm.garage, turns=turns, min_tasks_per_machine=min_tasks, name="farm"
+    )
 
 
 def plan_farm(

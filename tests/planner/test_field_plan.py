@@ -102,3 +102,13 @@ def test_plan_farm_covers_every_field_once():
     for m in by_id.values():
         for v in m.visits:
             assert v.coverage.working_width_m == m.machine.working_width_m
+
+
+def test_spare_machines_stay_in_the_garage():
+    poly = rectangle_field(50.0, 80.0)
+    farm = one_field_farm(poly)
+    machines = [MACHINE, Machine("n", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)]
+    plan = plan_farm(farm, machines, "makespan", "ighoa", stop_after(10), seed=1)
+    assert sorted(len(m.visits) for m in plan.machines) == [0, 1]
+    idle = next(m for m in plan.machines if not m.visits)
+    assert idle.road_m == 0.0 and idle.time_h == 0.0
