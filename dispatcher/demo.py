@@ -185,7 +185,9 @@ def summary(daemon: Dispatcher) -> str:
     for v in state.vehicles.values():
         lines.append(
             f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}, "
-            f"{v.sim_time_s / 3600:.2f} h simulated, upload retries {v.upload_retries}"
+            f"{'finished after ' if v.finished_s is not None else ''}"
+            f"{(v.finished_s if v.finished_s is not None else v.sim_time_s) / 3600:.2f} h "
+            f"(planned {v.planned_s[-1] / 3600:.2f} h), upload retries {v.upload_retries}"
             + (f", {v.error}" if v.error else "")
         )
     done = sum(f.status == "done" for f in state.fields.values())

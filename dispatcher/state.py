@@ -42,6 +42,8 @@ class VehicleState:
     reached: int = 0  # highest item seq reached
     current: int = 0
     sim_time_s: float = 0.0
+    finished_s: float | None = None  # simulated time the last item was reached
+    finished_at_next_fix: bool = False
     lat: float | None = None
     lon: float | None = None
     mode: int | None = None
@@ -135,6 +137,10 @@ class FleetState:
         elif kind == "GLOBAL_POSITION_INT":
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
             v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
+            if v.phase is Phase.DONE and v.finished_at_next_fix:
+                # The vehicle reports its position right after the last waypoint.
+                v.finished_s = v.sim_time_s
+                v.finished_at_next_fix = False
         elif kind == "SYSTEM_TIME":
             v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
         elif kind == "MISSION_CURRENT":
@@ -155,6 +161,8 @@ class FleetState:
         v.reached = max(v.reached, seq)
         if v.reached == len(v.mission) - 1:
             v.phase = Phase.DONE
+            v.finished_s = v.sim_time_s
+            v.finished_at_next_fix = True
 
     def _item_done(self, v: VehicleState, seq: int) -> None:
         _, trace = v.mission.item_for_seq(seq)
@@ -197,6 +205,7 @@ class FleetState:
                     "current_field": v.current_field,
                     "share_done": round(v.share_done, 4),
                     "eta_s": round(v.eta_s, 1),
+                    "finished_s": v.finished_s,
                     "sim_time_s": round(v.sim_time_s, 1),
                     "lat": v.lat,
                     "lon": v.lon,
