@@ -10,11 +10,16 @@ the dialect ArduPilot Rover speaks.
 
 from __future__ import annotations
 
+import functools
 import logging
+import socket
 import struct
+from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from dispatcher.errors import DispatcherError
 
 logger = logging.getLogger(__name__)
 
@@ -41,6 +46,7 @@ SPEED_TYPE_GROUNDSPEED: int = mavlink2.SPEED_TYPE_GROUNDSPEED
 MAV_AUTOPILOT_ARDUPILOTMEGA: int = mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA
 MAV_TYPE_GROUND_ROVER: int = mavlink2.MAV_TYPE_GROUND_ROVER
 MAV_COMP_ID_AUTOPILOT1: int = mavlink2.MAV_COMP_ID_AUTOPILOT1
+MAV_COMP_ID_ONBOARD_COMPUTER: int = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER
 
 _FLOAT_FRAME_OF_INT_FRAME: dict[int, int] = {
     MAV_FRAME_GLOBAL_INT: MAV_FRAME_GLOBAL,
@@ -73,6 +79,11 @@ def message(name: str, **fields: Any) -> MAVLinkMessage:
     if cls is None:
         raise ValueError(f"unknown MAVLink message {name!r}")
     return cls(**fields)
+
+
+def is_message_name(name: str) -> bool:
+    """Whether ``name`` is a message of the dialect, e.g. "GLOBAL_POSITION_INT"."""
+    return name.isupper() and hasattr(mavlink2, f"MAVLink_{name.lower()}_message")
 
 
 def as_dict(msg: MAVLinkMessage) -> dict[str, Any]:
@@ -244,3 +255,188 @@ def _frame_length(buf: bytearray, start: int) -> int | None:
     signed = buf[start + 2] & mavlink2.MAVLINK_IFLAG_SIGNED
     signature = mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN if signed else 0
     return mavlink2.HEADER_LEN_V2 + payload_len + 2 + signature
+
+
+# --- MAVLink links (pymavlink's mavutil) ---------------------------------------------------
+
+DEFAULT_SERIAL_BAUD = 115200
+_URL_SCHEMES = ("tcp:", "tcpin:", "udp:", "udpin:", "udpout:", "udpbcast:")
+
+
+class LinkDown(DispatcherError):
+    """A MAVLink link could not be opened or has dropped (TCP closed, serial port gone);
+    opening it again later may succeed."""
+
+
+def check_mavlink_url(url: str) -> None:
+    """Raise ValueError unless ``url`` is a MAVLink URL :func:`open_mavlink` takes:
+    ``tcp:HOST:PORT``, ``tcpin:HOST:PORT``, ``udp:``/``udpin:``/``udpout:``/``udpbcast:HOST:PORT``
+    or a serial device ``DEVICE[,BAUD]`` (``/dev/ttyUSB0,57600``, ``COM3``)."""
+    scheme = next((s for s in _URL_SCHEMES if url.startswith(s)), None)
+    if scheme is not None:
+        host, sep, port = url[len(scheme) :].rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise ValueError(f"MAVLink URL {url!r}: want {scheme}HOST:PORT")
+        return
+    device, sep, baud = url.partition(",")
+    path_like = device.startswith("/") or ":" not in device  # /dev/serial/by-path/...:1.0
+    if not device or not path_like or (sep and not baud.isdigit()):
+        raise ValueError(
+            f"MAVLink URL {url!r}: want tcp:HOST:PORT, tcpin:HOST:PORT, udpin:HOST:PORT, "
+            "udpout:HOST:PORT or a serial device DEVICE[,BAUD]"
+        )
+
+
+class MavlinkConnection:
+    """One MAVLink link opened with pymavlink's ``mavutil``: a TCP client or server, a UDP
+    socket or a serial port.
+
+    Frames are parsed with the MAVLink 2 ``ardupilotmega`` dialect (MAVLink 1 frames are
+    parsed too), whatever the process's ``MAVLINK20`` setting. A TCP connection closed by
+    the other side and a serial port that fails raise :class:`LinkDown`; a TCP server
+    (``tcpin:``) instead waits for the next client. Not thread-safe: one thread reads and
+    writes.
+    """
+
+    def __init__(self, url: str, port: Any) -> None:
+        self.url = url
+        self._port = port
+        _reset_parser(port)
+
+    def fileno(self) -> int | None:
+        """The descriptor to wait on for input (it changes as a TCP server accepts a
+        client), or None if the link has none (poll instead)."""
+        fd: int | None = self._port.fd
+        return fd
+
+    def receive(self) -> list[MAVLinkMessage]:
+        """Every message that has arrived, without blocking (bad frames are skipped)."""
+        messages: list[MAVLinkMessage] = []
+        try:
+            while (msg := self._port.recv_msg()) is not None:
+                kind = msg.get_type()
+                if kind == "BAD_DATA" or isinstance(msg, mavlink2.MAVLink_unknown):
+                    logger.debug("%s: skipping %s", self.url, kind)
+                    continue
+                messages.append(msg)
+        except OSError as exc:  # socket or serial errors (SerialException is an OSError)
+            raise LinkDown(f"MAVLink link {self.url} failed: {exc}") from exc
+        return messages
+
+    def write(self, frame: bytes) -> None:
+        """Send one frame as it is (a UDP or TCP server with no peer yet drops it)."""
+        try:
+            self._port.write(frame)
+        except OSError as exc:
+            raise LinkDown(f"MAVLink link {self.url} failed: {exc}") from exc
+        if getattr(self._port, "portdead", False):
+            raise LinkDown(f"MAVLink link {self.url}: the serial port is gone")
+
+    def close(self) -> None:
+        try:
+            self._port.close()
+        except OSError as exc:
+            logger.debug("closing %s: %s", self.url, exc)
+
+
+def open_mavlink(
+    url: str, source_system: int = 255, source_component: int = 0
+) -> MavlinkConnection:
+    """Open the MAVLink link ``url`` (see :func:`check_mavlink_url`) with pymavlink's mavutil.
+
+    A TCP client tries once (no retry loop, no reconnect: the caller decides). Raises
+    ValueError for a malformed URL and :class:`LinkDown` if the link cannot be opened.
+    """
+    check_mavlink_url(url)
+    classes = _link_classes()
+    ids = {"source_system": source_system, "source_component": source_component}
+    try:
+        if url.startswith("tcp:"):
+            port = classes.tcp_client(url[4:], retries=0, **ids)
+        elif url.startswith("tcpin:"):
+            port = classes.tcp_server(url[6:], **ids)
+        elif url.startswith("udp"):
+            port = classes.mavutil.mavlink_connection(url, **ids)
+        else:
+            device, _, baud = url.partition(",")
+            port = classes.serial(device, baud=int(baud or DEFAULT_SERIAL_BAUD), **ids)
+    except ImportError as exc:
+        raise ValueError(f"{url}: serial links need pyserial (pip install pyserial)") from exc
+    except OSError as exc:  # refused, unreachable, no such device, address in use ...
+        raise LinkDown(f"cannot open MAVLink link {url}: {exc}") from exc
+    return MavlinkConnection(url, port)
+
+
+def mavlink2_frame(msg: MAVLinkMessage) -> bytes:
+    """The frame ``msg`` arrived in, as MAVLink 2: its own bytes if it came as MAVLink 2
+    (signature and all), else packed again as MAVLink 2 with the same system, component and
+    sequence number (this rewrites ``msg``'s buffer)."""
+    raw = bytes(msg.get_msgbuf())
+    if raw[:1] == bytes([mavlink2.PROTOCOL_MARKER_V2]):
+        return raw
+    mav = mavlink2.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
+    mav.seq = msg.get_seq()
+    frame: bytes = msg.pack(mav)
+    return frame
+
+
+@dataclass(frozen=True)
+class _LinkClasses:
+    mavutil: Any
+    tcp_client: Any
+    tcp_server: Any
+    serial: Any
+
+
+@functools.cache
+def _link_classes() -> _LinkClasses:
+    """mavutil's link classes, adjusted to report a dead link instead of printing and
+    reconnecting by themselves; imported on first use (mavutil loads a dialect at import)."""
+    from pymavlink import mavutil
+
+    class TcpClient(mavutil.mavtcp):  # type: ignore[misc, name-defined]
+        def handle_disconnect(self) -> None:
+            raise LinkDown(f"MAVLink link {self.address}: connection reset")
+
+        def handle_eof(self) -> None:
+            raise LinkDown(f"MAVLink link {self.address}: closed by the other side")
+
+    class TcpServer(mavutil.mavtcpin):  # type: ignore[misc, name-defined]
+        def recv(self, n: int | None = None) -> bytes:
+            data: bytes = super().recv(n)
+            client: socket.socket | None = self.port  # type: ignore[has-type]
+            if not data and client is not None and _peer_closed(client):
+                logger.info("%s: the MAVLink client left; waiting for the next", self.address)
+                client.close()
+                self.port = None
+                self.fd = self.listen.fileno()
+                _reset_parser(self)  # drop a frame the last client left half-sent
+            return data
+
+    class Serial(mavutil.mavserial):  # type: ignore[misc, name-defined]
+        def write(self, buf: bytes) -> int:
+            written: int = self.port.write(bytes(buf))  # errors reach the caller
+            return written
+
+    return _LinkClasses(mavutil, TcpClient, TcpServer, Serial)
+
+
+def _reset_parser(port: Any) -> None:
+    """Give a mavutil link a fresh MAVLink 2 ardupilotmega parser: mavutil otherwise parses
+    with a process-wide dialect chosen from the environment."""
+    port.mav = mavlink2.MAVLink(
+        port, srcSystem=port.source_system, srcComponent=port.source_component
+    )
+    port.mav.robust_parsing = True
+    port.first_byte = False  # no switching of protocol version on the first byte
+    port.WIRE_PROTOCOL_VERSION = "2.0"
+
+
+def _peer_closed(sock: socket.socket) -> bool:
+    """Whether the other end of a connected, non-blocking TCP socket has closed it."""
+    try:
+        return sock.recv(1, socket.MSG_PEEK) == b""
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True

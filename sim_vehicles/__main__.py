@@ -1,5 +1,7 @@
 """``python -m sim_vehicles SCENARIO --vehicle ID|--all --connect ENDPOINT --speedup X``:
-simulated tractors on Zenoh. Parses arguments and calls :func:`sim_vehicles.runner.run`."""
+simulated tractors on Zenoh; with ``--mavlink URL`` one tractor on a plain MAVLink socket
+instead, as ArduPilot SITL. Parses arguments and calls :func:`sim_vehicles.runner.run` or
+:func:`sim_vehicles.mavlink_port.run_mavlink`."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from dispatcher import wire
 from dispatcher.errors import DispatcherError
 
 EXIT_BAD_INPUT = 2
+EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,8 +48,15 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's MISSION_REQUEST",
     )
+    p.add_argument(
+        "--mavlink",
+        metavar="URL",
+        help="serve one --vehicle on this MAVLink socket instead of Zenoh: tcpin:HOST:PORT "
+        "(listen, as SITL), udpin:HOST:PORT or udpout:HOST:PORT",
+    )
+    p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle as JSON at exit")
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    g = p.add_argument_group("zenoh")
+    g = p.add_argument_group("zenoh (not with --mavlink)")
     g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
     g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     g.add_argument(
@@ -75,13 +85,36 @@ def parse_fail_after(items: Sequence[str]) -> dict[str, float]:
     return out
 
 
+def check_mavlink_args(args: argparse.Namespace, ids: Sequence[str]) -> None:
+    """``--mavlink`` serves exactly one vehicle and takes no Zenoh options."""
+    from sim_vehicles.mavlink_port import check_port_url
+
+    if len(ids) != 1:
+        raise ValueError("--mavlink serves one vehicle: give exactly one --vehicle ID")
+    check_port_url(args.mavlink)
+    zenoh_given = [
+        opt
+        for opt, value in (
+            ("--listen", args.listen),
+            ("--connect", args.connect),
+            ("--zenoh-config", args.zenoh_config),
+            ("--cfg", args.cfg),
+        )
+        if value
+    ]
+    if zenoh_given:
+        raise ValueError(f"--mavlink replaces Zenoh: drop {', '.join(zenoh_given)}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    from dispatcher.mavlink_codec import LinkDown
     from dispatcher.scenario import load_scenario
+    from sim_vehicles.mavlink_port import run_mavlink
     from sim_vehicles.runner import run
     from sim_vehicles.tractor import RoverParams
 
@@ -115,9 +148,26 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--fail-after names {', '.join(unknown)}, not simulated here")
         if not args.speedup > 0.0 or not args.telemetry_hz > 0.0:
             raise ValueError("--speedup and --telemetry-hz must be > 0")
+        if args.mavlink:
+            check_mavlink_args(args, ids)
     except (DispatcherError, ValueError, zenoh.ZError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
+    if args.mavlink:
+        try:
+            return run_mavlink(
+                scenario,
+                ids[0],
+                args.mavlink,
+                speedup=args.speedup,
+                telemetry_hz=args.telemetry_hz,
+                fail_after_s=fail_after.get(ids[0]),
+                params=params,
+                stats_path=args.stats,
+            )
+        except LinkDown as exc:
+            log.error("%s", exc)
+            return EXIT_LINK_DOWN
     return run(
         scenario,
         ids,
@@ -126,6 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         telemetry_hz=args.telemetry_hz,
         fail_after=fail_after,
         params=params,
+        stats_path=args.stats,
     )
 
 

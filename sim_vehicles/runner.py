@@ -10,6 +10,9 @@ station sees heartbeats stop.
 Clocks: vehicles move in simulated time, ``speedup`` simulated seconds per wall second;
 heartbeats (1 Hz), positions (``telemetry_hz``) and the mission protocol's timeouts run in
 wall time, as a ground station on the other end of the link does.
+
+:func:`serve_vehicles` is that loop without the transport; :mod:`sim_vehicles.mavlink_port`
+runs it on a plain MAVLink socket instead of Zenoh.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import FrameType
+from typing import Protocol, TypeAlias
 
 import zenoh
 
@@ -39,6 +43,18 @@ EXIT_OK = 0
 HEARTBEAT_PERIOD_S = 1.0
 MAX_WAIT_S = 0.05
 """Longest wait for a frame before vehicles are moved on (wall seconds)."""
+
+Receive: TypeAlias = Callable[[float], list[tuple[int, mc.MAVLinkMessage]]]
+"""Waits up to the given wall seconds for messages to the vehicles; returns them in order,
+each with the index of the vehicle it is for."""
+
+
+class SimLink(Protocol):
+    """One simulated vehicle on some transport: its tractor and where its messages go."""
+
+    tractor: SimTractor
+
+    def send(self, messages: Sequence[mc.MAVLinkMessage]) -> None: ...
 
 
 @dataclass
@@ -84,12 +100,9 @@ def run(
     for vid in fail_after:
         if vid not in vehicle_ids:
             raise ConfigError(f"fail_after names {vid!r}, which is not simulated here")
-    if not speedup > 0.0:
-        raise ValueError(f"speedup must be > 0, got {speedup}")
-    if not telemetry_hz > 0.0:
-        raise ValueError(f"telemetry_hz must be > 0, got {telemetry_hz}")
+    check_rates(speedup, telemetry_hz)
     stop = stop if stop is not None else threading.Event()
-    restore_signals = _install_signal_handlers(stop)
+    restore_signals = install_signal_handlers(stop)
     inbox: queue.Queue[tuple[int, bytes]] = queue.Queue()
     farm = scenario.farm_id
     links: list[_Link] = []
@@ -130,7 +143,7 @@ def run(
                         scenario.farm.garage_lonlat,
                     )
                 logger.info("%d vehicle(s) on farm %r at %gx", len(links), farm, speedup)
-                _main_loop(links, inbox, stop, speedup, 1.0 / telemetry_hz)
+                serve_vehicles(links, _zenoh_receiver(links, inbox), stop, speedup, telemetry_hz)
             finally:
                 for link in links:
                     link.token.undeclare()
@@ -146,36 +159,37 @@ def run(
     return EXIT_OK
 
 
-def _main_loop(
-    links: list[_Link],
-    inbox: queue.Queue[tuple[int, bytes]],
+def check_rates(speedup: float, telemetry_hz: float) -> None:
+    """Raise ValueError unless both clocks run forwards."""
+    if not speedup > 0.0:
+        raise ValueError(f"speedup must be > 0, got {speedup}")
+    if not telemetry_hz > 0.0:
+        raise ValueError(f"telemetry_hz must be > 0, got {telemetry_hz}")
+
+
+def serve_vehicles(
+    links: Sequence[SimLink],
+    receive: Receive,
     stop: threading.Event,
     speedup: float,
-    telemetry_period_s: float,
+    telemetry_hz: float,
 ) -> None:
+    """Run the vehicles until ``stop``: move them on in simulated time, answer what
+    ``receive`` brings, send heartbeats (1 Hz) and positions (``telemetry_hz``) in wall time."""
+    telemetry_period_s = 1.0 / telemetry_hz
     last = time.monotonic()
     next_heartbeat = last
     next_telemetry = last
     while not stop.is_set():
         wait = min(next_heartbeat, next_telemetry) - time.monotonic()
-        frames: list[tuple[int, bytes]] = []
-        try:
-            frames.append(inbox.get(timeout=min(max(wait, 0.0), MAX_WAIT_S)))
-            while True:
-                frames.append(inbox.get_nowait())
-        except queue.Empty:
-            pass
+        inbound = receive(min(max(wait, 0.0), MAX_WAIT_S))
         now = time.monotonic()
         sim_dt = (now - last) * speedup
         last = now
         for link in links:
             link.send(link.tractor.advance(sim_dt))
-        for index, frame in frames:
+        for index, msg in inbound:
             link = links[index]
-            msg = link.inbound.decode_one(frame)
-            if msg is None:
-                logger.debug("%s: dropped a sample that is not a MAVLink frame", link.vid)
-                continue
             link.send(link.tractor.handle(msg, link.tractor.sim_time, link_now=now))
         for link in links:
             link.send(link.tractor.on_link_tick(now))
@@ -187,6 +201,29 @@ def _main_loop(
             next_telemetry = _next_time(next_telemetry, telemetry_period_s, now)
             for link in links:
                 link.send(link.tractor.telemetry(link.tractor.sim_time))
+
+
+def _zenoh_receiver(links: list[_Link], inbox: queue.Queue[tuple[int, bytes]]) -> Receive:
+    """Frames queued by the Zenoh subscribers, decoded (a sample that is no frame is dropped)."""
+
+    def receive(timeout_s: float) -> list[tuple[int, mc.MAVLinkMessage]]:
+        frames: list[tuple[int, bytes]] = []
+        try:
+            frames.append(inbox.get(timeout=timeout_s))
+            while True:
+                frames.append(inbox.get_nowait())
+        except queue.Empty:
+            pass
+        inbound: list[tuple[int, mc.MAVLinkMessage]] = []
+        for index, frame in frames:
+            msg = links[index].inbound.decode_one(frame)
+            if msg is None:
+                logger.debug("%s: dropped a sample that is not a MAVLink frame", links[index].vid)
+                continue
+            inbound.append((index, msg))
+        return inbound
+
+    return receive
 
 
 def _next_time(scheduled: float, period: float, now: float) -> float:
@@ -202,7 +239,7 @@ def _enqueue(inbox: queue.Queue[tuple[int, bytes]], index: int) -> Callable[[zen
     return on_sample
 
 
-def _install_signal_handlers(stop: threading.Event) -> Callable[[], None]:
+def install_signal_handlers(stop: threading.Event) -> Callable[[], None]:
     """SIGINT/SIGTERM set ``stop`` (main thread only); returns what puts them back."""
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
