@@ -271,6 +271,23 @@ def cmd_router(args: argparse.Namespace) -> int:
     return run_router(zenoh_options(args, False))
 
 
+def cmd_review(args: argparse.Namespace) -> int:
+    from dispatcher.review import review_json, review_log, review_table
+
+    review = review_log(args.log)
+    if args.plot:
+        from dispatcher.review_plot import plot_review
+
+        plot_review(review, args.plot, title=args.log.name)
+    if args.json:
+        print(json.dumps(review_json(review)))
+    else:
+        print(review_table(review))
+        if args.plot:
+            print(f"plot: {args.plot}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -339,6 +356,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=float, help="solver seconds")
     p.add_argument("--seed", type=int)
     p.set_defaults(handler=cmd_demo, fields=None)
+
+    p = sub.add_parser("review", help="what happened in a run: table, JSON, map and Gantt chart")
+    p.add_argument("log", type=Path, help="an MCAP log written by the dispatcher")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", type=Path, help="write a map and Gantt chart PNG here")
+    p.set_defaults(handler=cmd_review)
 
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
     add_zenoh_arguments(p, mode="router")

@@ -136,6 +136,16 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
     assert {f["status"] for f in status["fields"].values()} == {"done"}
     done = [f for v in status["vehicles"].values() for f in v["fields_done"]]
     assert sorted(done) == ["A", "B", "C"]
+    # `agrifleet review` reads the same log back: every field done exactly once.
+    plot = tmp_path / "review.png"
+    review = subprocess.run(
+        [sys.executable, "-m", "dispatcher.cli", "review", str(log_path(out)), "--json",
+         "--plot", str(plot)], capture_output=True, text=True, timeout=120, check=True)
+    doc = json.loads(review.stdout)
+    assert {fid: f["done"] for fid, f in doc["fields"].items()} == {"A": True, "B": True, "C": True}
+    worked = [fid for v in doc["vehicles"] for fid in v["fields_done"]]
+    assert sorted(worked) == ["A", "B", "C"]
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_status_queryable_and_sigterm_leaves_a_readable_log(procs, tmp_path):

@@ -1,0 +1,1471 @@
+"""What a run actually did, read back from its MCAP log and set against its plan.
+
+:func:`review_log` reads one log (finished or cut short by a crash) and gives a
+:class:`Review`: per vehicle the fields finished in order, the distance driven, the time
+worked, driven and stood still, fuel by the paper's formula (5) on what was driven, the
+mission upload and link figures, each beside the plan's value; per field who worked it
+and when. :func:`review_table` prints it for people, :func:`review_json` for tools, and
+``dispatcher.review_plot.plot_review`` draws it. How every number is computed is in
+``docs/review.md``.
+
+Clocks: a vehicle's times come from its own clock (``time_boot_ms`` of
+GLOBAL_POSITION_INT and SYSTEM_TIME, simulated seconds for the simulator). Clocks of
+different vehicles are not comparable (each counts from its own boot), so every time in a
+review is measured from the moment that vehicle set off; the dispatcher starts all
+missions together, so these per-vehicle clocks line up as one fleet timeline.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import logging
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any, Final
+
+import numpy as np
+from pyproj import Geod
+
+from dispatcher import mavlink_codec as mc
+from dispatcher.recording import LogContents, RecordingError, read_log
+from planner.geo import LocalFrame
+
+__all__ = [
+    "Activity",
+    "FieldReview",
+    "RecordingError",
+    "Review",
+    "VehicleReview",
+    "Waypoint",
+    "review_contents",
+    "review_json",
+    "review_log",
+    "review_table",
+]
+
+logger = logging.getLogger(__name__)
+
+JITTER_M: Final = 0.5
+"""Positions closer than this to the last kept one are noise, not driving."""
+WAYPOINT_MATCH_M: Final = 2.0
+"""A position this close to a waypoint just reached is taken as the vehicle at it."""
+STILL_SPEED_MS: Final = 0.1
+"""Below this ground speed a vehicle stands still."""
+HEARTBEAT_GAP_S: Final = 5.0
+"""Wall seconds without a heartbeat that count as link lost (the daemon's default)."""
+SLOWER_WARNING: Final = 0.10
+"""Warn when a vehicle took this share longer than planned (or drove this much more)."""
+
+NAV_ROLES: Final = frozenset({"home", "transit", "swath_start", "swath_end", "return"})
+
+_GEOD: Final = Geod(ellps="WGS84")
+_VEHICLE_TOPIC: Final = re.compile(r"^agrifleet/([^/]+)/vehicle/([^/]+)/mavlink/(from|to)(/json)?$")
+_FIX_TOPIC: Final = re.compile(r"^/vehicle/([^/]+)/fix$")
+_CODEC: Final = mc.Codec(255, 190)  # only decodes (raw frames without a JSON twin)
+
+
+# --- the result --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A navigation item of a planned mission (home, transit, swath ends, return)."""
+
+    seq: int
+    field_id: str | None
+    role: str
+    lat: float
+    lon: float
+
+
+@dataclass(frozen=True)
+class Activity:
+    """What a vehicle did from ``start_s`` to ``end_s`` (seconds since it set off):
+    ``work`` (implement down in ``field_id``), ``transit`` (moving, implement up) or
+    ``stopped`` (standing, implement up)."""
+
+    kind: str
+    start_s: float
+    end_s: float
+    field_id: str | None = None
+
+
+@dataclass(frozen=True)
+class VehicleReview:
+    """One vehicle: what it did and, beside it, what the plan said (``planned_*``).
+
+    Times are seconds/hours since the vehicle set off; ``start_clock_s`` and
+    ``end_clock_s`` are the vehicle's own clock at its start and end."""
+
+    id: str
+    phase: str  # done, running, lost, failed, not started ... (status doc, else derived)
+    fields_planned: tuple[str, ...]
+    fields_done: tuple[str, ...]  # in the order finished
+    items_reached: int  # highest mission item reached (0: not started)
+    items_total: int
+    mission_complete: bool  # the last item (back at the garage) was reached
+    start_clock_s: float | None
+    end_clock_s: float | None
+    distance_m: float
+    work_m: float
+    transit_m: float
+    time_h: float
+    working_h: float
+    transit_h: float
+    stopped_h: float
+    turns: int
+    fuel_l: float | None  # None: the plan gives no fuel rates
+    planned_distance_m: float  # the planned waypoint path, garage to garage
+    planned_road_m: float  # plan.json's distance_m: road between fields only
+    planned_time_h: float  # plan.json's time_h: formula (6)
+    mission_time_h: float | None  # the mission's legs at its set speeds (None: unknown)
+    planned_fuel_l: float
+    planned_turns: int
+    upload_attempts: int
+    upload_retries: int
+    upload_source: str  # "status", "frames" or "none": where the upload figures come from
+    lost_s: float  # wall seconds the dispatcher counted the vehicle lost (status)
+    heartbeat_gaps_s: float  # wall seconds in heartbeat gaps over HEARTBEAT_GAP_S
+    error: str
+    last_report_h: float | None  # the last thing heard, hours since it set off
+    activities: tuple[Activity, ...]
+    track: tuple[tuple[float, float, float], ...]  # (seconds since set off, lat, lon)
+    planned_route: tuple[Waypoint, ...]
+
+    @property
+    def started(self) -> bool:
+        return self.start_clock_s is not None
+
+
+@dataclass(frozen=True)
+class FieldReview:
+    """One field of the plan: who was to work it, whether and when it was worked
+    (seconds since that vehicle set off), and when the plan expected it."""
+
+    id: str
+    name: str
+    area_m2: float
+    polygon: tuple[tuple[float, float], ...]  # (lon, lat)
+    vehicle: str | None
+    done: bool
+    started_s: float | None
+    finished_s: float | None
+    started_clock_s: float | None  # the same on the vehicle's own clock
+    finished_clock_s: float | None
+    planned_started_s: float | None
+    planned_finished_s: float | None
+
+
+@dataclass(frozen=True)
+class Review:
+    """A run read back from its log."""
+
+    source: str
+    farm_id: str
+    plan_id: str | None
+    plan_ids: tuple[str, ...]  # every plan id in the log, in order
+    complete: bool  # False: the log was cut short (crash, kill, full disk) or damaged
+    problem: str | None
+    log_start_ns: int | None
+    log_end_ns: int | None  # the last record read
+    garage: tuple[float, float] | None  # (lat, lon)
+    vehicles: tuple[VehicleReview, ...]
+    fields: tuple[FieldReview, ...]
+    planned_makespan_h: float | None
+    warnings: tuple[str, ...]
+
+    @property
+    def makespan_h(self) -> float:
+        """Hours from setting off until the last vehicle was back (so far, if not all are)."""
+        return max((v.time_h for v in self.vehicles), default=0.0)
+
+    @property
+    def makespan_final(self) -> bool:
+        """Every vehicle with work planned finished its mission."""
+        return all(v.mission_complete for v in self.vehicles if v.fields_planned)
+
+    @property
+    def fields_done(self) -> int:
+        return sum(f.done for f in self.fields)
+
+    def vehicle(self, vehicle_id: str) -> VehicleReview:
+        for v in self.vehicles:
+            if v.id == vehicle_id:
+                return v
+        raise KeyError(vehicle_id)
+
+    def field(self, field_id: str) -> FieldReview:
+        for f in self.fields:
+            if f.id == field_id:
+                return f
+        raise KeyError(field_id)
+
+
+# --- the plan as recorded ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Item:
+    seq: int
+    field_id: str | None
+    role: str
+    lat: float
+    lon: float
+
+    @property
+    def is_nav(self) -> bool:
+        return self.role in NAV_ROLES
+
+
+@dataclass(frozen=True)
+class _Machine:
+    id: str
+    params: dict[str, float]
+    fields: tuple[str, ...]
+    road_m: float
+    fuel_l: float
+    time_h: float
+    turns: int
+    items: tuple[_Item, ...]
+
+    def param(self, name: str) -> float:
+        value = self.params.get(name, 0.0)
+        return float(value) if _is_number(value) else 0.0
+
+
+@dataclass(frozen=True)
+class _Plan:
+    plan_id: str | None
+    farm_id: str
+    log_ns: int
+    machines: tuple[_Machine, ...]
+    fields: dict[str, dict[str, Any]]
+    garage: tuple[float, float] | None
+    makespan_h: float | None
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _parse_plan(doc: Any, log_ns: int) -> _Plan | None:
+    """The parts of a plan document a review needs; None if it is not one."""
+    if not isinstance(doc, dict) or not isinstance(doc.get("machines"), list):
+        return None
+    machines = []
+    for m in doc["machines"]:
+        if not isinstance(m, dict) or not isinstance(m.get("id"), str):
+            continue
+        items: list[_Item] = []
+        for raw in m.get("items") or []:
+            if not isinstance(raw, list) or len(raw) < 6:
+                continue
+            seq, fid, _swath, role, x, y = raw[:6]
+            if not isinstance(seq, int) or seq != len(items):
+                break  # items must run 0, 1, 2 ... to map MISSION_ITEM_REACHED onto them
+            lat, lon = _number(x) / 1e7, _number(y) / 1e7
+            items.append(_Item(seq, fid if isinstance(fid, str) else None, str(role), lat, lon))
+        params: dict[str, Any] = m["params"] if isinstance(m.get("params"), dict) else {}
+        machines.append(
+            _Machine(
+                id=m["id"],
+                params={k: float(v) for k, v in params.items() if _num(v) is not None},
+                fields=tuple(f for f in m.get("fields") or [] if isinstance(f, str)),
+                road_m=_number(m.get("distance_m")),
+                fuel_l=_number(m.get("fuel_l")),
+                time_h=_number(m.get("time_h")),
+                turns=int(_number(m.get("turns"))),
+                items=tuple(items),
+            )
+        )
+    garage = None
+    g = doc.get("garage")
+    if isinstance(g, dict) and _is_number(g.get("lat")) and _is_number(g.get("lon")):
+        garage = (float(g["lat"]), float(g["lon"]))
+    fields: dict[str, Any] = doc["fields"] if isinstance(doc.get("fields"), dict) else {}
+    totals: dict[str, Any] = doc["totals"] if isinstance(doc.get("totals"), dict) else {}
+    makespan = _num(totals.get("makespan_h"))
+    if makespan is None:
+        makespan = max((m.time_h for m in machines), default=None)
+    plan_id = doc.get("plan_id")
+    return _Plan(
+        plan_id=str(plan_id) if plan_id is not None else None,
+        farm_id=str(doc.get("farm_id") or ""),
+        log_ns=log_ns,
+        machines=tuple(machines),
+        fields={k: v for k, v in fields.items() if isinstance(v, dict)},
+        garage=garage,
+        makespan_h=makespan,
+    )
+
+
+def _num(value: object) -> float | None:
+    """``value`` as a float if it is a finite number, else None."""
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return None
+
+
+def _number(value: object) -> float:
+    """``value`` as a float if it is a finite number, else 0."""
+    number = _num(value)
+    return 0.0 if number is None else number
+
+
+# --- what the log holds, sorted per vehicle ----------------------------------------------
+
+
+@dataclass
+class _Traffic:
+    """One vehicle's decoded frames and fixes, in file order, as (log ns, message)."""
+
+    from_vehicle: list[tuple[int, dict[str, Any]]]
+    to_vehicle: list[tuple[int, dict[str, Any]]]
+    fixes: list[tuple[int, dict[str, Any]]]
+
+
+def _decode(data: bytes) -> dict[str, Any] | None:
+    try:
+        doc = json.loads(data)
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int, Any]], list]:
+    """Per vehicle its traffic; the plan documents and status documents (log ns, doc)."""
+    json_seen: set[tuple[str, str]] = set()
+    raw: dict[tuple[str, str], list[tuple[int, bytes]]] = {}
+    traffic: dict[str, _Traffic] = {}
+    plans: list[tuple[int, Any]] = []
+    statuses: list[tuple[int, Any]] = []
+
+    def of(vid: str) -> _Traffic:
+        return traffic.setdefault(vid, _Traffic([], [], []))
+
+    for rec in log.records:
+        topic = rec.topic
+        match = _VEHICLE_TOPIC.match(topic)
+        if match:
+            _farm, vid, direction, is_json = match.groups()
+            if not is_json:
+                raw.setdefault((vid, direction), []).append((rec.log_time_ns, rec.data))
+                continue
+            json_seen.add((vid, direction))
+            doc = _decode(rec.data)
+            if doc is not None and isinstance(doc.get("mavpackettype"), str):
+                t = of(vid)
+                (t.from_vehicle if direction == "from" else t.to_vehicle).append(
+                    (rec.log_time_ns, doc)
+                )
+            continue
+        fix = _FIX_TOPIC.match(topic)
+        if fix:
+            doc = _decode(rec.data)
+            if doc is not None:
+                of(fix.group(1)).fixes.append((rec.log_time_ns, doc))
+        elif topic.startswith("agrifleet/") and topic.endswith("/dispatcher/plan"):
+            plans.append((rec.log_time_ns, _decode(rec.data)))
+        elif topic.startswith("agrifleet/") and topic.endswith("/dispatcher/status"):
+            statuses.append((rec.log_time_ns, _decode(rec.data)))
+    # Raw frames whose JSON twin was not recorded: decode them here.
+    for (vid, direction), frames in raw.items():
+        if (vid, direction) in json_seen:
+            continue
+        t = of(vid)
+        target = t.from_vehicle if direction == "from" else t.to_vehicle
+        for log_ns, data in frames:
+            msg = _CODEC.decode_one(data)
+            if msg is not None:
+                target.append((log_ns, mc.as_dict(msg)))
+    return traffic, plans, statuses
+
+
+# --- one vehicle -------------------------------------------------------------------------
+
+
+@dataclass
+class _Point:
+    t: float  # vehicle clock, s
+    order: int  # file position, to keep the order among equal times
+    lat: float
+    lon: float
+    speed: float | None  # reported ground speed, m/s
+    waypoint: bool = False
+
+
+def _valid_position(lat: float, lon: float) -> bool:
+    return (
+        math.isfinite(lat)
+        and math.isfinite(lon)
+        and -90.0 <= lat <= 90.0
+        and -180.0 <= lon <= 180.0
+        and not (lat == 0.0 and lon == 0.0)  # "no fix"
+    )
+
+
+def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Geodesic distance between two (lat, lon)."""
+    return float(_GEOD.inv(a[1], a[0], b[1], b[0])[2])
+
+
+def _leg_lengths(lats: Sequence[float], lons: Sequence[float]) -> np.ndarray:
+    if len(lats) < 2:
+        return np.zeros(0)
+    lat = np.asarray(lats, dtype=np.float64)
+    lon = np.asarray(lons, dtype=np.float64)
+    return np.asarray(_GEOD.inv(lon[:-1], lat[:-1], lon[1:], lat[1:])[2], dtype=np.float64)
+
+
+@dataclass
+class _Events:
+    """What a vehicle's frames say, before any of it is set against time windows."""
+
+    points: list[_Point]
+    reached: list[tuple[int, float | None, int]]  # (seq, clock s, file position)
+    heartbeats_ns: list[int]
+    last_clock_s: float | None
+    clock_jumps: int  # times the clock went back by over a second
+
+
+def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_Item]) -> _Events:
+    """Positions, items reached with their time, heartbeats, from the vehicle's frames.
+
+    A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
+    it when that position is at the waypoint (the simulator sends one right away),
+    else the last time heard; other items take the last time heard.
+    """
+    points: list[_Point] = []
+    reached: list[tuple[int, float | None, int]] = []
+    heartbeats: list[int] = []
+    now: float | None = None
+    jumps = 0
+    pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
+
+    def settle(t: float | None) -> None:
+        nonlocal pending
+        if pending is not None:
+            reached.append((pending[0], t, pending[1]))
+            pending = None
+
+    def tick(t: float) -> None:
+        nonlocal now, jumps
+        if now is not None and t < now - 1.0:
+            jumps += 1
+        now = t if now is None else max(now, t)
+
+    for order, (log_ns, msg) in enumerate(frames):
+        kind = msg.get("mavpackettype")
+        if kind == "GLOBAL_POSITION_INT":
+            t_ms, lat_i, lon_i = (_num(msg.get(k)) for k in ("time_boot_ms", "lat", "lon"))
+            if t_ms is None or lat_i is None or lon_i is None:
+                continue
+            t, lat, lon = t_ms / 1000.0, lat_i / 1e7, lon_i / 1e7
+            valid = _valid_position(lat, lon)
+            if pending is not None:
+                item = items[pending[0]]
+                at_waypoint = (
+                    valid and _metres((lat, lon), (item.lat, item.lon)) <= WAYPOINT_MATCH_M
+                )
+                settle(t if at_waypoint or now is None else now)
+            tick(t)
+            if valid:
+                vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
+                speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
+                points.append(_Point(t, order, lat, lon, speed))
+        elif kind == "SYSTEM_TIME":
+            t_ms = _num(msg.get("time_boot_ms"))
+            if t_ms is not None and t_ms > 0:
+                tick(t_ms / 1000.0)
+        elif kind == "MISSION_ITEM_REACHED":
+            seq = msg.get("seq")
+            if not isinstance(seq, int):
+                continue
+            settle(now)
+            if 0 <= seq < len(items) and items[seq].is_nav:
+                pending = (seq, order)
+            else:
+                reached.append((seq, now, order))
+        elif kind == "HEARTBEAT":
+            heartbeats.append(log_ns)
+    settle(now)
+    return _Events(points, reached, heartbeats, now, jumps)
+
+
+def _fix_points(fixes: Sequence[tuple[int, dict[str, Any]]]) -> list[_Point]:
+    """Positions from the LocationFix topic (when no GLOBAL_POSITION_INT was decoded)."""
+    out = []
+    for order, (_ns, fix) in enumerate(fixes):
+        lat, lon = _num(fix.get("latitude")), _num(fix.get("longitude"))
+        sim = next(
+            (kv.get("value") for kv in fix.get("metadata") or [] if kv.get("key") == "sim_time_s"),
+            None,
+        )
+        try:
+            t = float(sim) if sim is not None else math.nan
+        except (TypeError, ValueError):
+            continue
+        if lat is not None and lon is not None and math.isfinite(t) and _valid_position(lat, lon):
+            out.append(_Point(t, order, lat, lon, None))
+    return out
+
+
+def _item_times(
+    items: Sequence[_Item], reached: Iterable[tuple[int, float | None, int]]
+) -> tuple[dict[int, float], set[int], int, dict[int, int]]:
+    """When each item was done (vehicle clock): an item reported reached and every item
+    it skipped over. A DO item runs as the navigation item before it completes, so it
+    takes that item's time. Also: the items reported themselves, the highest reached and
+    each reported item's file position."""
+    times: dict[int, float] = {}
+    reported: set[int] = set()
+    order_of: dict[int, int] = {}
+    last = 0
+    last_nav = 0  # item 0 (home) is never run
+    for seq, t, order in reached:
+        if t is None or not 0 < seq < len(items) or seq <= last:
+            continue
+        for s in range(last + 1, seq + 1):
+            if items[s].is_nav:
+                times[s] = t
+                last_nav = s
+            elif s == seq or last_nav not in times:
+                times[s] = t
+            else:
+                times[s] = times[last_nav]
+        reported.add(seq)
+        order_of[seq] = order
+        last = seq
+    return times, reported, last, order_of
+
+
+def _start_time(points: Sequence[_Point], road_speed_ms: float) -> float | None:
+    """When the vehicle set off: its first move away from where it stood, taken back
+    along that first leg at the speed it reported (or the road speed)."""
+    if not points:
+        return None
+    origin = (points[0].lat, points[0].lon)
+    for k, p in enumerate(points):
+        if _metres(origin, (p.lat, p.lon)) < JITTER_M:
+            continue
+        if k == 0:
+            return p.t
+        prev = points[k - 1]
+        d = _metres((prev.lat, prev.lon), (p.lat, p.lon))
+        # The speed reported there (a waypoint merged in has none: the position with it).
+        reported = [
+            q.speed
+            for q in points[k:]
+            if q.t == p.t and q.speed is not None and q.speed >= STILL_SPEED_MS
+        ]
+        speed = reported[0] if reported else road_speed_ms
+        if speed <= 0:
+            return prev.t
+        return max(prev.t, p.t - d / speed)
+    return None
+
+
+def _union(intervals: Iterable[tuple[float, float]]) -> list[tuple[float, float]]:
+    out: list[tuple[float, float]] = []
+    for a, b in sorted(i for i in intervals if i[1] > i[0]):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def _inside(t: float, union: Sequence[tuple[float, float]]) -> bool:
+    k = bisect.bisect_right(union, (t, math.inf)) - 1
+    return k >= 0 and union[k][0] <= t <= union[k][1]
+
+
+def _merge_activities(parts: list[Activity]) -> tuple[Activity, ...]:
+    out: list[Activity] = []
+    for p in sorted(parts, key=lambda a: (a.start_s, a.end_s)):
+        if p.end_s - p.start_s <= 1e-9:
+            continue
+        last = out[-1] if out else None
+        if (
+            last is not None
+            and last.kind == p.kind
+            and last.field_id == p.field_id
+            and p.start_s - last.end_s <= 1e-6
+        ):
+            out[-1] = Activity(last.kind, last.start_s, max(last.end_s, p.end_s), last.field_id)
+        else:
+            out.append(p)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class _FieldTimes:
+    started: float | None  # vehicle clock
+    finished: float | None
+
+
+def _planned_times(machine: _Machine, uploaded: Mapping[int, float]) -> list[float] | None:
+    """Seconds from setting off to each item, driving the mission's legs at its set
+    speeds: those of the DO_CHANGE_SPEED items uploaded (``uploaded``: seq -> m/s), else
+    the plan's road speed with the implement up and working speed with it down. None if
+    a leg's speed is not known."""
+    road = machine.param("road_speed_kmh") / 3.6
+    work = machine.param("work_speed_kmh") / 3.6
+    out = [0.0]
+    speed = road
+    t = 0.0
+    last: _Item | None = machine.items[0] if machine.items else None
+    for item in machine.items[1:]:
+        if item.role == "speed" and item.seq in uploaded:
+            speed = uploaded[item.seq]
+        elif item.role == "implement_down" and not uploaded:
+            speed = work
+        elif item.role == "implement_up" and not uploaded:
+            speed = road
+        elif item.is_nav and last is not None:
+            d = _metres((last.lat, last.lon), (item.lat, item.lon))
+            if d > 0 and speed <= 0:
+                return None
+            t += d / speed if d > 0 else 0.0
+            last = item
+        out.append(t)
+    return out
+
+
+def _uploaded_speeds(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> dict[int, float]:
+    """The speed (m/s) of each DO_CHANGE_SPEED item sent to the vehicle, by seq."""
+    out: dict[int, float] = {}
+    for _ns, msg in to_vehicle:
+        if msg.get("mavpackettype") not in ("MISSION_ITEM_INT", "MISSION_ITEM"):
+            continue
+        seq, speed = msg.get("seq"), _num(msg.get("param2"))
+        is_speed = msg.get("command") == mc.MAV_CMD_DO_CHANGE_SPEED
+        if is_speed and isinstance(seq, int) and speed is not None and speed > 0:
+            out[seq] = speed
+    return out
+
+
+def _turn_seqs(items: Sequence[_Item]) -> set[int]:
+    """Items that end a move from one swath to the next in the same field (a turn)."""
+    out = set()
+    prev: _Item | None = None
+    for item in items:
+        if not item.is_nav:
+            continue
+        if (
+            item.role == "swath_start"
+            and prev is not None
+            and prev.role == "swath_end"
+            and prev.field_id == item.field_id
+        ):
+            out.add(item.seq)
+        prev = item
+    return out
+
+
+def _upload_from_frames(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> tuple[int, int]:
+    """(attempts, resends) of mission uploads: a MISSION_COUNT starts an attempt, an
+    upload message identical to the one sent before it is a resend."""
+    attempts = retries = 0
+    previous: tuple[Any, ...] | None = None
+    for _ns, msg in to_vehicle:
+        kind = msg.get("mavpackettype")
+        if kind == "MISSION_COUNT":
+            key: tuple[Any, ...] = (kind, msg.get("count"))
+        elif kind in ("MISSION_ITEM_INT", "MISSION_ITEM"):
+            key = (kind, msg.get("seq"))
+        else:
+            continue
+        if key == previous:
+            retries += 1
+        elif kind == "MISSION_COUNT":
+            attempts += 1
+        previous = key
+    return attempts, retries
+
+
+def _heartbeat_gaps(
+    beats: Sequence[int], end_ns: int | None, finished: bool
+) -> tuple[float, float]:
+    """(wall seconds in gaps over HEARTBEAT_GAP_S between heartbeats, of which at the end)."""
+    gaps = 0.0
+    for a, b in zip(beats, beats[1:], strict=False):
+        gap = (b - a) / 1e9
+        if gap > HEARTBEAT_GAP_S:
+            gaps += gap
+    trailing = 0.0
+    if beats and end_ns is not None and not finished:
+        tail = (end_ns - beats[-1]) / 1e9
+        if tail > HEARTBEAT_GAP_S:
+            trailing = tail
+    return gaps + trailing, trailing
+
+
+@dataclass
+class _VehicleResult:
+    review: VehicleReview
+    field_times: dict[str, _FieldTimes]
+    start_clock: float | None
+    planned_s: list[float] | None  # planned seconds from setting off to each item
+    warnings: list[str]
+
+
+def _review_vehicle(
+    vid: str,
+    machine: _Machine,
+    traffic: _Traffic,
+    status: Mapping[str, Any] | None,
+    since_ns: int,
+    end_ns: int | None,
+) -> _VehicleResult:
+    items = machine.items
+    warnings: list[str] = []
+    frames_from = [(ns, m) for ns, m in traffic.from_vehicle if ns >= since_ns]
+    frames_to = [(ns, m) for ns, m in traffic.to_vehicle if ns >= since_ns]
+    upload_start = next(
+        (ns for ns, m in reversed(frames_to) if m.get("mavpackettype") == "MISSION_COUNT"),
+        since_ns,
+    )
+    # From the upload on, plus where the vehicle stood when it began (its last position).
+    standing = [
+        (ns, m)
+        for ns, m in traffic.from_vehicle
+        if ns < upload_start and m.get("mavpackettype") == "GLOBAL_POSITION_INT"
+    ]
+    after = [(ns, m) for ns, m in frames_from if ns >= upload_start]
+    events = _read_events(standing[-1:] + after, items)
+    points = events.points or _fix_points([(n, f) for n, f in traffic.fixes if n >= upload_start])
+    if events.clock_jumps:
+        warnings.append(
+            f"{vid}: its clock went back {events.clock_jumps} time(s) (a reboot?); "
+            "times after that may be wrong"
+        )
+    times, reported, last, order_of = _item_times(items, events.reached)
+    n = len(items)
+    complete = n > 1 and last == n - 1
+    uploaded = _uploaded_speeds(frames_to)
+    road_ms = machine.param("road_speed_kmh") / 3.6
+    if road_ms <= 0 and uploaded:
+        road_ms = uploaded[min(uploaded)]  # the mission's first speed: the road speed
+
+    # Positions in time order, with the exact waypoints merged in.
+    track = sorted(points, key=lambda p: (p.t, p.order))
+    for seq in reported:
+        item = items[seq]
+        if item.is_nav and _valid_position(item.lat, item.lon):
+            track.append(_Point(times[seq], order_of[seq], item.lat, item.lon, None, True))
+    track.sort(key=lambda p: (p.t, p.order))
+
+    start = _start_time(track, road_ms)
+    if start is None and times:
+        start = min(times.values())
+    last_clock = max(
+        [t for t in (events.last_clock_s,) if t is not None] + [p.t for p in track], default=None
+    )
+    end: float | None
+    if start is None:
+        end = None
+    elif complete:
+        end = times[n - 1]
+    else:
+        end = max(start, last_clock if last_clock is not None else start)
+
+    # Work windows, per field, from implement down to implement up (or the end so far).
+    field_times: dict[str, _FieldTimes] = {}
+    down: dict[str, float] = {}
+    fields_done: list[tuple[float, int, str]] = []
+    for seq in range(1, last + 1):
+        item = items[seq]
+        if item.field_id is None or seq not in times:
+            continue
+        if item.role == "implement_down" and item.field_id not in down:
+            down[item.field_id] = times[seq]
+            field_times[item.field_id] = _FieldTimes(times[seq], None)
+        elif item.role == "implement_up" and item.field_id in down:
+            field_times[item.field_id] = _FieldTimes(down[item.field_id], times[seq])
+            fields_done.append((times[seq], seq, item.field_id))
+    fields_done.sort()
+
+    activities: list[Activity] = []
+    distance = work_m = transit_m = 0.0
+    working_s = transit_s = stopped_s = 0.0
+    kept: list[_Point] = []
+    if start is not None and end is not None:
+        windows = {
+            fid: (
+                start if ft.started is None else max(ft.started, start),
+                end if ft.finished is None else min(ft.finished, end),
+            )
+            for fid, ft in field_times.items()
+        }
+        work_union = _union(windows.values())
+        for fid, (a, b) in windows.items():
+            if b > a:
+                activities.append(Activity("work", a - start, b - start, fid))
+                working_s += b - a
+        # The window: the last position before setting off, then everything to the end.
+        earlier = [p for p in track if p.t <= start]
+        inside = [p for p in track if start < p.t <= end]
+        window = earlier[-1:] + inside
+        # Distance: positions kept once they are JITTER_M from the last kept one.
+        kept = _without_jitter(window)
+        legs = _leg_lengths([p.lat for p in kept], [p.lon for p in kept])
+        for (pa, pb), d in zip(zip(kept, kept[1:], strict=False), legs, strict=False):
+            if _inside((max(pa.t, start) + pb.t) / 2, work_union):
+                work_m += float(d)
+            else:
+                transit_m += float(d)
+        # Moving or standing, between successive positions, outside the work windows.
+        pace = _Pace(kept, legs)
+        edges = [(max(p.t, start), p) for p in window]
+        for (ta, pa), (tb, pb) in zip(edges, edges[1:], strict=False):
+            _outside_work(ta, tb, pace.moving(pa, pb), start, work_union, activities)
+        tail_from = edges[-1][0] if edges else start
+        if tail_from < end:
+            tail = edges[-1][1] if edges else None
+            moving = tail is not None and (tail.speed or 0.0) >= STILL_SPEED_MS
+            _outside_work(tail_from, end, moving, start, work_union, activities)
+        for act in activities:
+            if act.kind == "transit":
+                transit_s += act.end_s - act.start_s
+            elif act.kind == "stopped":
+                stopped_s += act.end_s - act.start_s
+        distance = work_m + transit_m
+
+    turn_seqs = _turn_seqs(items)
+    turns = sum(1 for s in turn_seqs if s <= last)
+    working_h, transit_h = working_s / 3600.0, transit_s / 3600.0
+    fuel: float | None = None
+    if all(k in machine.params for k in ("road_fuel_lh", "work_fuel_lh", "turn_time_h")):
+        c_v, c_w, t_turn = (
+            machine.param("road_fuel_lh"),
+            machine.param("work_fuel_lh"),
+            machine.param("turn_time_h"),
+        )
+        fuel = transit_h * c_v + turns * t_turn * c_v + working_h * c_w
+    elif machine.fields:
+        warnings.append(
+            f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
+        )
+    planned_s = _planned_times(machine, uploaded) if items else None
+
+    nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
+    planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())
+
+    # Upload and link figures: the status document when there is one, else the frames.
+    attempts_f, retries_f = _upload_from_frames(frames_to)
+    st = status or {}
+    if isinstance(st.get("upload_attempts"), int) and st["upload_attempts"] > 0:
+        attempts, retries, source = (
+            st["upload_attempts"],
+            int(_number(st.get("upload_retries"))),
+            "status",
+        )
+    elif attempts_f:
+        attempts, retries, source = attempts_f, retries_f, "frames"
+    else:
+        attempts, retries, source = 0, 0, "none"
+    gaps, trailing = _heartbeat_gaps(events.heartbeats_ns, end_ns, complete)
+    lost = _number(st.get("lost_s"))
+    phase = str(st.get("phase") or "")
+    if complete:
+        phase = "done"
+    elif not phase:
+        phase = "running" if start is not None else "not started"
+    error = str(st.get("error") or "")
+
+    last_report_h = None
+    if start is not None and last_clock is not None:
+        last_report_h = max(last_clock - start, 0.0) / 3600.0
+    if not frames_from and not traffic.fixes:
+        warnings.append(f"{vid}: no message from this vehicle in the log")
+    elif start is None and machine.fields:
+        warnings.append(f"{vid}: never set off (phase {phase})")
+    elif not complete and machine.fields:
+        where = f"{last_report_h:.2f} h after setting off" if last_report_h is not None else ""
+        warnings.append(
+            f"{vid}: mission not finished (item {last} of {n - 1}, phase {phase}); "
+            f"last report {where}".rstrip()
+        )
+    if error:
+        warnings.append(f"{vid}: {error}")
+    if retries:
+        warnings.append(f"{vid}: mission upload needed {retries} resend(s), {attempts} attempt(s)")
+    if lost > 0:
+        warnings.append(f"{vid}: the dispatcher counted it lost for {lost:.1f} s (wall)")
+    if trailing > 0:
+        warnings.append(f"{vid}: no heartbeat for the last {trailing:.1f} s of the log (wall)")
+    elif gaps > 0:
+        warnings.append(f"{vid}: {gaps:.1f} s (wall) in heartbeat gaps over {HEARTBEAT_GAP_S:g} s")
+    if complete and machine.time_h > 0:
+        actual_h = (end - start) / 3600.0 if end is not None and start is not None else 0.0
+        if actual_h > machine.time_h * (1 + SLOWER_WARNING):
+            warnings.append(
+                f"{vid}: took {actual_h:.2f} h, {100 * (actual_h / machine.time_h - 1):.0f} % "
+                f"more than the planned {machine.time_h:.2f} h"
+            )
+        if planned_distance > 0 and distance > planned_distance * (1 + SLOWER_WARNING):
+            warnings.append(
+                f"{vid}: drove {distance / 1000:.2f} km, more than the planned "
+                f"{planned_distance / 1000:.2f} km"
+            )
+    status_done = st.get("fields_done")
+    computed = [f for _, _, f in fields_done]
+    if complete and isinstance(status_done, list) and status_done and status_done != computed:
+        warnings.append(
+            f"{vid}: the dispatcher's status lists fields {' '.join(map(str, status_done))}, "
+            f"the frames show {' '.join(computed) or 'none'}"
+        )
+
+    rel = (lambda t: t - start) if start is not None else (lambda t: t)
+    review = VehicleReview(
+        id=vid,
+        phase=phase,
+        fields_planned=machine.fields,
+        fields_done=tuple(computed),
+        items_reached=last,
+        items_total=n,
+        mission_complete=complete,
+        start_clock_s=start,
+        end_clock_s=end,
+        distance_m=distance,
+        work_m=work_m,
+        transit_m=transit_m,
+        time_h=(end - start) / 3600.0 if start is not None and end is not None else 0.0,
+        working_h=working_h,
+        transit_h=transit_h,
+        stopped_h=stopped_s / 3600.0,
+        turns=turns,
+        fuel_l=fuel,
+        planned_distance_m=planned_distance,
+        planned_road_m=machine.road_m,
+        planned_time_h=machine.time_h,
+        mission_time_h=planned_s[-1] / 3600.0 if planned_s else None,
+        planned_fuel_l=machine.fuel_l,
+        planned_turns=machine.turns,
+        upload_attempts=attempts,
+        upload_retries=retries,
+        upload_source=source,
+        lost_s=lost,
+        heartbeat_gaps_s=gaps,
+        error=error,
+        last_report_h=last_report_h,
+        activities=_merge_activities(activities),
+        track=tuple((rel(p.t), p.lat, p.lon) for p in kept),
+        planned_route=tuple(Waypoint(i.seq, i.field_id, i.role, i.lat, i.lon) for i in nav),
+    )
+    return _VehicleResult(review, field_times, start, planned_s, warnings)
+
+
+class _Pace:
+    """Whether a vehicle moved between two positions: a reported ground speed of at
+    least STILL_SPEED_MS at either end, or JITTER_M or more between them; without any
+    reported speed, the average speed along the jitter-free track there."""
+
+    def __init__(self, kept: Sequence[_Point], legs: np.ndarray) -> None:
+        self._times = [p.t for p in kept]
+        self._speeds = [
+            float(d) / (b.t - a.t) if b.t > a.t else math.inf
+            for (a, b), d in zip(zip(kept, kept[1:], strict=False), legs, strict=False)
+        ]
+
+    def moving(self, a: _Point, b: _Point) -> bool:
+        speeds = [p.speed for p in (a, b) if p.speed is not None]
+        if speeds and max(speeds) >= STILL_SPEED_MS:
+            return True
+        if _metres((a.lat, a.lon), (b.lat, b.lon)) >= JITTER_M:
+            return True
+        if speeds or not self._speeds:
+            return False
+        k = bisect.bisect_right(self._times, (a.t + b.t) / 2) - 1
+        return self._speeds[min(max(k, 0), len(self._speeds) - 1)] >= STILL_SPEED_MS
+
+
+def _outside_work(
+    ta: float,
+    tb: float,
+    moving: bool,
+    start: float,
+    work_union: Sequence[tuple[float, float]],
+    out: list[Activity],
+) -> None:
+    """The parts of [ta, tb] outside the work windows, as transit or stopped."""
+    kind = "transit" if moving else "stopped"
+    cursor = ta
+    for u, v in work_union:
+        if cursor >= tb:
+            return
+        if v <= cursor:
+            continue
+        if u >= tb:
+            break
+        if u > cursor:
+            out.append(Activity(kind, cursor - start, u - start))
+        cursor = max(cursor, v)
+    if cursor < tb:
+        out.append(Activity(kind, cursor - start, tb - start))
+
+
+def _without_jitter(points: Sequence[_Point]) -> list[_Point]:
+    """Positions kept when at least JITTER_M from the last kept one (waypoints always)."""
+    if not points:
+        return []
+    lats = np.array([p.lat for p in points])
+    lons = np.array([p.lon for p in points])
+    frame = LocalFrame.around(float(lons[0]), float(lats[0]))
+    xs, ys = frame.to_local(lons, lats)
+    kept = [points[0]]
+    kx, ky = float(xs[0]), float(ys[0])
+    for k in range(1, len(points)):
+        d = math.hypot(float(xs[k]) - kx, float(ys[k]) - ky)
+        if d >= JITTER_M or (points[k].waypoint and d > 0.01):
+            kept.append(points[k])
+            kx, ky = float(xs[k]), float(ys[k])
+    return kept
+
+
+# --- the whole log -----------------------------------------------------------------------
+
+
+def review_log(source: str | os.PathLike[str] | IO[bytes]) -> Review:
+    """Review one agrifleet MCAP log (a path or a binary stream).
+
+    A log cut short is read up to where it ends (``complete`` False, and a warning that
+    says where). Raises :class:`~dispatcher.recording.RecordingError` (a ``ValueError``)
+    for a file that is not an MCAP file or not an agrifleet log.
+    """
+    log = read_log(source)
+    return review_contents(log)
+
+
+def review_contents(log: LogContents) -> Review:
+    """Review a log already read with :func:`dispatcher.recording.read_log`."""
+    warnings: list[str] = []
+    start_ns = _int_or_none(log.metadata.get("start_time_ns"))
+    if start_ns is None and log.records:
+        start_ns = min(r.log_time_ns for r in log.records)
+    end_ns = max((r.log_time_ns for r in log.records), default=None)
+    if not log.complete:
+        warnings.append(_ends_early(log.problem, start_ns, end_ns))
+
+    traffic, plan_docs, status_docs = _sort_traffic(log)
+    plans = [p for p in (_parse_plan(doc, ns) for ns, doc in plan_docs) if p is not None]
+    if len(plans) < len(plan_docs):
+        warnings.append(f"{len(plan_docs) - len(plans)} plan document(s) could not be read")
+    plan_ids: list[str] = []
+    for p in plans:
+        if p.plan_id is not None and p.plan_id not in plan_ids:
+            plan_ids.append(p.plan_id)
+    plan = plans[-1] if plans else None
+    if len(plan_ids) > 1 and plan is not None:
+        warnings.append(
+            f"the log holds {len(plan_ids)} plans ({', '.join(plan_ids)}); "
+            f"this review follows the last one, {plan.plan_id}"
+        )
+    farm_id = log.metadata.get("farm_id", "")
+    plan_id = plan.plan_id if plan is not None else log.metadata.get("plan_id")
+    if plan is None:
+        warnings.append("no plan in the log: nothing to set the vehicles against")
+        return Review(
+            source=log.source,
+            farm_id=farm_id,
+            plan_id=plan_id,
+            plan_ids=tuple(plan_ids),
+            complete=log.complete,
+            problem=log.problem,
+            log_start_ns=start_ns,
+            log_end_ns=end_ns,
+            garage=None,
+            vehicles=(),
+            fields=(),
+            planned_makespan_h=None,
+            warnings=tuple(warnings),
+        )
+
+    status = _last_status(status_docs, plan.plan_id)
+    vehicles: list[VehicleReview] = []
+    results: dict[str, _VehicleResult] = {}
+    for machine in plan.machines:
+        t = traffic.get(machine.id, _Traffic([], [], []))
+        vstatus = status.get(machine.id) if status else None
+        result = _review_vehicle(
+            machine.id,
+            machine,
+            t,
+            vstatus if isinstance(vstatus, dict) else None,
+            plan.log_ns if len(plans) > 1 else 0,
+            end_ns,
+        )
+        results[machine.id] = result
+        vehicles.append(result.review)
+        warnings += result.warnings
+    strangers = sorted(set(traffic) - {m.id for m in plan.machines})
+    if strangers:
+        warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
+
+    fields = _field_reviews(plan, results)
+    not_done = [f"{f.id} ({f.vehicle or 'nobody'})" for f in fields if not f.done]
+    if not_done:
+        warnings.append(f"fields not done: {', '.join(not_done)}")
+    return Review(
+        source=log.source,
+        farm_id=farm_id or plan.farm_id,
+        plan_id=plan_id,
+        plan_ids=tuple(plan_ids),
+        complete=log.complete,
+        problem=log.problem,
+        log_start_ns=start_ns,
+        log_end_ns=end_ns,
+        garage=plan.garage,
+        vehicles=tuple(vehicles),
+        fields=tuple(fields),
+        planned_makespan_h=plan.makespan_h,
+        warnings=tuple(warnings),
+    )
+
+
+def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[FieldReview]:
+    owner: dict[str, _Machine] = {}
+    for m in plan.machines:
+        for item in m.items:
+            if item.field_id is not None:
+                owner.setdefault(item.field_id, m)
+        for fid in m.fields:
+            owner.setdefault(fid, m)
+    planned: dict[str, tuple[float, float | None]] = {}
+    for m in plan.machines:
+        result = results.get(m.id)
+        pt = result.planned_s if result is not None else None
+        if pt is None:
+            continue
+        for item in m.items:
+            if item.field_id is None:
+                continue
+            if item.role == "implement_down":
+                planned[item.field_id] = (pt[item.seq], None)
+            elif item.role == "implement_up" and item.field_id in planned:
+                planned[item.field_id] = (planned[item.field_id][0], pt[item.seq])
+    ids = list(plan.fields) + [f for f in owner if f not in plan.fields]
+    out = []
+    for fid in ids:
+        info = plan.fields.get(fid, {})
+        machine = owner.get(fid)
+        result = results.get(machine.id) if machine is not None else None
+        times = result.field_times.get(fid) if result is not None else None
+        start = result.start_clock if result is not None else None
+        started = times.started if times is not None else None
+        finished = times.finished if times is not None else None
+        polygon = tuple(
+            (float(p[0]), float(p[1]))
+            for p in info.get("polygon") or []
+            if isinstance(p, list) and len(p) >= 2 and _is_number(p[0]) and _is_number(p[1])
+        )
+        p_start, p_end = planned.get(fid, (None, None))
+        out.append(
+            FieldReview(
+                id=fid,
+                name=str(info.get("name", fid)),
+                area_m2=_number(info.get("area_m2")),
+                polygon=polygon,
+                vehicle=machine.id if machine is not None else None,
+                done=finished is not None,
+                started_s=_minus(started, start),
+                finished_s=_minus(finished, start),
+                started_clock_s=started,
+                finished_clock_s=finished,
+                planned_started_s=p_start,
+                planned_finished_s=p_end,
+            )
+        )
+    return out
+
+
+def _minus(a: float | None, b: float | None) -> float | None:
+    return a - b if a is not None and b is not None else None
+
+
+def _last_status(docs: Sequence[tuple[int, Any]], plan_id: str | None) -> dict[str, Any] | None:
+    """The vehicles of the last status document of ``plan_id`` (or without a plan id)."""
+    for _ns, doc in reversed(docs):
+        if not isinstance(doc, dict) or not isinstance(doc.get("vehicles"), dict):
+            continue
+        if plan_id is None or doc.get("plan_id") in (None, plan_id):
+            return dict(doc["vehicles"])
+    return None
+
+
+def _int_or_none(value: object) -> int | None:
+    try:
+        return int(str(value))
+    except ValueError:
+        return None
+
+
+def _iso(ns: int | None) -> str:
+    if ns is None:
+        return "?"
+    return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def _ends_early(problem: str | None, start_ns: int | None, end_ns: int | None) -> str:
+    reason = f": {problem}" if problem else ""
+    if end_ns is None:
+        return f"the log ends early{reason}. It ends before its first message"
+    where = f"at {_iso(end_ns)}"
+    if start_ns is not None:
+        where += f", {(end_ns - start_ns) / 1e9:.1f} s after the log started"
+    return f"the log ends early{reason}. The last record read is {where}; anything later is lost"
+
+
+# --- output --------------------------------------------------------------------------------
+
+
+def review_json(review: Review) -> dict[str, Any]:
+    """The review as a JSON-ready dict (tracks left out; activities kept)."""
+
+    def r(value: float | None, digits: int) -> float | None:
+        return None if value is None else round(value, digits)
+
+    vehicles = []
+    for v in review.vehicles:
+        vehicles.append(
+            {
+                "id": v.id,
+                "phase": v.phase,
+                "fields_planned": list(v.fields_planned),
+                "fields_done": list(v.fields_done),
+                "items_reached": v.items_reached,
+                "items_total": v.items_total,
+                "mission_complete": v.mission_complete,
+                "distance_m": r(v.distance_m, 1),
+                "planned_distance_m": r(v.planned_distance_m, 1),
+                "work_m": r(v.work_m, 1),
+                "transit_m": r(v.transit_m, 1),
+                "planned_road_m": r(v.planned_road_m, 1),
+                "time_h": r(v.time_h, 4),
+                "planned_time_h": r(v.planned_time_h, 4),
+                "mission_time_h": r(v.mission_time_h, 4),
+                "working_h": r(v.working_h, 4),
+                "transit_h": r(v.transit_h, 4),
+                "stopped_h": r(v.stopped_h, 4),
+                "turns": v.turns,
+                "planned_turns": v.planned_turns,
+                "fuel_l": r(v.fuel_l, 2),
+                "planned_fuel_l": r(v.planned_fuel_l, 2),
+                "upload_attempts": v.upload_attempts,
+                "upload_retries": v.upload_retries,
+                "upload_source": v.upload_source,
+                "lost_s": r(v.lost_s, 1),
+                "heartbeat_gaps_s": r(v.heartbeat_gaps_s, 1),
+                "start_clock_s": r(v.start_clock_s, 3),
+                "end_clock_s": r(v.end_clock_s, 3),
+                "last_report_h": r(v.last_report_h, 4),
+                "error": v.error,
+                "activities": [
+                    {
+                        "kind": a.kind,
+                        "field": a.field_id,
+                        "start_s": round(a.start_s, 1),
+                        "end_s": round(a.end_s, 1),
+                    }
+                    for a in v.activities
+                ],
+            }
+        )
+    fields = {
+        f.id: {
+            "done": f.done,
+            "vehicle": f.vehicle,
+            "started": r(f.started_s, 1),
+            "finished": r(f.finished_s, 1),
+            "started_clock_s": r(f.started_clock_s, 1),
+            "finished_clock_s": r(f.finished_clock_s, 1),
+            "planned_started": r(f.planned_started_s, 1),
+            "planned_finished": r(f.planned_finished_s, 1),
+            "name": f.name,
+            "area_m2": f.area_m2,
+        }
+        for f in review.fields
+    }
+    return {
+        "source": review.source,
+        "farm_id": review.farm_id,
+        "plan_id": review.plan_id,
+        "plan_ids": list(review.plan_ids),
+        "complete": review.complete,
+        "problem": review.problem,
+        "log_start": _iso(review.log_start_ns) if review.log_start_ns is not None else None,
+        "log_end": _iso(review.log_end_ns) if review.log_end_ns is not None else None,
+        "makespan_h": round(review.makespan_h, 4),
+        "makespan_final": review.makespan_final,
+        "planned_makespan_h": r(review.planned_makespan_h, 4),
+        "totals": {
+            "fields_done": review.fields_done,
+            "fields": len(review.fields),
+            "distance_m": round(sum(v.distance_m for v in review.vehicles), 1),
+            "planned_distance_m": round(sum(v.planned_distance_m for v in review.vehicles), 1),
+            "time_h": round(sum(v.time_h for v in review.vehicles), 4),
+            "planned_time_h": round(sum(v.planned_time_h for v in review.vehicles), 4),
+            "fuel_l": round(sum(v.fuel_l or 0.0 for v in review.vehicles), 2),
+            "planned_fuel_l": round(sum(v.planned_fuel_l for v in review.vehicles), 2),
+        },
+        "vehicles": vehicles,
+        "fields": fields,
+        "warnings": list(review.warnings),
+    }
+
+
+_HEADER: Final = (
+    ("", "vehicle"),
+    ("fields", "done"),
+    ("dist km", "plan"),
+    ("", "act"),
+    ("time h", "plan"),
+    ("", "msn"),
+    ("", "act"),
+    ("fuel L", "plan"),
+    ("", "act"),
+    ("work h", "act"),
+    ("road h", "act"),
+    ("turns", "plan/act"),
+    ("upload", "try/re"),
+    ("lost s", "wall"),
+    ("", "state"),
+)
+
+
+def _columns(rows: Sequence[Sequence[str]]) -> list[str]:
+    """Rows as fixed-width text: first column left-aligned, the others right-aligned."""
+    widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
+    out = []
+    for r in rows:
+        cells = [
+            c.ljust(w) if k in (0, len(r) - 1) else c.rjust(w)
+            for k, (c, w) in enumerate(zip(r, widths, strict=True))
+        ]
+        out.append(" ".join(cells).rstrip())
+    return out
+
+
+def _vehicle_row(v: VehicleReview) -> list[str]:
+    return [
+        v.id,
+        f"{len(v.fields_done)}/{len(v.fields_planned)}",
+        f"{v.planned_distance_m / 1000:.2f}",
+        f"{v.distance_m / 1000:.2f}",
+        f"{v.planned_time_h:.2f}",
+        "-" if v.mission_time_h is None else f"{v.mission_time_h:.2f}",
+        f"{v.time_h:.2f}",
+        f"{v.planned_fuel_l:.1f}",
+        "-" if v.fuel_l is None else f"{v.fuel_l:.1f}",
+        f"{v.working_h:.2f}",
+        f"{v.transit_h:.2f}",
+        f"{v.planned_turns}/{v.turns}",
+        f"{v.upload_attempts}/{v.upload_retries}",
+        f"{max(v.lost_s, v.heartbeat_gaps_s):.1f}",
+        v.phase,
+    ]
+
+
+def _total_row(review: Review) -> list[str]:
+    vs = review.vehicles
+    return [
+        "total",
+        f"{review.fields_done}/{len(review.fields)}",
+        f"{sum(v.planned_distance_m for v in vs) / 1000:.2f}",
+        f"{sum(v.distance_m for v in vs) / 1000:.2f}",
+        f"{sum(v.planned_time_h for v in vs):.2f}",
+        _sum_or_dash([v.mission_time_h for v in vs], 2),
+        f"{sum(v.time_h for v in vs):.2f}",
+        f"{sum(v.planned_fuel_l for v in vs):.1f}",
+        _sum_or_dash([v.fuel_l for v in vs], 1),
+        f"{sum(v.working_h for v in vs):.2f}",
+        f"{sum(v.transit_h for v in vs):.2f}",
+        f"{sum(v.planned_turns for v in vs)}/{sum(v.turns for v in vs)}",
+        f"{sum(v.upload_attempts for v in vs)}/{sum(v.upload_retries for v in vs)}",
+        f"{sum(max(v.lost_s, v.heartbeat_gaps_s) for v in vs):.1f}",
+        "",
+    ]
+
+
+def _sum_or_dash(values: Sequence[float | None], digits: int) -> str:
+    known = [v for v in values if v is not None]
+    return f"{sum(known):.{digits}f}" if known else "-"
+
+
+def review_table(review: Review) -> str:
+    """The review as a fixed-width table: per vehicle planned vs actual, totals, the
+    makespan, the fields in the order worked, and a line per warning."""
+    name = Path(review.source).name if review.source else "<stream>"
+    span = ""
+    if review.log_start_ns is not None and review.log_end_ns is not None:
+        span = f", {(review.log_end_ns - review.log_start_ns) / 1e9:.0f} s of it recorded"
+    state = "complete" if review.complete else "CUT SHORT"
+    lines = [
+        f"review of {name}: farm {review.farm_id or '?'}, plan {review.plan_id or '?'}",
+        f"log started {_iso(review.log_start_ns)}{span}; log {state}",
+    ]
+    if not review.complete:
+        lines.append(f"!! {_ends_early(review.problem, review.log_start_ns, review.log_end_ns)}")
+    lines.append("")
+    if not review.vehicles:
+        lines.append("no vehicles to review")
+    else:
+        rows = [list(h) for h in zip(*_HEADER, strict=True)]
+        rows += [_vehicle_row(v) for v in review.vehicles]
+        rows.append(_total_row(review))
+        table = _columns(rows)
+        lines += table[:2] + ["-" * len(table[1])] + table[2:-1] + ["-" * len(table[1])]
+        lines.append(table[-1])
+        lines += [
+            "time h: plan = the planner's formula (6); msn = the uploaded mission's waypoints at",
+            "the planned speeds; act = the vehicle's clock, setting off to back at the garage",
+            "(or to its last report). road h: moving with the implement up.",
+            "",
+        ]
+        longest = max(review.vehicles, key=lambda v: v.time_h)
+        planned = (
+            f"{review.planned_makespan_h:.2f} h planned"
+            if review.planned_makespan_h is not None
+            else "no planned makespan"
+        )
+        if review.makespan_final:
+            lines.append(f"makespan: {review.makespan_h:.2f} h ({longest.id}), {planned}")
+        else:
+            lines.append(
+                f"makespan: at least {review.makespan_h:.2f} h ({longest.id}, not every vehicle "
+                f"finished), {planned}"
+            )
+        lines += ["", "fields in the order worked (hours after the vehicle set off):"]
+        digits = 1 if review.makespan_h >= 2.0 else 2
+        for v in review.vehicles:
+            worked = []
+            for fid in v.fields_done:
+                f = review.field(fid)
+                worked.append(f"{fid} {_hours(f.started_s, digits)}-{_hours(f.finished_s, digits)}")
+            for fid in v.fields_planned:
+                f = review.field(fid)
+                if not f.done and f.started_s is not None:
+                    worked.append(f"{fid} {_hours(f.started_s, digits)}- (unfinished)")
+            missing = [f for f in v.fields_planned if review.field(f).started_s is None]
+            line = f"  {v.id:<6} " + (", ".join(worked) or "-")
+            if missing:
+                line += f"; not started: {' '.join(missing)}"
+            lines.append(line)
+    lines.append("")
+    if review.warnings:
+        lines.append("warnings:")
+        lines += [f"  ! {w}" for w in review.warnings]
+    else:
+        lines.append("no warnings")
+    return "\n".join(lines)
+
+
+def _hours(seconds: float | None, digits: int) -> str:
+    return "?" if seconds is None else f"{seconds / 3600:.{digits}f}"

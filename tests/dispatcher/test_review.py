@@ -1,0 +1,527 @@
+"""Reviewing a run from its log: logs written in-process with the real Recorder, holding the
+frames of simulated tractors (SimTractor) that were uploaded their missions with the real
+mission protocol client; then read back whole, cut short at random bytes, or not logs."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.writer import Writer
+from pyproj import Geod
+
+from dispatcher import mavlink_codec as mc
+from dispatcher import wire
+from dispatcher.mission_client import CommandSequence, MissionUpload, start_mission_commands
+from dispatcher.missions import FieldVisit, Implement, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.recording import Recorder, RecordingError
+from dispatcher.review import Review, review_json, review_log, review_table
+from dispatcher.review_plot import plot_review
+from dispatcher.scenario import Vehicle
+from planner.problem import Machine
+from sim_vehicles.tractor import SimTractor
+
+FARM = "testfarm"
+PLAN_ID = "plan-b"
+T0 = 1_704_067_200_000_000_000  # 2024-01-01T00:00:00Z
+GARAGE = LatLon(44.0030, 87.2995)
+SERVO = Implement(kind="servo", channel=9)
+GEOD = Geod(ellps="WGS84")
+M_PER_DEG_LAT = 111_320.0
+
+
+def _offset(origin: LatLon, east_m: float, north_m: float) -> LatLon:
+    return LatLon(
+        origin.lat + north_m / M_PER_DEG_LAT,
+        origin.lon + east_m / (M_PER_DEG_LAT * math.cos(math.radians(origin.lat))),
+    )
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    id: str
+    east_m: float  # south-west corner from the garage
+    north_m: float
+    length_m: float = 120.0
+    swaths: int = 4
+    width_m: float = 8.0
+
+    def corner(self, east: float, north: float) -> LatLon:
+        return _offset(GARAGE, self.east_m + east, self.north_m + north)
+
+    def visit(self) -> FieldVisit:
+        """Back-and-forth swaths going east and west, ``width_m`` apart."""
+        out = []
+        for k in range(self.swaths):
+            y = (k + 0.5) * self.width_m
+            a, b = self.corner(0.0, y), self.corner(self.length_m, y)
+            out.append((a, b) if k % 2 == 0 else (b, a))
+        return FieldVisit(self.id, tuple(out))
+
+    def polygon(self) -> list[list[float]]:
+        h = self.swaths * self.width_m
+        pts = [(0, 0), (self.length_m, 0), (self.length_m, h), (0, h), (0, 0)]
+        return [[self.corner(e, n).lon, self.corner(e, n).lat] for e, n in pts]
+
+
+FIELDS = {
+    "A": FieldSpec("A", 60.0, 60.0),
+    "B": FieldSpec("B", 60.0, -100.0, swaths=3),
+    "C": FieldSpec("C", 260.0, 40.0, length_m=90.0, swaths=5, width_m=6.0),
+}
+ROUTES = {"v1": ("A", "B"), "v2": ("C",)}
+SYSTEM_IDS = {"v1": 11, "v2": 12}
+
+
+def _machine(vid: str) -> Machine:
+    return Machine(
+        vid,
+        working_width_m=8.0,
+        capacity_m2h=40_000.0,
+        road_speed_kmh=15.0,
+        turn_time_h=0.001,
+        road_fuel_lh=3.0,
+        work_fuel_lh=7.0,
+        work_speed_kmh=5.0,
+    )
+
+
+def _mission(vid: str) -> Mission:
+    spec = MissionSpec(
+        machine_id=vid,
+        home=GARAGE,
+        road_speed_kmh=15.0,
+        work_speed_kmh=5.0,
+        implement=SERVO,
+        visits=tuple(FIELDS[f].visit() for f in ROUTES[vid]),
+    )
+    return build_mission(spec)
+
+
+def _path_m(mission: Mission) -> float:
+    """The length of the mission's waypoint path, garage to garage."""
+    nav = [it for it in mission.items if it.is_waypoint]
+    return sum(GEOD.inv(a.lon, a.lat, b.lon, b.lat)[2] for a, b in zip(nav, nav[1:], strict=False))
+
+
+def _turns(mission: Mission) -> int:
+    roles = [(tr.field_id, tr.role) for it, tr in zip(mission.items, mission.traces, strict=True)]
+    return sum(
+        1
+        for (f0, r0), (f1, r1) in zip(roles, roles[1:], strict=False)
+        if r0 == "swath_end" and r1 == "swath_start" and f0 == f1
+    )
+
+
+def _plan_doc(
+    missions: dict[str, Mission], plan_id: str = PLAN_ID, with_params: bool = True
+) -> dict[str, Any]:
+    machines = []
+    for vid, mission in missions.items():
+        m = _machine(vid)
+        machines.append(
+            {
+                "id": vid,
+                "system_id": SYSTEM_IDS[vid],
+                "params": {
+                    "capacity_m2h": m.capacity_m2h,
+                    "work_speed_kmh": m.work_speed_kmh,
+                    "road_speed_kmh": m.road_speed_kmh,
+                    "turn_time_h": m.turn_time_h,
+                    "road_fuel_lh": m.road_fuel_lh,
+                    "work_fuel_lh": m.work_fuel_lh,
+                },
+                "fields": list(ROUTES[vid]),
+                "distance_m": 500.0,
+                **({} if with_params else {"params": None}),
+                "fuel_l": 1.5,
+                "time_h": 0.4,
+                "turns": _turns(mission),
+                "items": [
+                    [it.seq, tr.field_id, tr.swath_index, tr.role, it.x, it.y]
+                    for it, tr in zip(mission.items, mission.traces, strict=True)
+                ],
+            }
+        )
+    return {
+        "plan_id": plan_id,
+        "farm_id": FARM,
+        "garage": {"lat": GARAGE.lat, "lon": GARAGE.lon},
+        "fields": {
+            f.id: {"name": f"field {f.id}", "area_m2": 1.0, "polygon": f.polygon()}
+            for f in FIELDS.values()
+        },
+        "machines": machines,
+        "totals": {"distance_m": 1000.0, "fuel_l": 3.0, "time_h": 0.8, "makespan_h": 0.4},
+    }
+
+
+@dataclass
+class _Link:
+    """The dispatcher's end of one simulated tractor, recording every frame."""
+
+    vid: str
+    tractor: SimTractor
+    rec: Recorder
+    clock: list[int]  # wall ns, shared
+    gcs: mc.Codec = field(default_factory=lambda: mc.Codec(255, 190))
+    vehicle: mc.Codec = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.vehicle = mc.Codec(SYSTEM_IDS[self.vid], mc.MAV_COMP_ID_AUTOPILOT1)
+
+    def now(self) -> int:
+        self.clock[0] += 1_000_000  # 1 ms of wall time per frame
+        return self.clock[0]
+
+    def send(self, messages: list[mc.MAVLinkMessage]) -> list[mc.MAVLinkMessage]:
+        """Frames to the vehicle; what it answers (recorded and decoded)."""
+        replies: list[mc.MAVLinkMessage] = []
+        for msg in messages:
+            frame = self.gcs.encode(msg)
+            decoded = self.gcs.decode_one(frame)
+            assert decoded is not None
+            self.rec.record_frame(
+                wire.vehicle_to(FARM, self.vid), frame, self.now(), mc.as_dict(decoded)
+            )
+            replies += self.receive(self.tractor.handle(decoded, self.tractor.sim_time))
+        return replies
+
+    def receive(self, messages: list[mc.MAVLinkMessage]) -> list[mc.MAVLinkMessage]:
+        out = []
+        for msg in messages:
+            frame = self.vehicle.encode(msg)
+            decoded = self.gcs.decode_one(frame)
+            assert decoded is not None
+            t = self.now()
+            self.rec.record_frame(wire.vehicle_from(FARM, self.vid), frame, t, mc.as_dict(decoded))
+            if decoded.get_type() == "GLOBAL_POSITION_INT":
+                self.rec.record_location(
+                    self.vid, decoded.lat / 1e7, decoded.lon / 1e7, t, decoded.time_boot_ms / 1e3
+                )
+            out.append(decoded)
+        return out
+
+    def run(self, exchange: MissionUpload | CommandSequence) -> None:
+        pending = self.send(exchange.start(0.0))
+        while pending:
+            reply = pending.pop(0)
+            pending += self.send(exchange.on_message(reply, 0.0))
+        assert exchange.outcome.value == "done", exchange.reason
+
+
+def write_run(
+    output: io.BytesIO | Path,
+    *,
+    fail_after_s: dict[str, float] | None = None,
+    extra_plan_first: bool = False,
+    with_params: bool = True,
+    status: dict[str, Any] | None = None,
+    step_s: float = 20.0,
+) -> dict[str, Mission]:
+    """A whole run of v1 (fields A, B) and v2 (field C) into ``output``; the missions."""
+    missions = {vid: _mission(vid) for vid in ROUTES}
+    clock = [T0]
+    with Recorder(output, FARM, chunk_size=4096, max_chunk_age_s=None, clock=lambda: T0) as rec:
+        if extra_plan_first:
+            rec.record_plan(_plan_doc(missions, "plan-a"), {}, clock[0])
+        rec.record_plan(_plan_doc(missions, with_params=with_params), {}, clock[0] + 1)
+        links = []
+        for vid in ROUTES:
+            vehicle = Vehicle(_machine(vid), SYSTEM_IDS[vid], SERVO)
+            tractor = SimTractor(
+                vehicle,
+                (GARAGE.lon, GARAGE.lat),
+                fail_after_s=(fail_after_s or {}).get(vid),
+            )
+            links.append(_Link(vid, tractor, rec, clock))
+        for link in links:  # boot: a little time passes at the garage
+            link.receive(link.tractor.advance(7.0) + link.tractor.heartbeat(7.0))
+            link.receive(link.tractor.telemetry(link.tractor.sim_time))
+        for link in links:
+            upload = MissionUpload(missions[link.vid].to_mavlink(SYSTEM_IDS[link.vid]), 0)
+            upload.target_system = SYSTEM_IDS[link.vid]
+            link.run(upload)
+            link.run(CommandSequence(start_mission_commands(), SYSTEM_IDS[link.vid]))
+        for _ in range(2000):
+            for link in links:
+                t = link.tractor
+                link.receive(t.advance(step_s) + t.heartbeat(t.sim_time) + t.telemetry(t.sim_time))
+            clock[0] += 100_000_000  # 0.1 s of wall time per step
+            if all(link.tractor.mission_state.value == "complete" for link in links):
+                break
+            if fail_after_s and all(
+                link.tractor.failed or link.tractor.mission_state.value == "complete"
+                for link in links
+            ):
+                clock[0] += 10**10  # the dispatcher waits on: 10 s without the broken one
+                break
+        if status is not None:
+            rec.record_status(status, clock[0])
+    return missions
+
+
+@pytest.fixture(scope="module")
+def run_log() -> tuple[bytes, dict[str, Mission]]:
+    buf = io.BytesIO()
+    missions = write_run(buf)
+    return buf.getvalue(), missions
+
+
+@pytest.fixture(scope="module")
+def review(run_log: tuple[bytes, dict[str, Mission]]) -> Review:
+    return review_log(io.BytesIO(run_log[0]))
+
+
+# --- a complete run --------------------------------------------------------------------------
+
+
+def test_complete_log_every_field_done_once_by_its_vehicle_in_order(review: Review) -> None:
+    assert review.complete and review.problem is None
+    assert review.plan_id == PLAN_ID and review.farm_id == FARM
+    assert [v.id for v in review.vehicles] == ["v1", "v2"]
+    assert review.vehicle("v1").fields_done == ("A", "B")
+    assert review.vehicle("v2").fields_done == ("C",)
+    done = [f for v in review.vehicles for f in v.fields_done]
+    assert sorted(done) == sorted(FIELDS)  # each exactly once
+    for f in review.fields:
+        assert f.done and f.vehicle == ("v2" if f.id == "C" else "v1")
+        assert f.started_s is not None and f.finished_s is not None
+        assert 0 < f.started_s < f.finished_s
+    a, b = review.field("A"), review.field("B")
+    assert a.finished_s is not None and b.started_s is not None
+    assert a.finished_s < b.started_s  # A first, then the road, then B
+    assert all(v.mission_complete and v.phase == "done" for v in review.vehicles)
+    assert review.makespan_final
+    assert review.warnings == ()
+
+
+def test_distance_is_the_sum_of_the_legs_and_times_match_the_mission(
+    review: Review, run_log: tuple[bytes, dict[str, Mission]]
+) -> None:
+    missions = run_log[1]
+    for v in review.vehicles:
+        legs = _path_m(missions[v.id])
+        assert v.planned_distance_m == pytest.approx(legs, rel=1e-6)
+        assert v.distance_m == pytest.approx(legs, rel=1e-4)
+        assert v.work_m + v.transit_m == pytest.approx(v.distance_m)
+        # The simulator drives the legs exactly at the planned speeds.
+        assert v.mission_time_h is not None
+        assert v.time_h * 3600 == pytest.approx(v.mission_time_h * 3600, abs=1.0)
+        assert v.working_h + v.transit_h + v.stopped_h == pytest.approx(v.time_h, rel=1e-6)
+        assert v.stopped_h * 3600 < 1.0
+        assert v.turns == v.planned_turns == _turns(missions[v.id])
+        # Formula (5) on what was driven.
+        fuel = (v.transit_h + v.turns * 0.001) * 3.0 + v.working_h * 7.0
+        assert v.fuel_l == pytest.approx(fuel)
+    assert review.makespan_h == max(v.time_h for v in review.vehicles)
+    # Working time is the fields' windows, road time the rest.
+    v1 = review.vehicle("v1")
+    windows = sum(
+        review.field(f).finished_s - review.field(f).started_s  # type: ignore[operator]
+        for f in ("A", "B")
+    )
+    assert v1.working_h * 3600 == pytest.approx(windows)
+
+
+def test_upload_figures_from_the_frames_without_a_status(review: Review) -> None:
+    for v in review.vehicles:
+        assert (v.upload_attempts, v.upload_retries, v.upload_source) == (1, 0, "frames")
+        assert v.lost_s == 0.0 and v.heartbeat_gaps_s == 0.0
+
+
+def test_json_has_the_documented_keys_and_is_serialisable(review: Review) -> None:
+    doc = review_json(review)
+    json.dumps(doc)
+    assert {"vehicles", "fields", "complete", "plan_id", "makespan_h"} <= set(doc)
+    assert doc["complete"] is True and doc["plan_id"] == PLAN_ID
+    for v in doc["vehicles"]:
+        assert {
+            "id",
+            "fields_done",
+            "distance_m",
+            "time_h",
+            "fuel_l",
+            "planned_distance_m",
+            "planned_time_h",
+            "planned_fuel_l",
+            "working_h",
+            "transit_h",
+            "turns",
+            "upload_attempts",
+            "upload_retries",
+            "lost_s",
+        } <= set(v)
+    assert set(doc["fields"]) == set(FIELDS)
+    for f in doc["fields"].values():
+        assert {"done", "vehicle", "started", "finished"} <= set(f)
+    assert doc["fields"]["C"]["vehicle"] == "v2"
+    assert doc["vehicles"][0]["fields_done"] == ["A", "B"]
+
+
+def test_table_shows_each_vehicle_totals_and_makespan(review: Review) -> None:
+    text = review_table(review)
+    lines = text.splitlines()
+    assert any(line.startswith("v1 ") and "2/2" in line for line in lines)
+    assert any(line.startswith("v2 ") and "1/1" in line for line in lines)
+    assert any(line.startswith("total") and "3/3" in line for line in lines)
+    assert "makespan:" in text and "no warnings" in text
+    assert "ends early" not in text
+
+
+def test_plot_writes_a_png(review: Review, tmp_path: Path) -> None:
+    out = plot_review(review, tmp_path / "review.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_review_from_a_path(run_log: tuple[bytes, dict[str, Mission]], tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    path.write_bytes(run_log[0])
+    assert review_log(path).vehicle("v1").fields_done == ("A", "B")
+    assert review_log(str(path)).source == str(path)
+
+
+# --- logs cut short -------------------------------------------------------------------------
+
+
+def test_log_cut_at_random_bytes_reads_what_is_there(
+    run_log: tuple[bytes, dict[str, Mission]], review: Review, tmp_path: Path
+) -> None:
+    data = run_log[0]
+    rng = random.Random(20261122)
+    offsets = sorted(rng.randrange(1, len(data) - 1) for _ in range(12))
+    partial_seen = False
+    for offset in offsets:
+        cut = review_log(io.BytesIO(data[:offset]))
+        assert not cut.complete, offset
+        assert "ends early" in review_table(cut)
+        assert any("ends early" in w for w in cut.warnings)
+        for v in cut.vehicles:  # what it read is a beginning of what happened
+            full = review.vehicle(v.id)
+            assert full.fields_done[: len(v.fields_done)] == v.fields_done
+            assert v.distance_m <= full.distance_m + 1e-6
+        if cut.vehicles and 0 < cut.fields_done < len(FIELDS):
+            partial_seen = True
+            assert not cut.makespan_final
+            assert "at least" in review_table(cut)
+    assert partial_seen  # some cut fell in the middle of the work
+    # The plot copes with a cut log too.
+    cut = review_log(io.BytesIO(data[: len(data) // 2]))
+    assert plot_review(cut, tmp_path / "cut.png").stat().st_size > 0
+    json.dumps(review_json(cut))
+
+
+def test_log_cut_before_the_plan_says_so() -> None:
+    buf = io.BytesIO()
+    with Recorder(buf, FARM, clock=lambda: T0, max_chunk_age_s=None):
+        pass
+    cut = review_log(io.BytesIO(buf.getvalue()[:60]))
+    assert not cut.complete and cut.vehicles == ()
+    assert any("no plan" in w for w in cut.warnings)
+    assert "no vehicles" in review_table(cut)
+    assert review_json(cut)["vehicles"] == []
+
+
+# --- runs that went wrong, and logs with more than one plan ----------------------------------
+
+
+def test_a_vehicle_that_breaks_down_is_reported() -> None:
+    buf = io.BytesIO()
+    status = {
+        "plan_id": PLAN_ID,
+        "vehicles": {
+            "v1": {"phase": "done", "upload_attempts": 1, "upload_retries": 2, "lost_s": 0.0},
+            "v2": {"phase": "lost", "upload_attempts": 1, "upload_retries": 0, "lost_s": 9.5},
+        },
+    }
+    write_run(buf, fail_after_s={"v2": 200.0}, status=status)
+    rv = review_log(io.BytesIO(buf.getvalue()))
+    assert rv.complete
+    v1, v2 = rv.vehicle("v1"), rv.vehicle("v2")
+    assert v1.mission_complete and v1.fields_done == ("A", "B")
+    assert (v1.upload_retries, v1.upload_source) == (2, "status")
+    assert not v2.mission_complete and v2.fields_done == () and v2.phase == "lost"
+    assert v2.lost_s == 9.5 and v2.heartbeat_gaps_s > 5.0
+    assert v2.last_report_h is not None and v2.last_report_h < 200 / 3600
+    field_c = rv.field("C")
+    assert not field_c.done and field_c.finished_s is None
+    text = review_table(rv)
+    assert "v2: mission not finished" in text and "fields not done: C (v2)" in text
+    assert "no heartbeat" in text
+    assert not rv.makespan_final
+
+
+def test_the_last_of_several_plans_is_followed() -> None:
+    buf = io.BytesIO()
+    write_run(buf, extra_plan_first=True)
+    rv = review_log(io.BytesIO(buf.getvalue()))
+    assert rv.plan_id == PLAN_ID and rv.plan_ids == ("plan-a", PLAN_ID)
+    assert any("2 plans" in w for w in rv.warnings)
+    assert rv.vehicle("v1").fields_done == ("A", "B")
+
+
+def test_a_plan_without_machine_params_still_gives_times_but_no_fuel() -> None:
+    buf = io.BytesIO()
+    write_run(buf, with_params=False)
+    rv = review_log(io.BytesIO(buf.getvalue()))
+    for v in rv.vehicles:
+        assert v.fuel_l is None and v.mission_complete
+        # Speeds come from the DO_CHANGE_SPEED items that were uploaded.
+        assert v.mission_time_h is not None
+        assert v.time_h * 3600 == pytest.approx(v.mission_time_h * 3600, abs=1.0)
+    assert any("no fuel rates" in w for w in rv.warnings)
+    assert review_json(rv)["vehicles"][0]["fuel_l"] is None
+    assert " - " in review_table(rv)
+
+
+# --- not logs of ours -----------------------------------------------------------------------
+
+
+def test_a_file_that_is_not_mcap_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "notes.mcap"
+    path.write_text("field notes, not a log\n")
+    with pytest.raises(RecordingError, match="not an MCAP file"):
+        review_log(path)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(RecordingError, match="empty"):
+        review_log(empty)
+
+
+def test_an_mcap_of_someone_else_is_refused() -> None:
+    buf = io.BytesIO()
+    writer = Writer(buf)
+    writer.start(profile="ros2", library="rosbag2")
+    writer.finish()
+    with pytest.raises(RecordingError, match="not an agrifleet log"):
+        review_log(io.BytesIO(buf.getvalue()))
+
+
+# --- the Foxglove layout that goes with the logs ---------------------------------------------
+
+
+def test_foxglove_layout_is_valid_and_names_our_topics() -> None:
+    path = Path(__file__).resolve().parents[2] / "config" / "foxglove-layout.json"
+    layout = json.loads(path.read_text())
+    panels = layout["configById"]
+
+    def leaves(node: Any) -> list[str]:
+        if isinstance(node, str):
+            return [node]
+        return leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
+    kinds = {pid.split("!")[0]: cfg for pid, cfg in panels.items()}
+    assert set(kinds) == {"map", "RosOut", "RawMessages"}
+    assert kinds["RosOut"]["topicToRender"] == "/log"
+    assert kinds["RawMessages"]["topicPath"] == wire.dispatcher_status("changji")
+    assert kinds["map"]["disabledTopics"] == []  # fixes and /plan/geojson all shown
+    assert all(
+        t.startswith("/vehicle/") and t.endswith("/fix") for t in kinds["map"]["topicColors"]
+    )
