@@ -260,6 +260,7 @@ def _frame_length(buf: bytearray, start: int) -> int | None:
 # --- MAVLink links (pymavlink's mavutil) ---------------------------------------------------
 
 DEFAULT_SERIAL_BAUD = 115200
+TCP_CONNECT_TIMEOUT_S = 3.0
 _URL_SCHEMES = ("tcp:", "tcpin:", "udp:", "udpin:", "udpout:", "udpbcast:")
 
 
@@ -344,7 +345,8 @@ def open_mavlink(
 ) -> MavlinkConnection:
     """Open the MAVLink link ``url`` (see :func:`check_mavlink_url`) with pymavlink's mavutil.
 
-    A TCP client tries once (no retry loop, no reconnect: the caller decides). Raises
+    A TCP client tries once, for at most :data:`TCP_CONNECT_TIMEOUT_S` (no retry loop, no
+    reconnect: the caller decides). Raises
     ValueError for a malformed URL and :class:`LinkDown` if the link cannot be opened.
     """
     check_mavlink_url(url)
@@ -352,7 +354,7 @@ def open_mavlink(
     ids = {"source_system": source_system, "source_component": source_component}
     try:
         if url.startswith("tcp:"):
-            port = classes.tcp_client(url[4:], retries=0, **ids)
+            port = classes.tcp_client(url[4:], **ids)
         elif url.startswith("tcpin:"):
             port = classes.tcp_server(url[6:], **ids)
         elif url.startswith("udp"):
@@ -395,6 +397,13 @@ def _link_classes() -> _LinkClasses:
     from pymavlink import mavutil
 
     class TcpClient(mavutil.mavtcp):  # type: ignore[misc, name-defined]
+        def do_connect(self) -> None:
+            """One attempt, bounded by a timeout (mavutil retries and sleeps)."""
+            self.port = socket.create_connection(self.destination_addr, TCP_CONNECT_TIMEOUT_S)
+            self.port.setblocking(False)
+            self.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            mavutil.set_close_on_exec(self.port.fileno())
+
         def handle_disconnect(self) -> None:
             raise LinkDown(f"MAVLink link {self.address}: connection reset")
 
