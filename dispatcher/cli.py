@@ -241,6 +241,19 @@ def cmd_sim(args: argparse.Namespace) -> int:
         ids = [scenario.vehicle(v).id for v in args.vehicle]
     else:
         raise SystemExit("agrifleet sim: give --vehicle ID (repeatable) or --all")
+    if args.mavlink:
+        from sim_vehicles.mavlink_port import run_mavlink
+
+        if len(ids) != 1:
+            raise SystemExit("agrifleet sim: --mavlink serves exactly one --vehicle")
+        return run_mavlink(
+            scenario,
+            ids[0],
+            args.mavlink,
+            speedup=args.speedup,
+            telemetry_hz=args.telemetry_hz,
+            stats_path=args.stats,
+        )
     return run(
         scenario,
         ids,
@@ -249,6 +262,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
         telemetry_hz=args.telemetry_hz,
         stats_path=args.stats,
     )
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    from dispatcher.bridge import bridge_command
+
+    return bridge_command(args, zenoh_options(args, False))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -333,6 +352,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
     p.add_argument("--telemetry-hz", type=float, default=10.0)
     p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle (JSON) at exit")
+    p.add_argument(
+        "--mavlink",
+        metavar="URL",
+        help="serve one vehicle on a MAVLink socket instead of Zenoh, as SITL does "
+        "(tcpin:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT)",
+    )
     add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_sim)
 
@@ -356,6 +381,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=float, help="solver seconds")
     p.add_argument("--seed", type=int)
     p.set_defaults(handler=cmd_demo, fields=None)
+
+    from dispatcher.bridge import add_bridge_arguments
+
+    p = sub.add_parser("bridge", help="connect one real MAVLink autopilot to the dispatcher")
+    add_bridge_arguments(p)
+    add_zenoh_arguments(p)
+    p.set_defaults(handler=cmd_bridge)
 
     p = sub.add_parser("review", help="what happened in a run: table, JSON, map and Gantt chart")
     p.add_argument("log", type=Path, help="an MCAP log written by the dispatcher")

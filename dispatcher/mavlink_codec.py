@@ -6,6 +6,11 @@ into one MAVLink 2 frame and parses frames back out of any byte string, skipping
 
 Messages are pymavlink's ``ardupilotmega`` dialect objects (a superset of ``common``),
 the dialect ArduPilot Rover speaks.
+
+:func:`open_mavlink` opens a MAVLink link (serial, TCP, UDP) with pymavlink's ``mavutil``
+for the bridge to a real autopilot and the simulator's MAVLink port: a
+:class:`MavlinkConnection` that parses MAVLink 2 and raises :class:`LinkDown` when the link
+drops, instead of printing and reconnecting by itself.
 """
 
 from __future__ import annotations
