@@ -165,6 +165,28 @@ class MissionItem:
         """True for navigation waypoints (home and return included)."""
         return self.command == mc.MAV_CMD_NAV_WAYPOINT
 
+    def message(
+        self, target_system: int, target_component: int = mc.MAV_COMP_ID_AUTOPILOT1
+    ) -> mc.MissionItemIntMessage:
+        """This item as a MISSION_ITEM_INT message addressed to ``target_system``."""
+        return mc.mission_item_int(
+            target_system=target_system,
+            target_component=target_component,
+            seq=self.seq,
+            frame=self.frame,
+            command=self.command,
+            current=self.current,
+            autocontinue=self.autocontinue,
+            param1=self.param1,
+            param2=self.param2,
+            param3=self.param3,
+            param4=self.param4,
+            x=self.x,
+            y=self.y,
+            z=self.z,
+            mission_type=self.mission_type,
+        )
+
 
 @dataclass(frozen=True)
 class Trace:
@@ -215,26 +237,7 @@ class Mission:
         self, target_system: int, target_component: int = mc.MAV_COMP_ID_AUTOPILOT1
     ) -> list[mc.MissionItemIntMessage]:
         """MISSION_ITEM_INT messages for the upload, in seq order, addressed to the vehicle."""
-        return [
-            mc.mission_item_int(
-                target_system=target_system,
-                target_component=target_component,
-                seq=item.seq,
-                frame=item.frame,
-                command=item.command,
-                current=item.current,
-                autocontinue=item.autocontinue,
-                param1=item.param1,
-                param2=item.param2,
-                param3=item.param3,
-                param4=item.param4,
-                x=item.x,
-                y=item.y,
-                z=item.z,
-                mission_type=item.mission_type,
-            )
-            for item in self.items
-        ]
+        return [item.message(target_system, target_component) for item in self.items]
 
 
 def build_mission(spec: MissionSpec) -> Mission:

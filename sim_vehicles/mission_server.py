@@ -51,6 +51,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from dispatcher import mavlink_codec as mc
+from dispatcher.missions import MissionItem
 
 logger = logging.getLogger(__name__)
 
@@ -71,29 +72,9 @@ _XY_NOT_LATLON = frozenset({mc.MAV_CMD_DO_DIGICAM_CONTROL, mc.MAV_CMD_DO_DIGICAM
 
 
 @dataclass(frozen=True)
-class StoredItem:
-    """One stored mission item, MISSION_ITEM_INT fields (x, y = lat, lon in degrees * 1e7)."""
-
-    seq: int
-    frame: int
-    command: int
-    current: int
-    autocontinue: int
-    param1: float
-    param2: float
-    param3: float
-    param4: float
-    x: int
-    y: int
-    z: float
-
-    @property
-    def lat(self) -> float:
-        return self.x / 1e7
-
-    @property
-    def lon(self) -> float:
-        return self.y / 1e7
+class StoredItem(MissionItem):
+    """One stored mission item: the uploaded MISSION_ITEM_INT fields (x, y = lat, lon in
+    degrees * 1e7), with what the vehicle needs to run and serve it."""
 
     @property
     def is_nav(self) -> bool:
@@ -106,22 +87,7 @@ class StoredItem:
 
     def to_item_int(self, target_system: int, target_component: int) -> mc.MAVLinkMessage:
         """This item as MISSION_ITEM_INT addressed to the ground station."""
-        return mc.mission_item_int(
-            target_system=target_system,
-            target_component=target_component,
-            seq=self.seq,
-            frame=self.frame,
-            command=self.command,
-            current=self.current,
-            autocontinue=self.autocontinue,
-            param1=self.param1,
-            param2=self.param2,
-            param3=self.param3,
-            param4=self.param4,
-            x=self.x,
-            y=self.y,
-            z=self.z,
-        )
+        return self.message(target_system, target_component)
 
     def to_item(self, target_system: int, target_component: int) -> mc.MAVLinkMessage:
         """This item as legacy MISSION_ITEM (float lat/lon)."""
