@@ -29,16 +29,15 @@ import logging
 import math
 import queue
 import select
-import signal
 import socket
 import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType, MappingProxyType
+from types import MappingProxyType
 
 import zenoh
 
@@ -46,6 +45,7 @@ from dispatcher import mavlink_codec as mc
 from dispatcher import wire
 from dispatcher.errors import ConfigError
 from dispatcher.scenario import Scenario, Vehicle
+from dispatcher.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -211,7 +211,7 @@ def run_bridge(
     autopilot_filter = AutopilotFilter(vehicle.system_id, rate_limits=rate_limits)
     presence = HeartbeatPresence(heartbeat_timeout_s)
     stop = stop if stop is not None else threading.Event()
-    restore_signals = _install_signal_handlers(stop)
+    restore_signals = stop_on_signals(stop, "stopping the bridge")
     log.info(
         "bridging %s (system %d) at %s to farm %r",
         vehicle.id,
@@ -434,24 +434,6 @@ class _Bridge:
             self.link.write(self.companion.encode(beat))
         except mc.LinkDown as exc:
             self._drop_link(exc, now)
-
-
-def _install_signal_handlers(stop: threading.Event) -> Callable[[], None]:
-    """SIGINT/SIGTERM set ``stop`` (main thread only); returns what puts them back."""
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        log.info("signal %d: stopping the bridge", signum)
-        stop.set()
-
-    previous = [(sig, signal.signal(sig, on_signal)) for sig in (signal.SIGINT, signal.SIGTERM)]
-
-    def restore() -> None:
-        for sig, handler in previous:
-            signal.signal(sig, handler)
-
-    return restore
 
 
 # --- command line ------------------------------------------------------------------------

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import logging
 import queue
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -34,6 +33,7 @@ from dispatcher.mission_client import (
 )
 from dispatcher.plan_output import DispatchPlan, plan_geojson
 from dispatcher.recording import Recorder
+from dispatcher.signals import stop_on_signals
 from dispatcher.state import ACTIVE, FleetState, Phase
 
 log = logging.getLogger(__name__)
@@ -88,14 +88,13 @@ class Dispatcher:
     # --- lifecycle -----------------------------------------------------------------------
     def run(self) -> int:
         """Start, run until every field is done (or a signal), shut down; an exit code."""
-        installed = self._install_signal_handlers()
+        restore_signals = stop_on_signals(self.should_exit, "shutting down")
         try:
             self.startup()
             code = self.main_loop()
         finally:
             self.shutdown()
-            for sig, handler in installed:
-                signal.signal(sig, handler)
+            restore_signals()
         return code
 
     def startup(self) -> None:
@@ -188,15 +187,6 @@ class Dispatcher:
             self.recorder.record_status(self.state.status_doc(), time.time_ns())
             self.recorder.finish()
             log.info("log finished: %s", self.log_path)
-
-    def _install_signal_handlers(self) -> list[tuple[int, Any]]:
-        if threading.current_thread() is not threading.main_thread():
-            return []
-        installed: list[tuple[int, Any]] = []
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            installed.append((sig, signal.getsignal(sig)))
-            signal.signal(sig, lambda *_: self.should_exit.set())
-        return installed
 
     # --- zenoh callbacks (other threads): queue only ------------------------------------
     def _on_frame(self, sample: zenoh.Sample) -> None:

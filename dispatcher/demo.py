@@ -20,6 +20,7 @@ from pathlib import Path
 from dispatcher import wire
 from dispatcher.daemon import DaemonConfig, Dispatcher
 from dispatcher.plan_output import DispatchPlan
+from dispatcher.signals import stop_on_signals
 from dispatcher.state import FleetState
 
 log = logging.getLogger(__name__)
@@ -160,7 +161,7 @@ def run_demo(
     )
     daemon = Dispatcher(config)
     children: Supervisor | None = None
-    installed = daemon._install_signal_handlers()
+    restore_signals = stop_on_signals(daemon.should_exit, "stopping the demo")
     try:
         daemon.startup()
         children = Supervisor.start(
@@ -172,10 +173,7 @@ def run_demo(
         if children is not None:
             children.stop()
         daemon.shutdown()
-        for sig, handler in installed:
-            import signal
-
-            signal.signal(sig, handler)
+        restore_signals()
     return code, daemon
 
 

@@ -9,12 +9,11 @@ routers it connects to). Dispatchers, vehicles and bridges then run in client mo
 from __future__ import annotations
 
 import logging
-import signal
 import threading
-from types import FrameType
 
 import zenoh
 
+from dispatcher.signals import stop_on_signals
 from dispatcher.wire import ZenohOptions
 
 log = logging.getLogger(__name__)
@@ -27,21 +26,17 @@ def run_router(options: ZenohOptions, stop: threading.Event | None = None) -> in
     if options.mode != "router":
         raise ValueError(f"a router runs in router mode, not {options.mode!r}")
     stop = stop if stop is not None else threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-
-        def on_signal(signum: int, frame: FrameType | None) -> None:
-            stop.set()
-
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, on_signal)
+    restore_signals = stop_on_signals(stop, "stopping the router")
     try:
         with zenoh.open(options.config()) as session:
-            log.info("zenoh router %s listening on %s, connected to %s", session.zid(),
-                     ", ".join(options.listen) or "-", ", ".join(options.connect) or "-")
+            log.info(
+                "zenoh router %s listening on %s, connected to %s",
+                session.zid(),
+                ", ".join(options.listen) or "-",
+                ", ".join(options.connect) or "-",
+            )
             stop.wait()
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_signals()
     log.info("router stopped")
     return 0

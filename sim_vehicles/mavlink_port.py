@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 from dispatcher import mavlink_codec as mc
 from dispatcher.scenario import Scenario
+from dispatcher.signals import stop_on_signals
 from sim_vehicles.runner import (
     EXIT_OK,
     check_rates,
-    install_signal_handlers,
     serve_vehicles,
 )
 from sim_vehicles.tractor import RoverParams, SimTractor
@@ -102,7 +102,7 @@ def run_mavlink(
     )
     port = mc.open_mavlink(url, vehicle.system_id, tractor.component_id)
     link = _PortLink(tractor, mc.Codec(vehicle.system_id, tractor.component_id), port)
-    restore_signals = install_signal_handlers(stop)
+    restore_signals = stop_on_signals(stop, "stopping the simulator")
     logger.info(
         "simulating %s (system %d) on MAVLink %s at %gx",
         vehicle.id,

@@ -20,12 +20,10 @@ from __future__ import annotations
 import json
 import logging
 import queue
-import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from types import FrameType
 from typing import Protocol, TypeAlias
 
 import zenoh
@@ -34,6 +32,7 @@ from dispatcher import mavlink_codec as mc
 from dispatcher import wire
 from dispatcher.errors import ConfigError
 from dispatcher.scenario import Scenario
+from dispatcher.signals import stop_on_signals
 from sim_vehicles.tractor import RoverParams, SimTractor
 
 logger = logging.getLogger(__name__)
@@ -102,7 +101,7 @@ def run(
             raise ConfigError(f"fail_after names {vid!r}, which is not simulated here")
     check_rates(speedup, telemetry_hz)
     stop = stop if stop is not None else threading.Event()
-    restore_signals = install_signal_handlers(stop)
+    restore_signals = stop_on_signals(stop, "stopping the simulator")
     inbox: queue.Queue[tuple[int, bytes]] = queue.Queue()
     farm = scenario.farm_id
     links: list[_Link] = []
@@ -237,21 +236,3 @@ def _enqueue(inbox: queue.Queue[tuple[int, bytes]], index: int) -> Callable[[zen
         inbox.put((index, sample.payload.to_bytes()))
 
     return on_sample
-
-
-def install_signal_handlers(stop: threading.Event) -> Callable[[], None]:
-    """SIGINT/SIGTERM set ``stop`` (main thread only); returns what puts them back."""
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        logger.info("signal %d: stopping", signum)
-        stop.set()
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-
-    def restore() -> None:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-    return restore
