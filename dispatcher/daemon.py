@@ -50,6 +50,8 @@ class DaemonConfig:
     log_dir: Path = Path("logs")
     heartbeat_timeout_s: float = 5.0  # wall seconds without a message: vehicle lost
     alive_timeout_s: float = 60.0  # wall seconds for every vehicle to show up
+    lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back before we give up
+    upload_attempts: int = 3  # whole uploads tried before a vehicle is failed
     status_period_s: float = 1.0
     shutdown_timeout_s: float = 5.0
     exit_when_done: bool = True
@@ -148,7 +150,7 @@ class Dispatcher:
                 except queue.Empty:
                     item = None
             self._tick(now)
-            if self.config.exit_when_done and self.state.finished():
+            if self.config.exit_when_done and self.state.finished(now, self.config.lost_grace_s):
                 self._publish_status(now)
                 break
         if self.should_exit.is_set():
@@ -285,8 +287,18 @@ class Dispatcher:
                 link.start = CommandSequence(start_mission_commands(), v.system_id)
                 self._send(vid, link.start.start(now))
             elif link.upload.outcome is Outcome.FAILED:
+                if v.upload_attempts < self.config.upload_attempts:
+                    # The vehicle may hold the whole mission and only its last ACK was
+                    # lost, or it gave up half-way: start the upload again from the count.
+                    self._log(
+                        "warning", f"{vid}: upload failed ({link.upload.reason}); uploading again"
+                    )
+                    v.upload_attempts += 1
+                    link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
+                    self._send(vid, link.upload.start(now))
+                    return
                 v.phase = Phase.FAILED
-                v.error = f"upload failed: {link.upload.reason}"
+                v.error = f"upload failed after {v.upload_attempts} attempts: {link.upload.reason}"
                 self._log("error", f"{vid}: {v.error}")
         elif v.phase is Phase.STARTING and link.start is not None:
             if link.start.outcome is Outcome.DONE:

@@ -161,6 +161,16 @@ def run_demo(
     )
     daemon = Dispatcher(config)
     children: Supervisor | None = None
+    printer = config.on_progress
+
+    def progress(state: FleetState) -> None:
+        if children is not None and children.failed():
+            print(f"a simulated tractor exited early; see {log_dir / 'sim'}", file=sys.stderr)
+            daemon.should_exit.set()
+        if printer is not None:
+            printer(state)
+
+    config.on_progress = progress
     restore_signals = stop_on_signals(daemon.should_exit, "stopping the demo")
     try:
         daemon.startup()

@@ -210,9 +210,12 @@ class CommandSequence(_Exchange):
 
 
 def start_mission_commands() -> list[Command]:
-    """Arm, then switch to AUTO: how a ground station starts an ArduPilot Rover mission."""
+    """Arm, make item 1 current, then switch to AUTO: how a ground station starts an
+    ArduPilot Rover mission. Without the reset, AUTO resumes a vehicle that was stopped
+    half-way at its old index (MIS_RESTART = 0), also on a freshly uploaded mission."""
     return [
         Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
+        Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (1.0, 1.0)),
         Command(
             mc.MAV_CMD_DO_SET_MODE,
             (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO)),

@@ -163,6 +163,11 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
             write_qgc_plan(mission, staging / f"{vehicle_id}.plan")
         draw_plan_map(dispatch.plan, staging / "map.png", title=dispatch.scenario.farm_id)
         out_dir.mkdir(exist_ok=True)
+        # Missions of machines no longer in the plan must not stay beside it.
+        new = {item.name for item in staging.iterdir()}
+        for old in out_dir.iterdir():
+            if old.suffix in (".waypoints", ".plan") and old.name not in new:
+                old.unlink()
         written = []
         for item in sorted(staging.iterdir()):
             target = out_dir / item.name

@@ -6,6 +6,7 @@ scenario file. Every error names the file and the key (or machine) at fault.
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -18,6 +19,9 @@ from planner.errors import PlannerError
 from planner.farm import Farm, load_farm
 from planner.problem import Machine
 from planner.solve import ALGORITHMS
+
+# Ids become Zenoh key segments and file names: nothing that either would misread.
+SAFE_ID = re.compile(r"[A-Za-z0-9_.-]+")
 
 MACHINE_PARAMS = (
     "working_width_m",
@@ -87,8 +91,11 @@ def load_scenario(path: str | Path) -> Scenario:
     doc = _read_toml(path)
     src = str(path)
     farm_id = doc.get("farm_id", path.stem)
-    if not isinstance(farm_id, str) or not farm_id or "/" in farm_id or "*" in farm_id:
-        raise ConfigError(f"{src}: farm_id must be a non-empty string without '/' or '*'")
+    if not isinstance(farm_id, str) or not SAFE_ID.fullmatch(farm_id):
+        raise ConfigError(
+            f"{src}: farm_id {farm_id!r} must be letters, digits, '_', '-' or '.' "
+            "(it is a Zenoh key segment)"
+        )
     farm_key = doc.get("farm")
     if not isinstance(farm_key, str):
         raise ConfigError(f"{src}: key 'farm' must name the farm GeoJSON file")
@@ -149,8 +156,11 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
     for k, entry in enumerate(machines):
         ident = entry.get("id") if isinstance(entry, dict) else None
         where = f"{src}: machine {ident!r}" if ident else f"{src}: [[machine]] #{k + 1}"
-        if not isinstance(ident, str) or not ident:
-            raise ConfigError(f"{where}: key 'id' must be a non-empty string")
+        if not isinstance(ident, str) or not SAFE_ID.fullmatch(ident):
+            raise ConfigError(
+                f"{where}: key 'id' must be letters, digits, '_', '-' or '.' "
+                "(it names Zenoh keys and mission files)"
+            )
         missing = [key for key in (*MACHINE_PARAMS, "system_id") if key not in entry]
         if missing:
             raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")

@@ -50,6 +50,7 @@ class VehicleState:
     armed: bool = False
     last_seen: float | None = None  # wall clock of the last message
     lost_at: float | None = None
+    phase_before_lost: Phase | None = None  # where to go back to when the link returns
     lost_s: float = 0.0  # wall seconds without link, over the run
     upload_attempts: int = 0
     upload_retries: int = 0
@@ -107,19 +108,29 @@ class FleetState:
     # --- facts from the link -------------------------------------------------------------
     def on_alive(self, vid: str, now: float) -> None:
         v = self.vehicles[vid]
+        self._back(v, now)
+        if v.phase is Phase.WAITING:
+            v.phase = Phase.ALIVE
+        v.last_seen = now
+
+    def _back(self, v: VehicleState, now: float) -> None:
+        """The link to a lost vehicle works again: resume where it was."""
+        if v.phase is not Phase.LOST:
+            return
         if v.lost_at is not None:
             v.lost_s += now - v.lost_at
-            v.lost_at = None
-        if v.phase in (Phase.WAITING, Phase.LOST) and v.reached == 0:
+        v.lost_at = None
+        v.phase = v.phase_before_lost or Phase.ALIVE
+        if v.phase is Phase.WAITING:
             v.phase = Phase.ALIVE
-        elif v.phase is Phase.LOST:
-            v.phase = Phase.RUNNING
-        v.last_seen = now
+        v.phase_before_lost = None
+        v.error = ""
 
     def on_gone(self, vid: str, now: float, why: str) -> None:
         v = self.vehicles[vid]
         if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
             return
+        v.phase_before_lost = v.phase
         v.phase = Phase.LOST
         v.lost_at = now
         v.error = why
@@ -127,6 +138,7 @@ class FleetState:
     def on_message(self, vid: str, msg: mc.MAVLinkMessage, now: float) -> None:
         """Telemetry that any phase may bring."""
         v = self.vehicles[vid]
+        self._back(v, now)
         v.last_seen = now
         kind = msg.get_type()
         if kind == "HEARTBEAT":
@@ -182,10 +194,13 @@ class FleetState:
             v.fields_done.append(f.id)
 
     # --- reading -------------------------------------------------------------------------
-    def finished(self) -> bool:
-        """Nothing more will happen: every vehicle done, failed or lost."""
+    def finished(self, now: float, lost_grace_s: float) -> bool:
+        """Nothing more will happen: every vehicle done, failed, or lost for longer than
+        ``lost_grace_s`` (a short loss of link is not the end of a vehicle)."""
         return all(
-            v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST) for v in self.vehicles.values()
+            v.phase in (Phase.DONE, Phase.FAILED)
+            or (v.phase is Phase.LOST and v.lost_at is not None and now - v.lost_at >= lost_grace_s)
+            for v in self.vehicles.values()
         )
 
     def all_fields_done(self) -> bool:

@@ -139,8 +139,21 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
     # `agrifleet review` reads the same log back: every field done exactly once.
     plot = tmp_path / "review.png"
     review = subprocess.run(
-        [sys.executable, "-m", "dispatcher.cli", "review", str(log_path(out)), "--json",
-         "--plot", str(plot)], capture_output=True, text=True, timeout=120, check=True)
+        [
+            sys.executable,
+            "-m",
+            "dispatcher.cli",
+            "review",
+            str(log_path(out)),
+            "--json",
+            "--plot",
+            str(plot),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
     doc = json.loads(review.stdout)
     assert {fid: f["done"] for fid, f in doc["fields"].items()} == {"A": True, "B": True, "C": True}
     worked = [fid for v in doc["vehicles"] for fid in v["fields_done"]]
@@ -173,11 +186,40 @@ def test_router_with_dispatcher_and_vehicles_in_client_mode(procs, tmp_path):
     port = free_port()
     router = procs.start("router", "--listen", f"tcp/127.0.0.1:{port}", quiet=True)
     endpoint = f"tcp/127.0.0.1:{port}"
-    dispatcher = procs.start("serve", str(SCENARIO), "--mode", "client", "--connect", endpoint,
-                             "--log-dir", str(tmp_path), "--time-limit", "1")
+    # Clients give up when no router answers as they start: wait until it listens.
+    deadline = time.monotonic() + 30
+    while True:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                break
+        assert time.monotonic() < deadline and router.poll() is None, "router never listened"
+        time.sleep(0.05)
+    dispatcher = procs.start(
+        "serve",
+        str(SCENARIO),
+        "--mode",
+        "client",
+        "--connect",
+        endpoint,
+        "--log-dir",
+        str(tmp_path),
+        "--time-limit",
+        "1",
+    )
     for vid in ("v1", "v2"):
-        procs.start("sim", str(SCENARIO), "--mode", "client", "--connect", endpoint,
-                    "--speedup", "400", "--vehicle", vid, quiet=True)
+        procs.start(
+            "sim",
+            str(SCENARIO),
+            "--mode",
+            "client",
+            "--connect",
+            endpoint,
+            "--speedup",
+            "400",
+            "--vehicle",
+            vid,
+            quiet=True,
+        )
     out, err = dispatcher.communicate(timeout=120)
     assert dispatcher.returncode == 0, err[-3000:]
     status = read_log(log_path(out)).on("agrifleet/tiny/dispatcher/status")[-1].decode_json()

@@ -130,17 +130,18 @@ def command_ack(command, result):
     )
 
 
-def test_start_sequence_arms_then_sets_auto_with_retries():
+def test_start_sequence_arms_restarts_then_sets_auto_with_retries():
     seq = CommandSequence(start_mission_commands(), VEHICLE)
     (arm,) = seq.start(0.0)
     assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM and arm.param1 == 1
     (again,) = seq.on_tick(1.6)
     assert again.confirmation == 1  # a resend counts up its confirmation
-    (mode,) = seq.on_message(
-        command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_ACCEPTED), 1.7
-    )
+    accepted = mc.MAV_RESULT_ACCEPTED
+    (reset,) = seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, accepted), 1.7)
+    assert reset.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT and reset.param1 == 1
+    (mode,) = seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, accepted), 1.8)
     assert mode.command == mc.MAV_CMD_DO_SET_MODE and mode.param2 == 10  # Rover AUTO
-    seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, mc.MAV_RESULT_ACCEPTED), 1.8)
+    seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, accepted), 1.9)
     assert seq.outcome is Outcome.DONE
 
 
