@@ -26,6 +26,7 @@ import zenoh
 from dispatcher import mavlink_codec as mc
 from dispatcher import wire
 from dispatcher.mission_client import (
+    START_REFUSAL_WINDOW_S,
     CommandSequence,
     MissionUpload,
     Outcome,
@@ -256,6 +257,15 @@ class Dispatcher:
             ):
                 self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
                 self.state.on_gone(vid, now, "heartbeats stopped")
+            if (
+                v.off_auto_since is not None
+                and now - v.off_auto_since > 5.0
+                and not v.error.startswith("left AUTO")
+            ):
+                v.error = f"left AUTO: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
+                self._log("warning", f"{vid}: {v.error}; not driving its mission")
+            if v.off_auto_since is None and v.error.startswith("left AUTO"):
+                v.error = ""
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
                 self.state.on_gone(vid, now, "never came alive")
@@ -284,7 +294,9 @@ class Dispatcher:
                 ):
                     self.all_acknowledged = now
                 v.phase = Phase.STARTING
-                link.start = CommandSequence(start_mission_commands(), v.system_id)
+                link.start = CommandSequence(
+                    start_mission_commands(), v.system_id, refusal_window_s=START_REFUSAL_WINDOW_S
+                )
                 self._send(vid, link.start.start(now))
             elif link.upload.outcome is Outcome.FAILED:
                 if v.upload_attempts < self.config.upload_attempts:

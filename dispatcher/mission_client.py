@@ -22,6 +22,8 @@ log = logging.getLogger(__name__)
 
 REQUEST_TIMEOUT_S = 1.5
 MAX_RETRIES = 5
+REFUSAL_BACKOFF_S = 2.0  # pause before asking again after a refused command
+START_REFUSAL_WINDOW_S = 60.0  # how long a vehicle may refuse to arm before it is failed
 
 # ArduPilot Rover flight modes (Rover/mode.h).
 ROVER_MODE_MANUAL = 0
@@ -150,9 +152,17 @@ class CommandSequence(_Exchange):
     """Send COMMAND_LONGs one after another, each confirmed by its COMMAND_ACK; resend
     (``confirmation`` + 1) after a timeout."""
 
-    def __init__(self, commands: Sequence[Command], target_system: int, **kw: float) -> None:
+    def __init__(
+        self,
+        commands: Sequence[Command],
+        target_system: int,
+        refusal_window_s: float = 0.0,
+        **kw: float,
+    ) -> None:
         super().__init__(target_system, **kw)  # type: ignore[arg-type]
         self.commands = list(commands)
+        self.refusal_window_s = refusal_window_s
+        self._refused_since: float | None = None
         self._index = 0
         self._confirmation = 0
         self._deadline = 0.0
@@ -169,11 +179,20 @@ class CommandSequence(_Exchange):
         if result == mc.MAV_RESULT_IN_PROGRESS:
             self._deadline = now + self.timeout_s
             return []
+        if result in (mc.MAV_RESULT_TEMPORARILY_REJECTED, mc.MAV_RESULT_FAILED):
+            # ArduPilot refuses to arm until its pre-arm checks pass (GPS fix, EKF ...):
+            # ask again after a pause, for a while.
+            self._refused_since = self._refused_since if self._refused_since is not None else now
+            if now - self._refused_since < self.refusal_window_s:
+                self._confirmation = 0
+                self._deadline = now + REFUSAL_BACKOFF_S
+                return []
         if result != mc.MAV_RESULT_ACCEPTED:
             name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
             return self._fail(f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}")
         self._index += 1
         self._confirmation = 0
+        self._refused_since = None
         if self._index == len(self.commands):
             self.outcome = Outcome.DONE
             return []

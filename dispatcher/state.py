@@ -30,6 +30,7 @@ class Phase(enum.StrEnum):
 
 
 ACTIVE = (Phase.UPLOADING, Phase.STARTING, Phase.RUNNING)
+AUTO_MODE = 10  # ArduPilot Rover (Rover/mode.h)
 
 
 @dataclass
@@ -51,6 +52,7 @@ class VehicleState:
     last_seen: float | None = None  # wall clock of the last message
     lost_at: float | None = None
     phase_before_lost: Phase | None = None  # where to go back to when the link returns
+    off_auto_since: float | None = None  # wall clock since a running vehicle left AUTO/armed
     lost_s: float = 0.0  # wall seconds without link, over the run
     upload_attempts: int = 0
     upload_retries: int = 0
@@ -146,6 +148,11 @@ class FleetState:
             v.armed = bool(msg.base_mode & mc.MAV_MODE_FLAG_SAFETY_ARMED)
             if v.phase is Phase.WAITING:
                 v.phase = Phase.ALIVE
+            if v.phase is Phase.RUNNING and (v.mode != AUTO_MODE or not v.armed):
+                if v.off_auto_since is None:
+                    v.off_auto_since = now  # a failsafe, the operator, a reboot ...
+            else:
+                v.off_auto_since = None
         elif kind == "GLOBAL_POSITION_INT":
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
             v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
@@ -169,21 +176,29 @@ class FleetState:
         ):
             return
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
-            self._item_done(v, s)
+            self._item_done(v, s, reported=s == seq)
         v.reached = max(v.reached, seq)
         if v.reached == len(v.mission) - 1:
             v.phase = Phase.DONE
             v.finished_s = v.sim_time_s
             v.finished_at_next_fix = True
 
-    def _item_done(self, v: VehicleState, seq: int) -> None:
+    def _item_done(self, v: VehicleState, seq: int, reported: bool = True) -> None:
+        """Item ``seq`` is done; ``reported`` when the vehicle said so itself (its time is
+        then exact), not when it is inferred from a later item."""
         _, trace = v.mission.item_for_seq(seq)
         if trace.field_id is None or trace.field_id not in self.fields:
             return
         f = self.fields[trace.field_id]
-        if trace.role == "implement_down" and f.status == "pending":
+        if trace.role == "transit" and f.status == "pending":
+            # At the field's entry. ArduPilot does not report DO_SET_SERVO/RELAY as
+            # reached, so this is the start unless the implement-down item says better.
             f.status = "working"
             f.started_s = v.sim_time_s
+        elif trace.role == "implement_down" and f.status != "done":
+            f.status = "working"
+            if reported or f.started_s is None:
+                f.started_s = v.sim_time_s
         elif trace.role == "swath_end":
             f.swaths_done += 1
         elif trace.role == "implement_up" and f.status != "done":
@@ -200,6 +215,7 @@ class FleetState:
         return all(
             v.phase in (Phase.DONE, Phase.FAILED)
             or (v.phase is Phase.LOST and v.lost_at is not None and now - v.lost_at >= lost_grace_s)
+            or (v.off_auto_since is not None and now - v.off_auto_since >= lost_grace_s)
             for v in self.vehicles.values()
         )
 
@@ -228,6 +244,7 @@ class FleetState:
                     "upload_attempts": v.upload_attempts,
                     "upload_retries": v.upload_retries,
                     "lost_s": round(v.lost_s, 3),
+                    "stopped_outside_auto": v.off_auto_since is not None,
                     "error": v.error,
                 }
                 for v in self.vehicles.values()

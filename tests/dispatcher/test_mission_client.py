@@ -150,3 +150,17 @@ def test_refused_command_fails():
     seq.start(0.0)
     seq.on_message(command_ack(mc.MAV_CMD_MISSION_START, mc.MAV_RESULT_DENIED), 0.1)
     assert seq.outcome is Outcome.FAILED and "refused" in seq.reason
+
+
+def test_a_refused_arm_is_asked_again_within_the_window():
+    seq = CommandSequence(start_mission_commands(), VEHICLE, refusal_window_s=60.0)
+    seq.start(0.0)
+    refused = command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_FAILED)
+    assert seq.on_message(refused, 0.1) == []  # pre-arm checks not passed yet
+    assert seq.outcome is Outcome.RUNNING
+    assert seq.on_tick(1.0) == []  # still pausing
+    (again,) = seq.on_tick(2.2)
+    assert again.command == mc.MAV_CMD_COMPONENT_ARM_DISARM
+    seq.on_message(refused, 30.0)
+    seq.on_message(refused, 61.0)  # refused for longer than the window: give up
+    assert seq.outcome is Outcome.FAILED and "MAV_RESULT_FAILED" in seq.reason

@@ -123,3 +123,36 @@ def test_a_failed_upload_is_tried_again_from_the_count(dispatch):
     assert v1.phase is Phase.FAILED and "after 3 attempts" in v1.error
     counts = [mc.Codec(11, 1).decode_one(f) for f in daemon.publishers["v1"].frames]
     assert [m.get_type() for m in counts].count("MISSION_COUNT") == 3
+
+
+def test_a_running_vehicle_out_of_auto_is_flagged_and_given_up_after_the_grace(dispatch):
+    state = FleetState(dispatch)
+    state.vehicles["v2"].phase = Phase.DONE
+    v = state.vehicles["v1"]
+    v.phase = Phase.RUNNING
+    hold = heartbeat(11)
+    hold.custom_mode = 4  # HOLD: a failsafe or the operator stopped it
+    state.on_message("v1", hold, 10.0)
+    assert v.off_auto_since == 10.0 and not state.finished(20.0, lost_grace_s=30.0)
+    assert state.status_doc()["vehicles"]["v1"]["stopped_outside_auto"] is True
+    assert state.finished(41.0, lost_grace_s=30.0)
+    auto = heartbeat(11)
+    auto.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    state.on_message("v1", auto, 42.0)  # back in AUTO and armed
+    assert v.off_auto_since is None and not state.finished(43.0, lost_grace_s=30.0)
+
+
+def test_a_field_starts_at_its_entry_when_the_implement_item_is_not_reported(dispatch):
+    state = FleetState(dispatch)
+    v = state.vehicles["v1"]
+    v.phase = Phase.RUNNING
+    mission = v.mission
+    entry = next(s for s, t in enumerate(mission.traces) if t.role == "transit" and t.field_id)
+    first_end = next(s for s, t in enumerate(mission.traces) if t.role == "swath_end")
+    fid = mission.traces[entry].field_id
+    v.sim_time_s = 100.0
+    state.on_item_reached("v1", entry)
+    assert state.fields[fid].status == "working" and state.fields[fid].started_s == 100.0
+    v.sim_time_s = 300.0
+    state.on_item_reached("v1", first_end)  # real ArduPilot skips the DO items' reports
+    assert state.fields[fid].started_s == 100.0  # not moved to the end of the first swath
