@@ -113,7 +113,17 @@ def plan_document(
                 ],
                 "mission_items": len(mission),
                 "items": [
-                    [item.seq, tr.field_id, tr.swath_index, tr.role, item.x, item.y]
+                    [
+                        item.seq,
+                        tr.field_id,
+                        tr.swath_index,
+                        tr.role,
+                        item.x,
+                        item.y,
+                        item.command,
+                        item.param1,
+                        item.param2,
+                    ]
                     for item, tr in zip(mission.items, mission.traces, strict=True)
                 ],
             }

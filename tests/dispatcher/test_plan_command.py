@@ -107,7 +107,8 @@ def test_plan_writes_every_file_with_traceable_missions(tmp_path, capsys):
         loader = mavwp.MAVWPLoader()
         loader.load(str(out / f"{m['id']}.waypoints"))
         assert loader.count() == m["mission_items"]
-        for k, (_, _, _, _, x, y) in enumerate(m["items"]):
+        for k, (_, _, _, _, x, y, command, *_) in enumerate(m["items"]):
+            assert loader.wp(k).command == command
             wp = loader.wp(k)
             assert abs(wp.x - x / 1e7) < 1e-7 and abs(wp.y - y / 1e7) < 1e-7
     assert "makespan" in capsys.readouterr().out
