@@ -8,7 +8,9 @@ Layout (``seq``: what, MAVLink command)::
          entry waypoint = first swath start    NAV_WAYPOINT  (end of the road transit)
          working speed                         DO_CHANGE_SPEED
          implement down                        DO_SET_SERVO (pwm_down) / DO_SET_RELAY (1)
-         per swath: its start (skipped when within 1 cm of the point before), its end
+         per swath: its start (skipped when within 1 cm of the point before), its end;
+           before it, the in-field points of the move from the previous swath when a straight
+           line would leave the field (around a notch or a hole; role "in_field")
          implement up                          DO_SET_SERVO (pwm_up) / DO_SET_RELAY (0)
          road speed                            DO_CHANGE_SPEED
     n  back at the garage                      NAV_WAYPOINT
@@ -61,6 +63,7 @@ Role = Literal[
     "implement_up",
     "swath_start",
     "swath_end",
+    "in_field",
     "return",
 ]
 ROLES: frozenset[str] = frozenset(get_args(Role))
@@ -115,6 +118,9 @@ class FieldVisit:
 
     field_id: str
     swaths: tuple[tuple[LatLon, LatLon], ...]  # driving order; each (start, end) as driven
+    # For the move from swath k to k + 1: points to drive through so as not to leave the
+    # field (around a notch or a hole); empty or shorter than the swaths when none are needed.
+    links: tuple[tuple[LatLon, ...], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -257,6 +263,10 @@ def build_mission(spec: MissionSpec) -> Mission:
         builder.implement(spec.implement, True, Trace(fid, 0, "implement_down"))
         previous = entry
         for index, (start, end) in enumerate(visit.swaths):
+            if 0 < index <= len(visit.links):
+                for via in visit.links[index - 1]:
+                    builder.waypoint(via, Trace(fid, index, "in_field"))
+                    previous = via
             if _distance_m(previous, start) > SAME_POINT_M:
                 builder.waypoint(start, Trace(fid, index, "swath_start"))
             builder.waypoint(end, Trace(fid, index, "swath_end"))

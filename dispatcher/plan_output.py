@@ -42,12 +42,14 @@ def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
     segments = [(s.start, s.end) for s in visit.swaths]
     for ring in visit.headland:
         segments += list(zip(ring[:-1], ring[1:], strict=True))
-    out = []
-    for (x0, y0), (x1, y1) in segments:
-        lon0, lat0 = farm.frame.to_lonlat(x0, y0)
-        lon1, lat1 = farm.frame.to_lonlat(x1, y1)
-        out.append((LatLon(lat0, lon0), LatLon(lat1, lon1)))
-    return FieldVisit(field_id=visit.field.id, swaths=tuple(out))
+
+    def latlon(x: float, y: float) -> LatLon:
+        lon, lat = farm.frame.to_lonlat(x, y)
+        return LatLon(lat, lon)
+
+    swaths = tuple((latlon(*a), latlon(*b)) for a, b in segments)
+    links = tuple(tuple(latlon(*p) for p in via) for via in visit.links)
+    return FieldVisit(field_id=visit.field.id, swaths=swaths, links=links)
 
 
 def mission_for(farm: Farm, vehicle: Vehicle, route: MachinePlan) -> Mission:

@@ -115,6 +115,9 @@ class FieldCoverage:
     paths: tuple[tuple[Swath, ...], ...] = field(repr=False)
     headland_paths: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False)
     transits_m: tuple[float, ...] = field(repr=False)
+    # Per corner, per move from swath k to k + 1: the corners of the in-field path when the
+    # straight line between them would leave the field (around a notch or a hole).
+    links: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
 
     def path(self, corner: int) -> tuple[Swath, ...]:
         """Swaths in driving order, each oriented as driven, when starting at ``corner``."""
@@ -142,6 +145,11 @@ class FieldCoverage:
         if rings:
             return rings[-1][-1]
         return self.path(corner)[-1].end
+
+    def link(self, corner: int) -> tuple[tuple[XY, ...], ...]:
+        """For each move from swath k to k + 1 from ``corner``, the points the machine
+        drives through to stay inside the field (usually none)."""
+        return self.links[_check_corner(corner)] if self.links else ()
 
     def transit_inside_m(self, corner: int) -> float:
         """Metres driven inside the field between work from ``corner``, U-turns excluded.
@@ -216,10 +224,19 @@ def cover_field(
     distance = _InFieldDistance(field_poly)
     headland_paths: list[tuple[tuple[XY, ...], ...]] = []
     transits: list[float] = []
+    links: list[tuple[tuple[XY, ...], ...]] = []
     for corner_path in paths:
         rings = _order_rings(rings_by_pass, corner_path[-1].end)
         headland_paths.append(rings)
         transits.append(_transit_m(corner_path, rings, distance))
+        links.append(
+            tuple(
+                # Any move whose straight line would leave the field: cell changes, and
+                # the odd long jump within a cell of a notched outline.
+                distance.route(before.end, after.start)[1]
+                for before, after in zip(corner_path[:-1], corner_path[1:], strict=True)
+            )
+        )
 
     cell_polys = tuple(_to_polygon(cell.outline, angle, ref) for cell in cells)
     n_swaths = len(paths[0])
@@ -238,6 +255,7 @@ def cover_field(
         paths=paths,
         headland_paths=tuple(headland_paths),
         transits_m=tuple(transits),
+        links=tuple(links),
     )
     logger.debug(
         "field %r: %d swaths in %d cells at %.3f deg, %d headland rings",
@@ -866,7 +884,7 @@ class _InFieldDistance:
             corners.append(c[turn < 0.0])
         self._nodes = np.vstack(corners)
         self._graph: FloatArray | None = None
-        self._known: dict[tuple[XY, XY], float] = {}
+        self._known: dict[tuple[XY, XY], tuple[float, tuple[XY, ...]]] = {}
 
     def _visible(self, a: FloatArray, b: FloatArray) -> NDArray[np.bool_]:
         a, b = np.broadcast_arrays(a, b)
@@ -887,32 +905,46 @@ class _InFieldDistance:
         return self._graph
 
     def __call__(self, a: XY, b: XY) -> float:
+        return self.route(a, b)[0]
+
+    def route(self, a: XY, b: XY) -> tuple[float, tuple[XY, ...]]:
+        """Length of the shortest in-field path from ``a`` to ``b`` and the corners it
+        turns at (empty when the straight line stays inside)."""
         if (a, b) not in self._known:
             self._known[a, b] = self._shortest(np.asarray(a), np.asarray(b))
         return self._known[a, b]
 
-    def _shortest(self, a: FloatArray, b: FloatArray) -> float:
+    def _shortest(self, a: FloatArray, b: FloatArray) -> tuple[float, tuple[XY, ...]]:
         straight = float(np.hypot(*(b - a)))
         if straight < _EPS_M or self._visible(a, b):
-            return straight
+            return straight, ()
         nodes = self._nodes
         if len(nodes) == 0:
             logger.warning("no in-field path from %s to %s; counting the straight line", a, b)
-            return straight
+            return straight, ()
         graph = self._node_graph()
         to_b = np.where(self._visible(nodes, b), np.hypot(*(nodes - b).T), np.inf)
         dist = np.where(self._visible(a, nodes), np.hypot(*(nodes - a).T), np.inf)
+        previous = np.full(len(nodes), -1, dtype=np.int64)  # -1: reached straight from a
         settled = np.zeros(len(nodes), dtype=bool)
-        best = math.inf
+        best, last = math.inf, -1
         while True:  # dense Dijkstra, stopped once no unsettled node can improve on best
             tentative = np.where(settled, np.inf, dist)
             i = int(np.argmin(tentative))
             if tentative[i] >= best:
                 break
             settled[i] = True
-            best = min(best, float(dist[i] + to_b[i]))
-            dist = np.minimum(dist, dist[i] + graph[i])
+            if dist[i] + to_b[i] < best:
+                best, last = float(dist[i] + to_b[i]), i
+            through = dist[i] + graph[i]
+            better = through < dist
+            previous[better] = i
+            dist = np.where(better, through, dist)
         if not math.isfinite(best):
             logger.warning("no in-field path from %s to %s; counting the straight line", a, b)
-            return straight
-        return best
+            return straight, ()
+        via: list[XY] = []
+        while last >= 0:
+            via.append((float(nodes[last][0]), float(nodes[last][1])))
+            last = int(previous[last])
+        return best, tuple(reversed(via))

@@ -55,6 +55,11 @@ class Visit:
     def headland(self) -> tuple[tuple[XY, ...], ...]:
         return self.coverage.headland_path(self.corner)
 
+    @property
+    def links(self) -> tuple[tuple[XY, ...], ...]:
+        """For the move from swath k to k + 1, the points that keep it inside the field."""
+        return self.coverage.link(self.corner)
+
 
 @dataclass(frozen=True)
 class MachinePlan:

@@ -202,3 +202,40 @@ def test_shipped_scenario_plans_three_machines(tmp_path):
     assert sorted(f for m in doc["machines"] for f in m["fields"]) == [
         f"F{k:02d}" for k in range(1, 16)
     ]
+
+
+def test_missions_never_leave_a_notched_field(tmp_path):
+    from shapely.geometry import LineString, Polygon
+
+    from dispatcher.plan_output import mission_for
+    from dispatcher.scenario import load_scenario
+    from planner.coverage import cover_field
+    from planner.field_plan import Visit, machine_figures
+
+    # An L-shaped field worked at 30 degrees: from some start corners, moves between
+    # swaths would cross the notch.
+    lon0, lat0 = 87.300, 44.0010
+    dx = 1 / (111320 * math.cos(math.radians(lat0)))
+    dy = 1 / 110540
+    corners_m = [(0, 0), (200, 0), (200, 60), (60, 60), (60, 200), (0, 200), (0, 0)]
+    ring = [[lon0 + x * dx, lat0 + y * dy] for x, y in corners_m]
+    scenario_path = write_scenario(
+        tmp_path, [field("L", ring, work_angle_deg=30.0), garage()], machines=[("a", 1, 6.0)]
+    )
+    scenario = load_scenario(scenario_path)
+    farm, vehicle = scenario.farm, scenario.vehicles[0]
+    cov = cover_field(farm.fields[0].boundary, 6.0, field_id="L", angle_deg=30.0)
+    inside = Polygon(ring).buffer(0.05 * dx)  # 5 cm
+    detours = 0
+    for corner in range(4):
+        visit = Visit(farm.fields[0], cov, corner)
+        mission = mission_for(farm, vehicle, machine_figures(vehicle.machine, (visit,), 0.0))
+        points = [
+            (item.lon, item.lat)
+            for item, trace in zip(mission.items, mission.traces, strict=True)
+            if trace.field_id == "L" and item.is_waypoint
+        ]
+        detours += sum(trace.role == "in_field" for trace in mission.traces)
+        for a, b in zip(points[:-1], points[1:], strict=True):
+            assert inside.covers(LineString([a, b])), corner
+    assert detours > 0  # some start corner needed to drive around the notch

@@ -395,3 +395,24 @@ def test_300_m_square_at_3_m_with_angle_search_is_fast() -> None:
     elapsed = time.perf_counter() - start
     assert len(cov.swaths) == 98
     assert elapsed < 0.5
+
+
+@pytest.mark.parametrize("angle", [None, 0.0, 30.0, 45.0, 90.0, 135.0])
+def test_moves_between_swaths_stay_inside_notched_and_holed_fields(angle):
+    """Where the straight line from one swath to the next would cross a notch or a hole,
+    the coverage gives the corners to drive through instead."""
+    from shapely.geometry import LineString
+    from shapely.geometry import Polygon as P
+
+    notched = P([(0, 0), (200, 0), (200, 60), (60, 60), (60, 200), (0, 200)])
+    holed = P(
+        [(0, 0), (300, 0), (300, 300), (0, 300)], [[(100, 100), (200, 100), (200, 200), (100, 200)]]
+    )
+    for poly in (notched, holed):
+        cov = cover_field(poly, 6.0, field_id="f", angle_deg=angle)
+        inside = poly.buffer(0.05)
+        for corner in range(4):
+            path, links = cov.path(corner), cov.link(corner)
+            assert len(links) == len(path) - 1
+            for k, (a, b) in enumerate(zip(path[:-1], path[1:], strict=True)):
+                assert inside.covers(LineString([a.end, *links[k], b.start])), (corner, k)
