@@ -118,6 +118,10 @@ class FieldCoverage:
     # Per corner, per move from swath k to k + 1: the corners of the in-field path when the
     # straight line between them would leave the field (around a notch or a hole).
     links: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
+    # Per corner, per move from swath k to k + 1: the drivable turn path (points between the
+    # end of swath k and the start of swath k + 1, both excluded), empty for a hop.
+    turn_paths: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
+    turn_radius_m: float = 0.0
 
     def path(self, corner: int) -> tuple[Swath, ...]:
         """Swaths in driving order, each oriented as driven, when starting at ``corner``."""
@@ -150,6 +154,22 @@ class FieldCoverage:
         """For each move from swath k to k + 1 from ``corner``, the points the machine
         drives through to stay inside the field (usually none)."""
         return self.links[_check_corner(corner)] if self.links else ()
+
+    def turn(self, corner: int) -> tuple[tuple[XY, ...], ...]:
+        """For each move from swath k to k + 1 from ``corner``, the turn path's points
+        (empty when turns are not planned: the machine hops from one swath to the next)."""
+        return self.turn_paths[_check_corner(corner)] if self.turn_paths else ()
+
+    def turn_length_m(self, corner: int) -> float:
+        """Metres driven in the turns between swaths from ``corner`` (0 without planned
+        turns: the paper's t_T per turn applies then)."""
+        total = 0.0
+        for before, after, via in zip(
+            self.path(corner)[:-1], self.path(corner)[1:], self.turn(corner), strict=False
+        ):
+            if via:
+                total += LineString([before.end, *via, after.start]).length
+        return total
 
     def transit_inside_m(self, corner: int) -> float:
         """Metres driven inside the field between work from ``corner``, U-turns excluded.
@@ -185,8 +205,9 @@ def cover_field(
     *,
     field_id: str,
     angle_deg: float | None = None,
-    headland_passes: int = 0,
+    headland_passes: int | None = 0,
     simplify_m: float | None = None,
+    turn_radius_m: float = 0.0,
 ) -> FieldCoverage:
     """Plan boustrophedon coverage of ``polygon`` (local metres) for one working width.
 
@@ -198,6 +219,8 @@ def cover_field(
     cells; swath ends are always put on the real outline.
     Raises :class:`GeometryError` naming ``field_id`` when the field cannot be covered.
     """
+    if headland_passes is None:  # as many as the turns need; hops need none
+        headland_passes = 0
     field_poly = _checked_field(
         polygon, working_width_m, headland_passes, angle_deg, simplify_m, field_id
     )

@@ -35,7 +35,7 @@ class Field:
     boundary: Polygon
     boundary_lonlat: Polygon
     work_angle_deg: float | None = None
-    headland_passes: int = 0
+    headland_passes: int | None = None  # None: as many as the machine's turns need
 
     @property
     def area_m2(self) -> float:
@@ -170,8 +170,8 @@ def _field(
     angle = props.get("work_angle_deg")
     if angle is not None and (not isinstance(angle, int | float) or not math.isfinite(angle)):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
-    passes = props.get("headland_passes", 0)
-    if not isinstance(passes, int) or isinstance(passes, bool) or passes < 0:
+    passes = props.get("headland_passes")
+    if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 0):
         raise GeometryError(f"{where}: headland_passes must be a whole number >= 0, not {passes!r}")
     name = props.get("name", field_id)
     return Field(

@@ -38,6 +38,9 @@ class Visit:
     field: Field
     coverage: FieldCoverage
     corner: int
+    # Transit from where the machine was (garage or the previous field's exit) to this
+    # field's entry: the points in between, along roads or around other fields.
+    approach: tuple[XY, ...] = ()
 
     @property
     def entry(self) -> XY:
@@ -72,6 +75,8 @@ class MachinePlan:
     turns: int
     time_h: float
     fuel_l: float
+    # Transit from the last field's exit back to the garage: the points in between.
+    return_path: tuple[XY, ...] = ()
 
     @property
     def field_ids(self) -> list[str]:
@@ -104,28 +109,30 @@ class FarmPlan:
 
 def cover_farm(farm: Farm, machines: Sequence[Machine]) -> dict[tuple[str, str], FieldCoverage]:
     """Coverage of every field for every machine, keyed (machine id, field id); computed
-    once per distinct working width."""
-    by_width: dict[float, dict[str, FieldCoverage]] = {}
+    once per distinct working width and turning radius."""
+    by_width: dict[tuple[float, float], dict[str, FieldCoverage]] = {}
     out: dict[tuple[str, str], FieldCoverage] = {}
     for machine in machines:
         width = machine.working_width_m
-        if width not in by_width:
-            by_width[width] = {}
+        key = (width, machine.min_turn_radius_m)
+        if key not in by_width:
+            by_width[key] = {}
             for f in farm.fields:
                 try:
-                    by_width[width][f.id] = cover_field(
+                    by_width[key][f.id] = cover_field(
                         f.boundary,
                         width,
                         field_id=f.id,
                         angle_deg=f.work_angle_deg,
                         headland_passes=f.headland_passes,
+                        turn_radius_m=machine.min_turn_radius_m,
                     )
                 except GeometryError as exc:
                     raise GeometryError(
                         f"{farm.source}: machine {machine.id!r} ({width:g} m wide): {exc}"
                     ) from exc
         for f in farm.fields:
-            out[(machine.id, f.id)] = by_width[width][f.id]
+            out[(machine.id, f.id)] = by_width[key][f.id]
     return out
 
 

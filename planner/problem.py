@@ -37,12 +37,15 @@ class Machine:
     road_fuel_lh: float  # c_vi, fuel when not working (also charged for turns, formula 5)
     work_fuel_lh: float  # c_wi, fuel when working
     work_speed_kmh: float = 8.0  # v_ai, speed along a swath (missions; not in formulas 1-6)
+    # Smallest radius the machine (with its implement) can turn on; 0 = the paper's model,
+    # where a U-turn is a hop between swath ends costing t_T.
+    min_turn_radius_m: float = 0.0
 
     def __post_init__(self) -> None:
         _check_id("machine", self.id)
         for name in ("working_width_m", "capacity_m2h", "road_speed_kmh", "work_speed_kmh"):
             _check_positive(f"machine {self.id!r}: {name}", getattr(self, name))
-        for name in ("turn_time_h", "road_fuel_lh", "work_fuel_lh"):
+        for name in ("turn_time_h", "road_fuel_lh", "work_fuel_lh", "min_turn_radius_m"):
             _check_non_negative(f"machine {self.id!r}: {name}", getattr(self, name))
 
 
