@@ -16,8 +16,9 @@ Outline (details in ``docs/coverage.md``):
   least uncovered area, then the shortest total swath length, then the smallest angle.
 * cells: a boustrophedon decomposition along the sweep, so a sweep line meets a cell in
   one segment. Each cell has its own swaths: the first half a width inside its lower
-  border, then one every working width; the last one is pulled back to lie half a width
-  inside the upper border (it may overlap its neighbour, never the outside).
+  border, the last half a width inside its upper border, the others spread evenly between
+  them: adjacent swaths are at most a width and at least half a width apart
+  (``MIN_SPACING_FRACTION``), so the overlap is shared out instead of left as a sliver.
 * turns: every move from one swath to the next counts as one turn, ``len(swaths) - 1``;
   ``cell_transitions`` of them are moves to another cell, whose in-field driving is
   reported by :meth:`FieldCoverage.transit_inside_m`.
@@ -51,6 +52,9 @@ EXACT_CANDIDATES = 32  # angles with the lowest estimated counts, decomposed exa
 COVERAGE_CANDIDATES = 12  # angles tied on the fewest swaths, compared by covered area
 MIN_CELL_FRACTION = 0.1  # cells thinner than this many working widths are dropped
 MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
+# Adjacent swaths of a cell are at least this many working widths apart (and at most one);
+# a cell that would need them closer gets one swath less (see swath_counts).
+MIN_SPACING_FRACTION = 0.5
 _SNAP_M = 1e-3  # vertices closer than this across the sweep share one level
 SIMPLIFY_FRACTION = 0.25  # default outline simplification for the layout, in working widths
 _EPS_M = 1e-6
@@ -525,14 +529,16 @@ def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, flo
     """(swath count, uncovered area, total swath length) of ``cells``, rounded for ties.
 
     Each strip is clipped to its own cell (cells tile the region), less the overlap of each
-    cell's pulled-back last strip with the one before. An overlay GEOS cannot compute
-    scores the angle as covering nothing.
+    strip with its neighbour below in the cell (evenly spread swaths overlap a little).
+    An overlay GEOS cannot compute scores the angle as covering nothing.
     """
     lines = np.vstack([c.lines for c in cells])
     total = round(float((lines[:, 2] - lines[:, 1]).sum()), 3)
     sizes = np.array([len(c.lines) for c in cells])
     outlines = np.repeat(np.array([Polygon(c.outline) for c in cells], dtype=object), sizes)
-    last = (np.cumsum(sizes) - 1)[sizes > 1]
+    not_first = np.ones(len(lines), dtype=bool)
+    not_first[np.cumsum(sizes) - sizes] = False
+    last = np.flatnonzero(not_first)  # every swath with its neighbour below in the cell
     before = last - 1
     overlaps = shapely.box(
         np.maximum(lines[last, 1], lines[before, 1]),
@@ -557,8 +563,8 @@ def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, flo
 def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray[np.int64]:
     """Sweep-line segment count for every angle, with sweep lines shared by the whole region.
 
-    Lines start half a width above the lowest vertex, one every width, the last one pulled
-    back half a width below the highest. A line meets an edge when it lies in the edge's
+    Lines are spread as in a cell (:func:`swath_offsets`) between the lowest and the
+    highest vertex. A line meets an edge when it lies in the edge's
     half-open ``[low, high)`` span; each inside segment has two such crossings.
     """
     theta = np.radians(angles_deg)[:, None]
@@ -567,13 +573,9 @@ def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray
     vb = -edges.bx * s + edges.by * c
     lo = np.minimum(va.min(axis=1), vb.min(axis=1))
     hi = np.maximum(va.max(axis=1), vb.max(axis=1))
-    n_lines = np.maximum(np.ceil((hi - lo) / w - 1e-9), 1).astype(np.int64)
+    n_lines = swath_counts(hi - lo, w)
     k = np.arange(int(n_lines.max()))[None, :]
-    lines = lo[:, None] + w / 2 + k * w
-    pulled_back = np.maximum(np.minimum(lines, hi[:, None] - w / 2), lo[:, None] + w / 2)
-    lines = np.where(k == n_lines[:, None] - 1, pulled_back, lines)
-    thin = (hi - lo) < w
-    lines[thin, 0] = (lo[thin] + hi[thin]) / 2
+    lines = lo[:, None] + swath_offsets((hi - lo)[:, None], n_lines[:, None], k, w)
     lines = np.where(k < n_lines[:, None], lines, np.nan)
 
     counts = np.zeros(len(angles_deg), dtype=np.int64)
@@ -585,6 +587,39 @@ def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray
         cross = ((a <= y) & (y < b)) | ((b <= y) & (y < a))
         counts[sl] = cross.sum(axis=(1, 2)) // 2
     return counts
+
+
+# ----------------------------------------------------------------------------- swath layout
+
+
+def swath_counts(height: FloatArray, w: float) -> NDArray[np.int64]:
+    """Swaths across cells ``height`` high: ``ceil(height / w)``, at least one, and one
+    (centred) when two would be closer than ``MIN_SPACING_FRACTION * w``.
+
+    With ``n = ceil(height / w) >= 3`` the even spacing ``(height - w) / (n - 1)`` is always
+    above ``w / 2``; only two swaths in a cell under 1.5 widths high could be closer, and
+    such a cell gets one swath in its middle instead, leaving a strip of at most
+    ``w / 4`` unworked along each side.
+    """
+    height = np.asarray(height, dtype=np.float64)
+    n = np.maximum(np.ceil(height / w - 1e-9), 1).astype(np.int64)
+    too_close = (n == 2) & (height - w < MIN_SPACING_FRACTION * w - 1e-9)
+    return np.where(too_close, 1, n)
+
+
+def swath_offsets(
+    height: FloatArray, n: NDArray[np.int64], k: NDArray[np.int64], w: float
+) -> FloatArray:
+    """Offset of swath ``k`` of ``n`` above the bottom of a cell ``height`` high.
+
+    The first and last swaths lie half a width inside the cell's borders and the others
+    are spread evenly between them, ``(height - w) / (n - 1)`` apart: never more than a
+    width (no gap) and, with :func:`swath_counts`, never less than
+    ``MIN_SPACING_FRACTION * w`` (no sliver). A single swath lies in the middle.
+    """
+    height = np.asarray(height, dtype=np.float64)
+    spacing = (height - w) / np.maximum(n - 1, 1)
+    return np.where(n > 1, w / 2 + k * spacing, height / 2)
 
 
 # ----------------------------------------------------------------------------- decomposition
@@ -660,21 +695,18 @@ class _Sweep:
         """Number of swaths :meth:`cells` lays out (before dropping degenerate ones)."""
         bottom, top = self._extent()
         height = top - bottom
-        n = np.maximum(np.ceil(height / w - 1e-9), 1)
+        n = swath_counts(height, w)
         return int(n[height >= MIN_CELL_FRACTION * w].sum())
 
     def cells(self, w: float) -> list[_Cell]:
-        """Each cell's swath lines, from half a width above its bottom, every width."""
+        """Each cell's swath lines, spread evenly (:func:`swath_offsets`)."""
         bottom, top = self._extent()
         height = top - bottom
-        n = np.maximum(np.ceil(height / w - 1e-9), 1).astype(np.int64)
+        n = swath_counts(height, w)
         n[height < MIN_CELL_FRACTION * w] = 0
         cell_of = np.repeat(np.arange(len(n)), n)
         k = np.arange(len(cell_of)) - np.repeat(np.cumsum(n) - n, n)
-        ys = bottom[cell_of] + w / 2 + k * w
-        is_last = k == n[cell_of] - 1
-        ys = np.where(is_last, np.minimum(ys, top[cell_of] - w / 2), ys)
-        ys = np.where(height[cell_of] < w, (bottom[cell_of] + top[cell_of]) / 2, ys)
+        ys = bottom[cell_of] + swath_offsets(height[cell_of], n[cell_of], k, w)
         first_band = self.band[self.chain[self.cell_start[:-1]]]
         last_band = self.band[self.chain[self.cell_start[1:] - 1]]
         band = np.clip(

@@ -10,7 +10,13 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiPoint, MultiPolygon, Point, Polygon
 
-from planner.coverage import FieldCoverage, Swath, cover_field, rectangle_field
+from planner.coverage import (
+    MIN_SPACING_FRACTION,
+    FieldCoverage,
+    Swath,
+    cover_field,
+    rectangle_field,
+)
 from planner.errors import GeometryError
 
 L_FIELD = Polygon([(0, 0), (100, 0), (100, 30), (40, 30), (40, 60), (0, 60)])
@@ -40,8 +46,9 @@ def assert_ends_inside(cov: FieldCoverage, field: Polygon) -> None:
 
 
 def assert_spacing_and_no_overlap(cov: FieldCoverage) -> None:
-    """Within a cell: parallel swaths exactly one width apart, the pulled-back last one
-    closer; strips (flat caps) overlap only there. Across cells: no overlap beyond that."""
+    """Within a cell: parallel swaths evenly spread, adjacent ones between
+    ``MIN_SPACING_FRACTION * w`` and ``w`` apart; strips (flat caps) of swaths two apart
+    do not overlap."""
     w = cov.working_width_m
     theta = math.radians(cov.angle_deg)
     across = np.array([-math.sin(theta), math.cos(theta)])
@@ -56,13 +63,14 @@ def assert_spacing_and_no_overlap(cov: FieldCoverage) -> None:
         assert [s.index for s in swaths] == list(range(len(swaths)))
         offsets = np.array([np.dot(s.start, across) for s in swaths])
         gaps = np.diff(offsets)
-        np.testing.assert_allclose(gaps[:-1], w, atol=1e-6)
         if len(gaps):
-            assert 0.0 < gaps[-1] <= w + 1e-6
+            np.testing.assert_allclose(gaps, gaps[0], atol=1e-6)  # evenly spread
+            assert np.all(gaps >= MIN_SPACING_FRACTION * w - 1e-6)
+            assert np.all(gaps <= w + 1e-6)
         strips = [
             shapely.LineString([s.start, s.end]).buffer(w / 2, cap_style="flat") for s in swaths
         ]
-        for a, b in zip(strips[:-2], strips[1:-1], strict=True):
+        for a, b in zip(strips[:-2], strips[2:], strict=True):
             assert a.intersection(b).area < 1e-3
 
 
@@ -107,13 +115,31 @@ def test_across_the_short_side_needs_more_swaths() -> None:
     assert cov.turns == len(cov.swaths) - 1
 
 
-def test_last_swath_is_pulled_back_inside() -> None:
-    field = rectangle_field(57.0, 100.0)
-    cov = cover_field(field, 6.0, field_id="r3", angle_deg=0.0)
-    assert len(cov.swaths) == 10
-    assert cov.swaths[-1].start[1] == pytest.approx(57.0 - 3.0)  # not 57 + 0, outside
+def test_overlap_is_spread_over_the_cell_not_left_as_a_sliver() -> None:
+    # 40.2 m at 8 m: six swaths 6.44 m apart, not five 8 m apart and a sixth 0.2 m away
+    field = rectangle_field(40.2, 100.0)
+    cov = cover_field(field, 8.0, field_id="r3", angle_deg=0.0)
+    ys = [s.start[1] for s in cov.swaths]
+    assert ys == pytest.approx([4.0 + 6.44 * k for k in range(6)])
     assert covered_fraction(cov, field) == pytest.approx(1.0)
     assert_spacing_and_no_overlap(cov)
+
+
+@pytest.mark.parametrize(
+    ("height", "expected"),
+    [
+        (8.0, [4.0]),
+        (11.9, [5.95]),
+        (12.0, [4.0, 8.0]),
+        (16.0, [4.0, 12.0]),
+        (16.1, [4, 8.05, 12.1]),
+    ],
+)
+def test_a_cell_too_thin_for_two_swaths_half_a_width_apart_gets_one(
+    height: float, expected: list[float]
+) -> None:
+    cov = cover_field(rectangle_field(height, 50.0), 8.0, field_id="thin", angle_deg=0.0)
+    assert sorted(s.start[1] for s in cov.swaths) == pytest.approx(expected)
 
 
 @pytest.mark.parametrize("rotation", [0.0, 17.5, 33.0, 90.0, 121.0, 179.0, 250.0])
@@ -310,6 +336,23 @@ def test_random_convex_field_without_headland(
             assert covered_fraction(cov, field) >= least
         assert_ends_inside(cov, field)
         assert_spacing_and_no_overlap(cov)
+
+
+@settings(derandomize=True, max_examples=40, deadline=None)
+@given(
+    points=unit_points,
+    w=st.floats(1.0, 12.0),
+    widths_across=st.floats(1.2, 12.0),
+    angle=st.none() | st.floats(0, 180),
+)
+def test_adjacent_swaths_are_never_closer_than_allowed(
+    points: list[tuple[float, float]], w: float, widths_across: float, angle: float | None
+) -> None:
+    """Random convex fields and widths: adjacent swaths of a cell are evenly spread, at
+    least MIN_SPACING_FRACTION * w and at most w apart."""
+    field = scaled_hull(points, widths_across, w)
+    cov = cover_field(field, w, field_id="random", angle_deg=angle)
+    assert_spacing_and_no_overlap(cov)
 
 
 # ----------------------------------------------------------------------------- headland
