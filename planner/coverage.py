@@ -41,6 +41,7 @@ from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
+from planner.turns import plan_turn, turn_excursion_m
 
 logger = logging.getLogger(__name__)
 
@@ -126,6 +127,7 @@ class FieldCoverage:
     # end of swath k and the start of swath k + 1, both excluded), empty for a hop.
     turn_paths: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
     turn_radius_m: float = 0.0
+    headland_passes: int = 0  # as laid out (given, or as many as the turns need)
 
     def path(self, corner: int) -> tuple[Swath, ...]:
         """Swaths in driving order, each oriented as driven, when starting at ``corner``."""
@@ -223,28 +225,20 @@ def cover_field(
     cells; swath ends are always put on the real outline.
     Raises :class:`GeometryError` naming ``field_id`` when the field cannot be covered.
     """
-    if headland_passes is None:  # as many as the turns need; hops need none
-        headland_passes = 0
+    radius = _checked_radius(turn_radius_m, field_id)
     field_poly = _checked_field(
-        polygon, working_width_m, headland_passes, angle_deg, simplify_m, field_id
+        polygon, working_width_m, headland_passes or 0, angle_deg, simplify_m, field_id
     )
     w = float(working_width_m)
-    rings_by_pass, region, lane = _headland_and_region(field_poly, w, headland_passes, field_id)
-    ref = np.array(region.centroid.coords[0])  # work near the origin for precision
-    tolerance = SIMPLIFY_FRACTION * w if simplify_m is None else float(simplify_m)
-    outline = _simplified(region, tolerance)
-    edges = _edges(outline, ref)
-
-    if angle_deg is None:
-        angle, cells = _search_angle(outline, ref, edges, w, field_id)
+    if headland_passes is None:  # as many as the turns need (none for hops)
+        passes = headland_passes_for_turns(w, radius, w)
+        rings_by_pass, region, lane, angle, cells, ref = _layout_fitting_turns(
+            field_poly, w, passes, radius, angle_deg, simplify_m, field_id
+        )
     else:
-        angle = _normalise_angle(angle_deg)
-        cells = _sweep(edges, angle, field_id).cells(w)
-    if cells:
-        cells = _clip_lines(cells, _edges(region if lane is None else lane, ref), angle)
-    if not cells:
-        raise GeometryError(
-            f"field {field_id!r}: no swath of working width {w:g} m fits in the field"
+        passes = headland_passes
+        rings_by_pass, region, lane, angle, cells, ref = _layout(
+            field_poly, w, passes, angle_deg, simplify_m, field_id
         )
 
     paths = tuple(_drive(cells, corner, angle, ref) for corner in range(4))
@@ -252,6 +246,8 @@ def cover_field(
     headland_paths: list[tuple[tuple[XY, ...], ...]] = []
     transits: list[float] = []
     links: list[tuple[tuple[XY, ...], ...]] = []
+    turn_paths: list[tuple[tuple[XY, ...], ...]] = []
+    fits = _TurnsInside(field_poly, radius)
     for corner_path in paths:
         rings = _order_rings(rings_by_pass, corner_path[-1].end)
         headland_paths.append(rings)
@@ -263,6 +259,17 @@ def cover_field(
                 distance.route(before.end, after.start)[1]
                 for before, after in zip(corner_path[:-1], corner_path[1:], strict=True)
             )
+        )
+        if radius > 0.0:
+            turn_paths.append(fits.turns(corner_path, links[-1]))
+    if fits.hops:
+        logger.warning(
+            "field %r: %d of %d turns of radius %g m (all start corners) do not fit inside"
+            " the field; driven as hops (give the field more headland passes)",
+            field_id,
+            fits.hops,
+            fits.planned + fits.hops,
+            radius,
         )
 
     cell_polys = tuple(_to_polygon(cell.outline, angle, ref) for cell in cells)
@@ -283,6 +290,9 @@ def cover_field(
         headland_paths=tuple(headland_paths),
         transits_m=tuple(transits),
         links=tuple(links),
+        turn_paths=tuple(turn_paths),
+        turn_radius_m=radius,
+        headland_passes=passes,
     )
     logger.debug(
         "field %r: %d swaths in %d cells at %.3f deg, %d headland rings",
@@ -293,6 +303,106 @@ def cover_field(
         len(coverage.headland),
     )
     return coverage
+
+
+def headland_passes_for_turns(w: float, radius_m: float, spacing_m: float) -> int:
+    """Headland passes that leave room for turns of ``radius_m`` between swaths
+    ``spacing_m`` apart: 0 for hops (radius 0).
+
+    Swaths end on the innermost ring's centre line, ``(p - 1/2) w`` from the border; the
+    turn reaches ``e`` past the swath end (:func:`planner.turns.turn_excursion_m`) and the
+    machine needs half a working width beside that, so ``e + w/2 <= (p - 1/2) w``:
+    ``p = ceil(e / w + 1)``.
+    """
+    if radius_m <= 0.0:
+        return 0
+    reach = turn_excursion_m(spacing_m, radius_m)
+    return max(1, math.ceil(reach / w + 1.0 - 1e-9))
+
+
+def _layout(
+    field_poly: Polygon,
+    w: float,
+    passes: int,
+    angle_deg: float | None,
+    simplify_m: float | None,
+    field_id: str,
+) -> tuple[
+    list[list[FloatArray]], MultiPolygon, MultiPolygon | None, float, list[_Cell], FloatArray
+]:
+    """Headland rings, swath region, the area swath ends reach, swath angle, cells and the
+    reference point of the swath frame."""
+    rings_by_pass, region, lane = _headland_and_region(field_poly, w, passes, field_id)
+    ref = np.array(region.centroid.coords[0])  # work near the origin for precision
+    tolerance = SIMPLIFY_FRACTION * w if simplify_m is None else float(simplify_m)
+    outline = _simplified(region, tolerance)
+    edges = _edges(outline, ref)
+    if angle_deg is None:
+        angle, cells = _search_angle(outline, ref, edges, w, field_id)
+    else:
+        angle = _normalise_angle(angle_deg)
+        cells = _sweep(edges, angle, field_id).cells(w)
+    if cells:
+        cells = _clip_lines(cells, _edges(region if lane is None else lane, ref), angle)
+    if not cells:
+        raise GeometryError(
+            f"field {field_id!r}: no swath of working width {w:g} m fits in the field"
+        )
+    return rings_by_pass, region, lane, angle, cells, ref
+
+
+def _layout_fitting_turns(
+    field_poly: Polygon,
+    w: float,
+    passes: int,
+    radius: float,
+    angle_deg: float | None,
+    simplify_m: float | None,
+    field_id: str,
+) -> tuple[
+    list[list[FloatArray]], MultiPolygon, MultiPolygon | None, float, list[_Cell], FloatArray
+]:
+    """:func:`_layout` with as many headland passes as the turns need.
+
+    Sized first for swaths a full width apart, then again for the closest pair the layout
+    gives (evenly spread swaths may be closer, down to half a width, and a bulb turn
+    reaches further the closer they are). A field too small for that many passes gets as
+    many as leave room for swaths; turns that then do not fit are driven as hops.
+    """
+    most = math.inf  # passes the field has room for, once some did not fit
+    while True:
+        try:
+            layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id)
+        except GeometryError:
+            if passes == 0:
+                raise
+            logger.warning(
+                "field %r: no room for %d headland passes for turns of radius %g m; trying %d",
+                field_id,
+                passes,
+                radius,
+                passes - 1,
+            )
+            most = passes = passes - 1
+            continue
+        gaps = [float(np.diff(c.lines[:, 0]).min()) for c in layout[4] if len(c.lines) > 1]
+        needed = min(headland_passes_for_turns(w, radius, min(gaps, default=w)), most)
+        if needed <= passes:
+            return layout
+        passes = int(needed)
+
+
+def _checked_radius(turn_radius_m: float, field_id: str) -> float:
+    if (
+        isinstance(turn_radius_m, bool)
+        or not isinstance(turn_radius_m, Real)
+        or not (math.isfinite(turn_radius_m) and turn_radius_m >= 0.0)
+    ):
+        raise GeometryError(
+            f"field {field_id!r}: turn radius must be a number of metres >= 0,"
+            f" got {turn_radius_m!r}"
+        )
+    return float(turn_radius_m)
 
 
 # ----------------------------------------------------------------------------- checks
@@ -918,6 +1028,48 @@ def _transit_m(
         total += distance(position, ring[0])
         position = ring[-1]
     return total
+
+
+class _TurnsInside:
+    """Turn paths of radius ``radius`` between neighbouring swaths of a cell, kept only
+    when they stay inside the field (else the move is a hop, counted in ``hops``)."""
+
+    def __init__(self, field_poly: Polygon, radius: float) -> None:
+        self._inside = field_poly.buffer(1e-3, join_style="mitre")
+        shapely.prepare(self._inside)
+        self.radius = radius
+        self.planned = 0
+        self.hops = 0
+
+    def turns(
+        self, path: tuple[Swath, ...], links: tuple[tuple[XY, ...], ...]
+    ) -> tuple[tuple[XY, ...], ...]:
+        return tuple(
+            self._turn(before, after, link)
+            for before, after, link in zip(path[:-1], path[1:], links, strict=True)
+        )
+
+    def _turn(self, before: Swath, after: Swath, link: tuple[XY, ...]) -> tuple[XY, ...]:
+        heading = np.subtract(before.end, before.start)
+        if (
+            before.cell != after.cell
+            or abs(before.index - after.index) != 1
+            or link  # a move around a notch: the in-field route stays
+            or float(np.dot(heading, np.subtract(after.end, after.start))) >= 0.0
+        ):
+            return ()
+        try:
+            turn = plan_turn(
+                before.end, (float(heading[0]), float(heading[1])), after.start, self.radius
+            )
+        except GeometryError:
+            return ()
+        line = LineString([before.end, *turn.points, after.start])
+        if not self._inside.covers(line):
+            self.hops += 1
+            return ()
+        self.planned += 1
+        return turn.points
 
 
 class _InFieldDistance:

@@ -459,3 +459,112 @@ def test_moves_between_swaths_stay_inside_notched_and_holed_fields(angle):
             assert len(links) == len(path) - 1
             for k, (a, b) in enumerate(zip(path[:-1], path[1:], strict=True)):
                 assert inside.covers(LineString([a.end, *links[k], b.start])), (corner, k)
+
+
+# ----------------------------------------------------------------------------- planned turns
+
+
+def circumradius(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+    """Radius of the circle through three points (inf when they are in line)."""
+    ab, bc, ca = np.linalg.norm(b - a), np.linalg.norm(c - b), np.linalg.norm(a - c)
+    cross = abs((b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0])
+    return math.inf if cross < 1e-9 else ab * bc * ca / (2.0 * cross)
+
+
+def assert_turns_drivable(cov: FieldCoverage, field: Polygon, radius: float) -> int:
+    """Every planned turn, from the swath end to the next start, bends no tighter than
+    ``radius`` and stays inside the field; returns how many there are."""
+    inside = field.buffer(1e-3)
+    planned = 0
+    for corner in range(4):
+        path, turns = cov.path(corner), cov.turn(corner)
+        assert len(turns) == len(path) - 1
+        for before, after, via in zip(path[:-1], path[1:], turns, strict=True):
+            if not via:
+                continue
+            planned += 1
+            assert before.cell == after.cell and abs(before.index - after.index) == 1
+            pts = [np.asarray(p) for p in (before.start, before.end, *via, after.start, after.end)]
+            for a, b, c in zip(pts, pts[1:], pts[2:], strict=False):
+                assert circumradius(a, b, c) >= radius * (1 - 1e-6)
+            assert inside.covers(shapely.LineString([before.end, *via, after.start]))
+    return planned
+
+
+@pytest.mark.parametrize(("w", "r"), [(6.0, 3.0), (6.0, 5.0), (3.7, 4.5), (6.9, 6.0), (8.0, 2.0)])
+def test_turns_of_a_rectangle_fit_in_the_headland_they_reserve(w: float, r: float) -> None:
+    field = rectangle_field(150.0, 250.0, angle_deg=20.0)
+    cov = cover_field(field, w, field_id="turns", headland_passes=None, turn_radius_m=r)
+    assert cov.turn_radius_m == r and cov.headland_passes >= 1
+    assert len(cov.headland) == cov.headland_passes
+    planned = assert_turns_drivable(cov, field, r)
+    assert planned == 4 * cov.turns  # every move between swaths is a planned turn
+    assert cov.turn_length_m(0) > cov.turns * math.pi * r * 0.99
+    assert_spacing_and_no_overlap(cov)
+
+
+def test_hops_without_a_turn_radius_need_no_headland() -> None:
+    cov = cover_field(rectangle_field(60.0, 100.0), 6.0, field_id="hops", headland_passes=None)
+    assert cov.headland_passes == 0 and cov.headland == ()
+    assert cov.turn(0) == () and cov.turn_length_m(0) == 0.0
+
+
+def test_u_turns_when_swaths_are_two_radii_apart() -> None:
+    field = rectangle_field(104.0, 200.0)  # 72 m between the headlands: 9 swaths 8 m apart
+    cov = cover_field(
+        field, 8.0, field_id="u", angle_deg=0.0, headland_passes=None, turn_radius_m=4.0
+    )
+    # spacing 8 >= 2 r: half circles; headland ceil(4/8 + 1) = 2 passes
+    assert cov.headland_passes == 2
+    first = cov.turn(0)[0]
+    centre = np.add(cov.swaths[0].end, cov.swaths[1].start) / 2
+    radii = np.hypot(*(np.asarray(first) - centre).T)
+    np.testing.assert_allclose(radii, 4.0, atol=1e-6)
+
+
+def test_too_little_headland_for_the_turns_leaves_hops(caplog) -> None:
+    field = rectangle_field(100.0, 200.0)
+    cov = cover_field(field, 4.0, field_id="tight", headland_passes=0, turn_radius_m=6.0)
+    assert all(not t for t in cov.turn(0))
+    assert "do not fit inside the field" in caplog.text
+
+
+def test_bad_turn_radius_names_the_field() -> None:
+    with pytest.raises(GeometryError, match="'bad'.*turn radius"):
+        cover_field(rectangle_field(60.0, 100.0), 6.0, field_id="bad", turn_radius_m=-1.0)
+
+
+NOTCHED = [
+    L_FIELD,
+    HOLED_FIELD,
+    Polygon([(0, 0), (160, 0), (160, 100), (100, 100), (80, 60), (60, 100), (0, 100)]),
+]
+
+
+@settings(derandomize=True, max_examples=30, deadline=None)
+@given(
+    points=unit_points,
+    w=st.sampled_from([3.0, 4.5, 6.9, 8.0]),
+    r=st.floats(1.0, 8.0),
+    widths_across=st.floats(12.0, 30.0),
+    angle=st.none() | st.floats(0, 180),
+)
+def test_random_convex_fields_turn_drivably_inside(
+    points: list[tuple[float, float]], w: float, r: float, widths_across: float, angle: float | None
+) -> None:
+    field = scaled_hull(points, widths_across, w)
+    try:
+        cov = cover_field(
+            field, w, field_id="rnd", angle_deg=angle, headland_passes=None, turn_radius_m=r
+        )
+    except GeometryError:
+        assume(False)  # too small for the headland its turns need
+    assert_turns_drivable(cov, field, r)
+    assert_spacing_and_no_overlap(cov)
+
+
+@pytest.mark.parametrize("field", NOTCHED, ids=["L", "hole", "bay"])
+@pytest.mark.parametrize("r", [2.0, 5.0])
+def test_non_convex_fields_turn_drivably_inside(field: Polygon, r: float) -> None:
+    cov = cover_field(field, 4.0, field_id="notched", headland_passes=None, turn_radius_m=r)
+    assert assert_turns_drivable(cov, field, r) > 0
