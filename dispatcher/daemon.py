@@ -26,16 +26,18 @@ import zenoh
 from dispatcher import mavlink_codec as mc
 from dispatcher import wire
 from dispatcher.mission_client import (
+    ROVER_MODE_AUTO,
     START_REFUSAL_WINDOW_S,
     CommandSequence,
     MissionUpload,
     Outcome,
+    park_commands,
     start_mission_commands,
 )
 from dispatcher.plan_output import DispatchPlan, plan_geojson
 from dispatcher.recording import Recorder
 from dispatcher.signals import stop_on_signals
-from dispatcher.state import ACTIVE, FleetState, Phase
+from dispatcher.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,7 @@ class DaemonConfig:
     alive_timeout_s: float = 60.0  # wall seconds for every vehicle to show up
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back before we give up
     upload_attempts: int = 3  # whole uploads tried before a vehicle is failed
+    upload_backoff_s: float = 2.0  # pause before the second upload, doubled for each next
     status_period_s: float = 1.0
     shutdown_timeout_s: float = 5.0
     exit_when_done: bool = True
@@ -61,10 +64,17 @@ class DaemonConfig:
 
 @dataclass
 class _Link:
-    """Per-vehicle protocol state: the upload, then the start commands."""
+    """Per-vehicle protocol state: the upload, then the start commands, then parking."""
 
     upload: MissionUpload | None = None
     start: CommandSequence | None = None
+    park: CommandSequence | None = None
+    upload_at: float = 0.0  # not before (back-off after a failed upload)
+    start_item: int = 1  # where the mission starts (or resumes after a reboot)
+    since: float = 0.0  # when the current exchange began (for the autopilot's texts)
+
+    def exchanges(self) -> tuple[MissionUpload | CommandSequence | None, ...]:
+        return (self.upload, self.start, self.park)
 
 
 class Dispatcher:
@@ -151,7 +161,11 @@ class Dispatcher:
                 except queue.Empty:
                     item = None
             self._tick(now)
-            if self.config.exit_when_done and self.state.finished(now, self.config.lost_grace_s):
+            if (
+                self.config.exit_when_done
+                and self.state.finished(now, self.config.lost_grace_s)
+                and not self._parking()
+            ):
                 self._publish_status(now)
                 break
         if self.should_exit.is_set():
@@ -229,7 +243,7 @@ class Dispatcher:
                 vid, msg.lat / 1e7, msg.lon / 1e7, t_ns, msg.time_boot_ms / 1000.0
             )
         link = self.links[vid]
-        for machine in (link.upload, link.start):
+        for machine in link.exchanges():
             if machine is not None and machine.outcome is Outcome.RUNNING:
                 self._send(vid, machine.on_message(msg, now))
         self._advance(vid, now)
@@ -246,7 +260,7 @@ class Dispatcher:
     def _tick(self, now: float) -> None:
         for vid, v in self.state.vehicles.items():
             link = self.links[vid]
-            for machine in (link.upload, link.start):
+            for machine in link.exchanges():
                 if machine is not None and machine.outcome is Outcome.RUNNING:
                     self._send(vid, machine.on_tick(now))
             self._advance(vid, now)
@@ -273,53 +287,112 @@ class Dispatcher:
             self._publish_status(now)
 
     def _advance(self, vid: str, now: float) -> None:
-        """Move a vehicle's link on: upload once alive, start once uploaded."""
+        """Move a vehicle's link on: upload once it is alive and booted, start once
+        uploaded, start again after a reboot, park once done."""
         v = self.state.vehicles[vid]
         link = self.links[vid]
+        if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
+            self._restart(v, link, now)
         if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
+            if not v.ready:
+                return  # still booting: it would refuse the mission (MAV_MISSION_NO_SPACE)
             v.phase = Phase.UPLOADING
-            v.upload_attempts += 1
             if self.upload_started is None:
                 self.upload_started = now
-            link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
-            self._log("info", f"{vid}: uploading {len(v.mission)} mission items")
-            self._send(vid, link.upload.start(now))
+            self._upload(v, link, now)
         elif v.phase is Phase.UPLOADING and link.upload is not None:
             v.upload_retries = link.upload.stats.retries
+            if link.upload.outcome is Outcome.RUNNING and link.upload_at > now:
+                return
             if link.upload.outcome is Outcome.DONE:
                 self._log("info", f"{vid}: mission acknowledged")
-                if all(
+                if self.all_acknowledged is None and all(
                     lk.upload is not None and lk.upload.outcome is Outcome.DONE
                     for lk in self.links.values()
                 ):
                     self.all_acknowledged = now
-                v.phase = Phase.STARTING
-                link.start = CommandSequence(
-                    start_mission_commands(), v.system_id, refusal_window_s=START_REFUSAL_WINDOW_S
-                )
-                self._send(vid, link.start.start(now))
+                self._start(v, link, now)
             elif link.upload.outcome is Outcome.FAILED:
+                reason = v.explain(link.upload.reason, link.since - 1.0)
                 if v.upload_attempts < self.config.upload_attempts:
                     # The vehicle may hold the whole mission and only its last ACK was
-                    # lost, or it gave up half-way: start the upload again from the count.
+                    # lost, or it gave up half-way, or it is busy: after a pause, start the
+                    # upload again from the count.
+                    pause = self.config.upload_backoff_s * 2 ** (v.upload_attempts - 1)
                     self._log(
-                        "warning", f"{vid}: upload failed ({link.upload.reason}); uploading again"
+                        "warning",
+                        f"{vid}: upload failed ({reason}); uploading again in {pause:g} s",
                     )
-                    v.upload_attempts += 1
-                    link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
-                    self._send(vid, link.upload.start(now))
+                    link.upload_at = now + pause
+                    link.upload = None
                     return
                 v.phase = Phase.FAILED
-                v.error = f"upload failed after {v.upload_attempts} attempts: {link.upload.reason}"
+                v.error = f"upload failed after {v.upload_attempts} attempts: {reason}"
                 self._log("error", f"{vid}: {v.error}")
+        elif v.phase is Phase.UPLOADING and link.upload is None and now >= link.upload_at:
+            if v.ready:
+                self._upload(v, link, now)
         elif v.phase is Phase.STARTING and link.start is not None:
             if link.start.outcome is Outcome.DONE:
                 v.phase = Phase.RUNNING
-                self._log("info", f"{vid}: armed and in AUTO, mission started")
+                v.error = ""
+                self._log(
+                    "info", f"{vid}: armed and in AUTO, mission started at item {link.start_item}"
+                )
             elif link.start.outcome is Outcome.FAILED:
                 v.phase = Phase.FAILED
-                v.error = f"start failed: {link.start.reason}"
+                v.error = f"start failed: {v.explain(link.start.reason, link.since - 1.0)}"
                 self._log("error", f"{vid}: {v.error}")
+            elif link.start.last_refusal:
+                waiting = v.explain(link.start.last_refusal, now - TEXT_WINDOW_S)
+                if waiting != v.error:
+                    v.error = waiting
+                    self._log("warning", f"{vid}: {waiting}; asking again")
+        elif v.phase is Phase.DONE and link.park is None:
+            link.park = CommandSequence(park_commands(), v.system_id)
+            self._log("info", f"{vid}: mission complete; HOLD and disarm")
+            self._send(vid, link.park.start(now))
+
+    def _upload(self, v: VehicleState, link: _Link, now: float) -> None:
+        v.upload_attempts += 1
+        link.since = now
+        link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
+        self._log("info", f"{v.id}: uploading {len(v.mission)} mission items")
+        self._send(v.id, link.upload.start(now))
+
+    def _start(self, v: VehicleState, link: _Link, now: float) -> None:
+        v.phase = Phase.STARTING
+        link.since = now
+        link.start = CommandSequence(
+            start_mission_commands(link.start_item, in_auto=v.mode == ROVER_MODE_AUTO),
+            v.system_id,
+            refusal_window_s=START_REFUSAL_WINDOW_S,
+        )
+        self._send(v.id, link.start.start(now))
+
+    def _restart(self, v: VehicleState, link: _Link, now: float) -> None:
+        """The autopilot rebooted while driving: it holds its mission (stored on board) but
+        is disarmed in another mode. Arm it again and resume after the last item reached;
+        upload again first if what it holds is not our mission."""
+        v.needs_restart = False
+        link.start_item = v.resume_item
+        expected = len(v.mission) - 1  # MISSION_CURRENT.total counts the items after home
+        if v.mission_total is not None and v.mission_total != expected:
+            self._log(
+                "warning",
+                f"{v.id}: rebooted holding {v.mission_total + 1} items, not our "
+                f"{len(v.mission)}; uploading again, then resuming at item {link.start_item}",
+            )
+            v.phase = Phase.UPLOADING
+            self._upload(v, link, now)
+            return
+        self._log("warning", f"{v.id}: the autopilot rebooted; resuming at item {link.start_item}")
+        self._start(v, link, now)
+
+    def _parking(self) -> bool:
+        return any(
+            lk.park is not None and lk.park.outcome is Outcome.RUNNING for lk in self.links.values()
+        )
 
     def _fleet_ready(self) -> bool:
         """Uploads begin once every vehicle has shown up (or been given up on)."""

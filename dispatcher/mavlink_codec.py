@@ -91,6 +91,14 @@ def is_message_name(name: str) -> bool:
     return name.isupper() and hasattr(mavlink2, f"MAVLink_{name.lower()}_message")
 
 
+def statustext(msg: MAVLinkMessage) -> str:
+    """The text of a STATUSTEXT, without its NUL padding."""
+    text = msg.text
+    if isinstance(text, bytes | bytearray):
+        text = bytes(text).decode("utf-8", "replace")
+    return str(text).split("\x00", 1)[0].strip()
+
+
 def as_dict(msg: MAVLinkMessage) -> dict[str, Any]:
     """A JSON-ready view of a message: its name and fields (bytes as lists)."""
     out: dict[str, Any] = {"mavpackettype": msg.get_type()}

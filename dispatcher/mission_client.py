@@ -163,6 +163,7 @@ class CommandSequence(_Exchange):
         self.commands = list(commands)
         self.refusal_window_s = refusal_window_s
         self._refused_since: float | None = None
+        self.last_refusal = ""  # the latest refusal, while the command is asked again
         self._index = 0
         self._confirmation = 0
         self._deadline = 0.0
@@ -179,20 +180,24 @@ class CommandSequence(_Exchange):
         if result == mc.MAV_RESULT_IN_PROGRESS:
             self._deadline = now + self.timeout_s
             return []
+        name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
+        refusal = f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}"
         if result in (mc.MAV_RESULT_TEMPORARILY_REJECTED, mc.MAV_RESULT_FAILED):
             # ArduPilot refuses to arm until its pre-arm checks pass (GPS fix, EKF ...):
-            # ask again after a pause, for a while.
+            # ask again after a pause, for a while. Its STATUSTEXT says why (the daemon
+            # keeps those with the vehicle's state).
             self._refused_since = self._refused_since if self._refused_since is not None else now
+            self.last_refusal = refusal
             if now - self._refused_since < self.refusal_window_s:
                 self._confirmation = 0
                 self._deadline = now + REFUSAL_BACKOFF_S
                 return []
         if result != mc.MAV_RESULT_ACCEPTED:
-            name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
-            return self._fail(f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}")
+            return self._fail(refusal)
         self._index += 1
         self._confirmation = 0
         self._refused_since = None
+        self.last_refusal = ""
         if self._index == len(self.commands):
             self.outcome = Outcome.DONE
             return []
@@ -228,15 +233,38 @@ class CommandSequence(_Exchange):
         )
 
 
-def start_mission_commands() -> list[Command]:
-    """Arm, make item 1 current, then switch to AUTO: how a ground station starts an
-    ArduPilot Rover mission. Without the reset, AUTO resumes a vehicle that was stopped
-    half-way at its old index (MIS_RESTART = 0), also on a freshly uploaded mission."""
-    return [
+def start_mission_commands(first_item: int = 1, in_auto: bool = False) -> list[Command]:
+    """How a ground station starts (or resumes) an ArduPilot Rover mission at
+    ``first_item``: make it current while disarmed, arm, then switch to AUTO.
+
+    * The current item is set with ``DO_SET_MISSION_CURRENT`` param2 = 0, never 1 (reset):
+      a reset sent while armed outside AUTO makes ArduPilot start the first navigation
+      command outside AUTO and can leave a sticky internal error ("SCurve ... zero length
+      path") that refuses every later ARM until a reboot. With the mission stopped,
+      ``AP_Mission::set_current_cmd`` loads the item and AUTO resumes there
+      (MIS_RESTART = 0, the default), also on a freshly uploaded mission and after a reboot.
+    * A vehicle still in AUTO (a finished mission stays in AUTO with MIS_DONE_BEHAV = 0)
+      is put in HOLD first: asking for AUTO while in AUTO changes nothing, so the mission
+      would not resume at the new item.
+    """
+    commands = []
+    if in_auto:
+        commands.append(_set_mode(ROVER_MODE_HOLD))
+    commands += [
+        Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (float(first_item), 0.0)),
         Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
-        Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (1.0, 1.0)),
-        Command(
-            mc.MAV_CMD_DO_SET_MODE,
-            (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(ROVER_MODE_AUTO)),
-        ),
+        _set_mode(ROVER_MODE_AUTO),
     ]
+    return commands
+
+
+def park_commands() -> list[Command]:
+    """What the dispatcher sends a vehicle whose mission is complete: HOLD, then disarm, so
+    a tractor back in the garage is not left armed in AUTO."""
+    return [_set_mode(ROVER_MODE_HOLD), Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,))]
+
+
+def _set_mode(mode: int) -> Command:
+    return Command(
+        mc.MAV_CMD_DO_SET_MODE, (float(mc.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(mode))
+    )

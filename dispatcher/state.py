@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import enum
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
 from dispatcher import mavlink_codec as mc
+from dispatcher.mission_client import ROVER_MODE_AUTO
 from dispatcher.missions import Mission
 from dispatcher.plan_output import DispatchPlan
 
@@ -30,7 +32,16 @@ class Phase(enum.StrEnum):
 
 
 ACTIVE = (Phase.UPLOADING, Phase.STARTING, Phase.RUNNING)
-AUTO_MODE = 10  # ArduPilot Rover (Rover/mode.h)
+READY_STATES = frozenset({mc.MAV_STATE_STANDBY, mc.MAV_STATE_ACTIVE})
+"""HEARTBEAT.system_status of an autopilot that has finished booting (ArduPilot reports
+UNINIT/BOOT with mode 16 INITIALISING before, and refuses a mission then)."""
+CLOCK_RESTART_S = 1.0
+"""The vehicle's clock going back by more than this is a reboot."""
+PROBLEM_SEVERITY = mc.MAV_SEVERITY_WARNING
+"""STATUSTEXT at this severity or worse (PreArm/Arm refusals are CRITICAL) is kept as the
+autopilot's word on a problem."""
+TEXT_WINDOW_S = 10.0
+"""How far back (wall seconds) an autopilot's problem text explains a refusal."""
 
 
 @dataclass
@@ -58,6 +69,37 @@ class VehicleState:
     upload_retries: int = 0
     error: str = ""
     fields_done: list[str] = field(default_factory=list)
+    system_status: int | None = None  # HEARTBEAT.system_status (MAV_STATE)
+    boot_clock_s: float | None = None  # the vehicle's own clock (time_boot_ms), last heard
+    clock_offset_s: float = 0.0  # added to the vehicle's clock so that it never goes back
+    reboots: int = 0
+    needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
+    mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
+    texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
+
+    @property
+    def ready(self) -> bool:
+        """The autopilot has booted: a mission may be uploaded and started."""
+        return self.system_status in READY_STATES
+
+    @property
+    def resume_item(self) -> int:
+        """Where the mission goes on: the item after the last one reached (never item 0)."""
+        return min(max(self.reached + 1, 1), len(self.mission) - 1)
+
+    def problems(self, since: float) -> list[str]:
+        """The autopilot's problem texts (STATUSTEXT, WARNING or worse) since ``since``,
+        oldest first, each once."""
+        out: list[str] = []
+        for t, severity, text in self.texts:
+            if t >= since and severity <= PROBLEM_SEVERITY and text not in out:
+                out.append(text)
+        return out
+
+    def explain(self, reason: str, since: float) -> str:
+        """``reason`` with what the autopilot said about it since ``since``."""
+        said = self.problems(since)
+        return f"{reason} (autopilot: {'; '.join(said)})" if said else reason
 
     @property
     def share_done(self) -> float:
@@ -146,26 +188,57 @@ class FleetState:
         if kind == "HEARTBEAT":
             v.mode = int(msg.custom_mode)
             v.armed = bool(msg.base_mode & mc.MAV_MODE_FLAG_SAFETY_ARMED)
+            status = int(msg.system_status)
+            if v.ready and status in (mc.MAV_STATE_UNINIT, mc.MAV_STATE_BOOT):
+                self._rebooted(v)  # booting again (before its clock tells)
+            v.system_status = status
             if v.phase is Phase.WAITING:
                 v.phase = Phase.ALIVE
-            if v.phase is Phase.RUNNING and (v.mode != AUTO_MODE or not v.armed):
+            if v.needs_restart:
+                v.off_auto_since = None  # expected: the daemon starts it again
+            elif v.phase is Phase.RUNNING and (v.mode != ROVER_MODE_AUTO or not v.armed):
                 if v.off_auto_since is None:
                     v.off_auto_since = now  # a failsafe, the operator, a reboot ...
             else:
                 v.off_auto_since = None
         elif kind == "GLOBAL_POSITION_INT":
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
-            v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
+            self._clock(v, msg.time_boot_ms / 1000.0)
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s
                 v.finished_at_next_fix = False
         elif kind == "SYSTEM_TIME":
-            v.sim_time_s = max(v.sim_time_s, msg.time_boot_ms / 1000.0)
+            if msg.time_boot_ms > 0:
+                self._clock(v, msg.time_boot_ms / 1000.0)
         elif kind == "MISSION_CURRENT":
             v.current = int(msg.seq)
+            total = getattr(msg, "total", None)
+            if isinstance(total, int) and total != 0xFFFF:
+                v.mission_total = total
+        elif kind == "STATUSTEXT":
+            text = mc.statustext(msg)
+            v.texts.append((now, int(msg.severity), text))
         elif kind == "MISSION_ITEM_REACHED":
             self.on_item_reached(vid, int(msg.seq))
+
+    def _clock(self, v: VehicleState, clock_s: float) -> None:
+        """The vehicle's clock; a restart is a reboot, and its time carries on from there."""
+        if v.boot_clock_s is not None and clock_s < v.boot_clock_s - CLOCK_RESTART_S:
+            v.clock_offset_s += v.boot_clock_s - clock_s
+            if not v.needs_restart:
+                self._rebooted(v)
+        v.boot_clock_s = clock_s
+        v.sim_time_s = max(v.sim_time_s, clock_s + v.clock_offset_s)
+
+    def _rebooted(self, v: VehicleState) -> None:
+        v.reboots += 1
+        v.system_status = None  # booting: not ready until a heartbeat says so
+        v.mission_total = None  # what it holds now is to be heard again
+        if v.phase in (Phase.RUNNING, Phase.STARTING) or (
+            v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
+        ):
+            v.needs_restart = True
 
     def on_item_reached(self, vid: str, seq: int) -> None:
         v = self.vehicles[vid]
@@ -245,6 +318,9 @@ class FleetState:
                     "upload_retries": v.upload_retries,
                     "lost_s": round(v.lost_s, 3),
                     "stopped_outside_auto": v.off_auto_since is not None,
+                    "system_status": v.system_status,
+                    "reboots": v.reboots,
+                    "autopilot_says": v.problems(-math.inf)[-3:],
                     "error": v.error,
                 }
                 for v in self.vehicles.values()

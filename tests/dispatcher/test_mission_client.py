@@ -130,16 +130,18 @@ def command_ack(command, result):
     )
 
 
-def test_start_sequence_arms_restarts_then_sets_auto_with_retries():
+def test_start_sequence_sets_the_item_disarmed_then_arms_then_sets_auto_with_retries():
     seq = CommandSequence(start_mission_commands(), VEHICLE)
-    (arm,) = seq.start(0.0)
-    assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM and arm.param1 == 1
+    (current,) = seq.start(0.0)
+    # item 1 current, without the reset flag (param2 = 1 can lock ArduPilot's arming)
+    assert current.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    assert (current.param1, current.param2) == (1, 0)
     (again,) = seq.on_tick(1.6)
     assert again.confirmation == 1  # a resend counts up its confirmation
     accepted = mc.MAV_RESULT_ACCEPTED
-    (reset,) = seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, accepted), 1.7)
-    assert reset.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT and reset.param1 == 1
-    (mode,) = seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, accepted), 1.8)
+    (arm,) = seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, accepted), 1.7)
+    assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM and arm.param1 == 1
+    (mode,) = seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, accepted), 1.8)
     assert mode.command == mc.MAV_CMD_DO_SET_MODE and mode.param2 == 10  # Rover AUTO
     seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, accepted), 1.9)
     assert seq.outcome is Outcome.DONE
@@ -155,9 +157,11 @@ def test_refused_command_fails():
 def test_a_refused_arm_is_asked_again_within_the_window():
     seq = CommandSequence(start_mission_commands(), VEHICLE, refusal_window_s=60.0)
     seq.start(0.0)
+    seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, mc.MAV_RESULT_ACCEPTED), 0.05)
     refused = command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_FAILED)
     assert seq.on_message(refused, 0.1) == []  # pre-arm checks not passed yet
     assert seq.outcome is Outcome.RUNNING
+    assert seq.last_refusal == "MAV_CMD_COMPONENT_ARM_DISARM refused: MAV_RESULT_FAILED"
     assert seq.on_tick(1.0) == []  # still pausing
     (again,) = seq.on_tick(2.2)
     assert again.command == mc.MAV_CMD_COMPONENT_ARM_DISARM

@@ -94,35 +94,185 @@ def test_ids_that_zenoh_or_files_would_misread_are_refused(tmp_path, key, value)
     assert str(path) in str(err.value)
 
 
-def test_a_failed_upload_is_tried_again_from_the_count(dispatch):
+class Pub:
+    def __init__(self):
+        self.frames = []
+
+    def put(self, frame):
+        self.frames.append(frame)
+
+    def sent(self, system=11):
+        return [mc.Codec(system, 1).decode_one(f) for f in self.frames]
+
+
+def daemon_for(dispatch):
     from dispatcher.daemon import DaemonConfig, Dispatcher
-    from dispatcher.mission_client import Outcome
-
-    class Pub:
-        def __init__(self):
-            self.frames = []
-
-        def put(self, frame):
-            self.frames.append(frame)
 
     daemon = Dispatcher(DaemonConfig(dispatch=dispatch))
     daemon.publishers = {vid: Pub() for vid in dispatch.missions}
-    for vid in dispatch.missions:
+    return daemon
+
+
+def booting(sysid):
+    msg = heartbeat(sysid)
+    msg.system_status, msg.custom_mode = mc.MAV_STATE_BOOT, 16  # INITIALISING
+    return msg
+
+
+def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
+    from dispatcher.mission_client import Outcome
+
+    daemon = daemon_for(dispatch)
+    for vid, v in daemon.state.vehicles.items():
         daemon.state.on_alive(vid, 0.0)
+        daemon.state.on_message(vid, heartbeat(v.system_id), 0.0)
     daemon._advance("v1", 0.0)
     first = daemon.links["v1"].upload
     assert daemon.state.vehicles["v1"].phase is Phase.UPLOADING and first is not None
-    for attempt in (2, 3):
+    now = 1.0
+    for attempt, pause in ((2, 2.0), (3, 4.0)):
         daemon.links["v1"].upload._fail("no answer")
-        daemon._advance("v1", 1.0)
+        daemon._advance("v1", now)
+        assert daemon.links["v1"].upload is None  # backing off
+        daemon._advance("v1", now + pause - 0.1)
+        assert daemon.links["v1"].upload is None
+        now += pause
+        daemon._advance("v1", now)
         assert daemon.state.vehicles["v1"].upload_attempts == attempt
         assert daemon.links["v1"].upload.outcome is Outcome.RUNNING
     daemon.links["v1"].upload._fail("no answer")
-    daemon._advance("v1", 2.0)
+    daemon._advance("v1", now + 10.0)
     v1 = daemon.state.vehicles["v1"]
     assert v1.phase is Phase.FAILED and "after 3 attempts" in v1.error
-    counts = [mc.Codec(11, 1).decode_one(f) for f in daemon.publishers["v1"].frames]
-    assert [m.get_type() for m in counts].count("MISSION_COUNT") == 3
+    types = [m.get_type() for m in daemon.publishers["v1"].sent()]
+    assert types.count("MISSION_COUNT") == 3
+
+
+def test_a_booting_autopilot_gets_its_mission_once_it_is_ready(dispatch):
+    daemon = daemon_for(dispatch)
+    for vid, v in daemon.state.vehicles.items():
+        daemon.state.on_alive(vid, 0.0)
+        daemon.state.on_message(vid, booting(v.system_id), 0.0)
+    daemon._tick(0.5)
+    assert daemon.links["v1"].upload is None and not daemon.publishers["v1"].frames
+    daemon.state.on_message("v1", heartbeat(11), 1.0)  # STANDBY/ACTIVE: booted
+    daemon._advance("v1", 1.0)
+    assert daemon.links["v1"].upload is not None
+    assert daemon.publishers["v1"].sent()[0].get_type() == "MISSION_COUNT"
+
+
+def statustext(sysid, text, severity=mc.MAV_SEVERITY_CRITICAL):
+    return mc.Codec(sysid, 1).decode_one(
+        mc.Codec(sysid, 1).encode(
+            mc.message("STATUSTEXT", severity=severity, text=text.encode(), id=0, chunk_seq=0)
+        )
+    )
+
+
+def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
+    from dispatcher.mission_client import Outcome
+
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    hold = heartbeat(11)
+    hold.custom_mode = 4
+    daemon.state.on_alive("v1", 0.0)
+    daemon.state.on_message("v1", hold, 0.0)
+    daemon._start(v, daemon.links["v1"], 0.0)
+    start = daemon.links["v1"].start
+    sent = daemon.publishers["v1"].sent()
+    assert [(m.command, m.param1, m.param2) for m in sent] == [
+        (mc.MAV_CMD_DO_SET_MISSION_CURRENT, 1.0, 0.0)  # never a reset (param2 = 1)
+    ]
+    for cmd in (mc.MAV_CMD_DO_SET_MISSION_CURRENT,):
+        start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.1)
+    start.on_message(ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_FAILED), 0.2)
+    text = "Arm: Battery 1 below minimum arming voltage"
+    daemon.state.on_message("v1", statustext(11, text), 0.25)
+    daemon._advance("v1", 0.3)
+    assert text in v.error and "ARM_DISARM refused" in v.error
+    assert daemon.state.status_doc()["vehicles"]["v1"]["autopilot_says"] == [text]
+    start.outcome, start.reason = Outcome.FAILED, "MAV_CMD_COMPONENT_ARM_DISARM refused"
+    daemon._advance("v1", 70.0)
+    assert v.phase is Phase.FAILED and text in v.error
+
+
+def ack(command, result):
+    return mc.Codec(11, 1).decode_one(
+        mc.Codec(11, 1).encode(
+            mc.message(
+                "COMMAND_ACK",
+                command=command,
+                result=result,
+                progress=0,
+                result_param2=0,
+                target_system=255,
+                target_component=190,
+            )
+        )
+    )
+
+
+def position(sysid, t_ms):
+    return mc.message(
+        "GLOBAL_POSITION_INT",
+        time_boot_ms=t_ms,
+        lat=440003000,
+        lon=872995000,
+        alt=0,
+        relative_alt=0,
+        vx=0,
+        vy=0,
+        vz=0,
+        hdg=0,
+    )
+
+
+def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(dispatch):
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    running = heartbeat(11)
+    running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    daemon.state.on_alive("v1", 0.0)
+    daemon.state.on_message("v1", running, 0.0)
+    v.phase = Phase.RUNNING
+    daemon.state.on_message("v1", position(11, 500_000), 1.0)
+    daemon.state.on_item_reached("v1", 7)
+    daemon.state.on_message("v1", position(11, 3_000), 2.0)  # its clock started again
+    assert v.needs_restart and v.reboots == 1 and not v.ready
+    assert v.sim_time_s >= 500.0  # the run's time does not go back
+    daemon._tick(2.1)
+    assert not daemon.publishers["v1"].frames  # still booting
+    manual = heartbeat(11)
+    manual.custom_mode = 0  # MANUAL, disarmed: how ArduPilot comes back
+    daemon.state.on_message("v1", manual, 3.0)
+    total = mc.message(
+        "MISSION_CURRENT", seq=0, total=len(v.mission) - 1, mission_state=2, mission_mode=0
+    )
+    daemon.state.on_message("v1", total, 3.0)
+    assert v.off_auto_since is None  # expected, not a failsafe
+    daemon._advance("v1", 3.1)
+    first = daemon.publishers["v1"].sent()[0]
+    assert (first.command, first.param1, first.param2) == (
+        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
+        8.0,
+        0.0,
+    )
+    assert v.phase is Phase.STARTING and v.reached == 7
+
+
+def test_a_vehicle_left_in_auto_is_put_in_hold_before_its_next_start(dispatch):
+    from dispatcher.mission_client import start_mission_commands
+
+    cmds = start_mission_commands(1, in_auto=True)
+    assert [c.command for c in cmds] == [
+        mc.MAV_CMD_DO_SET_MODE,
+        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
+        mc.MAV_CMD_COMPONENT_ARM_DISARM,
+        mc.MAV_CMD_DO_SET_MODE,
+    ]
+    assert cmds[0].params[1] == 4.0 and cmds[-1].params[1] == 10.0
 
 
 def test_a_running_vehicle_out_of_auto_is_flagged_and_given_up_after_the_grace(dispatch):
