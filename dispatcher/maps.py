@@ -1,4 +1,4 @@
-"""Pictures of a farm: field outlines, swaths, routes, garage, legend and scale bar."""
+"""Pictures of a farm: field outlines, roads, gates, swaths, routes, garage, legend, scale bar."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.transforms import offset_copy  # noqa: E402
+from shapely.geometry import LineString  # noqa: E402
 
 from planner.farm import Farm  # noqa: E402
-from planner.field_plan import FarmPlan  # noqa: E402
+from planner.field_plan import FarmPlan, MachinePlan  # noqa: E402
 
 COLOURS = [
     "#1f77b4",
@@ -32,8 +34,16 @@ def colour(k: int) -> str:
     return COLOURS[k % len(COLOURS)]
 
 
+ROAD_COLOUR = "#b4b4b4"
+GATE_COLOUR = "#4d4d4d"
+LANE_SPACING_PT = 2.2  # machines sharing a road are drawn side by side, this far apart
+
+
 def draw_fields(ax: Axes, farm: Farm) -> None:
-    """Field polygons (holes too) with their ids, and the garage."""
+    """Roads, field polygons (holes too) with their ids, gates and the garage."""
+    for road in farm.roads:
+        xs, ys = road.line.xy
+        ax.plot(xs, ys, color=ROAD_COLOUR, linewidth=4.0, solid_capstyle="round", zorder=0.5)
     for f in farm.fields:
         xs, ys = f.boundary.exterior.xy
         ax.fill(xs, ys, facecolor="#f3efe0", edgecolor="#6b5b3e", linewidth=1.0, zorder=1)
@@ -51,6 +61,17 @@ def draw_fields(ax: Axes, farm: Farm) -> None:
             fontweight="bold",
             zorder=6,
             bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+        )
+    if farm.gates:
+        ax.plot(
+            [g.xy[0] for g in farm.gates],
+            [g.xy[1] for g in farm.gates],
+            linestyle="",
+            marker="D",
+            markersize=4.5,
+            markerfacecolor="white",
+            markeredgecolor=GATE_COLOUR,
+            zorder=5,
         )
     gx, gy = farm.garage
     ax.plot([gx], [gy], marker="s", markersize=11, color="black", zorder=7)
@@ -91,12 +112,16 @@ def draw_scale_bar(ax: Axes) -> None:
 
 
 def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2D]:
-    """Each machine's swaths (thin) and road legs (``planned_style``) in its own colour;
-    returns the legend handles."""
+    """Each machine's swaths (thin) and transit legs as driven (``planned_style``, an
+    arrow mid-leg) in its own colour, machines on the same road side by side; returns the
+    legend handles."""
     handles = []
     garage = plan.farm.garage
+    count = len(plan.machines)
     for k, route in enumerate(plan.machines):
         col = colour(k)
+        shift = (k - (count - 1) / 2) * LANE_SPACING_PT
+        lane = offset_copy(ax.transData, fig=ax.figure, x=shift, y=shift, units="points")
         for visit in route.visits:
             for s in visit.swaths:
                 ax.plot(
@@ -116,21 +141,29 @@ def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2
                     alpha=0.8,
                     zorder=2,
                 )
-        points = [garage]
-        for visit in route.visits:
-            points += [visit.entry, visit.exit]
-        points.append(garage)
-        for a, b in zip(points[0::2], points[1::2], strict=True):
+        for leg in transit_legs(route, garage):
+            ax.plot(
+                [p[0] for p in leg],
+                [p[1] for p in leg],
+                color=col,
+                linewidth=1.6,
+                linestyle=planned_style,
+                transform=lane,
+                zorder=4,
+            )
+            a, b = _middle_step(leg)
             ax.annotate(
                 "",
                 xy=b,
                 xytext=a,
+                xycoords=lane,
+                textcoords=lane,
                 zorder=4,
                 arrowprops={
                     "arrowstyle": "-|>",
                     "color": col,
-                    "linewidth": 1.8,
-                    "linestyle": planned_style,
+                    "linewidth": 1.6,
+                    "mutation_scale": 14,
                     "shrinkA": 0,
                     "shrinkB": 0,
                 },
@@ -141,6 +174,34 @@ def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2
         )
         handles.append(Line2D([], [], color=col, linewidth=2, label=label))
     return handles
+
+
+def transit_legs(
+    route: MachinePlan, garage: tuple[float, float]
+) -> list[list[tuple[float, float]]]:
+    """The polylines driven between fields: garage -> first entry, exit -> next entry, ...,
+    last exit -> garage (through the approach and return points)."""
+    legs = []
+    where = garage
+    for visit in route.visits:
+        legs.append([where, *visit.approach, visit.entry])
+        where = visit.exit
+    if route.visits:
+        legs.append([where, *route.return_path, garage])
+    return legs
+
+
+def _middle_step(
+    leg: list[tuple[float, float]],
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A short piece around the middle of a polyline, in its direction (for an arrow)."""
+    line = LineString(leg)
+    if line.length <= 0.0:
+        return leg[0], leg[-1]
+    half = line.length / 2
+    step = min(1.0, half)
+    a, b = line.interpolate(half - step), line.interpolate(half + step)
+    return (a.x, a.y), (b.x, b.y)
 
 
 def figure_for(farm: Farm, width_in: float = 12.0, extra_height_in: float = 1.6):  # type: ignore[no-untyped-def]
@@ -168,11 +229,26 @@ def draw_plan_map(plan: FarmPlan, path: str | Path, title: str = "") -> None:
             [],
             color="grey",
             linestyle="--",
-            linewidth=1.8,
-            label="road between fields (arrow: driving direction)",
+            linewidth=1.6,
+            label="transit between fields (arrow: driving direction)",
         )
     )
     handles.append(Line2D([], [], color="grey", linewidth=0.6, label="swaths worked in a field"))
+    if plan.farm.roads:
+        handles.append(Line2D([], [], color=ROAD_COLOUR, linewidth=4.0, label="road"))
+    if plan.farm.gates:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=GATE_COLOUR,
+                marker="D",
+                markerfacecolor="white",
+                markersize=4.5,
+                linestyle="",
+                label="field gate",
+            )
+        )
     handles.append(Line2D([], [], color="black", marker="s", linestyle="", label="garage"))
     ax.legend(
         handles=handles,

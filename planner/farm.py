@@ -1,15 +1,22 @@
-"""A farm as the operator draws it: field polygons and a garage in WGS84 GeoJSON (RFC 7946).
+"""A farm as the operator draws it: fields, garage, roads and gates in WGS84 GeoJSON (RFC 7946).
 
 Fields are ``Polygon`` features (holes allowed) with ``properties.kind = "field"`` and a
 string ``properties.id``; the garage is a ``Point`` with ``properties.kind = "garage"``.
 Optional field properties: ``name``, ``work_angle_deg`` (fixed swath direction, degrees
-counter-clockwise from east), ``headland_passes``. Everything is projected once into a
-local metric frame (:mod:`planner.geo`) and checked; errors name the file and feature.
+counter-clockwise from east), ``headland_passes``.
+
+Optional: roads, ``LineString`` or ``MultiLineString`` features with ``properties.kind =
+"road"``, and gates, ``Point`` features with ``properties.kind = "gate"`` and
+``properties.field = "<field id>"`` (a field may have several, each at most
+:data:`MAX_GATE_DISTANCE_M` from its field). :mod:`planner.roads` routes the transit between
+fields on them. Everything is projected once into a local metric frame (:mod:`planner.geo`)
+and checked; errors name the file and feature.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +24,16 @@ from typing import Any
 
 import numpy as np
 import shapely
-from shapely.geometry import Point, Polygon
+from shapely.geometry import LineString, Point, Polygon
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
 from planner.geo import LocalFrame, check_wgs84
 
 MAX_GARAGE_DISTANCE_M = 50_000.0
+MAX_GATE_DISTANCE_M = 50.0  # a gate lies on its field's boundary or this close to it
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -43,20 +53,44 @@ class Field:
 
 
 @dataclass(frozen=True)
+class Road:
+    """One road (a polyline; a MultiLineString feature gives one per part), local metres."""
+
+    id: str
+    line: LineString
+    line_lonlat: LineString
+
+
+@dataclass(frozen=True)
+class Gate:
+    """Where machines enter and leave ``field_id``, in local metres."""
+
+    field_id: str
+    xy: tuple[float, float]
+    lonlat: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class Farm:
-    """The fields and the garage of one farm, in one local frame."""
+    """The fields, the garage and the roads and gates of one farm, in one local frame."""
 
     fields: tuple[Field, ...]
     garage: tuple[float, float]  # local metres
     garage_lonlat: tuple[float, float]
     frame: LocalFrame
     source: str = "<memory>"
+    roads: tuple[Road, ...] = ()
+    gates: tuple[Gate, ...] = ()
 
     def field(self, field_id: str) -> Field:
         for f in self.fields:
             if f.id == field_id:
                 return f
         raise KeyError(field_id)
+
+    def gates_of(self, field_id: str) -> tuple[Gate, ...]:
+        """The gates of one field (empty: entered where it is nearest to the roads)."""
+        return tuple(g for g in self.gates if g.field_id == field_id)
 
 
 def load_farm(path: str | Path) -> Farm:
@@ -80,6 +114,8 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
         raise GeometryError(f"{source}: 'features' must be a list")
     raw_fields: list[tuple[str, dict[str, Any], list[Any]]] = []
     garages: list[tuple[float, float]] = []
+    raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
+    raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: set[str] = set()
     for k, feature in enumerate(features):
         where = f"{source}: feature #{k}"
@@ -106,6 +142,18 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
                 raise GeometryError(f"{where}: a Polygon needs at least one ring")
             checked = [[_lonlat(p, where) for p in ring] for ring in rings]
             raw_fields.append((field_id, props, checked))
+        elif kind == "road":
+            raw_roads += _road_parts(k, props, geom, where)
+        elif kind == "gate":
+            field_id = props.get("field")
+            if not isinstance(field_id, str) or not field_id:
+                raise GeometryError(
+                    f"{where} (gate): a gate needs properties.field, the id of its field"
+                )
+            if geom.get("type") != "Point":
+                raise GeometryError(f"{where} (gate of {field_id!r}): a gate must be a Point")
+            where = f"{where} (gate of {field_id!r})"
+            raw_gates.append((field_id, where, _lonlat(geom.get("coordinates"), where)))
     if not garages:
         raise GeometryError(f"{source}: no garage (a Point feature with properties.kind 'garage')")
     if len(garages) > 1:
@@ -126,9 +174,83 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
             f"(limit {MAX_GARAGE_DISTANCE_M / 1000:.0f} km); are its longitude and latitude "
             "swapped? GeoJSON wants [longitude, latitude]"
         )
+    by_id = {f.id: f for f in fields}
+    roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
+    gates = tuple(_gate(frame, by_id, fid, where, lonlat) for fid, where, lonlat in raw_gates)
+    for road in roads:
+        for f in fields:
+            if road.line.intersection(f.boundary).length > 1.0:
+                log.warning(
+                    "%s: road %r crosses field %r; transit may drive through it",
+                    source,
+                    road.id,
+                    f.id,
+                )
     return Farm(
-        fields=fields, garage=(gx, gy), garage_lonlat=(glon, glat), frame=frame, source=source
+        fields=fields,
+        garage=(gx, gy),
+        garage_lonlat=(glon, glat),
+        frame=frame,
+        source=source,
+        roads=roads,
+        gates=gates,
     )
+
+
+def _road_parts(
+    k: int, props: dict[str, Any], geom: dict[str, Any], where: str
+) -> list[tuple[str, str, list[tuple[float, float]]]]:
+    """The checked lon/lat polylines of one road feature (one per part)."""
+    road_id = props.get("id")
+    road_id = str(road_id) if road_id is not None else f"road#{k}"
+    where = f"{where} (road {road_id!r})"
+    kind = geom.get("type")
+    coords = geom.get("coordinates")
+    if kind == "LineString":
+        parts = [coords]
+    elif kind == "MultiLineString" and isinstance(coords, list):
+        parts = coords
+    else:
+        raise GeometryError(f"{where}: a road must be a LineString or MultiLineString, not {kind}")
+    out = []
+    for n, part in enumerate(parts):
+        here = where if kind == "LineString" else f"{where} part {n}"
+        if not isinstance(part, list) or len(part) < 2:
+            raise GeometryError(f"{here}: a road needs at least 2 points")
+        points = [_lonlat(p, here) for p in part]
+        if len(set(points)) < 2:
+            raise GeometryError(f"{here}: a road needs at least 2 distinct points")
+        out.append((road_id if len(parts) == 1 else f"{road_id}.{n}", here, points))
+    return out
+
+
+def _road(frame: LocalFrame, road_id: str, where: str, points: list[tuple[float, float]]) -> Road:
+    xs, ys = frame.to_local(np.array([p[0] for p in points]), np.array([p[1] for p in points]))
+    line = LineString(list(zip(xs.tolist(), ys.tolist(), strict=True)))
+    if line.length <= 0.0:
+        raise GeometryError(f"{where}: the road has no length")
+    return Road(id=road_id, line=line, line_lonlat=LineString(points))
+
+
+def _gate(
+    frame: LocalFrame,
+    fields: dict[str, Field],
+    field_id: str,
+    where: str,
+    lonlat: tuple[float, float],
+) -> Gate:
+    field = fields.get(field_id)
+    if field is None:
+        known = ", ".join(sorted(fields))
+        raise GeometryError(f"{where}: no field {field_id!r} in this farm (fields: {known})")
+    x, y = frame.to_local(*lonlat)
+    off = field.boundary.boundary.distance(Point(x, y))
+    if off > MAX_GATE_DISTANCE_M:
+        raise GeometryError(
+            f"{where}: the gate is {off:.0f} m from the boundary of field {field_id!r} "
+            f"(limit {MAX_GATE_DISTANCE_M:.0f} m); a gate lies on its field's boundary"
+        )
+    return Gate(field_id=field_id, xy=(x, y), lonlat=lonlat)
 
 
 def _lonlat(value: Any, where: str) -> tuple[float, float]:
@@ -171,7 +293,9 @@ def _field(
     if angle is not None and (not isinstance(angle, int | float) or not math.isfinite(angle)):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
     passes = props.get("headland_passes")
-    if passes is not None and (not isinstance(passes, int) or isinstance(passes, bool) or passes < 0):
+    if passes is not None and (
+        not isinstance(passes, int) or isinstance(passes, bool) or passes < 0
+    ):
         raise GeometryError(f"{where}: headland_passes must be a whole number >= 0, not {passes!r}")
     name = props.get("name", field_id)
     return Field(

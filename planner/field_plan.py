@@ -1,20 +1,29 @@
 """Planning with real field geometry: coverage per machine, allocation, start corners.
 
 1. Every field is covered (:mod:`planner.coverage`) once for each distinct working width
-   of the fleet; the U-turns of the machine that works a field replace formula (5)'s
-   rectangle estimate, its hours stay S / w.
-2. The solver (:func:`planner.solve.solve`) allocates and orders the fields, with the
-   distance between two fields taken between their centroids.
+   and turning radius of the fleet; the U-turns of the machine that works a field replace
+   formula (5)'s rectangle estimate, its hours stay S / w.
+2. The solver (:func:`planner.solve.solve`) allocates and orders the fields. Its distance
+   between two fields is the length of the transit (:class:`planner.roads.TransitNetwork`)
+   from the centroid of one to the centroid of the other (a point inside the field when the
+   centroid is not): inside the field to its best gate, along the roads, from the other
+   field's gate to its centroid; without roads, around the other fields. Likewise from the
+   garage. Formula (2)'s straight line between centroids is what ``network=None`` gives.
 3. A post-optimisation picks each field's start corner along every route exactly, by
-   dynamic programming over the four corners: the road runs from the exit of one field
-   to the entry of the next, and from and back to the garage.
-The figures of the result (distance, fuel, time, turns) are those of the driven geometry.
+   dynamic programming over the four corners: the transit runs from the exit of one field
+   to the entry of the next, and from and back to the garage, along the roads (or around the
+   fields); its points are kept in :attr:`Visit.approach` and :attr:`MachinePlan.return_path`.
+The figures of the result (distance, fuel, time, turns) are those of the driven geometry:
+road metres are the transit lengths plus the in-field driving between cells; when the
+coverage plans drivable turns (:meth:`FieldCoverage.turn_length_m` > 0) a field's turns take
+their length at the working speed, at the road fuel rate (formula (5)'s charge for turns),
+otherwise the paper's t_T per turn (formula (6)).
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +33,7 @@ from planner.coverage import XY, FieldCoverage, Swath, cover_field
 from planner.errors import GeometryError
 from planner.farm import Farm, Field
 from planner.problem import Machine, Problem, Task
+from planner.roads import TransitNetwork
 from planner.solve import AnyOf, Result, solve
 
 log = logging.getLogger(__name__)
@@ -137,9 +147,13 @@ def cover_farm(farm: Farm, machines: Sequence[Machine]) -> dict[tuple[str, str],
 
 
 def farm_problem(
-    farm: Farm, machines: Sequence[Machine], coverage: dict[tuple[str, str], FieldCoverage]
+    farm: Farm,
+    machines: Sequence[Machine],
+    coverage: dict[tuple[str, str], FieldCoverage],
+    network: TransitNetwork | None = None,
 ) -> Problem:
-    """The solver's view of the farm: centroids, areas, real turn counts per machine."""
+    """The solver's view of the farm: centroids, areas, real turn counts per machine, and
+    with ``network`` the transit lengths between centroids (else straight lines)."""
     tasks = []
     for f in farm.fields:
         c = f.boundary.centroid
@@ -153,9 +167,30 @@ def farm_problem(
     # The paper has every machine work (its assumption 2: more tasks than machines); with
     # more machines than fields the spare ones simply stay in the garage.
     min_tasks = 1 if len(tasks) >= len(machines) else 0
+    dist = depot_dist = None
+    if network is not None:
+        points = [farm.garage] + [field_anchor(f) for f in farm.fields]
+        lengths = network.length_matrix(points, [None] + [f.id for f in farm.fields])
+        dist, depot_dist = lengths[1:, 1:], lengths[0, 1:]
     return Problem.build(
-        machines, tasks, farm.garage, turns=turns, min_tasks_per_machine=min_tasks, name="farm"
+        machines,
+        tasks,
+        farm.garage,
+        dist=dist,
+        depot_dist=depot_dist,
+        turns=turns,
+        min_tasks_per_machine=min_tasks,
+        name="farm",
     )
+
+
+def field_anchor(field: Field) -> XY:
+    """The point a field stands for in the solver's distances: its centroid, or a point
+    inside it when the centroid is not (a crescent, a ring)."""
+    c = field.boundary.centroid
+    if not field.boundary.contains(c):
+        c = field.boundary.representative_point()
+    return (float(c.x), float(c.y))
 
 
 def plan_farm(
@@ -169,36 +204,68 @@ def plan_farm(
     """Allocate, order and lay out the work of ``machines`` on ``farm``."""
     obj = Objective.parse(objective)
     coverage = cover_farm(farm, machines)
-    problem = farm_problem(farm, machines, coverage)
+    network = TransitNetwork(farm)
+    problem = farm_problem(farm, machines, coverage, network)
     result = solve(problem, obj, algorithm, stop, seed=seed)
     plans = []
     for i, route in enumerate(result.routes):
         machine = machines[i]
         fields = [farm.fields[j] for j in route]
         covs = [coverage[(machine.id, f.id)] for f in fields]
-        corners, road = best_corners(farm.garage, covs)
-        visits = tuple(Visit(f, c, k) for f, c, k in zip(fields, covs, corners, strict=True))
-        plans.append(machine_figures(machine, visits, road))
+        corners, road = best_corners(farm.garage, covs, network)
+        visits, back = lay_out(farm.garage, fields, covs, corners, network)
+        plans.append(machine_figures(machine, visits, road, return_path=back))
     return FarmPlan(farm=farm, machines=tuple(plans), objective=obj, solver=result)
 
 
-def best_corners(garage: XY, covs: Sequence[FieldCoverage]) -> tuple[list[int], float]:
+def lay_out(
+    garage: XY,
+    fields: Sequence[Field],
+    covs: Sequence[FieldCoverage],
+    corners: Sequence[int],
+    network: TransitNetwork | None = None,
+) -> tuple[tuple[Visit, ...], tuple[XY, ...]]:
+    """The visits of one route with their approach paths, and the path back to the garage."""
+    visits = []
+    where, inside = garage, None
+    for f, cov, corner in zip(fields, covs, corners, strict=True):
+        via = network.route(where, cov.entry(corner), inside, f.id)[1] if network else ()
+        visits.append(Visit(f, cov, corner, approach=via))
+        where, inside = cov.exit(corner), f.id
+    back = network.route(where, garage, inside, None)[1] if network and fields else ()
+    return tuple(visits), back
+
+
+TransitLength = Callable[[XY, XY, str | None, str | None], float]
+
+
+def best_corners(
+    garage: XY, covs: Sequence[FieldCoverage], network: TransitNetwork | None = None
+) -> tuple[list[int], float]:
     """The start corner of each field along a fixed order that minimises the road driven
-    (garage -> fields -> garage, plus in-field driving between cells); exact DP."""
+    (garage -> fields -> garage along ``network``'s transit, straight lines without it,
+    plus in-field driving between cells); exact DP over 4 corners, 16 cached routes a leg."""
     if not covs:
         return [], 0.0
+    leg: TransitLength = network.length if network is not None else _straight
+    ids = [cov.field_id for cov in covs]
     n = len(covs)
     cost = np.full((n, CORNERS), np.inf)
     back = np.zeros((n, CORNERS), dtype=np.int64)
     for c in range(CORNERS):
-        cost[0, c] = _dist(garage, covs[0].entry(c)) + covs[0].transit_inside_m(c)
+        cost[0, c] = leg(garage, covs[0].entry(c), None, ids[0]) + covs[0].transit_inside_m(c)
     for k in range(1, n):
         for c in range(CORNERS):
             here = covs[k].entry(c)
-            legs = [cost[k - 1, p] + _dist(covs[k - 1].exit(p), here) for p in range(CORNERS)]
+            legs = [
+                cost[k - 1, p] + leg(covs[k - 1].exit(p), here, ids[k - 1], ids[k])
+                for p in range(CORNERS)
+            ]
             back[k, c] = int(np.argmin(legs))
             cost[k, c] = legs[back[k, c]] + covs[k].transit_inside_m(c)
-    final = [cost[n - 1, c] + _dist(covs[n - 1].exit(c), garage) for c in range(CORNERS)]
+    final = [
+        cost[n - 1, c] + leg(covs[n - 1].exit(c), garage, ids[n - 1], None) for c in range(CORNERS)
+    ]
     corner = int(np.argmin(final))
     corners = [corner]
     for k in range(n - 1, 0, -1):
@@ -207,13 +274,19 @@ def best_corners(garage: XY, covs: Sequence[FieldCoverage]) -> tuple[list[int], 
     return corners[::-1], float(min(final))
 
 
-def machine_figures(machine: Machine, visits: tuple[Visit, ...], road_m: float) -> MachinePlan:
-    """Formulas (5)-(6) with the coverage's turns: drive at road speed and rate, turn
-    t_T per U-turn at the road fuel rate, work S / w at the working rate."""
+def machine_figures(
+    machine: Machine,
+    visits: tuple[Visit, ...],
+    road_m: float,
+    return_path: tuple[XY, ...] = (),
+) -> MachinePlan:
+    """Formulas (5)-(6) with the coverage's turns: drive ``road_m`` at road speed and rate,
+    work S / w at the working rate, and turn at the road fuel rate for the turns' length at
+    the working speed when the coverage plans them, else t_T per U-turn."""
     turns = sum(v.coverage.turns for v in visits)
     work_h = sum(v.field.area_m2 / machine.capacity_m2h for v in visits)
     drive_h = road_m / (1000.0 * machine.road_speed_kmh)
-    turn_h = turns * machine.turn_time_h
+    turn_h = sum(turn_hours(machine, v) for v in visits)
     return MachinePlan(
         machine=machine,
         visits=visits,
@@ -222,8 +295,18 @@ def machine_figures(machine: Machine, visits: tuple[Visit, ...], road_m: float) 
         turns=turns,
         time_h=drive_h + turn_h + work_h,
         fuel_l=(drive_h + turn_h) * machine.road_fuel_lh + work_h * machine.work_fuel_lh,
+        return_path=return_path,
     )
 
 
-def _dist(a: XY, b: XY) -> float:
+def turn_hours(machine: Machine, visit: Visit) -> float:
+    """Hours spent turning in one field: the planned turn paths at the working speed, or
+    the paper's t_T per turn when the coverage plans none."""
+    metres = visit.coverage.turn_length_m(visit.corner)
+    if metres > 0.0:
+        return metres / (1000.0 * machine.work_speed_kmh)
+    return visit.coverage.turns * machine.turn_time_h
+
+
+def _straight(a: XY, b: XY, _from: str | None = None, _to: str | None = None) -> float:
     return float(np.hypot(a[0] - b[0], a[1] - b[1]))

@@ -1,0 +1,459 @@
+"""Transit between fields: along the farm's roads, or around the other fields.
+
+:class:`TransitNetwork` answers ``route(a, b, from_field, to_field) -> (length_m, via)``:
+the shortest drive from ``a`` (a point of field ``from_field``, or off the fields when
+``None``, e.g. the garage) to ``b``, in the farm's local metric frame. ``via`` holds the
+points strictly between ``a`` and ``b``.
+
+With roads (:attr:`planner.farm.Farm.roads`) the road polylines are noded where they cross
+and where the garage, the gates and the fields without a gate hang on them, giving a graph
+whose edges weigh their length. A route is then
+
+    a -> (inside from_field) -> gate -> access -> roads -> access -> gate -> (inside) -> b,
+
+taking the pair of gates that gives the shortest total. A field without a gate is entered at
+the point of its boundary nearest the roads, the garage and the gates reach the nearest road
+point by a straight access segment. The legs inside a field are straight when that stays
+inside, else go around notches and holes (:class:`FieldInterior`). One Dijkstra per gate and
+the garage is run once, up front; the routes themselves are cached.
+
+Without roads (or when the roads do not connect two fields) a route goes around the other
+fields: the shortest path in the plane with every field, grown by :data:`CLEARANCE_M`, as an
+obstacle, except ``from_field`` for the leg that leaves it and ``to_field`` for the leg that
+enters it (a visibility graph over the obstacles' convex corners, all pairs precomputed).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import networkx as nx
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.polygon import orient
+from shapely.ops import nearest_points, substring
+
+from planner.coverage import _InFieldDistance
+from planner.farm import Farm
+
+log = logging.getLogger(__name__)
+
+XY = tuple[float, float]
+FloatArray = NDArray[np.float64]
+Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly between the ends
+
+CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
+_SAME_M = 1e-6  # points closer than this are one
+_TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
+
+
+class FieldInterior:
+    """Shortest paths without leaving one field (the coverage's visibility-graph router)."""
+
+    def __init__(self, polygon: Polygon) -> None:
+        self.polygon = polygon
+        self._router = _InFieldDistance(polygon)
+        self._inside = polygon.buffer(_TOUCH_M, join_style="mitre")
+        shapely.prepare(self._inside)
+
+    def route(self, a: XY, b: XY) -> Route:
+        """Length and corners of the shortest in-field path from ``a`` to ``b``; a point
+        outside the field is joined straight from the field's boundary point nearest it."""
+        a_in, b_in = self._snap(a), self._snap(b)
+        length, via = self._router.route(a_in, b_in)
+        points = [p for p in (a_in, *via, b_in)]
+        total = length + math.dist(a, a_in) + math.dist(b_in, b)
+        return total, _strictly_between(a, points, b)
+
+    def _snap(self, p: XY) -> XY:
+        if self._inside.covers(Point(p)):
+            return p
+        q = nearest_points(self.polygon.boundary, Point(p))[0]
+        return (float(q.x), float(q.y))
+
+
+@dataclass(frozen=True)
+class _Option:
+    """One way onto the road graph from an end of a route: which node, how far, through what
+    (the points strictly after the route's start up to the node, or from the node up to
+    strictly before its end)."""
+
+    node: int
+    length_m: float
+    via: tuple[XY, ...]
+
+
+class _RoadGraph:
+    """The roads as a weighted graph, noded at crossings and where ``anchors`` hang on."""
+
+    def __init__(self, roads: Sequence[LineString], anchors: Sequence[XY]) -> None:
+        merged = shapely.unary_union(list(roads))
+        segments = [g for g in shapely.get_parts(merged) if g.length > _SAME_M]
+        self.graph: nx.Graph = nx.Graph()
+        self.xy: list[XY] = []
+        self._ids: dict[XY, int] = {}
+        self._dijkstra: dict[int, tuple[dict[int, list[int]], dict[int, float]]] = {}
+        tree = shapely.STRtree(segments)
+        cuts: dict[int, list[tuple[float, int]]] = {k: [] for k in range(len(segments))}
+        self.anchor_nodes: list[int] = []
+        for p in anchors:
+            k = int(tree.query_nearest(Point(p))[0])
+            seg = segments[k]
+            along = float(seg.project(Point(p)))
+            q = seg.interpolate(along)
+            on_road = self._node((float(q.x), float(q.y)))
+            cuts[k].append((along, on_road))
+            here = self._node(p)
+            if here != on_road:
+                self._edge(here, on_road, (p, self.xy[on_road]))
+            self.anchor_nodes.append(here)
+        for k, seg in enumerate(segments):
+            coords = list(seg.coords)
+            stops = sorted(
+                [(0.0, self._node(coords[0])), (seg.length, self._node(coords[-1]))] + cuts[k]
+            )
+            for (d0, u), (d1, v) in zip(stops[:-1], stops[1:], strict=True):
+                if u != v and d1 - d0 > _SAME_M:
+                    piece = coords if (d0, d1) == (0.0, seg.length) else substring(seg, d0, d1)
+                    pts = piece if isinstance(piece, list) else list(piece.coords)
+                    self._edge(u, v, tuple((float(x), float(y)) for x, y in pts))
+        self._edges = [(u, v) for u, v in self.graph.edges]
+        self._edge_tree = shapely.STRtree(
+            [LineString(self.graph.edges[u, v]["coords"]) for u, v in self._edges]
+        )
+
+    def _node(self, p: XY) -> int:
+        key = (round(p[0] / _SAME_M) * _SAME_M, round(p[1] / _SAME_M) * _SAME_M)
+        if key not in self._ids:
+            self._ids[key] = len(self.xy)
+            self.xy.append((float(p[0]), float(p[1])))
+            self.graph.add_node(self._ids[key])
+        return self._ids[key]
+
+    def _edge(self, u: int, v: int, coords: tuple[XY, ...]) -> None:
+        length = float(LineString(coords).length)
+        if self.graph.has_edge(u, v) and self.graph.edges[u, v]["weight"] <= length:
+            return
+        self.graph.add_edge(u, v, weight=length, coords=coords, start=u)
+
+    def edge_points(self, u: int, v: int) -> tuple[XY, ...]:
+        """The points of edge ``u``-``v`` driven from ``u`` to ``v``."""
+        data = self.graph.edges[u, v]
+        coords: tuple[XY, ...] = data["coords"]
+        return coords if data["start"] == u else coords[::-1]
+
+    def shortest_from(self, source: int) -> tuple[dict[int, list[int]], dict[int, float]]:
+        """Dijkstra from ``source``: predecessors and distances of every reachable node
+        (computed once per source)."""
+        if source not in self._dijkstra:
+            self._dijkstra[source] = nx.dijkstra_predecessor_and_distance(
+                self.graph, source, weight="weight"
+            )
+        return self._dijkstra[source]
+
+    def distance(self, u: int, v: int) -> float:
+        return self.shortest_from(u)[1].get(v, math.inf)
+
+    def path(self, u: int, v: int) -> tuple[XY, ...]:
+        """The points of the shortest path from node ``u`` to node ``v``, both included."""
+        pred, _ = self.shortest_from(u)
+        nodes = [v]
+        while nodes[-1] != u:
+            nodes.append(pred[nodes[-1]][0])
+        nodes.reverse()
+        points: list[XY] = [self.xy[u]]
+        for a, b in zip(nodes[:-1], nodes[1:], strict=True):
+            points += self.edge_points(a, b)[1:]
+        return tuple(points)
+
+    def nearest_edge(self, p: XY) -> tuple[int, int, float, XY]:
+        """The edge nearest ``p``: its nodes, how far along from ``u`` and the foot point."""
+        k = int(self._edge_tree.query_nearest(Point(p))[0])
+        u, v = self._edges[k]
+        line = LineString(self.edge_points(u, v))
+        along = float(line.project(Point(p)))
+        q = line.interpolate(along)
+        return u, v, along, (float(q.x), float(q.y))
+
+
+class _FreeSpace:
+    """Shortest paths in the plane around grown field outlines (a visibility graph)."""
+
+    def __init__(self, outlines: Sequence[Polygon], clearance_m: float) -> None:
+        grown = [
+            orient(Polygon(p.exterior).buffer(clearance_m, join_style="mitre"), 1.0)
+            for p in outlines
+        ]
+        self._blocks = [g.buffer(-_TOUCH_M, join_style="mitre") for g in grown]
+        self._tree = shapely.STRtree(self._blocks)
+        nodes, owners = [], []
+        for k, g in enumerate(grown):
+            c = np.asarray(g.exterior.coords)[:-1]
+            into, out = c - np.roll(c, 1, axis=0), np.roll(c, -1, axis=0) - c
+            convex = into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0] > 0.0
+            nodes.append(c[convex])
+            owners += [k] * int(convex.sum())
+        self.nodes = np.vstack(nodes) if nodes else np.zeros((0, 2))
+        n = len(self.nodes)
+        weights = np.full((n, n), np.inf)
+        np.fill_diagonal(weights, 0.0)
+        i, j = np.triu_indices(n, k=1)
+        if len(i):
+            ok = self._visible(self.nodes[i], self.nodes[j], set())
+            d = np.hypot(*(self.nodes[i] - self.nodes[j]).T)
+            weights[i[ok], j[ok]] = d[ok]
+            weights[j[ok], i[ok]] = d[ok]
+        self._weights = weights
+        dist = weights.copy()
+        for k in range(n):  # Floyd-Warshall, one vectorised relaxation per node
+            np.minimum(dist, dist[:, k : k + 1] + dist[k : k + 1, :], out=dist)
+        self._dist = dist
+        self._reach: dict[tuple[XY, int | None], tuple[FloatArray, FloatArray]] = {}
+
+    def _visible(self, a: FloatArray, b: FloatArray, ignore: set[int]) -> NDArray[np.bool_]:
+        """For each segment a[k]-b[k], whether it stays off every obstacle not in ``ignore``."""
+        a, b = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+        lines = shapely.linestrings(np.stack([a, b], axis=-2).reshape(-1, 2, 2))
+        hit_line, hit_block = self._tree.query(lines, predicate="intersects")
+        blocked = np.zeros(len(lines), dtype=bool)
+        keep = np.array([int(k) not in ignore for k in hit_block], dtype=bool)
+        blocked[hit_line[keep]] = True
+        return ~blocked
+
+    def _ignored(self, p: XY, own: int | None) -> set[int]:
+        inside = {int(k) for k in self._tree.query(Point(p), predicate="intersects")}
+        return inside | ({own} if own is not None else set())
+
+    def reach(self, p: XY, own: int | None) -> tuple[FloatArray, FloatArray]:
+        """From ``p`` (in obstacle ``own``, which it may cross): the straight distance to
+        every node it sees (inf if hidden) and the shortest distance to every node."""
+        key = (p, own)
+        if key not in self._reach:
+            n = len(self.nodes)
+            seen = np.full(n, np.inf)
+            if n:
+                ok = self._visible(np.asarray(p)[None, :], self.nodes, self._ignored(p, own))
+                seen = np.where(ok, np.hypot(*(self.nodes - np.asarray(p)).T), np.inf)
+                best = (seen[:, None] + self._dist).min(axis=0)
+            else:
+                best = seen
+            self._reach[key] = (seen, best)
+        return self._reach[key]
+
+    def route(self, a: XY, b: XY, own_a: int | None, own_b: int | None) -> Route:
+        ignore = self._ignored(a, own_a) | self._ignored(b, own_b)
+        straight = math.dist(a, b)
+        if straight < _SAME_M or self._visible(np.asarray(a), np.asarray(b), ignore)[0]:
+            return straight, ()
+        seen_a, reach_a = self.reach(a, own_a)
+        seen_b, _ = self.reach(b, own_b)
+        total = reach_a + seen_b
+        j = int(np.argmin(total)) if len(total) else -1
+        if j < 0 or not math.isfinite(total[j]):
+            log.warning("no way around the fields from %s to %s; counting the straight line", a, b)
+            return straight, ()
+        i = int(np.argmin(seen_a + self._dist[:, j]))
+        nodes = [i]
+        while nodes[-1] != j:  # walk the all-pairs table: the next hop on a shortest path
+            k = nodes[-1]
+            step = self._weights[k] + self._dist[:, j]
+            step[k] = np.inf
+            nodes.append(int(np.argmin(step)))
+        via = tuple((float(self.nodes[k][0]), float(self.nodes[k][1])) for k in nodes)
+        return float(total[j]), via
+
+    def length_matrix(self, points: Sequence[XY], owners: Sequence[int | None]) -> FloatArray:
+        """Route lengths between all pairs of ``points`` (point k lies in obstacle
+        ``owners[k]``), vectorised for the solver's matrix."""
+        m = len(points)
+        out = np.zeros((m, m))
+        reach = [self.reach(p, o) for p, o in zip(points, owners, strict=True)]
+        i, j = np.triu_indices(m, k=1)
+        if not len(i):
+            return out
+        pts = np.asarray(points, dtype=float)
+        lines = shapely.linestrings(np.stack([pts[i], pts[j]], axis=-2))
+        hit_line, hit_block = self._tree.query(lines, predicate="intersects")
+        inside = [self._ignored(p, o) for p, o in zip(points, owners, strict=True)]
+        blocked = np.zeros(len(i), dtype=bool)
+        for line, block in zip(hit_line.tolist(), hit_block.tolist(), strict=True):
+            if block not in inside[i[line]] and block not in inside[j[line]]:
+                blocked[line] = True
+        for k, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True)):
+            if blocked[k]:
+                d = float(np.min(reach[a][1] + reach[b][0])) if len(self.nodes) else math.inf
+                if not math.isfinite(d):
+                    d = math.dist(points[a], points[b])
+            else:
+                d = math.dist(points[a], points[b])
+            out[a, b] = out[b, a] = d
+        return out
+
+
+class TransitNetwork:
+    """Where a machine drives between fields and the garage (see the module doc)."""
+
+    def __init__(self, farm: Farm, clearance_m: float = CLEARANCE_M) -> None:
+        self.farm = farm
+        self._index = {f.id: k for k, f in enumerate(farm.fields)}
+        self._interiors: dict[str, FieldInterior] = {}
+        self._free = _FreeSpace([f.boundary for f in farm.fields], clearance_m)
+        self._known: dict[tuple[XY, XY, str | None, str | None], Route] = {}
+        self._roads: _RoadGraph | None = None
+        # Per field, its gates as (gate point, road-graph node); the garage's node.
+        self.gates: dict[str, tuple[XY, ...]] = {}
+        self._gate_nodes: dict[str, tuple[int, ...]] = {}
+        self._garage_node = -1
+        if farm.roads:
+            self._build_roads()
+
+    @property
+    def has_roads(self) -> bool:
+        return self._roads is not None
+
+    def _build_roads(self) -> None:
+        farm = self.farm
+        lines = [r.line for r in farm.roads]
+        network = shapely.unary_union(lines)
+        for f in farm.fields:
+            declared = tuple(g.xy for g in farm.gates_of(f.id))
+            if not declared:
+                p = nearest_points(f.boundary.exterior, network)[0]
+                declared = ((float(p.x), float(p.y)),)
+            self.gates[f.id] = declared
+        anchors = [farm.garage] + [g for f in farm.fields for g in self.gates[f.id]]
+        roads = _RoadGraph(lines, anchors)
+        self._garage_node = roads.anchor_nodes[0]
+        k = 1
+        for f in farm.fields:
+            count = len(self.gates[f.id])
+            self._gate_nodes[f.id] = tuple(roads.anchor_nodes[k : k + count])
+            k += count
+        for node in set(roads.anchor_nodes):  # one Dijkstra per gate and the garage
+            roads.shortest_from(node)
+        reached = roads.shortest_from(self._garage_node)[1]
+        for f in farm.fields:
+            if not any(n in reached for n in self._gate_nodes[f.id]):
+                log.warning(
+                    "%s: the roads do not connect field %r to the garage; its transit goes "
+                    "around the fields instead",
+                    farm.source,
+                    f.id,
+                )
+        self._roads = roads
+
+    def interior(self, field_id: str) -> FieldInterior:
+        """The in-field router of one field (built on first use)."""
+        if field_id not in self._interiors:
+            self._interiors[field_id] = FieldInterior(self.farm.field(field_id).boundary)
+        return self._interiors[field_id]
+
+    def route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
+        """The shortest transit from ``a`` in ``from_field`` (``None``: off the fields, e.g.
+        the garage) to ``b`` in ``to_field``: its length in metres and the points strictly
+        between ``a`` and ``b``. Cached."""
+        a, b = (float(a[0]), float(a[1])), (float(b[0]), float(b[1]))
+        key = (a, b, from_field, to_field)
+        if key not in self._known:
+            self._known[key] = self._route(a, b, from_field, to_field)
+        return self._known[key]
+
+    def length(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> float:
+        return self.route(a, b, from_field, to_field)[0]
+
+    def _route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
+        if from_field is not None and from_field == to_field:
+            return self.interior(from_field).route(a, b)
+        if self._roads is not None:
+            found = self._road_route(a, b, from_field, to_field)
+            if found is not None:
+                return found
+        return self._free_route(a, b, from_field, to_field)
+
+    def _free_route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
+        own_a = None if from_field is None else self._index[from_field]
+        own_b = None if to_field is None else self._index[to_field]
+        return self._free.route(a, b, own_a, own_b)
+
+    def _road_route(
+        self, a: XY, b: XY, from_field: str | None, to_field: str | None
+    ) -> Route | None:
+        assert self._roads is not None
+        best: tuple[float, _Option, _Option] | None = None
+        starts = self._options(a, from_field, leaving=True)
+        ends = self._options(b, to_field, leaving=False)
+        for s in starts:
+            for e in ends:
+                total = s.length_m + self._roads.distance(s.node, e.node) + e.length_m
+                if math.isfinite(total) and (best is None or total < best[0]):
+                    best = (total, s, e)
+        if best is None:
+            return None
+        total, s, e = best
+        points = [a, *s.via, *self._roads.path(s.node, e.node), *e.via, b]
+        return total, _strictly_between(a, points, b)
+
+    def _options(self, p: XY, field_id: str | None, leaving: bool) -> list[_Option]:
+        """The ways from ``p`` onto the road graph (``leaving``) or from it to ``p``."""
+        assert self._roads is not None
+        roads = self._roads
+        if field_id is not None:
+            out = []
+            for gate, node in zip(self.gates[field_id], self._gate_nodes[field_id], strict=True):
+                if leaving:
+                    length, via = self.interior(field_id).route(p, gate)
+                    out.append(_Option(node, length, (*via, gate)))
+                else:
+                    length, via = self.interior(field_id).route(gate, p)
+                    out.append(_Option(node, length, (gate, *via)))
+            return out
+        if math.dist(p, self.farm.garage) < _SAME_M:
+            return [_Option(self._garage_node, 0.0, ())]
+        u, v, along, foot = roads.nearest_edge(p)
+        edge = roads.edge_points(u, v)
+        line = LineString(edge)
+        to_u = substring(line, along, 0.0)
+        to_v = substring(line, along, line.length)
+        access = math.dist(p, foot)
+        out = []
+        for node, part in ((u, to_u), (v, to_v)):
+            pts = tuple((float(x), float(y)) for x, y in getattr(part, "coords", [foot]))
+            if not leaving:
+                pts = pts[::-1]
+            out.append(_Option(node, access + float(part.length), pts))
+        return out
+
+    def length_matrix(self, points: Sequence[XY], field_ids: Sequence[str | None]) -> FloatArray:
+        """Route lengths between all pairs of ``points`` (point k in ``field_ids[k]``),
+        symmetric; what the solver gets as its distance matrix."""
+        m = len(points)
+        if self._roads is None:
+            owners = [None if f is None else self._index[f] for f in field_ids]
+            return self._free.length_matrix(points, owners)
+        out = np.zeros((m, m))
+        for i in range(m):
+            for j in range(i + 1, m):
+                d = self.length(points[i], points[j], field_ids[i], field_ids[j])
+                out[i, j] = out[j, i] = d
+        return out
+
+
+def _strictly_between(a: XY, points: Sequence[XY], b: XY) -> tuple[XY, ...]:
+    """``points`` (which may start with ``a`` and end with ``b``) without repeats and
+    without ``a`` and ``b`` themselves."""
+    out: list[XY] = []
+    for p in points:
+        q = (float(p[0]), float(p[1]))
+        if out and math.dist(out[-1], q) < _SAME_M:
+            continue
+        out.append(q)
+    while out and math.dist(out[0], a) < _SAME_M:
+        out.pop(0)
+    while out and math.dist(out[-1], b) < _SAME_M:
+        out.pop()
+    return tuple(out)

@@ -1,0 +1,304 @@
+"""Transit between fields: roads and gates in the farm file, road routes, free-space routes."""
+
+import copy
+import itertools
+import json
+import math
+import time
+from pathlib import Path
+
+import pytest
+import shapely
+from shapely.geometry import LineString, Polygon, box
+
+from planner.coverage import cover_field
+from planner.errors import GeometryError
+from planner.farm import Farm, Field, Gate, Road, farm_from_geojson, load_farm
+from planner.field_plan import best_corners, plan_farm
+from planner.geo import LocalFrame
+from planner.problem import Machine
+from planner.roads import TransitNetwork
+from planner.solve import stop_after
+
+ROOT = Path(__file__).resolve().parents[2]
+FRAME = LocalFrame.around(87.3, 44.0)
+FLEET = [
+    Machine("t1", 6.9, 9400.0, 12.0, 0.0035, 6.0, 12.0, work_speed_kmh=6.0),
+    Machine("t2", 5.5, 7000.0, 10.0, 0.0030, 5.0, 10.0, work_speed_kmh=6.0),
+    Machine("t3", 3.7, 5000.0, 10.0, 0.0025, 4.0, 8.0, work_speed_kmh=6.0),
+]
+
+
+def farm_of(
+    polygons: dict[str, Polygon],
+    garage: tuple[float, float],
+    roads: list[list[tuple[float, float]]] = (),  # type: ignore[assignment]
+    gates: list[tuple[str, tuple[float, float]]] = (),  # type: ignore[assignment]
+) -> Farm:
+    return Farm(
+        fields=tuple(Field(k, k, p, p) for k, p in polygons.items()),
+        garage=garage,
+        garage_lonlat=(87.3, 44.0),
+        frame=FRAME,
+        roads=tuple(Road(f"r{k}", LineString(r), LineString(r)) for k, r in enumerate(roads)),
+        gates=tuple(Gate(f, xy, xy) for f, xy in gates),
+    )
+
+
+def crosses(path: list[tuple[float, float]], polygon: Polygon, margin: float = 0.5) -> bool:
+    """Whether the polyline enters the polygon's interior shrunk by ``margin``."""
+    return not LineString(path).intersection(polygon.buffer(-margin)).is_empty
+
+
+# --- the farm file ---------------------------------------------------------------------
+
+
+def tiny_doc() -> dict:
+    return json.loads((ROOT / "tests/data/tiny-farm.geojson").read_text())
+
+
+def feature(kind: str, geometry: dict, **props: object) -> dict:
+    return {"type": "Feature", "properties": {"kind": kind, **props}, "geometry": geometry}
+
+
+def test_tiny_farm_has_its_road_and_gates():
+    farm = load_farm(ROOT / "tests/data/tiny-farm.geojson")
+    assert len(farm.roads) == 2
+    assert [g.field_id for g in farm.gates] == ["A", "A", "B"]
+    assert farm.gates_of("C") == ()
+    # The gates lie on their fields' boundaries (to the centimetre of the file's degrees).
+    for g in farm.gates:
+        assert farm.field(g.field_id).boundary.boundary.distance(shapely.Point(g.xy)) < 0.05
+
+
+def test_multilinestring_roads_give_one_road_per_part():
+    doc = tiny_doc()
+    line = [[87.2995, 44.00045], [87.302, 44.00045]]
+    doc["features"].append(
+        feature("road", {"type": "MultiLineString", "coordinates": [line, line[::-1]]}, id="m")
+    )
+    farm = farm_from_geojson(doc, "x.geojson")
+    assert [r.id for r in farm.roads][-2:] == ["m.0", "m.1"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (
+            feature("gate", {"type": "Point", "coordinates": [87.3, 44.0]}, field="Z"),
+            "x.geojson: feature #4 (gate of 'Z'): no field 'Z'",
+        ),
+        (
+            feature("gate", {"type": "Point", "coordinates": [87.3, 44.0]}),
+            "x.geojson: feature #4 (gate): a gate needs properties.field",
+        ),
+        (
+            feature("gate", {"type": "LineString", "coordinates": []}, field="A"),
+            "(gate of 'A'): a gate must be a Point",
+        ),
+        (
+            feature("gate", {"type": "Point", "coordinates": [87.2980, 44.0]}, field="A"),
+            "(gate of 'A'): the gate is 160 m from the boundary of field 'A' (limit 50 m)",
+        ),
+        (
+            feature("road", {"type": "LineString", "coordinates": [[87.3, 44.0]]}, id="lane"),
+            "x.geojson: feature #4 (road 'lane'): a road needs at least 2 points",
+        ),
+        (
+            feature("road", {"type": "LineString", "coordinates": [[87.3, 44.0], [87.3, 44.0]]}),
+            "(road 'road#4'): a road needs at least 2 distinct points",
+        ),
+        (
+            feature("road", {"type": "Point", "coordinates": [87.3, 44.0]}, id="p"),
+            "(road 'p'): a road must be a LineString or MultiLineString, not Point",
+        ),
+        (
+            feature("road", {"type": "LineString", "coordinates": [[87.3, 44.0], [500, 1]]}),
+            "(road 'road#4'): longitude 500.0 is not a finite WGS84 value",
+        ),
+    ],
+)
+def test_bad_roads_and_gates_are_named(extra, message):
+    doc = tiny_doc()
+    doc["features"] = [f for f in doc["features"] if f["properties"]["kind"] in ("field", "garage")]
+    doc["features"].append(extra)
+    with pytest.raises(GeometryError) as err:
+        farm_from_geojson(copy.deepcopy(doc), "x.geojson")
+    assert message in str(err.value)
+
+
+# --- routes on roads -------------------------------------------------------------------
+
+# Two 100 m squares side by side 200 m apart; a road along their north side at y = 120
+# and a spur down to y = 0 at x = 150, between them.
+SQUARES = {"A": box(0, 0, 100, 100), "B": box(300, 0, 400, 100)}
+ROAD = [(-50, 120), (450, 120)]
+SPUR = [(150, 120), (150, 0)]
+
+
+def test_route_along_a_road_is_the_hand_computed_length():
+    farm = farm_of(SQUARES, (-50, 120), [ROAD, SPUR], [("A", (50, 100)), ("B", (350, 100))])
+    net = TransitNetwork(farm)
+    length, via = net.route((50, 50), (350, 50), "A", "B")
+    # 50 up to the gate, 20 to the road, 300 along it, 20 down to B's gate, 50 to b.
+    assert length == pytest.approx(50 + 20 + 300 + 20 + 50)
+    assert via == ((50, 100), (50, 120), (150, 120), (350, 120), (350, 100))
+    # From the garage (on the road's west end) and back: symmetric.
+    there = net.route((-50, 120), (350, 50), None, "B")
+    back = net.route((350, 50), (-50, 120), "B", None)
+    assert there[0] == pytest.approx(400 + 20 + 50) == pytest.approx(back[0])
+    assert back[1] == tuple(reversed(there[1]))
+
+
+def test_the_best_gate_is_taken_and_a_field_without_gate_is_entered_nearest_the_road():
+    farm = farm_of(
+        SQUARES, (-50, 120), [ROAD, SPUR], [("A", (50, 100)), ("A", (100, 50))]
+    )  # B has no gate: entered where it is nearest to the roads (its north side, 20 m off)
+    net = TransitNetwork(farm)
+    assert len(net.gates["B"]) == 1
+    gx, gy = net.gates["B"][0]
+    assert gy == pytest.approx(100) and 300 <= gx <= 400
+    # From near A's east side: out of its east gate, 50 m to the spur, up the spur and along
+    # the road, down to B's gate and across B: shorter than leaving by the north gate.
+    length, via = net.route((100, 10), (300, 10), "A", "B")
+    tail = (gx - 150) + 20 + math.dist((gx, gy), (300, 10))
+    assert length == pytest.approx(40 + 50 + 70 + tail)
+    assert length < math.dist((100, 10), (50, 100)) + 20 + 100 + tail
+    assert (100, 50) in via
+
+
+def test_a_point_off_the_roads_joins_the_nearest_road_point():
+    farm = farm_of(SQUARES, (-50, 120), [ROAD], [("B", (350, 100))])
+    net = TransitNetwork(farm)
+    length, via = net.route((200, 140), (350, 50), None, "B")
+    assert length == pytest.approx(20 + 150 + 20 + 50)
+    assert via[0] == (200, 120)
+
+
+def test_gate_matrix_stays_fast_for_200_fields():
+    # 10 x 20 fields of 80 m, 20 m roads between them, one gate each.
+    polys = {
+        f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
+        for r in range(10)
+        for c in range(20)
+    }
+    roads = [[(-10, 100 * r - 10), (1990, 100 * r - 10)] for r in range(11)]
+    roads += [[(100 * c - 10, -10), (100 * c - 10, 990)] for c in range(21)]
+    gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
+    farm = farm_of(polys, (-30, 480), roads, gates)
+    start = time.perf_counter()
+    net = TransitNetwork(farm)
+    points = [farm.garage] + [(p.centroid.x, p.centroid.y) for p in polys.values()]
+    matrix = net.length_matrix(points, [None, *polys])
+    assert time.perf_counter() - start < 20.0
+    assert matrix.shape == (201, 201)
+    # Neighbours in a row: 40 down to the gate, 10 to the road, 100 along, back up.
+    assert matrix[1, 2] == pytest.approx(40 + 10 + 100 + 10 + 40)
+
+
+# --- without roads: around the fields ------------------------------------------------
+
+
+def test_without_roads_the_transit_goes_around_a_field_in_between():
+    fields = {"A": box(0, 0, 100, 100), "M": box(150, -50, 250, 150), "B": box(300, 0, 400, 100)}
+    net = TransitNetwork(farm_of(fields, (-50, 50)))
+    a, b = (90.0, 50.0), (310.0, 50.0)
+    length, via = net.route(a, b, "A", "B")
+    path = [a, *via, b]
+    assert not crosses(path, fields["M"])
+    # Around M's grown corners (1 m clearance): a -> (149, -51) -> (251, -51) -> b.
+    expected = math.dist(a, (149, -51)) + 102 + math.dist((251, -51), b)
+    assert length == pytest.approx(expected)
+    assert length == pytest.approx(LineString(path).length)
+    # The start and end fields are no obstacles for their own leg; with nothing between,
+    # the route is straight.
+    assert net.route((10, 10), (90, 90), "A", "A") == (
+        pytest.approx(math.dist((10, 10), (90, 90))),
+        (),
+    )
+    assert net.route((-50, 50), (10, 50), None, "A") == (pytest.approx(60.0), ())
+
+
+def test_without_roads_the_garage_leg_goes_around_fields():
+    fields = {"A": box(0, 0, 100, 100), "B": box(200, 0, 300, 100)}
+    net = TransitNetwork(farm_of(fields, (-50, 50)))
+    length, via = net.route((-50, 50), (250, 50), None, "B")
+    assert not crosses([(-50, 50), *via, (250, 50)], fields["A"])
+    assert length > 300
+
+
+def test_corner_dp_with_transit_is_the_best_of_all_combinations():
+    fields = {"A": box(0, 0, 100, 60), "M": box(150, -80, 250, 140), "B": box(300, 0, 360, 90)}
+    farm = farm_of(fields, (-60, 30))
+    net = TransitNetwork(farm)
+    covs = [cover_field(fields[k], 6.0, field_id=k) for k in ("A", "B")]
+    corners, road = best_corners(farm.garage, covs, net)
+
+    def length(choice):
+        total, where, inside = 0.0, farm.garage, None
+        for cov, c in zip(covs, choice, strict=True):
+            total += net.length(where, cov.entry(c), inside, cov.field_id)
+            total += cov.transit_inside_m(c)
+            where, inside = cov.exit(c), cov.field_id
+        return total + net.length(where, farm.garage, inside, None)
+
+    brute = min(itertools.product(range(4), repeat=len(covs)), key=length)
+    assert road == pytest.approx(length(brute))
+    assert road == pytest.approx(length(corners))
+
+
+# --- the demo farm -------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def demo_plan():
+    farm = load_farm(ROOT / "config/changji.geojson")
+    return plan_farm(farm, FLEET, "makespan", "ighoa", stop_after(60), seed=1)
+
+
+def test_demo_roads_cross_no_field():
+    farm = load_farm(ROOT / "config/changji.geojson")
+    assert len(farm.roads) >= 10
+    assert sorted(g.field_id for g in farm.gates) == sorted(f.id for f in farm.fields)
+    for road in farm.roads:
+        for f in farm.fields:
+            assert not road.line.intersects(f.boundary), (road.id, f.id)
+
+
+def test_demo_transit_crosses_no_other_field(demo_plan):
+    farm = demo_plan.farm
+    legs = 0
+    for route in demo_plan.machines:
+        where, inside = farm.garage, None
+        for visit in route.visits:
+            path = [where, *visit.approach, visit.entry]
+            others = [f for f in farm.fields if f.id not in (inside, visit.field.id)]
+            for f in others:
+                assert not crosses(path, f.boundary), (
+                    route.machine.id,
+                    inside,
+                    visit.field.id,
+                    f.id,
+                )
+            where, inside = visit.exit, visit.field.id
+            legs += 1
+        if route.visits:
+            path = [where, *route.return_path, farm.garage]
+            for f in farm.fields:
+                if f.id != inside:
+                    assert not crosses(path, f.boundary), (route.machine.id, inside, f.id)
+            legs += 1
+    assert legs == len(farm.fields) + 3
+
+
+def test_demo_road_metres_are_the_transit_lengths(demo_plan):
+    farm = demo_plan.farm
+    for route in demo_plan.machines:
+        driven = 0.0
+        where = farm.garage
+        for visit in route.visits:
+            driven += LineString([where, *visit.approach, visit.entry]).length
+            driven += visit.coverage.transit_inside_m(visit.corner)
+            where = visit.exit
+        driven += LineString([where, *route.return_path, farm.garage]).length
+        assert route.road_m == pytest.approx(driven, rel=1e-9)
