@@ -1,19 +1,40 @@
 """Turn one machine's ordered field list into an ArduPilot Rover waypoint mission.
 
-Layout (``seq``: what, MAVLink command)::
+Layout (``seq``: what, MAVLink command; role of the item's trace in quotes)::
 
-    0  home at the garage                      NAV_WAYPOINT, frame GLOBAL
-    1  road speed                              DO_CHANGE_SPEED
+    0  home at the garage                      NAV_WAYPOINT, frame GLOBAL        "home"
+    1  road speed                              DO_CHANGE_SPEED                   "speed"
        per field, in driving order:
-         entry waypoint = first swath start    NAV_WAYPOINT  (end of the road transit)
-         working speed                         DO_CHANGE_SPEED
-         implement down                        DO_SET_SERVO (pwm_down) / DO_SET_RELAY (1)
-         per swath: its start (skipped when within 1 cm of the point before), its end;
-           before it, the in-field points of the move from the previous swath when a straight
-           line would leave the field (around a notch or a hole; role "in_field")
-         implement up                          DO_SET_SERVO (pwm_up) / DO_SET_RELAY (0)
-         road speed                            DO_CHANGE_SPEED
-    n  back at the garage                      NAV_WAYPOINT
+         road points from where the machine was (garage or the last field's exit)
+                                               NAV_WAYPOINT                      "road"
+         entry waypoint = first swath start    NAV_WAYPOINT  (end of the road)   "transit"
+         working speed                         DO_CHANGE_SPEED                   "speed"
+         implement down                        DO_SET_SERVO (pwm_down) /
+                                               DO_SET_RELAY (1)                  "implement_down"
+         per swath (then per headland ring edge), in driving order:
+           its start (skipped when within 1 cm of the point before)              "swath_start"
+           implement lowered again, when raised for the move before it           "implement_lower"
+           its end                                                               "swath_end"
+           then, for the move to the next swath or ring:
+             implement raised, when the field has planned turns and the next
+             line does not start where this one ends                             "implement_raise"
+             the turn path's points (arcs of the machine's radius)               "turn"
+             or, when a straight line would leave the field, the in-field
+             points around a notch or a hole                                     "in_field"
+         implement up                          DO_SET_SERVO (pwm_up) /
+                                               DO_SET_RELAY (0)                  "implement_up"
+         road speed                            DO_CHANGE_SPEED                   "speed"
+       road points from the last exit back to the garage  NAV_WAYPOINT           "road"
+    n  back at the garage                      NAV_WAYPOINT                      "return"
+
+``implement_down`` and ``implement_up`` are the field's first lowering and last raising:
+the dispatcher (``dispatcher.state``) and the review read them as the field's start and
+finish. The raisings and lowerings around each turn have their own roles
+(``implement_raise``, ``implement_lower``) so they never finish a field. Without planned
+turns (a machine whose turning radius is 0, the paper's hop between swath ends) the
+implement stays down from the first swath to the last, as before. Turns are driven at
+working speed. Road points carry the id of the field they lead to (``None`` on the way
+home) and no swath index.
 
 Why these choices (ArduPilot sources, libraries/AP_Mission/AP_Mission.cpp and
 libraries/GCS_MAVLink/MissionItemProtocol_Waypoints.cpp):
@@ -33,7 +54,11 @@ libraries/GCS_MAVLink/MissionItemProtocol_Waypoints.cpp):
   param2 = PWM. ``DO_SET_RELAY``: param1 = relay instance, 0-based (RELAY1 is 0);
   param2 = 1 on, 0 off.
 * DO commands run when the vehicle leaves the preceding waypoint, so the implement goes
-  down as the machine sets off along the first swath and comes up after the last one.
+  down as the machine sets off along a swath (from its start waypoint) and comes up as it
+  leaves the swath's end for the turn.
+* Turn points lie on arcs every 15° and at most 2 m apart (``planner.turns``): with
+  ``WP_RADIUS`` of 1-2 m Rover passes each of them on a smooth curve. They are stored to
+  1e-7°, about 1 cm.
 
 Every float parameter is stored already rounded to float32, the width it has on the
 wire, so a mission survives MAVLink and file round trips unchanged.
@@ -64,6 +89,10 @@ Role = Literal[
     "swath_start",
     "swath_end",
     "in_field",
+    "implement_raise",
+    "turn",
+    "implement_lower",
+    "road",
     "return",
 ]
 ROLES: frozenset[str] = frozenset(get_args(Role))
@@ -121,6 +150,17 @@ class FieldVisit:
     # For the move from swath k to k + 1: points to drive through so as not to leave the
     # field (around a notch or a hole); empty or shorter than the swaths when none are needed.
     links: tuple[tuple[LatLon, ...], ...] = ()
+    # For the move from swath k to k + 1: the planned turn's points (implement up), strictly
+    # between the two; empty for a hop. Non-empty at all: the field has planned turns, and
+    # the implement is raised for every move between lines.
+    turns: tuple[tuple[LatLon, ...], ...] = ()
+    # Road points from where the machine was (garage or the last field's exit) to the entry.
+    approach: tuple[LatLon, ...] = ()
+
+    @property
+    def has_turns(self) -> bool:
+        """Whether turns are planned (the implement is raised between swaths)."""
+        return any(self.turns)
 
 
 @dataclass(frozen=True)
@@ -133,6 +173,8 @@ class MissionSpec:
     work_speed_kmh: float
     implement: Implement
     visits: tuple[FieldVisit, ...]
+    # Road points from the last field's exit back to the garage.
+    return_path: tuple[LatLon, ...] = ()
 
     def __post_init__(self) -> None:
         _check_spec(self)
@@ -258,21 +300,35 @@ def build_mission(spec: MissionSpec) -> Mission:
         fid = visit.field_id
         last = len(visit.swaths) - 1
         entry = visit.swaths[0][0]
+        for point in visit.approach:
+            builder.waypoint(point, Trace(fid, None, "road"))
         builder.waypoint(entry, Trace(fid, 0, "transit"))
         builder.change_speed(work_speed, Trace(fid, None, "speed"))
         builder.implement(spec.implement, True, Trace(fid, 0, "implement_down"))
+        lifts = visit.has_turns
         previous = entry
         for index, (start, end) in enumerate(visit.swaths):
+            moved = index > 0 and _distance_m(previous, start) > SAME_POINT_M
+            if moved and lifts:
+                builder.implement(spec.implement, False, Trace(fid, index - 1, "implement_raise"))
+            if 0 < index <= len(visit.turns):
+                for via in visit.turns[index - 1]:
+                    builder.waypoint(via, Trace(fid, index, "turn"))
+                    previous = via
             if 0 < index <= len(visit.links):
                 for via in visit.links[index - 1]:
                     builder.waypoint(via, Trace(fid, index, "in_field"))
                     previous = via
             if _distance_m(previous, start) > SAME_POINT_M:
                 builder.waypoint(start, Trace(fid, index, "swath_start"))
+            if moved and lifts:
+                builder.implement(spec.implement, True, Trace(fid, index, "implement_lower"))
             builder.waypoint(end, Trace(fid, index, "swath_end"))
             previous = end
         builder.implement(spec.implement, False, Trace(fid, last, "implement_up"))
         builder.change_speed(road_speed, Trace(fid, None, "speed"))
+    for point in spec.return_path:
+        builder.waypoint(point, Trace(None, None, "road"))
     builder.waypoint(spec.home, Trace(None, None, "return"))
 
     mission = Mission(spec.machine_id, tuple(builder.items), tuple(builder.traces))
@@ -373,6 +429,8 @@ def _check_spec(spec: MissionSpec) -> None:
             raise fail(None, f"{name} must be a positive number of km/h, got {value!r}")
     _check_implement(spec.implement, partial(fail, None))
 
+    for k, point in enumerate(spec.return_path):
+        _check_point(point, f"road point {k} back to the garage", partial(fail, None))
     seen: set[str] = set()
     for number, visit in enumerate(spec.visits):
         fid = visit.field_id
@@ -383,11 +441,22 @@ def _check_spec(spec: MissionSpec) -> None:
         seen.add(fid)
         if len(visit.swaths) == 0:
             raise fail(fid, "field has no swaths to drive")
+        field_fail = partial(fail, fid)
+        for name, moves in (("turn", visit.turns), ("in-field link", visit.links)):
+            if len(moves) > len(visit.swaths) - 1:
+                raise fail(
+                    fid,
+                    f"{len(moves)} {name} paths for {len(visit.swaths) - 1} moves between swaths",
+                )
+            for k, via in enumerate(moves):
+                for point in via:
+                    _check_point(point, f"{name} point after swath {k}", field_fail)
+        for k, point in enumerate(visit.approach):
+            _check_point(point, f"road point {k} before the field", field_fail)
         for index, swath in enumerate(visit.swaths):
             if len(swath) != 2:
                 raise fail(fid, f"swath {index} must be a (start, end) pair")
             start, end = swath
-            field_fail = partial(fail, fid)
             _check_point(start, f"swath {index} start", field_fail)
             _check_point(end, f"swath {index} end", field_fail)
             if _distance_m(start, end) <= SAME_POINT_M:

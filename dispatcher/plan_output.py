@@ -38,7 +38,9 @@ class DispatchPlan:
 
 
 def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
-    """A field visit in WGS84: swaths in driving order, then the headland rings' edges."""
+    """A field visit in WGS84: swaths in driving order, then the headland rings' edges;
+    the in-field links and planned turns of the moves between swaths; the road points of
+    the approach."""
     segments = [(s.start, s.end) for s in visit.swaths]
     for ring in visit.headland:
         segments += list(zip(ring[:-1], ring[1:], strict=True))
@@ -49,11 +51,23 @@ def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
 
     swaths = tuple((latlon(*a), latlon(*b)) for a, b in segments)
     links = tuple(tuple(latlon(*p) for p in via) for via in visit.links)
-    return FieldVisit(field_id=visit.field.id, swaths=swaths, links=links)
+    turns = tuple(tuple(latlon(*p) for p in via) for via in visit.coverage.turn(visit.corner))
+    return FieldVisit(
+        field_id=visit.field.id,
+        swaths=swaths,
+        links=links,
+        turns=turns,
+        approach=tuple(latlon(*p) for p in visit.approach),
+    )
 
 
 def mission_for(farm: Farm, vehicle: Vehicle, route: MachinePlan) -> Mission:
     glon, glat = farm.garage_lonlat
+
+    def latlon(x: float, y: float) -> LatLon:
+        lon, lat = farm.frame.to_lonlat(x, y)
+        return LatLon(lat, lon)
+
     spec = MissionSpec(
         machine_id=vehicle.id,
         home=LatLon(glat, glon),
@@ -61,6 +75,7 @@ def mission_for(farm: Farm, vehicle: Vehicle, route: MachinePlan) -> Mission:
         work_speed_kmh=vehicle.machine.work_speed_kmh,
         implement=vehicle.implement,
         visits=tuple(visit_lonlat(farm, v) for v in route.visits),
+        return_path=tuple(latlon(*p) for p in route.return_path),
     )
     return build_mission(spec)
 
@@ -96,6 +111,7 @@ def plan_document(
                     "turn_time_h": route.machine.turn_time_h,
                     "road_fuel_lh": route.machine.road_fuel_lh,
                     "work_fuel_lh": route.machine.work_fuel_lh,
+                    "min_turn_radius_m": route.machine.min_turn_radius_m,
                 },
                 "fields": route.field_ids,
                 "distance_m": round(route.road_m, 3),
@@ -109,6 +125,7 @@ def plan_document(
                         "corner": v.corner,
                         "swaths": len(v.swaths),
                         "headland_rings": len(v.headland),
+                        "turn_m": round(v.coverage.turn_length_m(v.corner), 2),
                         "angle_deg": round(v.coverage.angle_deg, 3),
                     }
                     for v in route.visits

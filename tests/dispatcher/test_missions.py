@@ -200,6 +200,62 @@ def test_no_fields_drives_nowhere_but_home() -> None:
     assert roles(mission) == ["home", "speed", "return"]
 
 
+# North with planned turns: after swath 0 a two-point turn, after swath 1 a hop.
+TURN_0 = (LatLon(52.0010100, 5.0031000), LatLon(52.0010400, 5.0031000))
+NORTH_TURNING = dataclasses.replace(NORTH, turns=(TURN_0, ()))
+APPROACH = (LatLon(52.0003000, 5.0002000), LatLon(52.0006000, 5.0008000))
+HOME_ROAD = (LatLon(51.9995000, 5.0010000),)
+
+
+def test_layout_with_turns_and_road_points() -> None:
+    mission = build_mission(
+        make_spec(
+            visits=(dataclasses.replace(NORTH_TURNING, approach=APPROACH), SOUTH),
+            return_path=HOME_ROAD,
+        )
+    )
+    assert roles(mission) == [
+        "home", "speed",
+        "road", "road", "transit", "speed", "implement_down",
+        "swath_end",
+        "implement_raise", "turn", "turn", "swath_start", "implement_lower", "swath_end",
+        "implement_raise", "swath_start", "implement_lower", "swath_end",
+        "implement_up", "speed",
+        "transit", "speed", "implement_down",
+        "swath_end", "swath_end",  # south has no planned turns: the implement stays down
+        "implement_up", "speed",
+        "road",
+        "return",
+    ]  # fmt: skip
+    traces = mission.traces
+    assert [t.field_id for t in traces[2:4]] == ["north", "north"]
+    assert traces[-2] == Trace(None, None, "road")
+    raise_, lower = mission.items[8], mission.items[12]
+    assert (raise_.param1, raise_.param2) == (9.0, 1100.0)  # implement up for the turn
+    assert (lower.param1, lower.param2) == (9.0, 1900.0)  # down again on the next swath
+    turn_points = [
+        (it.x, it.y) for it, t in zip(mission.items, traces, strict=True) if t.role == "turn"
+    ]
+    assert turn_points == [(round(p.lat * 1e7), round(p.lon * 1e7)) for p in TURN_0]
+    assert {t.swath_index for t in traces if t.role == "turn"} == {1}
+    # the first lowering and the last raising stay the field's start and finish
+    roles_north = [t.role for t in traces if t.field_id == "north"]
+    assert roles_north.count("implement_down") == roles_north.count("implement_up") == 1
+
+
+def test_road_points_are_waypoints_at_road_speed() -> None:
+    mission = build_mission(
+        make_spec(visits=(dataclasses.replace(NORTH, approach=APPROACH),), return_path=HOME_ROAD)
+    )
+    road = [it for it, t in zip(mission.items, mission.traces, strict=True) if t.role == "road"]
+    assert [(it.x, it.y) for it in road] == [
+        (round(p.lat * 1e7), round(p.lon * 1e7)) for p in (*APPROACH, *HOME_ROAD)
+    ]
+    assert all(it.command == mc.MAV_CMD_NAV_WAYPOINT for it in road)
+    first_road = roles(mission).index("road")
+    assert mission.items[first_road - 1].param2 == pytest.approx(5.0)  # road speed
+
+
 def test_item_for_seq_out_of_range(mission: Mission) -> None:
     with pytest.raises(IndexError, match="tractor-7"):
         mission.item_for_seq(len(mission))
@@ -249,6 +305,22 @@ def with_swath(swath: tuple[LatLon, LatLon]) -> tuple[FieldVisit, ...]:
             "south",
             "zero length",
         ),
+        (
+            {"visits": (dataclasses.replace(NORTH, turns=((), (), ())),)},
+            "north",
+            "3 turn paths for 2 moves",
+        ),
+        (
+            {"visits": (dataclasses.replace(NORTH, turns=((LatLon(99.0, 5.0),),)),)},
+            "north",
+            "turn point after swath 0 latitude",
+        ),
+        (
+            {"visits": (dataclasses.replace(NORTH, approach=(LatLon(52.0, 190.0),)),)},
+            "north",
+            "road point 0 before the field longitude",
+        ),
+        ({"return_path": (LatLon(-95.0, 5.0),)}, None, "road point 0 back to the garage"),
     ],
 )
 def test_bad_spec_raises_mission_error(
