@@ -62,7 +62,11 @@ HEARTBEAT_GAP_S: Final = 5.0
 SLOWER_WARNING: Final = 0.10
 """Warn when a vehicle took this share longer than planned (or drove this much more)."""
 
-NAV_ROLES: Final = frozenset({"home", "transit", "swath_start", "swath_end", "return"})
+NAV_ROLES: Final = frozenset(
+    {"home", "road", "transit", "swath_start", "swath_end", "in_field", "turn", "return"}
+)
+MOVE_ROLES: Final = frozenset({"in_field", "turn"})
+"""Waypoints of a move from one swath to the next (part of the turn, not a new leg)."""
 
 _GEOD: Final = Geod(ellps="WGS84")
 _VEHICLE_TOPIC: Final = re.compile(r"^agrifleet/([^/]+)/vehicle/([^/]+)/mavlink/(from|to)(/json)?$")
@@ -75,7 +79,8 @@ _CODEC: Final = mc.Codec(255, 190)  # only decodes (raw frames without a JSON tw
 
 @dataclass(frozen=True)
 class Waypoint:
-    """A navigation item of a planned mission (home, transit, swath ends, return)."""
+    """A navigation item of a planned mission (home, road, transit, swath ends, in-field
+    and turn points, return)."""
 
     seq: int
     field_id: str | None
@@ -656,7 +661,7 @@ def _turn_seqs(items: Sequence[_Item]) -> set[int]:
     out = set()
     prev: _Item | None = None
     for item in items:
-        if not item.is_nav:
+        if not item.is_nav or item.role in MOVE_ROLES:
             continue
         if (
             item.role == "swath_start"
