@@ -191,20 +191,31 @@ class _FreeSpace:
         ]
         self._blocks = [g.buffer(-_TOUCH_M, join_style="mitre") for g in grown]
         self._tree = shapely.STRtree(self._blocks)
-        nodes, owners = [], []
-        for k, g in enumerate(grown):
+        nodes, prev, succ = [], [], []
+        for g in grown:
             c = np.asarray(g.exterior.coords)[:-1]
-            into, out = c - np.roll(c, 1, axis=0), np.roll(c, -1, axis=0) - c
+            before, after = np.roll(c, 1, axis=0), np.roll(c, -1, axis=0)
+            into, out = c - before, after - c
             convex = into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0] > 0.0
             nodes.append(c[convex])
-            owners += [k] * int(convex.sum())
+            prev.append(before[convex])
+            succ.append(after[convex])
         self.nodes = np.vstack(nodes) if nodes else np.zeros((0, 2))
+        self._prev = np.vstack(prev) if prev else np.zeros((0, 2))
+        self._next = np.vstack(succ) if succ else np.zeros((0, 2))
         n = len(self.nodes)
         weights = np.full((n, n), np.inf)
         np.fill_diagonal(weights, 0.0)
         i, j = np.triu_indices(n, k=1)
+        # A shortest path only bends at a corner it hugs: both neighbours of the corner on
+        # one side of the path. Pairs failing that at either end are never needed.
+        keep = self._tangent(i, self.nodes[j]) & self._tangent(j, self.nodes[i])
+        i, j = i[keep], j[keep]
         if len(i):
-            ok = self._visible(self.nodes[i], self.nodes[j], set())
+            lines = shapely.linestrings(np.stack([self.nodes[i], self.nodes[j]], axis=-2))
+            everything = shapely.union_all(self._blocks)
+            shapely.prepare(everything)
+            ok = ~shapely.intersects(everything, lines)
             d = np.hypot(*(self.nodes[i] - self.nodes[j]).T)
             weights[i[ok], j[ok]] = d[ok]
             weights[j[ok], i[ok]] = d[ok]
@@ -225,6 +236,15 @@ class _FreeSpace:
         blocked[hit_line[keep]] = True
         return ~blocked
 
+    def _tangent(self, k: NDArray[np.int64], other: FloatArray) -> NDArray[np.bool_]:
+        """Whether the lines from nodes ``k`` to ``other`` leave both neighbours of the node
+        on one side (or on the line)."""
+        d = other - self.nodes[k]
+        p, q = self._prev[k] - self.nodes[k], self._next[k] - self.nodes[k]
+        side_p = d[:, 0] * p[:, 1] - d[:, 1] * p[:, 0]
+        side_q = d[:, 0] * q[:, 1] - d[:, 1] * q[:, 0]
+        return np.asarray(side_p * side_q >= -1e-9, dtype=bool)
+
     def _ignored(self, p: XY, own: int | None) -> set[int]:
         inside = {int(k) for k in self._tree.query(Point(p), predicate="intersects")}
         return inside | ({own} if own is not None else set())
@@ -237,8 +257,10 @@ class _FreeSpace:
             n = len(self.nodes)
             seen = np.full(n, np.inf)
             if n:
-                ok = self._visible(np.asarray(p)[None, :], self.nodes, self._ignored(p, own))
-                seen = np.where(ok, np.hypot(*(self.nodes - np.asarray(p)).T), np.inf)
+                here = np.asarray(p, dtype=float)
+                k = np.flatnonzero(self._tangent(np.arange(n), np.broadcast_to(here, (n, 2))))
+                ok = self._visible(here[None, :], self.nodes[k], self._ignored(p, own))
+                seen[k[ok]] = np.hypot(*(self.nodes[k[ok]] - here).T)
                 best = (seen[:, None] + self._dist).min(axis=0)
             else:
                 best = seen
@@ -302,7 +324,8 @@ class TransitNetwork:
         self.farm = farm
         self._index = {f.id: k for k, f in enumerate(farm.fields)}
         self._interiors: dict[str, FieldInterior] = {}
-        self._free = _FreeSpace([f.boundary for f in farm.fields], clearance_m)
+        self._clearance_m = clearance_m
+        self._free_space: _FreeSpace | None = None  # built on first use
         self._known: dict[tuple[XY, XY, str | None, str | None], Route] = {}
         self._roads: _RoadGraph | None = None
         # Per field, its gates as (gate point, road-graph node); the garage's node.
@@ -311,6 +334,13 @@ class TransitNetwork:
         self._garage_node = -1
         if farm.roads:
             self._build_roads()
+
+    @property
+    def _free(self) -> _FreeSpace:
+        if self._free_space is None:
+            outlines = [f.boundary for f in self.farm.fields]
+            self._free_space = _FreeSpace(outlines, self._clearance_m)
+        return self._free_space
 
     @property
     def has_roads(self) -> bool:

@@ -1,18 +1,30 @@
-"""Planning with field geometry: agreement with formulas (5)-(6), corner choice, the plan."""
+"""Planning with field geometry: formulas (5)-(6), turn pricing, transit distances, corners."""
 
+import dataclasses
 import itertools
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import shapely
 from shapely.geometry import Polygon
 
 from planner.cost import figures
 from planner.coverage import cover_field, rectangle_field
-from planner.farm import Farm, Field
-from planner.field_plan import Visit, best_corners, machine_figures, plan_farm
+from planner.farm import Farm, Field, load_farm
+from planner.field_plan import (
+    Visit,
+    best_corners,
+    cover_farm,
+    farm_problem,
+    field_anchor,
+    machine_figures,
+    plan_farm,
+)
 from planner.geo import LocalFrame
 from planner.problem import Machine, Problem, Task, rectangle_turns
+from planner.roads import TransitNetwork
 from planner.solve import stop_after
 
 MACHINE = Machine("m", 6.0, 5000.0, 10.0, 0.003, 2.5, 5.0, work_speed_kmh=0.83)
@@ -112,3 +124,68 @@ def test_spare_machines_stay_in_the_garage():
     assert sorted(len(m.visits) for m in plan.machines) == [0, 1]
     idle = next(m for m in plan.machines if not m.visits)
     assert idle.road_m == 0.0 and idle.time_h == 0.0
+
+
+def test_planned_turns_are_priced_by_length_at_working_speed():
+    poly = rectangle_field(60.0, 100.0)
+    cov = cover_field(poly, MACHINE.working_width_m, field_id="f")
+    field = one_field_farm(poly).fields[0]
+    # Turn paths as a coverage with planned turns gives them: a half circle of 3 m radius
+    # beyond the field's end between every pair of swaths, here drawn as 3 points.
+    turn_paths = tuple(
+        tuple(
+            (
+                (a.end[0], a.end[1] + 3.0),
+                ((a.end[0] + b.start[0]) / 2, a.end[1] + 6.0),
+                (b.start[0], b.start[1] + 3.0),
+            )
+            if a.end[1] > 50.0
+            else (
+                (a.end[0], a.end[1] - 3.0),
+                ((a.end[0] + b.start[0]) / 2, a.end[1] - 6.0),
+                (b.start[0], b.start[1] - 3.0),
+            )
+            for a, b in zip(cov.path(c)[:-1], cov.path(c)[1:], strict=True)
+        )
+        for c in range(4)
+    )
+    turning = dataclasses.replace(cov, turn_paths=turn_paths)
+    metres = turning.turn_length_m(0)
+    assert metres > 9 * 6.0
+    plain = machine_figures(MACHINE, (Visit(field, cov, 0),), road_m=100.0)
+    planned = machine_figures(MACHINE, (Visit(field, turning, 0),), road_m=100.0)
+    turn_h = metres / (1000.0 * MACHINE.work_speed_kmh)
+    assert planned.turns == plain.turns == 9
+    assert planned.time_h == pytest.approx(plain.time_h - 9 * MACHINE.turn_time_h + turn_h)
+    assert planned.fuel_l == pytest.approx(
+        plain.fuel_l + (turn_h - 9 * MACHINE.turn_time_h) * MACHINE.road_fuel_lh
+    )
+
+
+def test_solver_distances_are_transit_lengths_between_centroids():
+    # Three fields in a row: the solver's distance from the first to the third goes around
+    # the middle one, not straight through it (no roads in this farm).
+    frame = LocalFrame.around(87.3, 44.0)
+    boxes = [rectangle_field(50.0, 200.0, 0.0, (120.0 * k, 0.0)) for k in range(3)]
+    fields = tuple(Field(f"f{k}", f"f{k}", b, b) for k, b in enumerate(boxes))
+    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    coverage = cover_farm(farm, [MACHINE])
+    straight = farm_problem(farm, [MACHINE], coverage)
+    network = TransitNetwork(farm)
+    around = farm_problem(farm, [MACHINE], coverage, network)
+    c0, c2 = (field_anchor(f) for f in (fields[0], fields[2]))
+    assert straight.dist[0, 2] == pytest.approx(math.dist(c0, c2))
+    assert around.dist[0, 2] == pytest.approx(network.length(c0, c2, "f0", "f2"))
+    assert around.dist[0, 2] > straight.dist[0, 2] + 20.0
+    assert around.start_dist[0, 2] == pytest.approx(network.length(farm.garage, c2, None, "f2"))
+
+
+def test_plan_on_the_tiny_farm_drives_along_its_road():
+    farm = load_farm(Path(__file__).resolve().parents[1] / "data/tiny-farm.geojson")
+    plan = plan_farm(farm, [MACHINE], "makespan", "ighoa", stop_after(20), seed=1)
+    (route,) = plan.machines
+    lane = farm.roads[0].line
+    # Every approach and the way back run on the lane for part of the way.
+    for visit in route.visits:
+        assert any(lane.distance(shapely.Point(p)) < 1e-6 for p in visit.approach)
+    assert any(lane.distance(shapely.Point(p)) < 1e-6 for p in route.return_path)

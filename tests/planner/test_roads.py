@@ -175,8 +175,9 @@ def test_a_point_off_the_roads_joins_the_nearest_road_point():
     assert via[0] == (200, 120)
 
 
-def test_gate_matrix_stays_fast_for_200_fields():
-    # 10 x 20 fields of 80 m, 20 m roads between them, one gate each.
+@pytest.mark.parametrize("with_roads", [True, False])
+def test_the_solver_matrix_stays_fast_for_200_fields(with_roads):
+    # 10 x 20 fields of 80 m, 20 m roads between them, one gate each (or nothing).
     polys = {
         f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
         for r in range(10)
@@ -185,15 +186,20 @@ def test_gate_matrix_stays_fast_for_200_fields():
     roads = [[(-10, 100 * r - 10), (1990, 100 * r - 10)] for r in range(11)]
     roads += [[(100 * c - 10, -10), (100 * c - 10, 990)] for c in range(21)]
     gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
-    farm = farm_of(polys, (-30, 480), roads, gates)
+    farm = farm_of(polys, (-30, 480), roads, gates) if with_roads else farm_of(polys, (-30, 480))
     start = time.perf_counter()
     net = TransitNetwork(farm)
     points = [farm.garage] + [(p.centroid.x, p.centroid.y) for p in polys.values()]
     matrix = net.length_matrix(points, [None, *polys])
-    assert time.perf_counter() - start < 20.0
+    assert time.perf_counter() - start < 10.0
     assert matrix.shape == (201, 201)
-    # Neighbours in a row: 40 down to the gate, 10 to the road, 100 along, back up.
-    assert matrix[1, 2] == pytest.approx(40 + 10 + 100 + 10 + 40)
+    if with_roads:  # neighbours in a row: 40 down to the gate, 10 to the road, 100 along, up
+        assert matrix[1, 2] == pytest.approx(40 + 10 + 100 + 10 + 40)
+    else:  # straight through the road gap between them
+        assert matrix[1, 2] == pytest.approx(100)
+    # From f0_0 to f2_0 (two rows up, same column): around f1_0 without roads.
+    assert matrix[1, 41] > 200 + (0 if with_roads else 1)
+    assert matrix[1, 41] == pytest.approx(net.length(points[1], points[41], "f0_0", "f2_0"))
 
 
 # --- without roads: around the fields ------------------------------------------------
