@@ -34,6 +34,8 @@ from pyproj import Geod
 
 from dispatcher import mavlink_codec as mc
 from dispatcher.recording import LogContents, RecordingError, read_log
+from dispatcher.review_track import TrackQuality, track_quality
+from dispatcher.state import CLOCK_RESTART_S as REBOOT_CLOCK_S
 from planner.geo import LocalFrame
 
 __all__ = [
@@ -142,6 +144,9 @@ class VehicleReview:
     activities: tuple[Activity, ...]
     track: tuple[tuple[float, float, float], ...]  # (seconds since set off, lat, lon)
     planned_route: tuple[Waypoint, ...]
+    reboots: tuple[float, ...] = ()  # seconds since set off when the autopilot rebooted
+    autopilot_problems: tuple[str, ...] = ()  # its STATUSTEXT at WARNING or worse, once each
+    quality: TrackQuality | None = None  # cross-track error, implement down outside, loops
 
     @property
     def started(self) -> bool:
@@ -436,7 +441,8 @@ class _Events:
     reached: list[tuple[int, float | None, int]]  # (seq, clock s, file position)
     heartbeats_ns: list[int]
     last_clock_s: float | None
-    clock_jumps: int  # times the clock went back by over a second
+    reboots: list[float]  # run clock (s) where the vehicle's clock started again
+    texts: list[tuple[float | None, int, str]]  # STATUSTEXT: (run clock s, severity, text)
 
 
 def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_Item]) -> _Events:
@@ -445,12 +451,22 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
     it when that position is at the waypoint (the simulator sends one right away),
     else the last time heard; other items take the last time heard.
+
+    Frames are taken in the order they were received. The vehicle's clock
+    (``time_boot_ms``) restarts from zero when its autopilot reboots: that is one reboot
+    event, and the run's clock carries on from where it was, plus the receive-time gap
+    scaled by how fast the vehicle's clock ran against the receive clock before.
     """
     points: list[_Point] = []
     reached: list[tuple[int, float | None, int]] = []
     heartbeats: list[int] = []
+    texts: list[tuple[float | None, int, str]] = []
     now: float | None = None
-    jumps = 0
+    reboots: list[float] = []
+    offset = 0.0  # added to the vehicle's clock since its last reboot
+    raw_last: float | None = None  # the vehicle's own clock, last heard
+    first: tuple[float, int] | None = None  # (run clock, log ns) when first heard
+    last_ns = 0
     pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
 
     def settle(t: float | None) -> None:
@@ -459,11 +475,24 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
             reached.append((pending[0], t, pending[1]))
             pending = None
 
-    def tick(t: float) -> None:
-        nonlocal now, jumps
-        if now is not None and t < now - 1.0:
-            jumps += 1
+    def run_clock(raw: float, log_ns: int) -> float:
+        """The vehicle's clock made continuous across reboots."""
+        nonlocal offset, raw_last, first
+        if raw_last is not None and now is not None and raw < raw_last - REBOOT_CLOCK_S:
+            rate = 1.0
+            if first is not None and log_ns > first[1] and now > first[0]:
+                rate = (now - first[0]) / ((last_ns - first[1]) / 1e9 or 1.0)
+            offset = now - raw + max(log_ns - last_ns, 0) / 1e9 * rate
+            reboots.append(now)
+        raw_last = raw
+        return raw + offset
+
+    def tick(t: float, log_ns: int) -> None:
+        nonlocal now, first, last_ns
         now = t if now is None else max(now, t)
+        if first is None:
+            first = (t, log_ns)
+        last_ns = log_ns
 
     for order, (log_ns, msg) in enumerate(frames):
         kind = msg.get("mavpackettype")
@@ -471,7 +500,7 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
             t_ms, lat_i, lon_i = (_num(msg.get(k)) for k in ("time_boot_ms", "lat", "lon"))
             if t_ms is None or lat_i is None or lon_i is None:
                 continue
-            t, lat, lon = t_ms / 1000.0, lat_i / 1e7, lon_i / 1e7
+            t, lat, lon = run_clock(t_ms / 1000.0, log_ns), lat_i / 1e7, lon_i / 1e7
             valid = _valid_position(lat, lon)
             if pending is not None:
                 item = items[pending[0]]
@@ -479,7 +508,7 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
                     valid and _metres((lat, lon), (item.lat, item.lon)) <= WAYPOINT_MATCH_M
                 )
                 settle(t if at_waypoint or now is None else now)
-            tick(t)
+            tick(t, log_ns)
             if valid:
                 vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
                 speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
@@ -487,7 +516,7 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
         elif kind == "SYSTEM_TIME":
             t_ms = _num(msg.get("time_boot_ms"))
             if t_ms is not None and t_ms > 0:
-                tick(t_ms / 1000.0)
+                tick(run_clock(t_ms / 1000.0, log_ns), log_ns)
         elif kind == "MISSION_ITEM_REACHED":
             seq = msg.get("seq")
             if not isinstance(seq, int):
@@ -499,8 +528,23 @@ def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_
                 reached.append((seq, now, order))
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
+        elif kind == "STATUSTEXT":
+            text = _statustext(msg.get("text"))
+            severity = msg.get("severity")
+            if text and isinstance(severity, int):
+                texts.append((now, severity, text))
     settle(now)
-    return _Events(points, reached, heartbeats, now, jumps)
+    return _Events(points, reached, heartbeats, now, reboots, texts)
+
+
+def _statustext(value: object) -> str:
+    """A STATUSTEXT's text as recorded (a string, or a list of byte values)."""
+    if isinstance(value, list):
+        try:
+            value = bytes(v for v in value if isinstance(v, int)).decode("utf-8", "replace")
+        except ValueError:
+            return ""
+    return str(value).split("\x00", 1)[0].strip() if isinstance(value, str) else ""
 
 
 def _fix_points(fixes: Sequence[tuple[int, dict[str, Any]]]) -> list[_Point]:
@@ -728,6 +772,7 @@ def _review_vehicle(
     status: Mapping[str, Any] | None,
     since_ns: int,
     end_ns: int | None,
+    fields: Mapping[str, Sequence[Sequence[float]]] = {},  # noqa: B006 - read only
 ) -> _VehicleResult:
     items = machine.items
     warnings: list[str] = []
@@ -746,10 +791,10 @@ def _review_vehicle(
     after = [(ns, m) for ns, m in frames_from if ns >= upload_start]
     events = _read_events(standing[-1:] + after, items)
     points = events.points or _fix_points([(n, f) for n, f in traffic.fixes if n >= upload_start])
-    if events.clock_jumps:
+    if events.reboots:
         warnings.append(
-            f"{vid}: its clock went back {events.clock_jumps} time(s) (a reboot?); "
-            "times after that may be wrong"
+            f"{vid}: the autopilot rebooted {len(events.reboots)} time(s) "
+            f"(its clock started again); the run's times carry on across"
         )
     times, reported, last, order_of = _item_times(items, events.reached)
     n = len(items)
@@ -928,6 +973,22 @@ def _review_vehicle(
             f"the frames show {' '.join(computed) or 'none'}"
         )
 
+    problems: list[str] = []
+    for _t, severity, text in events.texts:
+        if severity <= mc.MAV_SEVERITY_WARNING and text not in problems:
+            problems.append(text)
+    if problems:
+        warnings.append(f"{vid}: the autopilot said: {'; '.join(problems[:5])}")
+    quality = track_quality(
+        items, times, [(p.t, p.lat, p.lon) for p in track if not p.waypoint], fields
+    )
+    if quality is not None and quality.outside_down_s > 0:
+        warnings.append(
+            f"{vid}: implement down outside the field for {quality.outside_down_s:.1f} s"
+        )
+    if quality is not None and quality.loops:
+        warnings.append(f"{vid}: {quality.loops} of {quality.turns} turns driven with a loop")
+
     rel = (lambda t: t - start) if start is not None else (lambda t: t)
     review = VehicleReview(
         id=vid,
@@ -964,6 +1025,9 @@ def _review_vehicle(
         activities=_merge_activities(activities),
         track=tuple((rel(p.t), p.lat, p.lon) for p in kept),
         planned_route=tuple(Waypoint(i.seq, i.field_id, i.role, i.lat, i.lon) for i in nav),
+        reboots=tuple(rel(t) for t in events.reboots),
+        autopilot_problems=tuple(problems),
+        quality=quality,
     )
     return _VehicleResult(review, field_times, start, planned_s, warnings)
 
@@ -1106,6 +1170,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             plan.log_ns if len(plans) > 1 else 0,
             end_ns,
+            {fid: f.get("polygon") or [] for fid, f in plan.fields.items() if isinstance(f, dict)},
         )
         results[machine.id] = result
         vehicles.append(result.review)
@@ -1272,6 +1337,19 @@ def review_json(review: Review) -> dict[str, Any]:
                 "end_clock_s": r(v.end_clock_s, 3),
                 "last_report_h": r(v.last_report_h, 4),
                 "error": v.error,
+                "reboots_s": [round(t, 1) for t in v.reboots],
+                "autopilot_problems": list(v.autopilot_problems),
+                "track_quality": None
+                if v.quality is None
+                else {
+                    "samples": v.quality.samples,
+                    "cross_track_median_m": r(v.quality.cross_track_median_m, 3),
+                    "cross_track_p95_m": r(v.quality.cross_track_p95_m, 3),
+                    "cross_track_max_m": r(v.quality.cross_track_max_m, 3),
+                    "outside_field_implement_down_s": round(v.quality.outside_down_s, 1),
+                    "turns": v.quality.turns,
+                    "loops": v.quality.loops,
+                },
                 "activities": [
                     {
                         "kind": a.kind,
@@ -1463,6 +1541,9 @@ def review_table(review: Review) -> str:
             if missing:
                 line += f"; not started: {' '.join(missing)}"
             lines.append(line)
+        lines += ["", "driving (implement down: cross-track error to the working line):"]
+        for v in review.vehicles:
+            lines.append(f"  {v.id:<6} {_quality_line(v)}")
     lines.append("")
     if review.warnings:
         lines.append("warnings:")
@@ -1470,6 +1551,22 @@ def review_table(review: Review) -> str:
     else:
         lines.append("no warnings")
     return "\n".join(lines)
+
+
+def _quality_line(v: VehicleReview) -> str:
+    q = v.quality
+    if q is None or q.cross_track_median_m is None:
+        text = "no working stretch driven"
+    else:
+        text = (
+            f"cross-track median {q.cross_track_median_m:.2f} m, "
+            f"95 % {q.cross_track_p95_m:.2f} m, max {q.cross_track_max_m:.2f} m; "
+            f"outside the field {q.outside_down_s:.1f} s; "
+            f"turns {q.turns}, with a loop {q.loops}"
+        )
+    if v.reboots:
+        text += f"; rebooted {len(v.reboots)}x"
+    return text
 
 
 def _hours(seconds: float | None, digits: int) -> str:

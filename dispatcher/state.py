@@ -58,6 +58,7 @@ class VehicleState:
     finished_at_next_fix: bool = False
     lat: float | None = None
     lon: float | None = None
+    heading_deg: float | None = None  # course over ground, from GLOBAL_POSITION_INT.hdg
     mode: int | None = None
     armed: bool = False
     last_seen: float | None = None  # wall clock of the last message
@@ -203,6 +204,8 @@ class FleetState:
                 v.off_auto_since = None
         elif kind == "GLOBAL_POSITION_INT":
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
+            if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
+                v.heading_deg = msg.hdg / 100.0
             self._clock(v, msg.time_boot_ms / 1000.0)
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
@@ -313,6 +316,7 @@ class FleetState:
                     "sim_time_s": round(v.sim_time_s, 1),
                     "lat": v.lat,
                     "lon": v.lon,
+                    "heading_deg": v.heading_deg,
                     "fields_done": v.fields_done,
                     "upload_attempts": v.upload_attempts,
                     "upload_retries": v.upload_retries,

@@ -1,0 +1,210 @@
+"""How well a vehicle drove its mission: cross-track error on the swaths, time with the
+implement down outside the field, and turns driven without a loop.
+
+Measured from the log alone (the positions a vehicle reported and the items it reached),
+so it works for the simulator and for a real autopilot alike:
+
+* **implement down**: from the moment the navigation item before an ``implement_down``
+  item was reached (ArduPilot runs DO items as it leaves the waypoint before them) until
+  the one before the next ``implement_up`` was reached;
+* **cross-track error**: for every position while the implement is down, its distance to
+  the planned working line of that stretch (the waypoints between the two items);
+  median and 95th percentile;
+* **outside the field**: the time between successive positions, implement down, at
+  least one of which lies outside the field's polygon (goal: 0);
+* **loops**: a turn (implement up between two working stretches of one field) whose driven
+  heading changes by more than the planned turn path's change plus ``LOOP_EXTRA_DEG``;
+  a tractor that overshoots and circles back to catch a waypoint does that.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Final, Protocol
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from planner.geo import LocalFrame
+
+LOOP_EXTRA_DEG: Final = 180.0
+"""A turn whose driven heading change exceeds the planned one by more than this looped."""
+MIN_STEP_M: Final = 0.5
+"""Positions closer than this to the previous one give no heading (GPS jitter)."""
+
+
+class TrackItem(Protocol):
+    """A planned mission item as review knows it."""
+
+    seq: int
+    field_id: str | None
+    role: str
+    lat: float
+    lon: float
+
+    @property
+    def is_nav(self) -> bool: ...
+
+
+@dataclass(frozen=True)
+class TrackQuality:
+    """How the driven track matched the mission's working lines and turns."""
+
+    samples: int  # positions with the implement down
+    cross_track_median_m: float | None
+    cross_track_p95_m: float | None
+    cross_track_max_m: float | None
+    outside_down_s: float  # implement down outside the field, vehicle seconds
+    turns: int  # turns between working stretches that were driven
+    loops: int  # of them, how many were driven with a loop
+
+
+def track_quality(
+    items: Sequence[TrackItem],
+    times: Mapping[int, float],
+    track: Sequence[tuple[float, float, float]],
+    fields: Mapping[str, Sequence[Sequence[float]]],
+) -> TrackQuality | None:
+    """Measure one vehicle's track (``(clock s, lat, lon)`` in time order) against its
+    mission ``items``, given when each item was done (``times``, the vehicle's clock) and
+    the fields' outlines (lists of ``(lon, lat)``). None when nothing was driven."""
+    if len(track) < 2 or not items:
+        return None
+    frame = LocalFrame.around(float(track[0][2]), float(track[0][1]))
+    t = np.array([p[0] for p in track], dtype=np.float64)
+    x, y = frame.to_local(
+        np.array([p[2] for p in track], dtype=np.float64),
+        np.array([p[1] for p in track], dtype=np.float64),
+    )
+    points = shapely.points(x, y)
+
+    def local(item: TrackItem) -> tuple[float, float]:
+        lx, ly = frame.to_local(float(item.lon), float(item.lat))
+        return float(lx), float(ly)
+
+    outlines: dict[str, Polygon] = {}
+    for fid, ring in fields.items():
+        try:
+            xs, ys = frame.to_local(
+                np.array([float(p[0]) for p in ring]), np.array([float(p[1]) for p in ring])
+            )
+            outlines[fid] = Polygon(np.column_stack([xs, ys]))
+        except (TypeError, ValueError, IndexError):
+            continue
+
+    errors: list[np.ndarray] = []
+    outside_s = 0.0
+    samples = 0
+    turns = loops = 0
+    previous_stretch_end: tuple[int, float] | None = None  # (seq, time) of the last up
+    for down_seq, up_seq in _stretches(items):
+        if down_seq not in times or up_seq not in times:
+            previous_stretch_end = None
+            continue
+        t0, t1 = times[down_seq], times[up_seq]
+        line_points = [local(items[s]) for s in _nav_between(items, down_seq, up_seq)]
+        fid = items[down_seq].field_id
+        if previous_stretch_end is not None and items[previous_stretch_end[0]].field_id == fid:
+            turns += 1
+            if _looped(items, previous_stretch_end, (down_seq, t0), t, x, y, local):
+                loops += 1
+        previous_stretch_end = (up_seq, t1)
+        inside = (t > t0) & (t < t1)
+        if not np.any(inside) or len(line_points) < 1:
+            continue
+        line = LineString(line_points) if len(line_points) > 1 else shapely.points(line_points[0])
+        errors.append(np.asarray(shapely.distance(line, points[inside]), dtype=np.float64))
+        samples += int(inside.sum())
+        outline = outlines.get(fid or "")
+        if outline is not None:
+            out = ~np.asarray(shapely.covers(outline, points), dtype=bool)
+            idx = np.flatnonzero(inside)
+            for k in idx:
+                if k + 1 < len(t) and (out[k] or out[k + 1]):
+                    outside_s += float(min(t[k + 1], t1) - t[k])
+    if not errors:
+        return TrackQuality(samples, None, None, None, outside_s, turns, loops)
+    every = np.concatenate(errors)
+    return TrackQuality(
+        samples=samples,
+        cross_track_median_m=float(np.median(every)),
+        cross_track_p95_m=float(np.percentile(every, 95)),
+        cross_track_max_m=float(every.max()),
+        outside_down_s=outside_s,
+        turns=turns,
+        loops=loops,
+    )
+
+
+def _stretches(items: Sequence[TrackItem]) -> list[tuple[int, int]]:
+    """(implement_down seq, following implement_up seq) for every working stretch."""
+    out = []
+    down: int | None = None
+    for item in items:
+        if item.role == "implement_down":
+            down = item.seq
+        elif item.role == "implement_up" and down is not None:
+            out.append((down, item.seq))
+            down = None
+    return out
+
+
+def _nav_before(items: Sequence[TrackItem], seq: int) -> int:
+    """The navigation item before ``seq`` (0, home, when there is none)."""
+    return next((s for s in range(seq - 1, -1, -1) if items[s].is_nav), 0)
+
+
+def _nav_between(items: Sequence[TrackItem], down_seq: int, up_seq: int) -> list[int]:
+    """The working line: the navigation item before ``down_seq`` and those up to
+    ``up_seq``."""
+    seqs = [_nav_before(items, down_seq)]
+    seqs += [s for s in range(down_seq + 1, up_seq) if items[s].is_nav]
+    return seqs
+
+
+def _heading_change(xs: np.ndarray, ys: np.ndarray) -> float:
+    """Sum of absolute heading changes (degrees) along a polyline, steps under
+    MIN_STEP_M skipped."""
+    keep_x, keep_y = [float(xs[0])], [float(ys[0])]
+    for px, py in zip(xs[1:].tolist(), ys[1:].tolist(), strict=True):
+        if math.hypot(px - keep_x[-1], py - keep_y[-1]) >= MIN_STEP_M:
+            keep_x.append(px)
+            keep_y.append(py)
+    if len(keep_x) < 3:
+        return 0.0
+    headings = np.arctan2(np.diff(keep_y), np.diff(keep_x))
+    turn = np.diff(headings)
+    turn = (turn + math.pi) % (2 * math.pi) - math.pi
+    return float(np.degrees(np.abs(turn).sum()))
+
+
+def _looped(
+    items: Sequence[TrackItem],
+    after: tuple[int, float],
+    before: tuple[int, float],
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    local: Callable[[TrackItem], tuple[float, float]],
+) -> bool:
+    """Whether the turn from the stretch ending at ``after`` to the one starting at
+    ``before`` was driven with a loop."""
+    (up_seq, t_up), (down_seq, t_down) = after, before
+    if t_down <= t_up:
+        return False
+    window = (t >= t_up) & (t <= t_down)
+    if window.sum() < 3:
+        return False
+    first = _nav_before(items, up_seq)
+    last = _nav_before(items, down_seq)
+    planned = [local(items[s]) for s in range(first, last + 1) if items[s].is_nav]
+    if len(planned) >= 3:
+        px = np.array([p[0] for p in planned])
+        py = np.array([p[1] for p in planned])
+        planned_change = _heading_change(px, py)
+    else:
+        planned_change = 180.0
+    return _heading_change(x[window], y[window]) > planned_change + LOOP_EXTRA_DEG

@@ -1,0 +1,270 @@
+"""ArduPilot Rover SITL, the dispatcher and the bridge as real processes, for the tests
+against the real autopilot (tests/test_sitl.py) and the SITL benchmark.
+
+The autopilot binary is looked up in ``$AGRIFLEET_ARDUROVER``, else in
+``../shared/sitl/ardurover`` beside the repository; :func:`find_ardurover` returns None
+when there is none, and the tests skip with that reason. Every process listens on
+loopback only: SITL instance ``K`` takes TCP ports 5760 + 10 K (SERIAL0, where the bridge
+connects) and 5762 + 10 K (SERIAL1, a second MAVLink port the tests use to change a
+parameter); the dispatcher listens for Zenoh on a free port with multicast scouting off.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zenoh
+
+from dispatcher import wire
+
+REPO = Path(__file__).resolve().parents[1]
+SITL_ENV = "AGRIFLEET_ARDUROVER"
+SHARED_SITL = REPO.parent / "shared" / "sitl"
+HOME = (44.0003, 87.2995)  # the SITL farm's garage (tests/data/sitl-farm.geojson)
+
+# What docs/bridge.md asks an ArduPilot Rover for, under this firmware's parameter names,
+# plus what the test farm's machine needs (tests/data/sitl.toml).
+PARAMS: dict[str, float] = {
+    "MAV_SYSID": 1,
+    "MAV_GCS_SYSID": 255,
+    "MAV1_POSITION": 10,
+    "MAV1_EXT_STAT": 2,
+    "MAV1_EXTRA3": 1,
+    "WP_RADIUS": 1.0,
+    "WP_SPEED": 3.33,
+    "CRUISE_SPEED": 3.33,
+    "TURN_RADIUS": 3.0,
+    "FS_GCS_ENABLE": 0,
+    "SERVO9_FUNCTION": 0,
+}
+
+
+def find_ardurover() -> Path | None:
+    """The ArduPilot Rover SITL binary, or None."""
+    named = os.environ.get(SITL_ENV)
+    for candidate in ([Path(named)] if named else []) + [SHARED_SITL / "ardurover"]:
+        if candidate.is_file() and os.access(candidate, os.X_OK):
+            return candidate
+    return None
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def free_instance(first: int = 20) -> int:
+    """A SITL instance number whose TCP ports (5760..5763 + 10 K) are free."""
+    for k in range(first, first + 200):
+        if all(_port_free(5760 + 10 * k + d) for d in range(4)):
+            return k
+    raise RuntimeError("no free SITL instance number")
+
+
+def wait_for(what: str, predicate: Callable[[], bool], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+@dataclass
+class Sitl:
+    """One ArduPilot Rover SITL process, its eeprom in ``workdir``."""
+
+    binary: Path
+    workdir: Path
+    speedup: float = 10.0
+    instance: int = field(default_factory=free_instance)
+    params: Mapping[str, float] = field(default_factory=lambda: dict(PARAMS))
+    proc: subprocess.Popen[bytes] | None = None
+    starts: int = 0
+
+    @property
+    def port(self) -> int:
+        return 5760 + 10 * self.instance
+
+    @property
+    def url(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    def start(
+        self, *, wipe: bool = False, home: tuple[float, float] | None = None, heading: float = 0
+    ) -> None:
+        """Start (or restart, on the same eeprom) the autopilot; it finishes booting once
+        the bridge connects to SERIAL0."""
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        extra = self.workdir / "agrifleet-test.parm"
+        extra.write_text("".join(f"{k} {v:g}\n" for k, v in self.params.items()))
+        lat, lon = home or HOME
+        args = [
+            str(self.binary),
+            "--model",
+            "rover",
+            "--speedup",
+            f"{self.speedup:g}",
+            "--defaults",
+            f"{self.binary.parent / 'rover.parm'},{extra}",
+            "--home",
+            f"{lat:.7f},{lon:.7f},500,{heading:.0f}",
+            "-I",
+            str(self.instance),
+        ]
+        if wipe:
+            args.append("--wipe")
+        self.starts += 1
+        log = open(self.workdir / f"sitl-{self.starts}.out", "wb")  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            args, cwd=self.workdir, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+        )
+        log.close()
+        wait_for(f"SITL on port {self.port}", lambda: not _port_free(self.port), 20.0)
+
+    def kill(self) -> None:
+        """kill -9: the autopilot dies as on a power cut (its eeprom stays)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(10)
+
+    def set_param(self, name: str, value: float, timeout_s: float = 20.0) -> None:
+        """Set a parameter over SERIAL1, as a second ground station would."""
+        from pymavlink import mavutil
+
+        link = mavutil.mavlink_connection(
+            f"tcp:127.0.0.1:{self.port + 2}", source_system=254, source_component=190
+        )
+        try:
+            deadline = time.monotonic() + timeout_s
+            link.wait_heartbeat(timeout=timeout_s)
+            while time.monotonic() < deadline:
+                link.mav.param_set_send(
+                    link.target_system,
+                    1,
+                    name.encode(),
+                    float(value),
+                    mavutil.mavlink.MAV_PARAM_TYPE_REAL32,
+                )
+                msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+                if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-3:
+                    return
+            raise AssertionError(f"SITL did not confirm {name} = {value}")
+        finally:
+            link.close()
+
+
+class Processes:
+    """agrifleet processes a test starts (``python -m dispatcher.cli ...``); all stopped
+    at the end."""
+
+    def __init__(self, workdir: Path) -> None:
+        self.workdir = workdir
+        self.procs: list[subprocess.Popen[str]] = []
+
+    def start(self, name: str, *args: str) -> subprocess.Popen[str]:
+        out = open(self.workdir / f"{name}-{len(self.procs)}.out", "w")  # noqa: SIM115
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "dispatcher.cli", *args],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        out.close()
+        proc.output_path = out.name  # type: ignore[attr-defined]
+        self.procs.append(proc)
+        return proc
+
+    def serve(self, scenario: Path, port: int, log_dir: Path, *extra: str) -> subprocess.Popen[str]:
+        return self.start(
+            "serve",
+            "serve",
+            str(scenario),
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+            "--log-dir",
+            str(log_dir),
+            *extra,
+        )
+
+    def bridge(self, scenario: Path, vehicle: str, sitl: Sitl, port: int) -> subprocess.Popen[str]:
+        return self.start(
+            "bridge",
+            "bridge",
+            str(scenario),
+            "--vehicle",
+            vehicle,
+            "--mavlink",
+            sitl.url,
+            "--connect",
+            f"tcp/127.0.0.1:{port}",
+        )
+
+    @staticmethod
+    def output(proc: subprocess.Popen[str]) -> str:
+        return Path(proc.output_path).read_text()  # type: ignore[attr-defined]
+
+    def stop_all(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in self.procs:
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def log_of(output: str) -> Path:
+    lines = [ln for ln in output.splitlines() if ln.startswith("log: ")]
+    assert lines, output[-3000:]
+    return Path(lines[-1][5:])
+
+
+@contextlib.contextmanager
+def status_reader(port: int, farm: str) -> Iterator[Callable[[], dict]]:
+    """A function that asks the dispatcher's status queryable (``{}`` until it answers)."""
+    conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
+    with zenoh.open(conf) as session:
+
+        def ask() -> dict:
+            for reply in session.get(wire.dispatcher_status(farm), timeout=2.0):
+                if reply.ok is not None:
+                    doc = json.loads(reply.ok.payload.to_string())
+                    if doc:
+                        return doc
+            return {}
+
+        yield ask

@@ -1,0 +1,168 @@
+"""The dispatcher and the bridge against the real autopilot: ArduPilot Rover in SITL.
+
+Each test starts ``ardurover`` (see tests/sitl_harness.py; skipped with the reason when
+the binary is not there), ``agrifleet serve`` and ``agrifleet bridge`` on loopback, and
+reads the run back from its MCAP log with ``agrifleet review``: every field done exactly
+once, the driven track on the swaths, the implement never down outside a field.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from sitl_harness import (  # noqa: E402
+    Processes,
+    Sitl,
+    find_ardurover,
+    free_port,
+    log_of,
+    status_reader,
+    wait_for,
+)
+
+from dispatcher.recording import LOG_TOPIC, read_log  # noqa: E402
+from dispatcher.review import Review, review_log, review_table  # noqa: E402
+
+ARDUROVER = find_ardurover()
+pytestmark = pytest.mark.skipif(
+    ARDUROVER is None,
+    reason="no ArduPilot Rover SITL binary: set AGRIFLEET_ARDUROVER or put it at "
+    "../shared/sitl/ardurover",
+)
+SCENARIO = Path(__file__).parent / "data" / "sitl.toml"
+SPEEDUP = 20.0
+RUN_TIMEOUT_S = 240.0  # wall seconds for one job (about 400 s of vehicle time)
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Processes]:
+    group = Processes(tmp_path)
+    yield group
+    group.stop_all()
+
+
+@pytest.fixture
+def sitl(tmp_path: Path) -> Iterator[Sitl]:
+    assert ARDUROVER is not None
+    autopilot = Sitl(ARDUROVER, tmp_path / "sitl", speedup=SPEEDUP)
+    yield autopilot
+    autopilot.stop()
+
+
+def finished(proc, timeout_s: float = RUN_TIMEOUT_S) -> int:
+    wait_for("the dispatcher to finish", lambda: proc.poll() is not None, timeout_s)
+    return int(proc.returncode)
+
+
+def check_worked_once(review: Review) -> None:
+    """Every field done, each exactly once, on swaths driven as planned."""
+    (vehicle,) = review.vehicles
+    assert sorted(vehicle.fields_done) == sorted(vehicle.fields_planned), review_table(review)
+    assert len(set(vehicle.fields_done)) == len(vehicle.fields_done)
+    assert vehicle.mission_complete
+    q = vehicle.quality
+    assert q is not None and q.cross_track_median_m is not None, review_table(review)
+    assert q.cross_track_median_m < 0.3, review_table(review)
+    assert q.cross_track_p95_m is not None and q.cross_track_p95_m < 1.0, review_table(review)
+    assert q.outside_down_s == 0.0, review_table(review)
+
+
+def test_a_run_started_while_the_autopilot_boots_then_a_second_job_without_a_reboot(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    port = free_port()
+    # The dispatcher and the bridge first: the autopilot's first heartbeats say it is
+    # still initialising, and a mission sent then is refused (MAV_MISSION_NO_SPACE).
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs1")
+    bridge = procs.bridge(SCENARIO, "r1", sitl, port)
+    sitl.start(wipe=True)
+    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    first = review_log(log_of(Processes.output(serve)))
+    check_worked_once(first)
+    (v,) = first.vehicles
+    assert v.upload_attempts == 1 and not v.reboots, review_table(first)
+
+    # A second job on the same autopilot: it finished the first one in AUTO and was parked.
+    bridge.terminate()
+    bridge.wait(15)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs2")
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    second = review_log(log_of(Processes.output(serve)))
+    check_worked_once(second)
+    assert sitl.starts == 1 and not second.vehicles[0].reboots
+    assert not any("Internal Error" in t for t in second.vehicles[0].autopilot_problems)
+
+
+def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+
+        def well_under_way() -> bool:
+            state.update(status().get("vehicles", {}).get("r1", {}))
+            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
+
+        wait_for("40 % of the mission", well_under_way, RUN_TIMEOUT_S)
+        reached = state["reached"]
+        # A power cut: the autopilot restarts on its eeprom where the tractor stands.
+        sitl.kill()
+        sitl.start(home=(state["lat"], state["lon"]), heading=state.get("heading_deg") or 0)
+        assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    path = log_of(Processes.output(serve))
+    review = review_log(path)
+    check_worked_once(review)
+    (v,) = review.vehicles
+    assert len(v.reboots) == 1, review_table(review)  # one event, not "time went back"
+    assert v.distance_m < v.planned_distance_m * 1.05, review_table(review)  # nothing twice
+    log = read_log(path)
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    resumed = [ln for ln in lines if "rebooted; resuming at item" in ln]
+    assert resumed, lines
+    resume_item = int(resumed[0].rsplit(" ", 1)[1])
+    assert resume_item > reached
+    seqs = [
+        r.decode_json()["seq"]
+        for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/from/json")
+        if r.decode_json().get("mavpackettype") == "MISSION_ITEM_REACHED"
+    ]
+    assert seqs == sorted(seqs), seqs  # progress never goes back
+
+
+def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    sitl.params = {**sitl.params, "BATT_ARM_VOLT": 50.0}  # SITL's battery has 12.6 V
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        seen: dict = {}
+
+        def refused_with_a_reason() -> bool:
+            seen.update(status().get("vehicles", {}).get("r1", {}))
+            return "ARM_DISARM refused" in seen.get("error", "") and "(autopilot:" in seen["error"]
+
+        wait_for("the refusal and its reason", refused_with_a_reason, 60.0)
+    reason = seen["error"].split("(autopilot: ", 1)[1]
+    assert "Battery" in reason or "battery" in reason, seen
+    sitl.set_param("BATT_ARM_VOLT", 0.0)  # the operator fixes it; the dispatcher asks again
+    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    path = log_of(Processes.output(serve))
+    lines = [r.decode_json()["message"] for r in read_log(path).on(LOG_TOPIC)]
+    assert any("refused" in ln and "Battery" in ln for ln in lines), lines
+    review = review_log(path)
+    check_worked_once(review)
+    assert any("Battery" in w for w in review.warnings), review_table(review)
