@@ -4,9 +4,10 @@ implement down outside the field, and turns driven without a loop.
 Measured from the log alone (the positions a vehicle reported and the items it reached),
 so it works for the simulator and for a real autopilot alike:
 
-* **implement down**: from the moment the navigation item before an ``implement_down``
-  item was reached (ArduPilot runs DO items as it leaves the waypoint before them) until
-  the one before the next ``implement_up`` was reached;
+* **implement down**: from the moment the navigation item before an item that lowers the
+  implement (``implement_down``, ``implement_lower``) was reached (ArduPilot runs DO items
+  as it leaves the waypoint before them) until the one before the next item that raises it
+  (``implement_raise``, ``implement_up``) was reached;
 * **cross-track error**: for every position while the implement is down, its distance to
   the planned working line of that stretch (the waypoints between the two items);
   median and 95th percentile;
@@ -139,14 +140,19 @@ def track_quality(
     )
 
 
+LOWER_ROLES: Final = frozenset({"implement_down", "implement_lower"})
+RAISE_ROLES: Final = frozenset({"implement_up", "implement_raise"})
+
+
 def _stretches(items: Sequence[TrackItem]) -> list[tuple[int, int]]:
-    """(implement_down seq, following implement_up seq) for every working stretch."""
+    """(seq lowering the implement, seq raising it next) for every working stretch: a
+    whole field when turns are not planned, else one swath or headland run each."""
     out = []
     down: int | None = None
     for item in items:
-        if item.role == "implement_down":
+        if item.role in LOWER_ROLES:
             down = item.seq
-        elif item.role == "implement_up" and down is not None:
+        elif item.role in RAISE_ROLES and down is not None:
             out.append((down, item.seq))
             down = None
     return out
