@@ -5,7 +5,9 @@ has it, and the classic GA on a few of the paper's cells at equal time, as ratio
 paper's figures and to the best-known solutions; ``upload`` — time from "plan ready" to
 "every mission acknowledged" for 6 vehicles with ~300 items each on loopback;
 ``telemetry`` — 100 simulated vehicles sending telemetry at 10 Hz for 60 s into one
-dispatcher: share of messages in the MCAP, dispatcher CPU.
+dispatcher: share of messages in the MCAP, dispatcher CPU; ``sitl`` — a 4-field farm
+driven by ArduPilot Rover in SITL through the bridge: planned vs driven, cross-track error,
+implement down outside a field, turns without a loop.
 
 The report is printed and appended to benchmarks/RESULTS.md with date, machine and command.
 """
@@ -95,7 +97,18 @@ def bench_telemetry() -> str:
     return run()
 
 
-SECTIONS = {"solver": bench_solver, "upload": bench_upload, "telemetry": bench_telemetry}
+def bench_sitl() -> str:
+    from benchmarks.sitl_bench import bench_sitl as run
+
+    return run()
+
+
+SECTIONS = {
+    "solver": bench_solver,
+    "upload": bench_upload,
+    "telemetry": bench_telemetry,
+    "sitl": bench_sitl,
+}
 
 
 def main() -> int:
