@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(BIN)/agrifleet demo $(DEMO_ARGS)
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/run.py
+	$(BIN)/python benchmarks/run.py $(BENCH_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
