@@ -6,6 +6,7 @@ scenario file. Every error names the file and the key (or machine) at fault.
 
 from __future__ import annotations
 
+import logging
 import re
 import tomllib
 from dataclasses import dataclass, replace
@@ -20,6 +21,8 @@ from planner.farm import Farm, load_farm
 from planner.problem import Machine
 from planner.solve import ALGORITHMS
 
+logger = logging.getLogger(__name__)
+
 # Ids become Zenoh key segments and file names: nothing that either would misread.
 SAFE_ID = re.compile(r"[A-Za-z0-9_.-]+")
 
@@ -32,6 +35,9 @@ MACHINE_PARAMS = (
     "road_fuel_lh",
     "work_fuel_lh",
 )
+# Optional machine keys and their defaults: 0 m turning radius = the paper's turn model,
+# a hop between swath ends costing turn_time_h.
+OPTIONAL_MACHINE_PARAMS = {"min_turn_radius_m": 0.0}
 
 
 @dataclass(frozen=True)
@@ -164,11 +170,17 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
         missing = [key for key in (*MACHINE_PARAMS, "system_id") if key not in entry]
         if missing:
             raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
-        for key in MACHINE_PARAMS:
+        keys = [*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)]
+        for key in keys:
             if not isinstance(entry[key], int | float) or isinstance(entry[key], bool):
                 raise ConfigError(f"{where}: key '{key}' must be a number")
+        if "min_turn_radius_m" not in entry:
+            logger.warning(
+                "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
+                where,
+            )
         try:
-            machine = Machine(ident, **{key: float(entry[key]) for key in MACHINE_PARAMS})
+            machine = Machine(ident, **{key: float(entry[key]) for key in keys})
         except PlannerError as exc:
             raise ConfigError(f"{src}: {exc}") from exc
         sysid = entry["system_id"]

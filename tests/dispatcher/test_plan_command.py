@@ -4,7 +4,10 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink import mavwp
 
 from dispatcher.cli import main
@@ -239,3 +242,168 @@ def test_missions_never_leave_a_notched_field(tmp_path):
         for a, b in zip(points[:-1], points[1:], strict=True):
             assert inside.covers(LineString([a, b])), corner
     assert detours > 0  # some start corner needed to drive around the notch
+
+
+# --- turning radius: fleet key, planned turns in the missions ---------------------------
+
+
+def test_min_turn_radius_is_read_per_machine(tmp_path, caplog):
+    from dispatcher.scenario import load_scenario
+
+    path = write_scenario(tmp_path, good_features())
+    text = path.read_text().replace('id = "b"\n', 'id = "b"\nmin_turn_radius_m = 4.5\n')
+    path.write_text(text)
+    with caplog.at_level("WARNING", logger="dispatcher.scenario"):
+        scenario = load_scenario(path)
+    radii = {v.id: v.machine.min_turn_radius_m for v in scenario.vehicles}
+    assert radii == {"a": 0.0, "b": 4.5}
+    assert "machine 'a': no min_turn_radius_m" in caplog.text  # planned as hops
+    assert "machine 'b'" not in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [("-2.0", "min_turn_radius_m must not be negative"), ('"wide"', "'min_turn_radius_m'")],
+)
+def test_bad_min_turn_radius_names_file_machine_and_key(tmp_path, capsys, value, needle):
+    path = write_scenario(tmp_path, good_features())
+    path.write_text(
+        path.read_text().replace('id = "b"\n', f'id = "b"\nmin_turn_radius_m = {value}\n')
+    )
+    code = main(["plan", str(path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert needle in err and "scenario.toml" in err and "'b'" in err
+
+
+def test_shipped_fleet_has_turning_radii():
+    from dispatcher.scenario import load_scenario
+
+    scenario = load_scenario(REPO / "config/changji.toml")
+    assert all(v.machine.min_turn_radius_m > 0 for v in scenario.vehicles)
+
+
+ROUNDING_M = 0.015
+"""Waypoints are stored to 1e-7 degree: each coordinate moves up to 0.55 cm; the middle
+point of three can then lie up to about 1.4 cm further off the chord of the other two."""
+
+
+def off_chord_m(a, b, c):
+    """How far ``b`` lies off the chord from ``a`` to ``c``, and how far it may for an arc
+    of radius ``r`` through ``a`` and ``c``: returns (off, half chord)."""
+    ac = np.subtract(c, a)
+    chord = float(np.hypot(*ac))
+    ab = np.subtract(b, a)
+    return abs(ac[0] * ab[1] - ac[1] * ab[0]) / chord, chord / 2
+
+
+def assert_mission_turns_drivable(farm, mission, polygon_xy, radius):
+    """Every turn, from the swath end before it to the swath start after it, read back from
+    the mission's waypoints: bends no tighter than ``radius`` (within the rounding) and
+    stays inside the field."""
+    from shapely.geometry import LineString
+
+    inside = polygon_xy.buffer(ROUNDING_M)
+    nav = [
+        (trace.role, farm.frame.to_local(item.lon, item.lat))
+        for item, trace in zip(mission.items, mission.traces, strict=True)
+        if item.is_waypoint
+    ]
+    turns = 0
+    k = 0
+    while k < len(nav):
+        if nav[k][0] != "turn":
+            k += 1
+            continue
+        j = k
+        while nav[j][0] == "turn":
+            j += 1
+        assert nav[k - 1][0] == "swath_end" and nav[j][0] == "swath_start"
+        points = [p for _, p in nav[k - 1 : j + 1]]
+        for a, b, c in zip(points, points[1:], points[2:], strict=False):
+            off, half = off_chord_m(a, b, c)
+            if half < radius:  # a chord longer than 2 r always has a wider circle
+                allowed = radius - math.sqrt(radius * radius - half * half)
+                assert off <= allowed + ROUNDING_M, (a, b, c)
+        assert inside.covers(LineString(points))
+        turns += 1
+        k = j
+    return turns
+
+
+def mission_through(scenario, polygon_xy, width, radius, corner, angle=None):
+    """The mission of one machine of ``width`` and ``radius`` through one field."""
+    import dataclasses
+
+    from dispatcher.plan_output import mission_for
+    from planner.coverage import cover_field
+    from planner.field_plan import MachinePlan, Visit
+
+    farm = scenario.farm
+    vehicle = scenario.vehicles[0]
+    machine = dataclasses.replace(vehicle.machine, working_width_m=width, min_turn_radius_m=radius)
+    vehicle = dataclasses.replace(vehicle, machine=machine)
+    cov = cover_field(
+        polygon_xy,
+        width,
+        field_id="f",
+        angle_deg=angle,
+        headland_passes=None,
+        turn_radius_m=radius,
+    )
+    field_ = dataclasses.replace(farm.fields[0], id="f", boundary=polygon_xy)
+    route = MachinePlan(machine, (Visit(field_, cov, corner),), 0.0, 0.0, cov.turns, 0.0, 0.0)
+    return cov, mission_for(farm, vehicle, route)
+
+
+@pytest.fixture(scope="module")
+def one_field_scenario(tmp_path_factory):
+    from dispatcher.scenario import load_scenario
+
+    folder = tmp_path_factory.mktemp("turns")
+    return load_scenario(write_scenario(folder, good_features(), machines=[("a", 1, 6.0)]))
+
+
+quad = st.tuples(
+    st.floats(0, 60), st.floats(0, 60), st.floats(0, 60), st.floats(0, 60)
+)  # inward offsets of the corners of a 260 x 200 m box
+
+
+@settings(derandomize=True, max_examples=30, deadline=None)
+@given(
+    offsets=quad,
+    width=st.sampled_from([3.7, 5.5, 6.9]),
+    radius=st.floats(1.5, 7.0),
+    corner=st.integers(0, 3),
+    angle=st.none() | st.floats(0, 180),
+)
+def test_mission_turns_are_drivable_in_random_quadrilaterals(
+    one_field_scenario, offsets, width, radius, corner, angle
+):
+    from shapely.geometry import Polygon
+
+    a, b, c, d = offsets
+    polygon = Polygon([(a, 0.0), (260.0, b), (260.0 - c, 200.0), (0.0, 200.0 - d)])
+    cov, mission = mission_through(one_field_scenario, polygon, width, radius, corner, angle)
+    turns = assert_mission_turns_drivable(one_field_scenario.farm, mission, polygon, radius)
+    assert turns == sum(1 for t in cov.turn(corner) if t)
+    assert turns >= len(cov.swaths) - len(cov.cells)  # every move inside a cell is a turn
+
+
+NOT_CONVEX = {
+    "L": [(0, 0), (200, 0), (200, 70), (80, 70), (80, 200), (0, 200)],
+    "bay": [(0, 0), (240, 0), (240, 160), (160, 160), (120, 90), (80, 160), (0, 160)],
+    "slanted": [(0, 0), (220, 40), (250, 190), (30, 150)],
+}
+
+
+@pytest.mark.parametrize("shape", sorted(NOT_CONVEX))
+@pytest.mark.parametrize(("width", "radius"), [(6.9, 6.0), (3.7, 4.0)])
+def test_mission_turns_are_drivable_in_notched_fields(one_field_scenario, shape, width, radius):
+    from shapely.geometry import Polygon
+
+    polygon = Polygon(NOT_CONVEX[shape])
+    for corner in range(4):
+        _, mission = mission_through(one_field_scenario, polygon, width, radius, corner)
+        turns = assert_mission_turns_drivable(one_field_scenario.farm, mission, polygon, radius)
+        assert turns > 0
