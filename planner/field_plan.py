@@ -13,7 +13,8 @@
    dynamic programming over the four corners: the transit runs from the exit of one field
    to the entry of the next, and from and back to the garage, along the roads (or around the
    fields); its points are kept in :attr:`Visit.approach` and :attr:`MachinePlan.return_path`.
-The figures of the result (distance, fuel, time, turns) are those of the driven geometry:
+The solver prices the turns as the figures below do (:func:`field_work`). The figures of
+the result (distance, fuel, time, turns) are those of the driven geometry:
 road metres are the transit lengths plus the in-field driving between cells; when the
 coverage plans drivable turns (:meth:`FieldCoverage.turn_length_m` > 0) a field's turns take
 their length at the working speed, at the road fuel rate (formula (5)'s charge for turns),
@@ -27,6 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from planner.cost import Objective
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
@@ -39,6 +41,7 @@ from planner.solve import AnyOf, Result, solve
 log = logging.getLogger(__name__)
 
 CORNERS = 4
+FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -161,9 +164,7 @@ def farm_problem(
         xs, ys = rect.exterior.coords.xy
         sides = sorted(float(np.hypot(xs[k + 1] - xs[k], ys[k + 1] - ys[k])) for k in range(2))
         tasks.append(Task(f.id, float(c.x), float(c.y), f.area_m2, sides[0], sides[1]))
-    turns = np.array(
-        [[coverage[(mc.id, f.id)].turns for f in farm.fields] for mc in machines], dtype=np.float64
-    )
+    turns, work_hours = field_work(farm, machines, coverage)
     # The paper has every machine work (its assumption 2: more tasks than machines); with
     # more machines than fields the spare ones simply stay in the garage.
     min_tasks = 1 if len(tasks) >= len(machines) else 0
@@ -179,9 +180,36 @@ def farm_problem(
         dist=dist,
         depot_dist=depot_dist,
         turns=turns,
+        work_hours=work_hours,
         min_tasks_per_machine=min_tasks,
         name="farm",
     )
+
+
+def field_work(
+    farm: Farm, machines: Sequence[Machine], coverage: dict[tuple[str, str], FieldCoverage]
+) -> tuple[FloatArray, FloatArray]:
+    """The solver's turns and work hours per (machine, field), priced as
+    :func:`machine_figures` does. Where the coverage plans the turns, their hours (mean over
+    the four start corners, which the solver does not choose) enter as U-turn equivalents,
+    hours / t_T, so that formulas (5)-(6) charge them at the road fuel rate; with t_T = 0
+    they are added to the work hours instead."""
+    shape = (len(machines), len(farm.fields))
+    turns, work_hours = np.zeros(shape), np.zeros(shape)
+    for i, machine in enumerate(machines):
+        for j, f in enumerate(farm.fields):
+            cov = coverage[(machine.id, f.id)]
+            work_hours[i, j] = f.area_m2 / machine.capacity_m2h
+            planned_m = sum(cov.turn_length_m(c) for c in range(CORNERS)) / CORNERS
+            if planned_m <= 0.0:
+                turns[i, j] = cov.turns
+                continue
+            hours = planned_m / (1000.0 * machine.work_speed_kmh)
+            if machine.turn_time_h > 0.0:
+                turns[i, j] = hours / machine.turn_time_h
+            else:
+                work_hours[i, j] += hours
+    return turns, work_hours
 
 
 def field_anchor(field: Field) -> XY:
