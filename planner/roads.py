@@ -48,6 +48,7 @@ FloatArray = NDArray[np.float64]
 Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly between the ends
 
 CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
+ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -92,7 +93,7 @@ class _RoadGraph:
     """The roads as a weighted graph, noded at crossings and where ``anchors`` hang on."""
 
     def __init__(self, roads: Sequence[LineString], anchors: Sequence[XY]) -> None:
-        merged = shapely.unary_union(list(roads))
+        merged = shapely.unary_union(joined(roads))
         segments = [g for g in shapely.get_parts(merged) if g.length > _SAME_M]
         self.graph: nx.Graph = nx.Graph()
         self.xy: list[XY] = []
@@ -348,7 +349,7 @@ class TransitNetwork:
 
     def _build_roads(self) -> None:
         farm = self.farm
-        lines = [r.line for r in farm.roads]
+        lines = joined([r.line for r in farm.roads])
         network = shapely.unary_union(lines)
         for f in farm.fields:
             declared = tuple(g.xy for g in farm.gates_of(f.id))
@@ -471,6 +472,28 @@ class TransitNetwork:
                 d = self.length(points[i], points[j], field_ids[i], field_ids[j])
                 out[i, j] = out[j, i] = d
         return out
+
+
+def joined(roads: Sequence[LineString], tolerance_m: float = ROAD_JOIN_M) -> list[LineString]:
+    """The roads with ends closer than ``tolerance_m`` merged into one point and every road
+    passing that close to an end given a vertex there, so that T and L junctions drawn with a
+    small gap (rounded coordinates) connect."""
+    ends: list[XY] = []
+
+    def end(p: XY) -> XY:
+        for q in ends:
+            if math.dist(p, q) <= tolerance_m:
+                return q
+        ends.append((float(p[0]), float(p[1])))
+        return ends[-1]
+
+    lines = []
+    for road in roads:
+        coords = [(float(x), float(y)) for x, y in road.coords]
+        coords[0], coords[-1] = end(coords[0]), end(coords[-1])
+        lines.append(LineString(coords))
+    targets = shapely.MultiPoint(ends)
+    return [shapely.snap(line, targets, tolerance_m) for line in lines]
 
 
 def _strictly_between(a: XY, points: Sequence[XY], b: XY) -> tuple[XY, ...]:

@@ -167,6 +167,19 @@ def test_the_best_gate_is_taken_and_a_field_without_gate_is_entered_nearest_the_
     assert (100, 50) in via
 
 
+def test_roads_drawn_with_a_small_gap_at_a_junction_connect():
+    # The spur stops 1 cm short of the road (rounded coordinates): still one network.
+    gap_spur = [(150, 119.99), (150, 0)]
+    corner = [(450.004, 120.003), (450, 0)]  # an L corner at the road's east end, 5 mm off
+    farm = farm_of(SQUARES, (150, 0), [ROAD, gap_spur, corner], [("B", (350, 100))])
+    net = TransitNetwork(farm)
+    length, via = net.route((150, 0), (350, 50), None, "B")
+    assert length == pytest.approx(120 + 200 + 20 + 50, abs=0.02)
+    assert via[0] == pytest.approx((150, 120), abs=0.02)
+    length, _ = net.route((450, 0), (350, 50), None, "B")
+    assert length == pytest.approx(120 + 100 + 20 + 50, abs=0.02)
+
+
 def test_a_point_off_the_roads_joins_the_nearest_road_point():
     farm = farm_of(SQUARES, (-50, 120), [ROAD], [("B", (350, 100))])
     net = TransitNetwork(farm)
