@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.transforms import offset_copy  # noqa: E402
+from matplotlib.transforms import ScaledTranslation  # noqa: E402
 from shapely.geometry import LineString  # noqa: E402
 
 from planner.farm import Farm  # noqa: E402
@@ -121,7 +121,9 @@ def draw_plan(ax: Axes, plan: FarmPlan, planned_style: str = "--") -> list[Line2
     for k, route in enumerate(plan.machines):
         col = colour(k)
         shift = (k - (count - 1) / 2) * LANE_SPACING_PT
-        lane = offset_copy(ax.transData, fig=ax.figure, x=shift, y=shift, units="points")
+        lane = ax.transData + ScaledTranslation(
+            shift / 72.0, shift / 72.0, ax.figure.dpi_scale_trans
+        )
         for visit in route.visits:
             for s in visit.swaths:
                 ax.plot(
