@@ -241,7 +241,8 @@ def cover_field(
             field_poly, w, passes, angle_deg, simplify_m, field_id
         )
 
-    paths = tuple(_drive(cells, corner, angle, ref) for corner in range(4))
+    skips = [_skips_rows(cell, radius) for cell in cells]
+    paths = tuple(_drive(cells, corner, angle, ref, skips) for corner in range(4))
     distance = _InFieldDistance(field_poly)
     headland_paths: list[tuple[tuple[XY, ...], ...]] = []
     transits: list[float] = []
@@ -952,19 +953,61 @@ def _to_polygon(outline: FloatArray, angle: float, ref: FloatArray) -> Polygon:
 # ----------------------------------------------------------------------------- driving order
 
 
-def _cell_swaths(cell: _Cell, from_top: bool, reverse_first: bool) -> FloatArray:
+def _cell_order(n: int, from_top: bool, skip: bool) -> NDArray[np.int64]:
+    """Indices of a cell's ``n`` lines in driving order: neighbour after neighbour, or
+    skipping a row (every other line out, the ones between on the way back)."""
+    if skip and n >= 3:
+        idx = np.concatenate([np.arange(0, n, 2), np.arange(1, n, 2)[::-1]])
+    else:
+        idx = np.arange(n)
+    return (n - 1 - idx) if from_top else idx
+
+
+def _cell_swaths(cell: _Cell, from_top: bool, reverse_first: bool, skip: bool) -> FloatArray:
     """Rows ``u_start, u_end, v, index`` of one cell driven back and forth."""
     n = len(cell.lines)
-    idx = np.arange(n)[::-1] if from_top else np.arange(n)
+    idx = _cell_order(n, from_top, skip)
     forward = (np.arange(n) % 2 == 0) != reverse_first
     v, ul, ur = cell.lines[idx, 0], cell.lines[idx, 1], cell.lines[idx, 2]
     return np.column_stack([np.where(forward, ul, ur), np.where(forward, ur, ul), v, idx])
 
 
-def _drive(cells: Sequence[_Cell], corner: int, angle: float, ref: FloatArray) -> tuple[Swath, ...]:
+def _skips_rows(cell: _Cell, radius: float) -> bool:
+    """Whether driving every other line out and the others back turns less than going
+    from neighbour to neighbour, for a machine that turns on ``radius`` (never for hops).
+
+    Neighbours closer than two radii need bulb turns; lines two apart are twice as far
+    apart and may allow U-turns, at the price of one bulb turn where the order comes back.
+    """
+    if radius <= 0.0 or len(cell.lines) < 3:
+        return False
+
+    def turning_m(rows: FloatArray) -> float:
+        total = 0.0
+        for a, b in zip(rows[:-1], rows[1:], strict=True):
+            heading = (1.0 if a[1] > a[0] else -1.0, 0.0)
+            try:
+                total += plan_turn((a[1], a[2]), heading, (b[0], b[2]), radius).length_m
+            except GeometryError:
+                return math.inf
+        return total
+
+    neighbours = turning_m(_cell_swaths(cell, False, False, False))
+    return turning_m(_cell_swaths(cell, False, False, True)) < neighbours - 1e-6
+
+
+def _drive(
+    cells: Sequence[_Cell],
+    corner: int,
+    angle: float,
+    ref: FloatArray,
+    skips: Sequence[bool] = (),
+) -> tuple[Swath, ...]:
     """Swaths from ``corner``: the cell whose entry is nearest that corner of the swaths'
     bounding box first, entered as the corner says; then, greedily, the cell and entry
-    nearest to where the previous cell was left."""
+    nearest to where the previous cell was left. ``skips`` says which cells are driven
+    skipping a row (:func:`_skips_rows`)."""
+    skip = list(skips) or [False] * len(cells)
     every = np.vstack([c.lines for c in cells])
     u_min, u_max = float(every[:, 1].min()), float(every[:, 2].max())
     v_min, v_max = float(every[:, 0].min()), float(every[:, 0].max())
@@ -976,10 +1019,11 @@ def _drive(cells: Sequence[_Cell], corner: int, angle: float, ref: FloatArray) -
     entries = np.empty((len(cells), 4, 2))
     exits = np.empty((len(cells), 4, 2))
     for ci, cell in enumerate(cells):
-        bottom, top = cell.lines[0], cell.lines[-1]
-        odd = len(cell.lines) % 2 == 1
+        n = len(cell.lines)
+        odd = n % 2 == 1
         for oi, (from_top, reverse_first) in enumerate(orientations):
-            first, last = (top, bottom) if from_top else (bottom, top)
+            order = _cell_order(n, from_top, skip[ci])
+            first, last = cell.lines[order[0]], cell.lines[order[-1]]
             entries[ci, oi] = (first[2] if reverse_first else first[1], first[0])
             ends_forward = reverse_first != odd  # the last swath drives +u
             exits[ci, oi] = (last[2] if ends_forward else last[1], last[0])
@@ -997,7 +1041,7 @@ def _drive(cells: Sequence[_Cell], corner: int, angle: float, ref: FloatArray) -
         sequence.append((current, oi))
         done[current] = True
 
-    rows = np.vstack([_cell_swaths(cells[ci], *orientations[oi]) for ci, oi in sequence])
+    rows = np.vstack([_cell_swaths(cells[ci], *orientations[oi], skip[ci]) for ci, oi in sequence])
     cell_ids = np.concatenate([np.full(len(cells[ci].lines), ci) for ci, _ in sequence])
     x0, y0 = _unrotate(rows[:, 0], rows[:, 2], angle)
     x1, y1 = _unrotate(rows[:, 1], rows[:, 2], angle)
@@ -1053,7 +1097,7 @@ class _TurnsInside:
         heading = np.subtract(before.end, before.start)
         if (
             before.cell != after.cell
-            or abs(before.index - after.index) != 1
+            or abs(before.index - after.index) > 2
             or link  # a move around a notch: the in-field route stays
             or float(np.dot(heading, np.subtract(after.end, after.start))) >= 0.0
         ):

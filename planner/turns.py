@@ -37,6 +37,7 @@ FloatArray = NDArray[np.float64]
 
 ARC_STEP_DEG = 15.0  # largest angle between consecutive points on an arc
 ARC_STEP_M = 2.0  # largest arc length between consecutive points on an arc
+MIN_GAP_M = 0.01  # turn points closer than this to the swath end or start are left out
 _EPS_M = 1e-9
 
 TurnKind = Literal["u", "omega"]
@@ -124,7 +125,10 @@ def plan_turn(end: XY, heading: XY, start: XY, radius_m: float) -> Turn:
     keep = np.r_[True, np.hypot(*np.diff(local, axis=0).T) > 1e-6]
     local = local[keep]
     world = e + local[:, :1] * d + local[:, 1:] * side
-    inner = world[1:-1] if math.hypot(*(world[-1] - e - gap)) < 1e-6 else world[1:]
+    # points at the ends themselves, or within a centimetre of them (a straight on of a few
+    # millimetres to a level end), are left out: a mission would merge them anyway
+    apart = (np.hypot(*(world - e).T) > MIN_GAP_M) & (np.hypot(*(world - e - gap).T) > MIN_GAP_M)
+    inner = world[apart]
     return Turn(
         kind=turn_kind(s, r),
         points=tuple((float(x), float(y)) for x, y in inner),

@@ -18,6 +18,7 @@ from planner.coverage import (
     rectangle_field,
 )
 from planner.errors import GeometryError
+from planner.turns import turn_length_m
 
 L_FIELD = Polygon([(0, 0), (100, 0), (100, 30), (40, 30), (40, 60), (0, 60)])
 HOLED_FIELD = Polygon(
@@ -483,7 +484,7 @@ def assert_turns_drivable(cov: FieldCoverage, field: Polygon, radius: float) -> 
             if not via:
                 continue
             planned += 1
-            assert before.cell == after.cell and abs(before.index - after.index) == 1
+            assert before.cell == after.cell and abs(before.index - after.index) in (1, 2)
             pts = [np.asarray(p) for p in (before.start, before.end, *via, after.start, after.end)]
             for a, b, c in zip(pts, pts[1:], pts[2:], strict=False):
                 assert circumradius(a, b, c) >= radius * (1 - 1e-6)
@@ -568,3 +569,37 @@ def test_random_convex_fields_turn_drivably_inside(
 def test_non_convex_fields_turn_drivably_inside(field: Polygon, r: float) -> None:
     cov = cover_field(field, 4.0, field_id="notched", headland_passes=None, turn_radius_m=r)
     assert assert_turns_drivable(cov, field, r) > 0
+
+
+def test_skipping_a_row_when_neighbours_would_need_bulb_turns() -> None:
+    # 6.9 m swaths, 6 m radius: neighbours need bulb turns; two rows apart (13.8 m >= 12 m)
+    # a U-turn fits, so the cell is driven every other line out and the others back
+    field = rectangle_field(150.0, 300.0)
+    cov = cover_field(
+        field, 6.9, field_id="skip", angle_deg=0.0, headland_passes=None, turn_radius_m=6.0
+    )
+    n = len(cov.swaths)
+    order = [s.index for s in cov.path(0)]
+    assert order == [*range(0, n, 2), *reversed(range(1, n, 2))]
+    assert [s.index for s in cov.path(2)] == [n - 1 - k for k in order]
+    spacing = abs(cov.swaths[1].start[1] - cov.swaths[0].start[1]) / 2
+    neighbour_to_neighbour = (n - 1) * turn_length_m(spacing, 6.0)
+    assert cov.turn_length_m(0) < 0.7 * neighbour_to_neighbour
+    assert assert_turns_drivable(cov, field, 6.0) == 4 * (n - 1)
+    for a, b in zip(cov.path(0), cov.path(0)[1:], strict=False):  # still back and forth
+        assert np.dot(np.subtract(a.end, a.start), np.subtract(b.end, b.start)) < 0
+    assert cov.entry(0)[1] < cov.exit(0)[1]  # the exit is on the outer headland ring
+
+
+def test_neighbour_order_when_u_turns_fit() -> None:
+    cov = cover_field(
+        rectangle_field(104.0, 200.0),
+        8.0,
+        field_id="u",
+        angle_deg=0.0,
+        headland_passes=None,
+        turn_radius_m=3.0,
+    )
+    assert [s.index for s in cov.path(0)] == list(range(len(cov.swaths)))
+    for corner in range(4):
+        assert_boustrophedon(cov, corner)
