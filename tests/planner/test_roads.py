@@ -180,6 +180,24 @@ def test_roads_drawn_with_a_small_gap_at_a_junction_connect():
     assert length == pytest.approx(120 + 100 + 20 + 50, abs=0.02)
 
 
+def test_a_field_the_roads_do_not_reach_is_reached_around_the_fields(caplog):
+    # The garage's road and B's road do not meet: a warning, then free-space transit.
+    farm = farm_of(
+        SQUARES,
+        (-50, 120),
+        [[(-50, 120), (200, 120)], [(250, -20), (450, -20)]],
+        [("A", (50, 100)), ("B", (350, 0))],
+    )
+    with caplog.at_level("WARNING", logger="planner.roads"):
+        net = TransitNetwork(farm)
+    assert "do not connect field 'B' to the garage" in caplog.text
+    length, via = net.route((-50, 120), (350, 50), None, "B")
+    assert via == ((101.0, 101.0),)  # around A's corner, grown by 1 m
+    assert length == pytest.approx(math.dist((-50, 120), via[0]) + math.dist(via[0], (350, 50)))
+    # A is still reached along its road.
+    assert net.route((-50, 120), (50, 50), None, "A")[0] == pytest.approx(100 + 20 + 50)
+
+
 def test_a_point_off_the_roads_joins_the_nearest_road_point():
     farm = farm_of(SQUARES, (-50, 120), [ROAD], [("B", (350, 100))])
     net = TransitNetwork(farm)
