@@ -22,6 +22,9 @@ Outline (details in ``docs/coverage.md``):
 * turns: every move from one swath to the next counts as one turn, ``len(swaths) - 1``;
   ``cell_transitions`` of them are moves to another cell, whose in-field driving is
   reported by :meth:`FieldCoverage.transit_inside_m`.
+* planned turns (``turn_radius_m > 0``): moves between swaths of a cell become U-turns or
+  bulb turns of that radius (:mod:`planner.turns`), in a headland as wide as they need when
+  ``headland_passes`` is ``None``; a cell is driven skipping a row when that turns less.
 """
 
 from __future__ import annotations
@@ -219,7 +222,10 @@ def cover_field(
 
     ``angle_deg`` fixes the swath direction (degrees counter-clockwise from +x, taken
     modulo 180); ``None`` searches the direction with the fewest swaths.
-    ``headland_passes`` rings are laid around the border (and around holes).
+    ``headland_passes`` rings are laid around the border (and around holes); ``None``
+    lays as many as turns of ``turn_radius_m`` need (none when it is 0).
+    ``turn_radius_m`` > 0 plans the turns between swaths of a cell as drivable paths
+    (:attr:`FieldCoverage.turn_paths`); 0 leaves them hops between swath ends.
     ``simplify_m`` (default a quarter of the working width) smooths a non-convex outline
     before the cells are laid out, so that GPS noise does not split the field into many
     cells; swath ends are always put on the real outline.
