@@ -67,7 +67,7 @@ class FieldInterior:
         outside the field is joined straight from the field's boundary point nearest it."""
         a_in, b_in = self._snap(a), self._snap(b)
         length, via = self._router.route(a_in, b_in)
-        points = [p for p in (a_in, *via, b_in)]
+        points = [a_in, *via, b_in]
         total = length + math.dist(a, a_in) + math.dist(b_in, b)
         return total, _strictly_between(a, points, b)
 
