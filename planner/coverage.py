@@ -44,7 +44,7 @@ from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
-from planner.turns import plan_turn, turn_excursion_m
+from planner.turns import ARC_STEP_DEG, ARC_STEP_M, plan_turn, turn_excursion_m
 
 logger = logging.getLogger(__name__)
 
@@ -64,6 +64,11 @@ SIMPLIFY_FRACTION = 0.25  # default outline simplification for the layout, in wo
 _EPS_M = 1e-6
 _GRID_M = 1e-4  # precision grid of the overlays that score angles
 _EDGE_CANDIDATES = 90  # longest edges whose directions join the angle search
+
+# headland rings by pass, swath region, area the swath ends reach, angle, cells, frame origin
+_Layout = tuple[
+    list[list[FloatArray]], MultiPolygon, MultiPolygon | None, float, list["_Cell"], FloatArray
+]
 
 # corner -> (start on the high-v side, first swath drives towards -u); CCW from (min u, min v)
 _CORNER_ORIENTATION: tuple[tuple[bool, bool], ...] = (
@@ -244,7 +249,7 @@ def cover_field(
     else:
         passes = headland_passes
         rings_by_pass, region, lane, angle, cells, ref = _layout(
-            field_poly, w, passes, angle_deg, simplify_m, field_id
+            field_poly, w, passes, angle_deg, simplify_m, field_id, radius
         )
 
     skips = [_skips_rows(cell, radius) for cell in cells]
@@ -334,12 +339,11 @@ def _layout(
     angle_deg: float | None,
     simplify_m: float | None,
     field_id: str,
-) -> tuple[
-    list[list[FloatArray]], MultiPolygon, MultiPolygon | None, float, list[_Cell], FloatArray
-]:
+    radius: float = 0.0,
+) -> _Layout:
     """Headland rings, swath region, the area swath ends reach, swath angle, cells and the
     reference point of the swath frame."""
-    rings_by_pass, region, lane = _headland_and_region(field_poly, w, passes, field_id)
+    rings_by_pass, region, lane = _headland_and_region(field_poly, w, passes, field_id, radius)
     ref = np.array(region.centroid.coords[0])  # work near the origin for precision
     tolerance = SIMPLIFY_FRACTION * w if simplify_m is None else float(simplify_m)
     outline = _simplified(region, tolerance)
@@ -366,9 +370,7 @@ def _layout_fitting_turns(
     angle_deg: float | None,
     simplify_m: float | None,
     field_id: str,
-) -> tuple[
-    list[list[FloatArray]], MultiPolygon, MultiPolygon | None, float, list[_Cell], FloatArray
-]:
+) -> _Layout:
     """:func:`_layout` with as many headland passes as the turns need.
 
     Sized first for swaths a full width apart, then again for the closest pair the layout
@@ -379,7 +381,7 @@ def _layout_fitting_turns(
     most = math.inf  # passes the field has room for, once some did not fit
     while True:
         try:
-            layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id)
+            layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id, radius)
         except GeometryError:
             if passes == 0:
                 raise
@@ -510,10 +512,12 @@ def _polygons(geom: shapely.Geometry) -> list[Polygon]:
 
 
 def _headland_and_region(
-    field_poly: Polygon, w: float, passes: int, field_id: str
+    field_poly: Polygon, w: float, passes: int, field_id: str, radius: float = 0.0
 ) -> tuple[list[list[FloatArray]], MultiPolygon, MultiPolygon | None]:
     """Headland ring centre lines per pass (outer first), the region left for swaths and the
-    area inside the innermost ring's centre line (``None`` without headland)."""
+    area inside the innermost ring's centre line (``None`` without headland).
+
+    With a turning radius the rings' convex corners are rounded to it (:func:`_rounded`)."""
     min_area = 0.01 * w * w
     if passes == 0:
         return [], MultiPolygon([field_poly]), None
@@ -525,7 +529,7 @@ def _headland_and_region(
         )
     rings_by_pass: list[list[FloatArray]] = []
     for k in range(passes):
-        offset = field_poly.buffer(-(k + 0.5) * w, join_style="mitre")
+        offset = _rounded(field_poly.buffer(-(k + 0.5) * w, join_style="mitre"), radius)
         rings: list[FloatArray] = []
         for part in (orient(p, sign=1.0) for p in _polygons(offset)):
             rings.append(np.asarray(part.exterior.coords))
@@ -535,6 +539,25 @@ def _headland_and_region(
     # width is inside that ring, and does not pass through necks the swath region lacks
     reach = MultiPolygon(parts).buffer(w / 2)
     return rings_by_pass, MultiPolygon(parts), MultiPolygon(_polygons(reach))
+
+
+def _rounded(offset: shapely.Geometry, radius: float) -> shapely.Geometry:
+    """``offset`` with its convex corners rounded to ``radius`` (a morphological opening:
+    shrink by the radius, grow back with round joins), arc points as in
+    :mod:`planner.turns`. Kept as it is when there is no radius or when the opening would
+    drop a part (a neck narrower than two radii). Concave corners (around holes, at an
+    inner corner of the outline) stay sharp."""
+    if radius <= 0.0 or offset.is_empty:
+        return offset
+    segments = max(
+        math.ceil(90.0 / ARC_STEP_DEG - 1e-9), math.ceil(math.pi / 2 * radius / ARC_STEP_M)
+    )
+    opened = offset.buffer(-radius, join_style="mitre").buffer(
+        radius, join_style="round", quad_segs=segments
+    )
+    if len(_polygons(opened)) != len(_polygons(offset)) or opened.area < 0.5 * offset.area:
+        return offset
+    return opened
 
 
 def _order_rings(rings_by_pass: list[list[FloatArray]], after: XY) -> tuple[tuple[XY, ...], ...]:

@@ -603,3 +603,17 @@ def test_neighbour_order_when_u_turns_fit() -> None:
     assert [s.index for s in cov.path(0)] == list(range(len(cov.swaths)))
     for corner in range(4):
         assert_boustrophedon(cov, corner)
+
+
+@pytest.mark.parametrize("r", [3.0, 6.0])
+def test_headland_ring_corners_are_rounded_to_the_turning_radius(r: float) -> None:
+    field = rectangle_field(150.0, 300.0, angle_deg=35.0)
+    cov = cover_field(field, 6.9, field_id="round", headland_passes=None, turn_radius_m=r)
+    for ring in cov.headland:
+        points = np.array(ring)
+        closed = np.vstack([points, points[1:2]])  # the corner at the ring's start too
+        triples = zip(closed, closed[1:], closed[2:], strict=False)
+        radii = [circumradius(a, b, c) for a, b, c in triples]
+        assert min(radii) >= r * (1 - 1e-6)
+        assert shapely.Polygon(field).buffer(1e-6).covers(shapely.LineString(ring))
+    assert covered_fraction(cov, field) >= 0.99
