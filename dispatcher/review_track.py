@@ -12,7 +12,8 @@ so it works for the simulator and for a real autopilot alike:
   the planned working line of that stretch (the waypoints between the two items);
   median and 95th percentile;
 * **outside the field**: the time between successive positions, implement down, at
-  least one of which lies outside the field's polygon (goal: 0);
+  least one of which lies outside the field's polygon by more than
+  ``OUTSIDE_TOLERANCE_M`` (goal: 0);
 * **loops**: a turn (implement up between two working stretches of one field) whose driven
   heading changes by more than the planned turn path's change plus ``LOOP_EXTRA_DEG``;
   a tractor that overshoots and circles back to catch a waypoint does that.
@@ -33,6 +34,9 @@ from planner.geo import LocalFrame
 
 LOOP_EXTRA_DEG: Final = 180.0
 """A turn whose driven heading change exceeds the planned one by more than this looped."""
+OUTSIDE_TOLERANCE_M: Final = 0.1
+"""A position counts as outside its field only when farther than this beyond the border
+(a swath end on the border reads a few centimetres out after projection and rounding)."""
 MIN_STEP_M: Final = 0.5
 """Positions closer than this to the previous one give no heading (GPS jitter)."""
 
@@ -92,7 +96,7 @@ def track_quality(
             xs, ys = frame.to_local(
                 np.array([float(p[0]) for p in ring]), np.array([float(p[1]) for p in ring])
             )
-            outlines[fid] = Polygon(np.column_stack([xs, ys]))
+            outlines[fid] = Polygon(np.column_stack([xs, ys])).buffer(OUTSIDE_TOLERANCE_M)
         except (TypeError, ValueError, IndexError):
             continue
 
