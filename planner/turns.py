@@ -125,13 +125,9 @@ def plan_turn(end: XY, heading: XY, start: XY, radius_m: float) -> Turn:
     keep = np.r_[True, np.hypot(*np.diff(local, axis=0).T) > 1e-6]
     local = local[keep]
     world = e + local[:, :1] * d + local[:, 1:] * side
-    # points at the ends themselves, or within a centimetre of them (a straight on of a few
-    # millimetres to a level end), are left out: a mission would merge them anyway
-    apart = (np.hypot(*(world - e).T) > MIN_GAP_M) & (np.hypot(*(world - e - gap).T) > MIN_GAP_M)
-    inner = world[apart]
     return Turn(
         kind=turn_kind(s, r),
-        points=tuple((float(x), float(y)) for x, y in inner),
+        points=_between(world, e, e + gap),
         length_m=float(length + x0 + (x0 - a)),
         excursion_m=float(reach),
     )
@@ -150,3 +146,141 @@ def _arc(centre: XY, r: float, theta_from: float, theta_to: float) -> FloatArray
     n = max(1, math.ceil(abs(sweep) / step - 1e-9))
     theta = theta_from + sweep * np.arange(n + 1) / n
     return np.column_stack([centre[0] + r * np.cos(theta), centre[1] + r * np.sin(theta)])
+
+
+# ----------------------------------------------------------------------------- Dubins paths
+
+
+@dataclass(frozen=True)
+class _Arc:
+    centre: tuple[float, float]
+    turn: int  # +1 left (counter-clockwise), -1 right
+    heading: float  # heading where the arc starts
+    sweep: float  # radians turned, >= 0
+
+
+@dataclass(frozen=True)
+class _Line:
+    start: tuple[float, float]
+    end: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class DubinsPath:
+    """One of Dubins' shortest-path words between two poses: its name, length and points."""
+
+    word: str  # "LSL", "RSR", "LSR", "RSL", "LRL" or "RLR"
+    length_m: float
+    points: tuple[XY, ...]  # strictly between the two poses
+
+
+def dubins_paths(
+    start: XY, start_heading: float, end: XY, end_heading: float, radius_m: float
+) -> list[DubinsPath]:
+    """Every feasible Dubins word from ``start`` (heading in radians) to ``end``, shortest
+    first: two arcs of ``radius_m`` joined by a straight (CSC) or by a third arc (CCC).
+    The first is the shortest forward path with curvature at most ``1 / radius_m``
+    (Dubins 1957). Points as for :func:`plan_turn`."""
+    r = float(radius_m)
+    if not (math.isfinite(r) and r > 0.0):
+        raise GeometryError(f"turn radius must be a positive number of metres, got {radius_m!r}")
+    p0 = np.asarray(start, dtype=np.float64)
+    p1 = np.asarray(end, dtype=np.float64)
+    out: list[DubinsPath] = []
+    for word in ("LSL", "RSR", "LSR", "RSL", "LRL", "RLR"):
+        for pieces in _word(word, p0, start_heading, p1, end_heading, r):
+            length = sum(
+                r * piece.sweep if isinstance(piece, _Arc) else math.dist(piece.start, piece.end)
+                for piece in pieces
+            )
+            out.append(DubinsPath(word, float(length), _sample(pieces, p0, p1, r)))
+    out.sort(key=lambda path: path.length_m)
+    return out
+
+
+def _centre(p: FloatArray, heading: float, turn: int, r: float) -> FloatArray:
+    return p + turn * r * np.array([-math.sin(heading), math.cos(heading)])
+
+
+def _on_circle(c: FloatArray, heading: float, turn: int, r: float) -> FloatArray:
+    """The point of the circle around ``c`` where a machine turning ``turn`` heads so."""
+    return c - turn * r * np.array([-math.sin(heading), math.cos(heading)])
+
+
+def _sweep(turn: int, heading_from: float, heading_to: float) -> float:
+    sweep = (turn * (heading_to - heading_from)) % (2.0 * math.pi)
+    return 0.0 if sweep > 2.0 * math.pi - 1e-9 else sweep
+
+
+def _word(
+    word: str, p0: FloatArray, h0: float, p1: FloatArray, h1: float, r: float
+) -> list[list[_Arc | _Line]]:
+    """The pieces of ``word`` between the two poses (none when it does not exist; two
+    variants for CCC words)."""
+    t0 = 1 if word[0] == "L" else -1
+    t1 = 1 if word[2] == "L" else -1
+    c0, c1 = _centre(p0, h0, t0, r), _centre(p1, h1, t1, r)
+    v = c1 - c0
+    dist = math.hypot(v[0], v[1])
+    if word[1] == "S":
+        if t0 == t1:
+            psi = h0 if dist < 1e-12 else math.atan2(v[1], v[0])  # one circle: one arc
+        else:
+            if dist < 2.0 * r:
+                return []
+            psi = math.atan2(v[1], v[0]) + t0 * math.asin(min(1.0, 2.0 * r / dist))
+        a, b = _on_circle(c0, psi, t0, r), _on_circle(c1, psi, t1, r)
+        return [
+            [
+                _Arc((c0[0], c0[1]), t0, h0, _sweep(t0, h0, psi)),
+                _Line((a[0], a[1]), (b[0], b[1])),
+                _Arc((c1[0], c1[1]), t1, psi, _sweep(t1, psi, h1)),
+            ]
+        ]
+    if dist > 4.0 * r or dist < 1e-12:
+        return []
+    half = math.sqrt(max(4.0 * r * r - dist * dist / 4.0, 0.0))
+    across = np.array([-v[1], v[0]]) / dist
+    variants = []
+    for sign in (1.0, -1.0):
+        cm = (c0 + c1) / 2.0 + sign * half * across
+        ta, tb = (c0 + cm) / 2.0, (cm + c1) / 2.0
+        ha = math.atan2(ta[1] - c0[1], ta[0] - c0[0]) + t0 * math.pi / 2
+        hb = math.atan2(tb[1] - c1[1], tb[0] - c1[0]) + t1 * math.pi / 2
+        variants.append(
+            [
+                _Arc((c0[0], c0[1]), t0, h0, _sweep(t0, h0, ha)),
+                _Arc((cm[0], cm[1]), -t0, ha, _sweep(-t0, ha, hb)),
+                _Arc((c1[0], c1[1]), t1, hb, _sweep(t1, hb, h1)),
+            ]
+        )
+    return variants
+
+
+def _sample(pieces: list[_Arc | _Line], p0: FloatArray, p1: FloatArray, r: float) -> tuple[XY, ...]:
+    points: list[FloatArray] = [p0[None, :]]
+    step = min(math.radians(ARC_STEP_DEG), ARC_STEP_M / r)
+    for piece in pieces:
+        if isinstance(piece, _Line):
+            points.append(np.array([piece.start, piece.end]))
+            continue
+        n = max(1, math.ceil(piece.sweep / step - 1e-9))
+        start = piece.heading - piece.turn * math.pi / 2  # position angle on the circle
+        theta = start + piece.turn * piece.sweep * np.arange(n + 1) / n
+        c = piece.centre
+        points.append(np.column_stack([c[0] + r * np.cos(theta), c[1] + r * np.sin(theta)]))
+    every = np.vstack(points)
+    every = every[np.r_[True, np.hypot(*np.diff(every, axis=0).T) > 1e-6]]
+    return _between(every, p0, p1)
+
+
+def _between(points: FloatArray, p0: FloatArray, p1: FloatArray) -> tuple[XY, ...]:
+    """``points`` without the leading ones within ``MIN_GAP_M`` of ``p0`` and the trailing
+    ones within it of ``p1`` (the poses themselves, and a few millimetres of straight or
+    arc next to them, which a mission would merge anyway)."""
+    first, last = 0, len(points)
+    while first < last and math.dist(points[first], p0) <= MIN_GAP_M:
+        first += 1
+    while last > first and math.dist(points[last - 1], p1) <= MIN_GAP_M:
+        last -= 1
+    return tuple((float(x), float(y)) for x, y in points[first:last])

@@ -11,6 +11,7 @@ from planner.errors import GeometryError
 from planner.turns import (
     ARC_STEP_DEG,
     ARC_STEP_M,
+    dubins_paths,
     plan_turn,
     turn_excursion_m,
     turn_kind,
@@ -121,3 +122,39 @@ def test_every_turn_is_drivable(
     assert chords >= turn.length_m * 0.99
     reach = max(0.0, offset) + turn.excursion_m
     assert float(np.max((polyline - end) @ d)) <= reach + 1e-6
+
+
+@settings(derandomize=True, max_examples=50, deadline=None)
+@given(
+    radius=st.floats(1.0, 10.0),
+    x=st.floats(-40.0, 40.0),
+    y=st.floats(-40.0, 40.0),
+    h0=st.floats(-math.pi, math.pi),
+    h1=st.floats(-math.pi, math.pi),
+)
+def test_dubins_paths_join_the_poses_with_arcs_of_the_radius(radius, x, y, h0, h1) -> None:
+    start, end = (5.0, -3.0), (5.0 + x, -3.0 + y)
+    paths = dubins_paths(start, h0, end, h1, radius)
+    assert paths and paths == sorted(paths, key=lambda p: p.length_m)
+    assert paths[0].length_m >= math.dist(start, end) - 1e-9
+    limit = math.radians(ARC_STEP_DEG) + 1e-6
+    for path in paths[:3]:
+        d0 = np.array([math.cos(h0), math.sin(h0)])
+        d1 = np.array([math.cos(h1), math.sin(h1)])
+        pts = [np.asarray(start) - d0, np.asarray(start)]
+        pts += [np.asarray(p) for p in path.points]
+        pts += [np.asarray(end), np.asarray(end) + d1]
+        for a, b, c in zip(pts, pts[1:], pts[2:], strict=False):
+            assert circumradius(a, b, c) >= radius * (1 - 1e-6)
+        steps = [np.subtract(b, a) for a, b in zip(pts, pts[1:], strict=False)]
+        headings = [math.atan2(s[1], s[0]) for s in steps if np.linalg.norm(s) > 1e-6]
+        for g0, g1 in zip(headings, headings[1:], strict=False):
+            assert abs((g1 - g0 + math.pi) % (2 * math.pi) - math.pi) <= limit
+        chords = float(np.hypot(*np.diff(np.vstack(pts[1:-1]), axis=0).T).sum())
+        assert path.length_m * 0.99 - 0.02 <= chords <= path.length_m + 1e-6
+
+
+@pytest.mark.parametrize("spacing", [3.0, 6.9, 12.0, 20.0])
+def test_dubins_agrees_with_the_turns_between_swaths(spacing: float) -> None:
+    shortest = dubins_paths((0.0, 0.0), 0.0, (0.0, spacing), math.pi, 6.0)[0]
+    assert shortest.length_m == pytest.approx(plan_turn((0, 0), (1, 0), (0, spacing), 6.0).length_m)
