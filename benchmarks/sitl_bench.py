@@ -77,13 +77,14 @@ def bench_sitl() -> str:
         f"| time h (mission legs at set speeds; vehicle clock) | {v.mission_time_h or 0:.4f} "
         f"| {v.time_h:.4f} |",
         f"| time h, planner's formula (6) | {v.planned_time_h:.4f} | |",
-        f"| cross-track error on the swaths, median m (goal < 0.3) | | "
-        f"{q.cross_track_median_m:.3f} |",
-        f"| cross-track error, 95th percentile m (goal < 1) | | {q.cross_track_p95_m:.3f} |",
-        f"| cross-track error, max m | | {q.cross_track_max_m:.3f} |",
+        f"| cross-track error on the swaths, median m (goal < 0.3) | | {_m(q.swath_median_m)} |",
+        f"| cross-track error on the swaths, 95th percentile m (goal < 1) | | "
+        f"{_m(q.swath_p95_m)} |",
+        f"| cross-track error, every working line incl. headland, median / 95 % / max m | | "
+        f"{_m(q.cross_track_median_m)} / {_m(q.cross_track_p95_m)} / {_m(q.cross_track_max_m)} |",
         f"| implement down outside a field, s (goal 0) | 0 | {q.outside_down_s:.1f} |",
         f"| turns driven / with a loop | {q.turns} | {q.turns - q.loops} / {q.loops} |",
-        f"| positions with the implement down | | {q.samples} |",
+        f"| positions with the implement down (on swaths) | | {q.samples} ({q.swath_samples}) |",
         "",
         "```",
         review_table(review),
@@ -91,6 +92,10 @@ def bench_sitl() -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _m(value: float | None) -> str:
+    return "–" if value is None else f"{value:.3f}"
 
 
 if __name__ == "__main__":

@@ -1346,6 +1346,9 @@ def review_json(review: Review) -> dict[str, Any]:
                     "cross_track_median_m": r(v.quality.cross_track_median_m, 3),
                     "cross_track_p95_m": r(v.quality.cross_track_p95_m, 3),
                     "cross_track_max_m": r(v.quality.cross_track_max_m, 3),
+                    "swath_samples": v.quality.swath_samples,
+                    "swath_cross_track_median_m": r(v.quality.swath_median_m, 3),
+                    "swath_cross_track_p95_m": r(v.quality.swath_p95_m, 3),
                     "outside_field_implement_down_s": round(v.quality.outside_down_s, 1),
                     "turns": v.quality.turns,
                     "loops": v.quality.loops,
@@ -1558,9 +1561,14 @@ def _quality_line(v: VehicleReview) -> str:
     if q is None or q.cross_track_median_m is None:
         text = "no working stretch driven"
     else:
+        swaths = (
+            f"swaths {q.swath_median_m:.2f} / {q.swath_p95_m:.2f} m, "
+            if q.swath_median_m is not None and q.swath_p95_m is not None
+            else ""
+        )
         text = (
-            f"cross-track median {q.cross_track_median_m:.2f} m, "
-            f"95 % {q.cross_track_p95_m:.2f} m, max {q.cross_track_max_m:.2f} m; "
+            f"cross-track median / 95 %: {swaths}all {q.cross_track_median_m:.2f} / "
+            f"{q.cross_track_p95_m:.2f} m (max {q.cross_track_max_m:.2f}); "
             f"outside the field {q.outside_down_s:.1f} s; "
             f"turns {q.turns}, with a loop {q.loops}"
         )

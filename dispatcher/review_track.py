@@ -10,7 +10,9 @@ so it works for the simulator and for a real autopilot alike:
   (``implement_raise``, ``implement_up``) was reached;
 * **cross-track error**: for every position while the implement is down, its distance to
   the planned working line of that stretch (the waypoints between the two items);
-  median and 95th percentile;
+  median and 95th percentile, over every working line and over the straight swaths alone
+  (the stretches that are one line: every swath when turns are planned), headland rings
+  with their rounded corners left out of the latter;
 * **outside the field**: the time between successive positions, implement down, at
   least one of which lies outside the field's polygon by more than
   ``OUTSIDE_TOLERANCE_M`` (goal: 0);
@@ -59,9 +61,12 @@ class TrackQuality:
     """How the driven track matched the mission's working lines and turns."""
 
     samples: int  # positions with the implement down
-    cross_track_median_m: float | None
+    cross_track_median_m: float | None  # on every working line (swaths and headland)
     cross_track_p95_m: float | None
     cross_track_max_m: float | None
+    swath_samples: int  # of them, on straight swaths worked one at a time
+    swath_median_m: float | None  # cross-track error on those swaths alone
+    swath_p95_m: float | None
     outside_down_s: float  # implement down outside the field, vehicle seconds
     turns: int  # turns between working stretches that were driven
     loops: int  # of them, how many were driven with a loop
@@ -101,6 +106,7 @@ def track_quality(
             continue
 
     errors: list[np.ndarray] = []
+    swath_errors: list[np.ndarray] = []
     outside_s = 0.0
     samples = 0
     turns = loops = 0
@@ -121,7 +127,10 @@ def track_quality(
         if not np.any(inside) or len(line_points) < 1:
             continue
         line = LineString(line_points) if len(line_points) > 1 else shapely.points(line_points[0])
-        errors.append(np.asarray(shapely.distance(line, points[inside]), dtype=np.float64))
+        error = np.asarray(shapely.distance(line, points[inside]), dtype=np.float64)
+        errors.append(error)
+        if len(line_points) == 2:  # one straight swath, implement raised at both ends
+            swath_errors.append(error)
         samples += int(inside.sum())
         outline = outlines.get(fid or "")
         if outline is not None:
@@ -130,14 +139,16 @@ def track_quality(
             for k in idx:
                 if k + 1 < len(t) and (out[k] or out[k + 1]):
                     outside_s += float(min(t[k + 1], t1) - t[k])
-    if not errors:
-        return TrackQuality(samples, None, None, None, outside_s, turns, loops)
-    every = np.concatenate(errors)
+    every = np.concatenate(errors) if errors else np.zeros(0)
+    swaths = np.concatenate(swath_errors) if swath_errors else np.zeros(0)
     return TrackQuality(
         samples=samples,
-        cross_track_median_m=float(np.median(every)),
-        cross_track_p95_m=float(np.percentile(every, 95)),
-        cross_track_max_m=float(every.max()),
+        cross_track_median_m=float(np.median(every)) if len(every) else None,
+        cross_track_p95_m=float(np.percentile(every, 95)) if len(every) else None,
+        cross_track_max_m=float(every.max()) if len(every) else None,
+        swath_samples=len(swaths),
+        swath_median_m=float(np.median(swaths)) if len(swaths) else None,
+        swath_p95_m=float(np.percentile(swaths, 95)) if len(swaths) else None,
         outside_down_s=outside_s,
         turns=turns,
         loops=loops,

@@ -67,10 +67,11 @@ def check_worked_once(review: Review) -> None:
     assert len(set(vehicle.fields_done)) == len(vehicle.fields_done)
     assert vehicle.mission_complete
     q = vehicle.quality
-    assert q is not None and q.cross_track_median_m is not None, review_table(review)
-    assert q.cross_track_median_m < 0.3, review_table(review)
-    assert q.cross_track_p95_m is not None and q.cross_track_p95_m < 1.0, review_table(review)
+    assert q is not None and q.swath_median_m is not None, review_table(review)
+    assert q.swath_median_m < 0.3, review_table(review)
+    assert q.swath_p95_m is not None and q.swath_p95_m < 1.0, review_table(review)
     assert q.outside_down_s == 0.0, review_table(review)
+    assert q.loops == 0, review_table(review)
 
 
 def test_a_run_started_while_the_autopilot_boots_then_a_second_job_without_a_reboot(
