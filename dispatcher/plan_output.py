@@ -39,8 +39,8 @@ class DispatchPlan:
 
 def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
     """A field visit in WGS84: swaths in driving order, then the headland rings' edges;
-    the in-field links and planned turns of the moves between swaths; the road points of
-    the approach."""
+    the in-field links of the moves between swaths, the planned turns between swaths and
+    onto each ring; the road points of the approach."""
     segments = [(s.start, s.end) for s in visit.swaths]
     for ring in visit.headland:
         segments += list(zip(ring[:-1], ring[1:], strict=True))
@@ -51,7 +51,13 @@ def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
 
     swaths = tuple((latlon(*a), latlon(*b)) for a, b in segments)
     links = tuple(tuple(latlon(*p) for p in via) for via in visit.links)
-    turns = tuple(tuple(latlon(*p) for p in via) for via in visit.coverage.turn(visit.corner))
+    moves = list(visit.coverage.turn(visit.corner))
+    if moves:  # planned turns: then the paths onto each ring (none along a ring)
+        for ring, onto in zip(
+            visit.headland, visit.coverage.headland_move(visit.corner), strict=True
+        ):
+            moves += [onto] + [()] * (len(ring) - 2)
+    turns = tuple(tuple(latlon(*p) for p in via) for via in moves)
     return FieldVisit(
         field_id=visit.field.id,
         swaths=swaths,

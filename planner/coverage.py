@@ -44,7 +44,14 @@ from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
-from planner.turns import ARC_STEP_DEG, ARC_STEP_M, plan_turn, turn_excursion_m
+from planner.turns import (
+    ARC_STEP_DEG,
+    ARC_STEP_M,
+    MIN_GAP_M,
+    dubins_paths,
+    plan_turn,
+    turn_excursion_m,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -134,6 +141,10 @@ class FieldCoverage:
     # Per corner, per move from swath k to k + 1: the drivable turn path (points between the
     # end of swath k and the start of swath k + 1, both excluded), empty for a hop.
     turn_paths: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
+    # Per corner, per headland ring: the drivable path (points strictly between) from where
+    # the machine was (the last swath's end, or the previous ring's end) to the ring's start;
+    # empty when there is none (a hop).
+    headland_moves: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
     turn_radius_m: float = 0.0
     headland_passes: int = 0  # as laid out (given, or as many as the turns need)
 
@@ -174,9 +185,15 @@ class FieldCoverage:
         (empty when turns are not planned: the machine hops from one swath to the next)."""
         return self.turn_paths[_check_corner(corner)] if self.turn_paths else ()
 
+    def headland_move(self, corner: int) -> tuple[tuple[XY, ...], ...]:
+        """For each headland ring of :meth:`headland_path`, the points of the drivable path
+        onto it (empty: a hop, or turns are not planned)."""
+        return self.headland_moves[_check_corner(corner)] if self.headland_moves else ()
+
     def turn_length_m(self, corner: int) -> float:
-        """Metres driven in the turns between swaths from ``corner`` (0 without planned
-        turns: the paper's t_T per turn applies then)."""
+        """Metres driven in the planned turns between swaths from ``corner``, moves to
+        another cell included when they are planned (0 without planned turns: the paper's
+        t_T per turn applies then)."""
         total = 0.0
         for before, after, via in zip(
             self.path(corner)[:-1], self.path(corner)[1:], self.turn(corner), strict=False
@@ -189,7 +206,9 @@ class FieldCoverage:
         """Metres driven inside the field between work from ``corner``, U-turns excluded.
 
         Sum of the shortest in-field paths from each cell's last swath to the next cell's
-        first swath, from the last swath to the first headland ring and between rings.
+        first swath (unless the move is a planned turn, counted in :meth:`turn_length_m`),
+        from the last swath to the first headland ring and between rings (the planned
+        paths onto the rings when there are).
         """
         return self.transits_m[_check_corner(corner)]
 
@@ -260,24 +279,33 @@ def cover_field(
     links: list[tuple[tuple[XY, ...], ...]] = []
     turn_paths: list[tuple[tuple[XY, ...], ...]] = []
     fits = _TurnsInside(field_poly, radius)
+    headland_moves: list[tuple[tuple[XY, ...], ...]] = []
     for corner_path in paths:
-        rings = _order_rings(rings_by_pass, corner_path[-1].end)
-        headland_paths.append(rings)
-        transits.append(_transit_m(corner_path, rings, distance))
-        links.append(
-            tuple(
-                # Any move whose straight line would leave the field: cell changes, and
-                # the odd long jump within a cell of a notched outline.
-                distance.route(before.end, after.start)[1]
-                for before, after in zip(corner_path[:-1], corner_path[1:], strict=True)
-            )
+        routes = tuple(
+            # Any move whose straight line would leave the field: cell changes, and
+            # the odd long jump within a cell of a notched outline.
+            distance.route(before.end, after.start)[1]
+            for before, after in zip(corner_path[:-1], corner_path[1:], strict=True)
         )
+        turns: tuple[tuple[XY, ...], ...] = ()
+        moves: tuple[tuple[XY, ...], ...] = ()
         if radius > 0.0:
-            turn_paths.append(fits.turns(corner_path, links[-1]))
+            turns = fits.turns(corner_path, routes)
+            routes = tuple(() if turn else route for turn, route in zip(turns, routes, strict=True))
+            last = corner_path[-1]
+            rings, moves = fits.enter_rings(rings_by_pass, last.end, _heading(last))
+        else:
+            rings = _order_rings(rings_by_pass, corner_path[-1].end)
+        links.append(routes)
+        turn_paths.append(turns)
+        headland_paths.append(rings)
+        headland_moves.append(moves)
+        transits.append(_transit_m(corner_path, rings, distance, turns, moves))
     if fits.hops:
         logger.warning(
-            "field %r: %d of %d turns of radius %g m (all start corners) do not fit inside"
-            " the field; driven as hops (give the field more headland passes)",
+            "field %r: %d of %d moves between swaths and onto the headland (all start"
+            " corners) have no drivable path of radius %g m inside the field; driven as hops"
+            " (give the field more headland passes)",
             field_id,
             fits.hops,
             fits.planned + fits.hops,
@@ -302,7 +330,8 @@ def cover_field(
         headland_paths=tuple(headland_paths),
         transits_m=tuple(transits),
         links=tuple(links),
-        turn_paths=tuple(turn_paths),
+        turn_paths=tuple(turn_paths) if radius > 0.0 else (),
+        headland_moves=tuple(headland_moves) if radius > 0.0 else (),
         turn_radius_m=radius,
         headland_passes=passes,
     )
@@ -1090,22 +1119,41 @@ def _drive(
 
 
 def _transit_m(
-    path: tuple[Swath, ...], rings: tuple[tuple[XY, ...], ...], distance: _InFieldDistance
+    path: tuple[Swath, ...],
+    rings: tuple[tuple[XY, ...], ...],
+    distance: _InFieldDistance,
+    turns: tuple[tuple[XY, ...], ...] = (),
+    moves: tuple[tuple[XY, ...], ...] = (),
 ) -> float:
     total = 0.0
-    for before, after in zip(path[:-1], path[1:], strict=True):
-        if before.cell != after.cell:
+    for k, (before, after) in enumerate(zip(path[:-1], path[1:], strict=True)):
+        if before.cell != after.cell and not (k < len(turns) and turns[k]):
             total += distance(before.end, after.start)
     position = path[-1].end
-    for ring in rings:
-        total += distance(position, ring[0])
+    for i, ring in enumerate(rings):
+        via = moves[i] if i < len(moves) else ()
+        if via:
+            total += LineString([position, *via, ring[0]]).length
+        else:
+            total += distance(position, ring[0])
         position = ring[-1]
     return total
 
 
+def _heading(swath: Swath) -> float:
+    return math.atan2(swath.end[1] - swath.start[1], swath.end[0] - swath.start[0])
+
+
 class _TurnsInside:
-    """Turn paths of radius ``radius`` between neighbouring swaths of a cell, kept only
-    when they stay inside the field (else the move is a hop, counted in ``hops``)."""
+    """Drivable paths of radius ``radius`` for the moves between swaths and onto the
+    headland rings, kept only when they stay inside the field (else the move is a hop,
+    counted in ``hops``).
+
+    A move between neighbouring swaths of a cell (or two rows apart) is a U-turn or a bulb
+    turn (:func:`planner.turns.plan_turn`); any other move (another cell, around a notch)
+    and a turn that does not fit try Dubins' paths from the swath's end to the next start,
+    shortest first.
+    """
 
     def __init__(self, field_poly: Polygon, radius: float) -> None:
         self._inside = field_poly.buffer(1e-3, join_style="mitre")
@@ -1113,6 +1161,9 @@ class _TurnsInside:
         self.radius = radius
         self.planned = 0
         self.hops = 0
+
+    def _fits(self, a: XY, via: tuple[XY, ...], b: XY) -> bool:
+        return bool(self._inside.covers(LineString([a, *via, b])))
 
     def turns(
         self, path: tuple[Swath, ...], links: tuple[tuple[XY, ...], ...]
@@ -1125,24 +1176,91 @@ class _TurnsInside:
     def _turn(self, before: Swath, after: Swath, link: tuple[XY, ...]) -> tuple[XY, ...]:
         heading = np.subtract(before.end, before.start)
         if (
-            before.cell != after.cell
-            or abs(before.index - after.index) > 2
-            or link  # a move around a notch: the in-field route stays
-            or float(np.dot(heading, np.subtract(after.end, after.start))) >= 0.0
+            before.cell == after.cell
+            and abs(before.index - after.index) <= 2
+            and not link
+            and float(np.dot(heading, np.subtract(after.end, after.start))) < 0.0
         ):
-            return ()
-        try:
-            turn = plan_turn(
-                before.end, (float(heading[0]), float(heading[1])), after.start, self.radius
-            )
-        except GeometryError:
-            return ()
-        line = LineString([before.end, *turn.points, after.start])
-        if not self._inside.covers(line):
-            self.hops += 1
-            return ()
-        self.planned += 1
-        return turn.points
+            try:
+                turn = plan_turn(
+                    before.end, (float(heading[0]), float(heading[1])), after.start, self.radius
+                )
+            except GeometryError:
+                pass
+            else:
+                if self._fits(before.end, turn.points, after.start):
+                    self.planned += 1
+                    return turn.points
+        for path in dubins_paths(
+            before.end, _heading(before), after.start, _heading(after), self.radius
+        ):
+            if self._fits(before.end, path.points, after.start):
+                self.planned += 1
+                return path.points
+        self.hops += 1
+        return ()
+
+    def enter_rings(
+        self, rings_by_pass: list[list[FloatArray]], position: XY, heading: float
+    ) -> tuple[tuple[tuple[XY, ...], ...], tuple[tuple[XY, ...], ...]]:
+        """The rings innermost pass first, each started (and driven in the direction) where
+        the shortest drivable path from the machine's pose joins it, and those paths.
+
+        Candidate joins are points every half radius along the ring, within a few radii of
+        the machine, in either direction; a ring no path reaches is started at its point
+        nearest the machine, as without a radius."""
+        ordered: list[tuple[XY, ...]] = []
+        moves: list[tuple[XY, ...]] = []
+        pos, head = np.asarray(position, dtype=np.float64), heading
+        for rings in reversed(rings_by_pass):
+            left = list(range(len(rings)))
+            while left:
+                gaps = shapely.distance(Point(pos), [LineString(rings[i]) for i in left])
+                ring = rings[left.pop(int(np.argmin(gaps)))]
+                joined = self._join(ring, pos, head)
+                if joined is None:
+                    self.hops += 1
+                    ring = _start_ring_near(ring, pos)
+                    via: tuple[XY, ...] = ()
+                else:
+                    ring, via = joined
+                    self.planned += 1
+                ordered.append(tuple((float(x), float(y)) for x, y in ring))
+                moves.append(via)
+                pos = ring[-1]
+                head = math.atan2(ring[-1][1] - ring[-2][1], ring[-1][0] - ring[-2][0])
+        return tuple(ordered), tuple(moves)
+
+    def _join(
+        self, ring: FloatArray, pos: FloatArray, head: float
+    ) -> tuple[FloatArray, tuple[XY, ...]] | None:
+        r = self.radius
+        edges = np.diff(ring, axis=0)
+        lengths = np.hypot(*edges.T)
+        ends = np.cumsum(lengths)
+        along = np.arange(0.0, float(ends[-1]), max(0.5, r / 2))
+        edge = np.clip(np.searchsorted(ends, along, side="right"), 0, len(edges) - 1)
+        into = along - (ends[edge] - lengths[edge])
+        # no start within a centimetre of a vertex: it would leave a sliver of an edge
+        at_end = lengths[edge] - into < MIN_GAP_M
+        edge = np.where(at_end, (edge + 1) % len(edges), edge)
+        into = np.where(at_end | (into < MIN_GAP_M), 0.0, into)
+        points = ring[edge] + (into / np.maximum(lengths[edge], 1e-12))[:, None] * edges[edge]
+        near = np.hypot(*(points - pos).T) <= 6.0 * r + 10.0
+        candidates = []
+        for point, tangent in zip(points[near], edges[edge][near], strict=True):
+            forward = math.atan2(tangent[1], tangent[0])
+            target = (float(point[0]), float(point[1]))
+            for reverse, h in ((False, forward), (True, forward + math.pi)):
+                for path in dubins_paths((float(pos[0]), float(pos[1])), head, target, h, r)[:2]:
+                    candidates.append((path.length_m, path, reverse, point))
+        candidates.sort(key=lambda c: c[0])
+        start = (float(pos[0]), float(pos[1]))
+        for _, path, reverse, point in candidates:
+            if self._fits(start, path.points, path.end):
+                rotated = _start_ring_near(ring[::-1] if reverse else ring, point)
+                return rotated, path.points
+        return None
 
 
 class _InFieldDistance:

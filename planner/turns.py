@@ -24,7 +24,8 @@ leaves the first swath and joins the second tangentially.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -171,7 +172,17 @@ class DubinsPath:
 
     word: str  # "LSL", "RSR", "LSR", "RSL", "LRL" or "RLR"
     length_m: float
-    points: tuple[XY, ...]  # strictly between the two poses
+    start: XY
+    end: XY
+    radius_m: float
+    pieces: tuple[_Arc | _Line, ...] = field(repr=False, compare=False)
+
+    @cached_property
+    def points(self) -> tuple[XY, ...]:
+        """The path's points strictly between the two poses (sampled when first asked)."""
+        return _sample(
+            list(self.pieces), np.asarray(self.start), np.asarray(self.end), self.radius_m
+        )
 
 
 def dubins_paths(
@@ -193,7 +204,7 @@ def dubins_paths(
                 r * piece.sweep if isinstance(piece, _Arc) else math.dist(piece.start, piece.end)
                 for piece in pieces
             )
-            out.append(DubinsPath(word, float(length), _sample(pieces, p0, p1, r)))
+            out.append(DubinsPath(word, float(length), start, end, r, tuple(pieces)))
     out.sort(key=lambda path: path.length_m)
     return out
 

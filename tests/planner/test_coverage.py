@@ -473,8 +473,9 @@ def circumradius(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
 
 
 def assert_turns_drivable(cov: FieldCoverage, field: Polygon, radius: float) -> int:
-    """Every planned turn, from the swath end to the next start, bends no tighter than
-    ``radius`` and stays inside the field; returns how many there are."""
+    """Every planned turn, from the swath end to the next start, and every planned path
+    onto a headland ring bends no tighter than ``radius`` and stays inside the field;
+    returns how many turns between swaths there are (all corners)."""
     inside = field.buffer(1e-3)
     planned = 0
     for corner in range(4):
@@ -484,11 +485,21 @@ def assert_turns_drivable(cov: FieldCoverage, field: Polygon, radius: float) -> 
             if not via:
                 continue
             planned += 1
-            assert before.cell == after.cell and abs(before.index - after.index) in (1, 2)
             pts = [np.asarray(p) for p in (before.start, before.end, *via, after.start, after.end)]
             for a, b, c in zip(pts, pts[1:], pts[2:], strict=False):
                 assert circumradius(a, b, c) >= radius * (1 - 1e-6)
             assert inside.covers(shapely.LineString([before.end, *via, after.start]))
+        moves = cov.headland_move(corner)
+        assert len(moves) == len(cov.headland_path(corner))
+        position = np.asarray(path[-1].end)
+        previous = np.asarray(path[-1].start)
+        for ring, via in zip(cov.headland_path(corner), moves, strict=True):
+            if via:
+                pts = [previous, position, *map(np.asarray, via), *map(np.asarray, ring[:2])]
+                for a, b, c in zip(pts, pts[1:], pts[2:], strict=False):
+                    assert circumradius(a, b, c) >= radius * (1 - 1e-6)
+                assert inside.covers(shapely.LineString([tuple(position), *via, ring[0]]))
+            previous, position = np.asarray(ring[-2]), np.asarray(ring[-1])
     return planned
 
 
@@ -527,7 +538,7 @@ def test_too_little_headland_for_the_turns_leaves_hops(caplog) -> None:
     field = rectangle_field(100.0, 200.0)
     cov = cover_field(field, 4.0, field_id="tight", headland_passes=0, turn_radius_m=6.0)
     assert all(not t for t in cov.turn(0))
-    assert "do not fit inside the field" in caplog.text
+    assert "no drivable path" in caplog.text
 
 
 def test_bad_turn_radius_names_the_field() -> None:
