@@ -24,7 +24,9 @@ Outline (details in ``docs/coverage.md``):
   reported by :meth:`FieldCoverage.transit_inside_m`.
 * planned turns (``turn_radius_m > 0``): moves between swaths of a cell become U-turns or
   bulb turns of that radius (:mod:`planner.turns`), in a headland as wide as they need when
-  ``headland_passes`` is ``None``; a cell is driven skipping a row when that turns less.
+  ``headland_passes`` is ``None``; a cell is driven skipping a row when that turns less;
+  moves to another cell and onto the headland rings follow Dubins paths inside the field;
+  the rings' convex corners are rounded to the radius.
 """
 
 from __future__ import annotations
