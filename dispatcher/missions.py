@@ -151,8 +151,8 @@ class FieldVisit:
     # field (around a notch or a hole); empty or shorter than the swaths when none are needed.
     links: tuple[tuple[LatLon, ...], ...] = ()
     # For the move from swath k to k + 1: the planned turn's points (implement up), strictly
-    # between the two; empty for a hop. Non-empty at all: the field has planned turns, and
-    # the implement is raised for every move between lines.
+    # between the two; empty for a hop. Given at all (even all empty): the machine's turns
+    # are planned, and the implement is raised for every move between lines.
     turns: tuple[tuple[LatLon, ...], ...] = ()
     # Road points from where the machine was (garage or the last field's exit) to the entry.
     approach: tuple[LatLon, ...] = ()
@@ -160,7 +160,7 @@ class FieldVisit:
     @property
     def has_turns(self) -> bool:
         """Whether turns are planned (the implement is raised between swaths)."""
-        return any(self.turns)
+        return len(self.turns) > 0
 
 
 @dataclass(frozen=True)

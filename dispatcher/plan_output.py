@@ -52,7 +52,8 @@ def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
     swaths = tuple((latlon(*a), latlon(*b)) for a, b in segments)
     links = tuple(tuple(latlon(*p) for p in via) for via in visit.links)
     moves = list(visit.coverage.turn(visit.corner))
-    if moves:  # planned turns: then the paths onto each ring (none along a ring)
+    if visit.coverage.turn_radius_m > 0.0:  # planned turns: also onto each ring, not along it
+        moves += [()] * (len(visit.swaths) - 1 - len(moves))
         for ring, onto in zip(
             visit.headland, visit.coverage.headland_move(visit.corner), strict=True
         ):
