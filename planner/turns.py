@@ -252,7 +252,7 @@ def _word(
         return []
     half = math.sqrt(max(4.0 * r * r - dist * dist / 4.0, 0.0))
     across = np.array([-v[1], v[0]]) / dist
-    variants = []
+    variants: list[list[_Arc | _Line]] = []
     for sign in (1.0, -1.0):
         cm = (c0 + c1) / 2.0 + sign * half * across
         ta, tb = (c0 + cm) / 2.0, (cm + c1) / 2.0
