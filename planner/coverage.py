@@ -240,7 +240,7 @@ def cover_field(
     *,
     field_id: str,
     angle_deg: float | None = None,
-    headland_passes: int | None = 0,
+    headland_passes: int | None = None,
     simplify_m: float | None = None,
     turn_radius_m: float = 0.0,
 ) -> FieldCoverage:
@@ -259,7 +259,12 @@ def cover_field(
     """
     radius = _checked_radius(turn_radius_m, field_id)
     field_poly = _checked_field(
-        polygon, working_width_m, headland_passes or 0, angle_deg, simplify_m, field_id
+        polygon,
+        working_width_m,
+        0 if headland_passes is None else headland_passes,
+        angle_deg,
+        simplify_m,
+        field_id,
     )
     w = float(working_width_m)
     if headland_passes is None:  # as many as the turns need (none for hops)
