@@ -357,15 +357,15 @@ def headland_passes_for_turns(w: float, radius_m: float, spacing_m: float) -> in
     """Headland passes that leave room for turns of ``radius_m`` between swaths
     ``spacing_m`` apart: 0 for hops (radius 0).
 
-    Swaths end on the innermost ring's centre line, ``(p - 1/2) w`` from the border; the
-    turn reaches ``e`` past the swath end (:func:`planner.turns.turn_excursion_m`) and the
-    machine needs half a working width beside that, so ``e + w/2 <= (p - 1/2) w``:
-    ``p = ceil(e / w + 1)``.
+    With planned turns the swaths end on the headland's inner edge, ``p w`` from the
+    border; the turn reaches ``e`` past the swath end (:func:`planner.turns.turn_excursion_m`)
+    and the machine needs half a working width beside that, so ``e + w/2 <= p w``:
+    ``p = ceil(e / w + 1/2)``.
     """
     if radius_m <= 0.0:
         return 0
     reach = turn_excursion_m(spacing_m, radius_m)
-    return max(1, math.ceil(reach / w + 1.0 - 1e-9))
+    return max(1, math.ceil(reach / w + 0.5 - 1e-9))
 
 
 def _layout(
@@ -571,8 +571,12 @@ def _headland_and_region(
             rings.append(np.asarray(part.exterior.coords))
             rings.extend(np.asarray(hole.coords) for hole in part.interiors)
         rings_by_pass.append(rings)
-    # swaths run on to the innermost ring's centre line: the swath region grown by half a
-    # width is inside that ring, and does not pass through necks the swath region lacks
+    if radius > 0.0:
+        # Planned turns: swaths end on the headland's inner edge and the machine turns on
+        # the headland, which is worked last (as Fields2Cover's mainland and headland).
+        return rings_by_pass, MultiPolygon(parts), MultiPolygon(parts)
+    # Hops: swaths run on to the innermost ring's centre line: the swath region grown by
+    # half a width is inside that ring, and does not pass through necks the region lacks
     reach = MultiPolygon(parts).buffer(w / 2)
     return rings_by_pass, MultiPolygon(parts), MultiPolygon(_polygons(reach))
 

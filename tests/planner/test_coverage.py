@@ -522,12 +522,15 @@ def test_hops_without_a_turn_radius_need_no_headland() -> None:
 
 
 def test_u_turns_when_swaths_are_two_radii_apart() -> None:
-    field = rectangle_field(104.0, 200.0)  # 72 m between the headlands: 9 swaths 8 m apart
+    field = rectangle_field(88.0, 200.0)  # 72 m between the headlands: 9 swaths 8 m apart
     cov = cover_field(
         field, 8.0, field_id="u", angle_deg=0.0, headland_passes=None, turn_radius_m=4.0
     )
-    # spacing 8 >= 2 r: half circles; headland ceil(4/8 + 1) = 2 passes
-    assert cov.headland_passes == 2
+    # spacing 8 >= 2 r: half circles reaching 4 m past the swath ends, which lie on the
+    # headland's inner edge: 4 + 8/2 <= p 8, so ceil(4/8 + 1/2) = 1 pass
+    assert cov.headland_passes == 1 and len(cov.swaths) == 9
+    ends = {round(x, 6) for s in cov.swaths for x in (s.start[0], s.end[0])}
+    assert ends == {8.0, 192.0}  # on the headland's inner edge
     first = cov.turn(0)[0]
     centre = np.add(cov.swaths[0].end, cov.swaths[1].start) / 2
     radii = np.hypot(*(np.asarray(first) - centre).T)
