@@ -29,6 +29,7 @@ capacity_m2h = 4000
 work_speed_kmh = 1.08
 road_speed_kmh = 10
 turn_time_h = 0.002
+min_turn_radius_m = 4.5
 road_fuel_lh = 2.0
 work_fuel_lh = 4.0
 [machine.implement]

@@ -190,7 +190,7 @@ def _draw_vehicle(ax: Axes, v: VehicleReview, frame: LocalFrame, col: str) -> No
     """The planned road legs (dashed) and the driven track (solid, bolder on the road)."""
     route = v.planned_route
     for a, b in zip(route, route[1:], strict=False):
-        if b.role not in ("transit", "return"):
+        if b.role not in ("road", "transit", "return"):
             continue  # legs inside a field: covered by the track
         xy = _xy(frame, (a.lat, b.lat), (a.lon, b.lon))
         ax.plot(xy[:, 0], xy[:, 1], color=col, lw=1.6, ls=(0, (5, 3)), alpha=0.9, zorder=4)

@@ -46,12 +46,16 @@ MIN_STEP_M: Final = 0.5
 class TrackItem(Protocol):
     """A planned mission item as review knows it."""
 
-    seq: int
-    field_id: str | None
-    role: str
-    lat: float
-    lon: float
-
+    @property
+    def seq(self) -> int: ...
+    @property
+    def field_id(self) -> str | None: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def lat(self) -> float: ...
+    @property
+    def lon(self) -> float: ...
     @property
     def is_nav(self) -> bool: ...
 
@@ -117,8 +121,8 @@ def track_quality(
             continue
         t0, t1 = times[down_seq], times[up_seq]
         line_points = [local(items[s]) for s in _nav_between(items, down_seq, up_seq)]
-        fid = items[down_seq].field_id
-        if previous_stretch_end is not None and items[previous_stretch_end[0]].field_id == fid:
+        field_id = items[down_seq].field_id
+        if previous_stretch_end is not None and items[previous_stretch_end[0]].field_id == field_id:
             turns += 1
             if _looped(items, previous_stretch_end, (down_seq, t0), t, x, y, local):
                 loops += 1
@@ -132,7 +136,7 @@ def track_quality(
         if len(line_points) == 2:  # one straight swath, implement raised at both ends
             swath_errors.append(error)
         samples += int(inside.sum())
-        outline = outlines.get(fid or "")
+        outline = outlines.get(field_id or "")
         if outline is not None:
             out = ~np.asarray(shapely.covers(outline, points), dtype=bool)
             idx = np.flatnonzero(inside)

@@ -9,6 +9,7 @@ once, the driven track on the swaths, the implement never down outside a field.
 from __future__ import annotations
 
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -116,8 +117,15 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
             return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
 
         wait_for("40 % of the mission", well_under_way, RUN_TIMEOUT_S)
+        # A power cut: the autopilot stops, and restarts on its eeprom where the tractor
+        # stands (SITL would put it back in the garage): read where that is once the
+        # dispatcher has heard its last position.
+        sitl.freeze()
+        wait_for("the status to catch up", lambda: well_under_way() and "lat" in state, 10.0)
+        time_mark = time.monotonic()
+        wait_for("two status periods", lambda: time.monotonic() - time_mark > 2.5, 5.0)
+        well_under_way()
         reached = state["reached"]
-        # A power cut: the autopilot restarts on its eeprom where the tractor stands.
         sitl.kill()
         sitl.start(home=(state["lat"], state["lon"]), heading=state.get("heading_deg") or 0)
         assert finished(serve) == 0, Processes.output(serve)[-3000:]
@@ -126,7 +134,10 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
     check_worked_once(review)
     (v,) = review.vehicles
     assert len(v.reboots) == 1, review_table(review)  # one event, not "time went back"
-    assert v.distance_m < v.planned_distance_m * 1.05, review_table(review)  # nothing twice
+    # Nothing driven twice. ArduPilot drives about 10 % more than the mission's legs even
+    # without a reboot (it weaves through the turns' arc points, docs/coverage.md), so this
+    # only catches a swath or a field driven again.
+    assert v.distance_m < v.planned_distance_m * 1.2, review_table(review)
     log = read_log(path)
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     resumed = [ln for ln in lines if "rebooted; resuming at item" in ln]
