@@ -143,6 +143,11 @@ class Sitl:
         log.close()
         wait_for(f"SITL on port {self.port}", lambda: not _port_free(self.port), 20.0)
 
+    def freeze(self) -> None:
+        """SIGSTOP: the autopilot stops where it is (until killed or continued)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGSTOP)
+
     def kill(self) -> None:
         """kill -9: the autopilot dies as on a power cut (its eeprom stays)."""
         if self.proc is not None and self.proc.poll() is None:
