@@ -91,8 +91,8 @@ def _grid_farm(folder: Path, count: int) -> str:
 
 
 def _plan(scenario: Path):  # type: ignore[no-untyped-def]
-    from dispatcher.plan_output import dispatch_plan
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.mission.plan import dispatch_plan
     from planner.field_plan import plan_farm
     from planner.solve import stop_after
 
@@ -150,8 +150,8 @@ def _stop(proc: subprocess.Popen) -> None:  # type: ignore[type-arg]
 
 def bench_upload(repeats: int = 3) -> str:
     """Time from "plan ready and every vehicle alive" to "every mission acknowledged"."""
-    from dispatcher import wire
-    from dispatcher.daemon import DaemonConfig, Dispatcher
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.link import wire
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -225,9 +225,9 @@ def bench_upload(repeats: int = 3) -> str:
 def bench_telemetry(vehicles: int = 100, hz: float = 10.0, seconds: float = 60.0) -> str:
     """``vehicles`` simulated vehicles at ``hz`` telemetry into one dispatcher for
     ``seconds``: share of the frames sent that are in the MCAP, dispatcher CPU."""
-    from dispatcher import wire
-    from dispatcher.daemon import DaemonConfig, Dispatcher
-    from dispatcher.recording import read_log
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.link import wire
+    from dispatcher.recording.mcap_file import read_log
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests"))  # tests/helpers
 
 FARM = HERE / "sitl-farm4.geojson"
 SCENARIO = ROOT / "tests" / "data" / "sitl.toml"
@@ -24,9 +24,9 @@ SPEEDUP = 10.0
 
 
 def bench_sitl() -> str:
-    from sitl_harness import Processes, Sitl, find_ardurover, free_port, log_of, wait_for
+    from helpers.sitl import Processes, Sitl, find_ardurover, free_port, log_of, wait_for
 
-    from dispatcher.review import review_log, review_table
+    from dispatcher.review.report import review_log, review_table
 
     binary = find_ardurover()
     title = "### ArduPilot Rover SITL: 4 fields, one rover, through the bridge"

@@ -19,39 +19,16 @@ A chromosome is the paper's two-part encoding (§4.1): ``perm`` is the task orde
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from numba import njit
 
+from planner.choices import Objective
 from planner.problem import FloatArray, Problem
 
 # Weight of the tie-breaker (total distance, metres) added to the min-max objectives:
 # small enough never to trade a real gain in the primary figure for distance.
 TIE_BREAK = 1e-9
-
-
-class Objective(IntEnum):
-    """What the solver minimises; the integer is what the kernels switch on."""
-
-    DISTANCE = 0  # sum s_i, the paper's formula (3); "minsum" on TSPLIB
-    TIME = 1  # sum t_i
-    FUEL = 2  # sum c_i
-    MAKESPAN = 3  # max t_i: when the whole farm is done
-    MINMAX = 4  # max s_i: the longest route
-
-    @classmethod
-    def parse(cls, name: str | Objective) -> Objective:
-        if isinstance(name, Objective):
-            return name
-        key = {"minsum": "distance", "min-sum": "distance", "min-max": "minmax"}.get(
-            name.lower(), name.lower()
-        )
-        try:
-            return cls[key.upper()]
-        except KeyError:
-            names = ", ".join(o.name.lower() for o in cls)
-            raise ValueError(f"unknown objective {name!r}; choose one of {names}, minsum") from None
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from planner import ga, ighoa
+from planner.choices import ALGORITHMS
 from planner.cost import (
     CostTables,
     Figures,
@@ -32,8 +33,6 @@ from planner.rng import make_state, randint, shuffle
 from planner.sa import AnnealingParams, anneal
 
 log = logging.getLogger(__name__)
-
-ALGORITHMS = ("ighoa", "ga")
 
 
 class MaxGenerations:

@@ -7,5 +7,4 @@
   sans-IO, exact in simulated time.
 * :mod:`sim_vehicles.runner` -- :func:`~sim_vehicles.runner.run`, the Zenoh I/O for any
   number of them; ``python -m sim_vehicles`` is its command line.
-* :mod:`sim_vehicles.testing` -- a two-way MAVLink wire for tests.
 """

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import zenoh
 
-from dispatcher import wire
-from dispatcher.errors import DispatcherError
+from dispatcher.config.errors import DispatcherError
+from dispatcher.link import wire
 
 EXIT_BAD_INPUT = 2
 EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
@@ -112,8 +112,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    from dispatcher.mavlink_codec import LinkDown
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.link.mavlink import LinkDown
     from sim_vehicles.mavlink_port import run_mavlink
     from sim_vehicles.runner import run
     from sim_vehicles.tractor import RoverParams

@@ -22,9 +22,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.scenario import Scenario
-from dispatcher.signals import stop_on_signals
+from dispatcher.config.scenario import Scenario
+from dispatcher.link import mavlink as mc
+from dispatcher.link.signals import stop_on_signals
 from sim_vehicles.runner import (
     EXIT_OK,
     check_rates,
@@ -85,8 +85,8 @@ def run_mavlink(
 
     ``fail_after_s``: the simulated second the vehicle breaks down at (it falls silent).
     ``stats_path``, if given, receives ``{vehicle_id: frames sent}`` as JSON at exit.
-    Raises :class:`~dispatcher.errors.ConfigError` for an unknown vehicle, ValueError for a
-    bad URL or rate, :class:`~dispatcher.mavlink_codec.LinkDown` if the socket cannot be
+    Raises :class:`~dispatcher.config.errors.ConfigError` for an unknown vehicle, ValueError for a
+    bad URL or rate, :class:`~dispatcher.link.mavlink.LinkDown` if the socket cannot be
     opened (address in use ...).
     """
     vehicle = scenario.vehicle(vehicle_id)

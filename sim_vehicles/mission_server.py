@@ -50,8 +50,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.missions import MissionItem
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_item import MissionItem
 
 logger = logging.getLogger(__name__)
 

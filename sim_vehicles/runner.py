@@ -1,5 +1,5 @@
 """Zenoh I/O around :class:`~sim_vehicles.tractor.SimTractor`: one process, any number of
-simulated tractors, each on the wire contract of :mod:`dispatcher.wire`.
+simulated tractors, each on the wire contract of :mod:`dispatcher.link.wire`.
 
 Per vehicle: a subscriber on ``vehicle_to`` (frames go to a FIFO queue, never dropped),
 a publisher on ``vehicle_from`` (one MAVLink 2 frame per sample) and a liveliness token
@@ -28,11 +28,11 @@ from typing import Protocol, TypeAlias
 
 import zenoh
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.errors import ConfigError
-from dispatcher.scenario import Scenario
-from dispatcher.signals import stop_on_signals
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import Scenario
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.link.signals import stop_on_signals
 from sim_vehicles.tractor import RoverParams, SimTractor
 
 logger = logging.getLogger(__name__)

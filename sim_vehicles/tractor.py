@@ -66,8 +66,8 @@ from typing import Literal
 
 from pyproj import Geod
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.scenario import Vehicle
+from dispatcher.config.scenario import Vehicle
+from dispatcher.link import mavlink as mc
 from sim_vehicles.mission_server import MissionServer, RequestMessage, StoredItem
 
 logger = logging.getLogger(__name__)

@@ -2,7 +2,7 @@
 
 Unit tests drive the filter, the rate limiter and the heartbeat presence with a made-up
 clock. Process tests run on loopback with free ports, multicast scouting off: our simulated
-tractor listening on a MAVLink TCP port as SITL does, ``python -m dispatcher.bridge`` and
+tractor listening on a MAVLink TCP port as SITL does, ``python -m dispatcher.tools.bridge`` and
 either the dispatcher or a test Zenoh peer. They wait on conditions and always stop what
 they started.
 """
@@ -20,22 +20,22 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from helpers.mavlink_wire import Wire
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.bridge import (
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.recording.mcap_file import read_log
+from dispatcher.tools.bridge import (
     DEFAULT_RATE_LIMITS,
     AutopilotFilter,
     HeartbeatPresence,
     parse_rates,
     run_bridge,
 )
-from dispatcher.errors import ConfigError
-from dispatcher.recording import read_log
-from dispatcher.scenario import load_scenario
 from sim_vehicles.__main__ import main as sim_main
 from sim_vehicles.mavlink_port import run_mavlink
-from sim_vehicles.testing import Wire
 
 SCENARIO = Path(__file__).parent / "data" / "tiny.toml"
 SYSTEM = 11  # v1 in tiny.toml
@@ -234,7 +234,7 @@ class Children:
 
     def bridge(self, mavlink_port: int, zenoh_port: int, *extra: str) -> subprocess.Popen[str]:
         return self.start(
-            "dispatcher.bridge",
+            "dispatcher.tools.bridge",
             str(SCENARIO),
             "--vehicle",
             "v1",

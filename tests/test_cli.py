@@ -3,7 +3,7 @@
 import json
 from pathlib import Path
 
-from dispatcher.cli import main
+from dispatcher.cli.main import main
 
 DATA = Path(__file__).parent / "data"
 

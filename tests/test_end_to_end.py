@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.recording import read_log
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.recording.mcap_file import read_log
 
 DATA = Path(__file__).parent / "data"
 SCENARIO = DATA / "tiny.toml"

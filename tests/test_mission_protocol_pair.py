@@ -3,10 +3,10 @@
 messages lost on the way."""
 
 import pytest
+from helpers.mavlink_wire import Wire
 
-from dispatcher.mission_client import MissionUpload, Outcome
+from dispatcher.link.mission_protocol import MissionUpload, Outcome
 from sim_vehicles.mission_server import MissionServer, StoredItem
-from sim_vehicles.testing import Wire
 
 VEHICLE = 21
 
@@ -30,7 +30,7 @@ def home() -> StoredItem:
 
 
 def mission(n):
-    from dispatcher import mavlink_codec as mc
+    from dispatcher.link import mavlink as mc
 
     return [
         mc.mission_item_int(

@@ -1,6 +1,6 @@
 """The dispatcher and the bridge against the real autopilot: ArduPilot Rover in SITL.
 
-Each test starts ``ardurover`` (see tests/sitl_harness.py; skipped with the reason when
+Each test starts ``ardurover`` (see tests/helpers/sitl.py; skipped with the reason when
 the binary is not there), ``agrifleet serve`` and ``agrifleet bridge`` on loopback, and
 reads the run back from its MCAP log with ``agrifleet review``: every field done exactly
 once, the driven track on the swaths, the implement never down outside a field.
@@ -8,16 +8,12 @@ once, the driven track on the swaths, the implement never down outside a field.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
-from sitl_harness import (  # noqa: E402
+from helpers.sitl import (
     Processes,
     Sitl,
     find_ardurover,
@@ -27,8 +23,8 @@ from sitl_harness import (  # noqa: E402
     wait_for,
 )
 
-from dispatcher.recording import LOG_TOPIC, read_log  # noqa: E402
-from dispatcher.review import Review, review_log, review_table  # noqa: E402
+from dispatcher.recording.mcap_file import LOG_TOPIC, read_log
+from dispatcher.review.report import Review, review_log, review_table
 
 ARDUROVER = find_ardurover()
 pytestmark = pytest.mark.skipif(

@@ -1,8 +1,8 @@
 """The ground-station side of the mission protocol against recorded ArduPilot-style
 exchanges: what a Rover sends, in the order it sends it."""
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.mission_client import (
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_protocol import (
     Command,
     CommandSequence,
     MissionUpload,

@@ -11,11 +11,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink import mavwp
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.mission_files import qgc_plan, write_qgc_plan, write_waypoints
-from dispatcher.missions import (
+from dispatcher.config.scenario import Implement
+from dispatcher.link import mavlink as mc
+from dispatcher.mission.build import (
     FieldVisit,
-    Implement,
     LatLon,
     Mission,
     MissionError,
@@ -23,6 +22,7 @@ from dispatcher.missions import (
     Trace,
     build_mission,
 )
+from dispatcher.mission.files import qgc_plan, write_qgc_plan, write_waypoints
 
 GARAGE = LatLon(52.0000000, 5.0000000)
 SERVO = Implement(kind="servo", channel=9, pwm_down=1900, pwm_up=1100)

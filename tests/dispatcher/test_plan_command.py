@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink import mavwp
 
-from dispatcher.cli import main
+from dispatcher.cli.main import main
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -210,8 +210,8 @@ def test_shipped_scenario_plans_three_machines(tmp_path):
 def test_missions_never_leave_a_notched_field(tmp_path):
     from shapely.geometry import LineString, Polygon
 
-    from dispatcher.plan_output import mission_for
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.mission.plan import mission_for
     from planner.coverage import cover_field
     from planner.field_plan import Visit, machine_figures
 
@@ -248,12 +248,12 @@ def test_missions_never_leave_a_notched_field(tmp_path):
 
 
 def test_min_turn_radius_is_read_per_machine(tmp_path, caplog):
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
 
     path = write_scenario(tmp_path, good_features())
     text = path.read_text().replace('id = "b"\n', 'id = "b"\nmin_turn_radius_m = 4.5\n')
     path.write_text(text)
-    with caplog.at_level("WARNING", logger="dispatcher.scenario"):
+    with caplog.at_level("WARNING", logger="dispatcher.config.scenario"):
         scenario = load_scenario(path)
     radii = {v.id: v.machine.min_turn_radius_m for v in scenario.vehicles}
     assert radii == {"a": 0.0, "b": 4.5}
@@ -277,7 +277,7 @@ def test_bad_min_turn_radius_names_file_machine_and_key(tmp_path, capsys, value,
 
 
 def test_shipped_fleet_has_turning_radii():
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
 
     scenario = load_scenario(REPO / "config/changji.toml")
     assert all(v.machine.min_turn_radius_m > 0 for v in scenario.vehicles)
@@ -335,7 +335,7 @@ def mission_through(scenario, polygon_xy, width, radius, corner, angle=None):
     """The mission of one machine of ``width`` and ``radius`` through one field."""
     import dataclasses
 
-    from dispatcher.plan_output import mission_for
+    from dispatcher.mission.plan import mission_for
     from planner.coverage import cover_field
     from planner.field_plan import MachinePlan, Visit
 
@@ -358,7 +358,7 @@ def mission_through(scenario, polygon_xy, width, radius, corner, angle=None):
 
 @pytest.fixture(scope="module")
 def one_field_scenario(tmp_path_factory):
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
 
     folder = tmp_path_factory.mktemp("turns")
     return load_scenario(write_scenario(folder, good_features(), machines=[("a", 1, 6.0)]))

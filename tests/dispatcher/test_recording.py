@@ -17,9 +17,9 @@ from mcap.records import Footer, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.recording import (
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.recording.mcap_file import (
     LIBRARY,
     LOCATION_FIX_SCHEMA,
     SCHEMAS,

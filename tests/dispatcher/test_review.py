@@ -16,14 +16,20 @@ import pytest
 from mcap.writer import Writer
 from pyproj import Geod
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.mission_client import CommandSequence, MissionUpload, start_mission_commands
-from dispatcher.missions import FieldVisit, Implement, LatLon, Mission, MissionSpec, build_mission
-from dispatcher.recording import Recorder, RecordingError
-from dispatcher.review import Review, review_json, review_log, review_table
-from dispatcher.review_plot import plot_review
-from dispatcher.scenario import Vehicle
+from dispatcher.config.scenario import Implement, Vehicle
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.link.mission_protocol import CommandSequence, MissionUpload, start_mission_commands
+from dispatcher.mission.build import (
+    FieldVisit,
+    LatLon,
+    Mission,
+    MissionSpec,
+    build_mission,
+)
+from dispatcher.recording.mcap_file import Recorder, RecordingError
+from dispatcher.review.plot import plot_review
+from dispatcher.review.report import Review, review_json, review_log, review_table
 from planner.problem import Machine
 from sim_vehicles.tractor import SimTractor
 

@@ -4,11 +4,11 @@ from pathlib import Path
 
 import pytest
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.errors import ConfigError
-from dispatcher.plan_output import dispatch_plan, write_plan_files
-from dispatcher.scenario import load_scenario
-from dispatcher.state import FleetState, Phase
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
+from dispatcher.daemon.state import FleetState, Phase
+from dispatcher.link import mavlink as mc
+from dispatcher.mission.plan import dispatch_plan, write_plan_files
 from planner.field_plan import plan_farm
 from planner.solve import stop_after
 
@@ -106,7 +106,7 @@ class Pub:
 
 
 def daemon_for(dispatch):
-    from dispatcher.daemon import DaemonConfig, Dispatcher
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
 
     daemon = Dispatcher(DaemonConfig(dispatch=dispatch))
     daemon.publishers = {vid: Pub() for vid in dispatch.missions}
@@ -120,7 +120,7 @@ def booting(sysid):
 
 
 def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
-    from dispatcher.mission_client import Outcome
+    from dispatcher.link.mission_protocol import Outcome
 
     daemon = daemon_for(dispatch)
     for vid, v in daemon.state.vehicles.items():
@@ -170,7 +170,7 @@ def statustext(sysid, text, severity=mc.MAV_SEVERITY_CRITICAL):
 
 
 def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
-    from dispatcher.mission_client import Outcome
+    from dispatcher.link.mission_protocol import Outcome
 
     daemon = daemon_for(dispatch)
     v = daemon.state.vehicles["v1"]
@@ -263,7 +263,7 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
 
 
 def test_a_vehicle_left_in_auto_is_put_in_hold_before_its_next_start(dispatch):
-    from dispatcher.mission_client import start_mission_commands
+    from dispatcher.link.mission_protocol import start_mission_commands
 
     cmds = start_mission_commands(1, in_auto=True)
     assert [c.command for c in cmds] == [

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import pytest
+from helpers.mavlink_wire import Wire
 
-from dispatcher.missions import FieldVisit, Implement, LatLon, Mission, MissionSpec, build_mission
-from dispatcher.scenario import Vehicle
+from dispatcher.config.scenario import Implement, Vehicle
+from dispatcher.mission.build import (
+    FieldVisit,
+    LatLon,
+    Mission,
+    MissionSpec,
+    build_mission,
+)
 from planner.problem import Machine
-from sim_vehicles.testing import Wire
 
 VEHICLE_SYSTEM = 7
 GARAGE = LatLon(44.0030000, 87.2995000)  # near the Changji demo farm

@@ -7,9 +7,10 @@ station sends, at which link time, and what the vehicle must answer.
 from __future__ import annotations
 
 import pytest
+from helpers.mavlink_wire import Wire, only, types
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.missions import Mission
+from dispatcher.link import mavlink as mc
+from dispatcher.mission.build import Mission
 from sim_vehicles.mission_server import (
     RE_REQUEST_S,
     UPLOAD_TIMEOUT_S,
@@ -17,7 +18,6 @@ from sim_vehicles.mission_server import (
     RequestMessage,
     StoredItem,
 )
-from sim_vehicles.testing import Wire, only, types
 
 HOME = StoredItem(
     seq=0,

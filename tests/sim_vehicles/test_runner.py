@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire as contract
-from dispatcher.errors import ConfigError
-from dispatcher.scenario import load_scenario
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire as contract
 from sim_vehicles.runner import run
 
 SCENARIO = Path(__file__).resolve().parents[2] / "config" / "changji.toml"

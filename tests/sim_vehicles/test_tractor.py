@@ -5,12 +5,12 @@ from __future__ import annotations
 import math
 
 import pytest
+from helpers.mavlink_wire import Wire, only, types
 from pyproj import Geod
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.missions import Mission
-from dispatcher.scenario import Vehicle
-from sim_vehicles.testing import Wire, only, types
+from dispatcher.config.scenario import Vehicle
+from dispatcher.link import mavlink as mc
+from dispatcher.mission.build import Mission
 from sim_vehicles.tractor import MissionState, Mode, RoverParams, SimTractor
 
 GEOD = Geod(ellps="WGS84")

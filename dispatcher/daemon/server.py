@@ -23,9 +23,10 @@ from typing import Any
 
 import zenoh
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.mission_client import (
+from dispatcher.daemon.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.link.mission_protocol import (
     ROVER_MODE_AUTO,
     START_REFUSAL_WINDOW_S,
     CommandSequence,
@@ -34,10 +35,9 @@ from dispatcher.mission_client import (
     park_commands,
     start_mission_commands,
 )
-from dispatcher.plan_output import DispatchPlan, plan_geojson
-from dispatcher.recording import Recorder
-from dispatcher.signals import stop_on_signals
-from dispatcher.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
+from dispatcher.link.signals import stop_on_signals
+from dispatcher.mission.plan import DispatchPlan, plan_geojson
+from dispatcher.recording.mcap_file import Recorder
 
 log = logging.getLogger(__name__)
 

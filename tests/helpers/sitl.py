@@ -25,9 +25,9 @@ from pathlib import Path
 
 import zenoh
 
-from dispatcher import wire
+from dispatcher.link import wire
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SITL_ENV = "AGRIFLEET_ARDUROVER"
 SHARED_SITL = REPO.parent / "shared" / "sitl"
 HOME = (44.0003, 87.2995)  # the SITL farm's garage (tests/data/sitl-farm.geojson)

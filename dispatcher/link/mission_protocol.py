@@ -16,7 +16,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from dispatcher import mavlink_codec as mc
+from dispatcher.link import mavlink as mc
 
 log = logging.getLogger(__name__)
 

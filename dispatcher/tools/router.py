@@ -13,8 +13,8 @@ import threading
 
 import zenoh
 
-from dispatcher.signals import stop_on_signals
-from dispatcher.wire import ZenohOptions
+from dispatcher.link.signals import stop_on_signals
+from dispatcher.link.wire import ZenohOptions
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ Layout (``seq``: what, MAVLink command; role of the item's trace in quotes)::
     n  back at the garage                      NAV_WAYPOINT                      "return"
 
 ``implement_down`` and ``implement_up`` are the field's first lowering and last raising:
-the dispatcher (``dispatcher.state``) and the review read them as the field's start and
+the dispatcher (``dispatcher.daemon.state``) and the review read them as the field's start and
 finish. The raisings and lowerings around each turn have their own roles
 (``implement_raise``, ``implement_lower``) so they never finish a field. Without planned
 turns (a machine whose turning radius is 0, the paper's hop between swath ends) the
@@ -75,8 +75,10 @@ from typing import Literal, get_args
 
 from pyproj import Geod
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.errors import DispatcherError
+from dispatcher.config.errors import DispatcherError
+from dispatcher.config.scenario import Implement
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_item import MissionItem
 
 logger = logging.getLogger(__name__)
 
@@ -132,16 +134,6 @@ class LatLon:
 
 
 @dataclass(frozen=True)
-class Implement:
-    """How the machine lowers and raises its implement."""
-
-    kind: str  # "servo" or "relay"
-    channel: int  # servo output channel (1-based), or relay number (0-based)
-    pwm_down: int = 1900  # servo only
-    pwm_up: int = 1100
-
-
-@dataclass(frozen=True)
 class FieldVisit:
     """One field in driving order, already in WGS84."""
 
@@ -178,62 +170,6 @@ class MissionSpec:
 
     def __post_init__(self) -> None:
         _check_spec(self)
-
-
-@dataclass(frozen=True)
-class MissionItem:
-    """One MISSION_ITEM_INT, as uploaded (x, y = lat, lon in degrees * 1e7)."""
-
-    seq: int
-    frame: int
-    command: int
-    current: int
-    autocontinue: int
-    param1: float
-    param2: float
-    param3: float
-    param4: float
-    x: int
-    y: int
-    z: float
-    mission_type: int = mc.MAV_MISSION_TYPE_MISSION
-
-    @property
-    def lat(self) -> float:
-        """Latitude in degrees."""
-        return self.x / 1e7
-
-    @property
-    def lon(self) -> float:
-        """Longitude in degrees."""
-        return self.y / 1e7
-
-    @property
-    def is_waypoint(self) -> bool:
-        """True for navigation waypoints (home and return included)."""
-        return self.command == mc.MAV_CMD_NAV_WAYPOINT
-
-    def message(
-        self, target_system: int, target_component: int = mc.MAV_COMP_ID_AUTOPILOT1
-    ) -> mc.MissionItemIntMessage:
-        """This item as a MISSION_ITEM_INT message addressed to ``target_system``."""
-        return mc.mission_item_int(
-            target_system=target_system,
-            target_component=target_component,
-            seq=self.seq,
-            frame=self.frame,
-            command=self.command,
-            current=self.current,
-            autocontinue=self.autocontinue,
-            param1=self.param1,
-            param2=self.param2,
-            param3=self.param3,
-            param4=self.param4,
-            x=self.x,
-            y=self.y,
-            z=self.z,
-            mission_type=self.mission_type,
-        )
 
 
 @dataclass(frozen=True)

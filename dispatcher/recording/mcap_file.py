@@ -39,8 +39,8 @@ from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from dispatcher import wire
-from dispatcher.errors import DispatcherError
+from dispatcher.config.errors import DispatcherError
+from dispatcher.link import wire
 
 try:  # Chunk compression codecs are optional: mcap works (uncompressed) without them.
     import zstandard

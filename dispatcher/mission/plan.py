@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dispatcher.mission_files import write_qgc_plan, write_waypoints
-from dispatcher.missions import FieldVisit, LatLon, Mission, MissionSpec, build_mission
-from dispatcher.scenario import Scenario, Vehicle
+from dispatcher.config.scenario import Scenario, Vehicle
+from dispatcher.mission.build import FieldVisit, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.mission.files import write_qgc_plan, write_waypoints
 from planner.farm import Farm
 from planner.field_plan import FarmPlan, MachinePlan, Visit
 
@@ -187,7 +187,7 @@ def _round7(value: float) -> float:
 
 def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
     """Write plan.json, the missions and map.png into ``out_dir``, all or nothing."""
-    from dispatcher.maps import draw_plan_map
+    from dispatcher.mission.map import draw_plan_map
 
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -217,7 +217,7 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
 def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
     """Fields, garage and each machine's planned route as GeoJSON (lon, lat), for
     Foxglove's Map panel and any GIS."""
-    from dispatcher.maps import colour
+    from dispatcher.mission.map import colour
 
     farm = dispatch.scenario.farm
     features: list[dict[str, Any]] = [

@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire as contract
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire as contract
 
 
 @dataclass

@@ -5,7 +5,7 @@
 worked, driven and stood still, fuel by the paper's formula (5) on what was driven, the
 mission upload and link figures, each beside the plan's value; per field who worked it
 and when. :func:`review_table` prints it for people, :func:`review_json` for tools, and
-``dispatcher.review_plot.plot_review`` draws it. How every number is computed is in
+``dispatcher.review.plot.plot_review`` draws it. How every number is computed is in
 ``docs/review.md``.
 
 Clocks: a vehicle's times come from its own clock (``time_boot_ms`` of
@@ -32,10 +32,10 @@ from typing import IO, Any, Final
 import numpy as np
 from pyproj import Geod
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.recording import LogContents, RecordingError, read_log
-from dispatcher.review_track import TrackQuality, track_quality
-from dispatcher.state import CLOCK_RESTART_S as REBOOT_CLOCK_S
+from dispatcher.daemon.state import CLOCK_RESTART_S as REBOOT_CLOCK_S
+from dispatcher.link import mavlink as mc
+from dispatcher.recording.mcap_file import LogContents, RecordingError, read_log
+from dispatcher.review.track import TrackQuality, track_quality
 from planner.geo import LocalFrame
 
 __all__ = [
@@ -1106,7 +1106,7 @@ def review_log(source: str | os.PathLike[str] | IO[bytes]) -> Review:
     """Review one agrifleet MCAP log (a path or a binary stream).
 
     A log cut short is read up to where it ends (``complete`` False, and a warning that
-    says where). Raises :class:`~dispatcher.recording.RecordingError` (a ``ValueError``)
+    says where). Raises :class:`~dispatcher.recording.mcap_file.RecordingError` (a ``ValueError``)
     for a file that is not an MCAP file or not an agrifleet log.
     """
     log = read_log(source)
@@ -1114,7 +1114,7 @@ def review_log(source: str | os.PathLike[str] | IO[bytes]) -> Review:
 
 
 def review_contents(log: LogContents) -> Review:
-    """Review a log already read with :func:`dispatcher.recording.read_log`."""
+    """Review a log already read with :func:`dispatcher.recording.mcap_file.read_log`."""
     warnings: list[str] = []
     start_ns = _int_or_none(log.metadata.get("start_time_ns"))
     if start_ns is None and log.records:

@@ -1,4 +1,4 @@
-"""Write a :class:`~dispatcher.missions.Mission` as files ground stations open.
+"""Write a :class:`~dispatcher.mission.build.Mission` as files ground stations open.
 
 * ``.waypoints``: the plain-text "QGC WPL 110" format (mavlink.io/en/file_formats), read by
   MAVProxy / ``pymavlink.mavwp.MAVWPLoader``, Mission Planner and QGroundControl. One
@@ -23,8 +23,9 @@ import json
 import os
 from typing import Any
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.missions import Mission, MissionItem
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_item import MissionItem
+from dispatcher.mission.build import Mission
 
 WAYPOINTS_HEADER = "QGC WPL 110"
 

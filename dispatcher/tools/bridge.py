@@ -1,7 +1,7 @@
 """The bridge: one real autopilot on the farm's Zenoh network, as the wire contract has it.
 
 Runs on the tractor's companion computer, between the autopilot's MAVLink link (serial,
-TCP or UDP, opened with pymavlink through :mod:`dispatcher.mavlink_codec`) and Zenoh:
+TCP or UDP, opened with pymavlink through :mod:`dispatcher.link.mavlink`) and Zenoh:
 
 * every sample on ``vehicle_to(farm, id)`` is written to the autopilot as it is;
 * frames from the autopilot (system = the scenario's ``system_id``, component 1) that the
@@ -41,11 +41,11 @@ from types import MappingProxyType
 
 import zenoh
 
-from dispatcher import mavlink_codec as mc
-from dispatcher import wire
-from dispatcher.errors import ConfigError
-from dispatcher.scenario import Scenario, Vehicle
-from dispatcher.signals import stop_on_signals
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import Scenario, Vehicle
+from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
+from dispatcher.link.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
 
@@ -486,7 +486,7 @@ def parse_rates(items: Sequence[str]) -> dict[str, float]:
 
 def bridge_command(args: argparse.Namespace, options: wire.ZenohOptions) -> int:
     """``agrifleet bridge``: what :func:`add_bridge_arguments` parsed, to :func:`run_bridge`."""
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
 
     try:
         scenario = load_scenario(args.scenario)
@@ -507,18 +507,17 @@ def bridge_command(args: argparse.Namespace, options: wire.ZenohOptions) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m dispatcher.bridge``: the same as ``agrifleet bridge``."""
-    from dispatcher.cli import add_zenoh_arguments, zenoh_options
-    from dispatcher.errors import DispatcherError
+    """``python -m dispatcher.tools.bridge``: the same as ``agrifleet bridge``."""
+    from dispatcher.config.errors import DispatcherError
 
     parser = argparse.ArgumentParser(
-        prog="python -m dispatcher.bridge",
+        prog="python -m dispatcher.tools.bridge",
         description="Bridge one ArduPilot autopilot (MAVLink) to the farm's Zenoh network; "
         "see docs/bridge.md.",
     )
     add_bridge_arguments(parser)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    add_zenoh_arguments(parser)
+    wire.add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
@@ -526,13 +525,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
     )
     try:
-        return bridge_command(args, zenoh_options(args, False))
+        return bridge_command(args, wire.zenoh_options(args, False))
     except DispatcherError as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":
-    from dispatcher.bridge import main as bridge_main  # log as dispatcher.bridge, not __main__
+    from dispatcher.tools.bridge import (
+        main as bridge_main,  # log as dispatcher.tools.bridge, not __main__
+    )
 
     sys.exit(bridge_main())

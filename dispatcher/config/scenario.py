@@ -13,13 +13,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from dispatcher.errors import ConfigError
-from dispatcher.missions import Implement
-from planner.cost import Objective
+from dispatcher.config.errors import ConfigError
+from planner.choices import ALGORITHMS, Objective
 from planner.errors import PlannerError
 from planner.farm import Farm, load_farm
 from planner.problem import Machine
-from planner.solve import ALGORITHMS
 
 logger = logging.getLogger(__name__)
 
@@ -38,6 +36,16 @@ MACHINE_PARAMS = (
 # Optional machine keys and their defaults: 0 m turning radius = the paper's turn model,
 # a hop between swath ends costing turn_time_h.
 OPTIONAL_MACHINE_PARAMS = {"min_turn_radius_m": 0.0}
+
+
+@dataclass(frozen=True)
+class Implement:
+    """How the machine lowers and raises its implement."""
+
+    kind: str  # "servo" or "relay"
+    channel: int  # servo output channel (1-based), or relay number (0-based)
+    pwm_down: int = 1900  # servo only
+    pwm_up: int = 1100
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from shapely.geometry import Polygon  # noqa: E402
 
-from dispatcher.maps import colour, draw_scale_bar  # noqa: E402
-from dispatcher.review import FieldReview, Review, VehicleReview  # noqa: E402
+from dispatcher.mission.map import colour, draw_scale_bar  # noqa: E402
+from dispatcher.review.report import FieldReview, Review, VehicleReview  # noqa: E402
 from planner.geo import LocalFrame  # noqa: E402
 
 FIELD_FACE = "#f3efe0"

@@ -14,10 +14,10 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from dispatcher import mavlink_codec as mc
-from dispatcher.mission_client import ROVER_MODE_AUTO
-from dispatcher.missions import Mission
-from dispatcher.plan_output import DispatchPlan
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_protocol import ROVER_MODE_AUTO
+from dispatcher.mission.build import Mission
+from dispatcher.mission.plan import DispatchPlan
 
 
 class Phase(enum.StrEnum):

@@ -24,7 +24,7 @@ from typing import Any, TypeAlias
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from dispatcher.errors import DispatcherError
+from dispatcher.config.errors import DispatcherError
 
 logger = logging.getLogger(__name__)
 

@@ -17,15 +17,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from dispatcher import wire
-from dispatcher.daemon import DaemonConfig, Dispatcher
-from dispatcher.plan_output import DispatchPlan
-from dispatcher.signals import stop_on_signals
-from dispatcher.state import FleetState
+from dispatcher.daemon.server import DaemonConfig, Dispatcher
+from dispatcher.daemon.state import FleetState
+from dispatcher.link import wire
+from dispatcher.link.signals import stop_on_signals
+from dispatcher.mission.plan import DispatchPlan
 
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_SCENARIO = REPO / "config" / "changji.toml"
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
 

@@ -15,7 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from dispatcher.errors import DispatcherError
+from dispatcher.config.errors import DispatcherError
+from dispatcher.link import wire
 from planner.errors import PlannerError
 
 log = logging.getLogger("agrifleet")
@@ -132,8 +133,8 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
 
 def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """Load the scenario with the command line's overrides and plan it."""
-    from dispatcher.plan_output import dispatch_plan
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.mission.plan import dispatch_plan
     from planner.field_plan import plan_farm
     from planner.solve import stop_after
 
@@ -179,7 +180,7 @@ def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from dispatcher.plan_output import write_plan_files
+    from dispatcher.mission.plan import write_plan_files
 
     dispatch = plan_scenario(args)
     written = write_plan_files(dispatch, args.out)
@@ -188,41 +189,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def zenoh_options(args: argparse.Namespace, default_listen: bool):  # type: ignore[no-untyped-def]
-    from dispatcher import wire
-
-    listen = tuple(args.listen or ())
-    connect = tuple(args.connect or ())
-    if not listen and not connect and args.mode != "router":
-        if default_listen:
-            listen = (wire.DEFAULT_ENDPOINT,)
-        else:
-            connect = (wire.DEFAULT_ENDPOINT,)
-    return wire.ZenohOptions(
-        mode=args.mode,
-        listen=listen,
-        connect=connect,
-        config_file=args.zenoh_config,
-        extra=tuple(args.cfg or ()),
-    )
-
-
-def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
-    g = p.add_argument_group("zenoh")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
-    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT")
-    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
-    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
-
-
 def cmd_serve(args: argparse.Namespace) -> int:
-    from dispatcher.daemon import DaemonConfig, Dispatcher
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
 
     dispatch = plan_scenario(args)
     print_plan_table(dispatch)
     daemon = Dispatcher(
-        DaemonConfig(dispatch=dispatch, zenoh=zenoh_options(args, True), log_dir=args.log_dir)
+        DaemonConfig(dispatch=dispatch, zenoh=wire.zenoh_options(args, True), log_dir=args.log_dir)
     )
     code = daemon.run()
     print(f"log: {daemon.log_path}")
@@ -230,7 +203,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from dispatcher.scenario import load_scenario
+    from dispatcher.config.scenario import load_scenario
     from sim_vehicles.runner import run
 
     scenario = load_scenario(args.scenario)
@@ -258,7 +231,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return run(
         scenario,
         ids,
-        zenoh_options(args, False),
+        wire.zenoh_options(args, False),
         speedup=args.speedup,
         telemetry_hz=args.telemetry_hz,
         stats_path=args.stats,
@@ -266,13 +239,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
-    from dispatcher.bridge import bridge_command
+    from dispatcher.tools.bridge import bridge_command
 
-    return bridge_command(args, zenoh_options(args, False))
+    return bridge_command(args, wire.zenoh_options(args, False))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from dispatcher.demo import DEFAULT_SCENARIO, run_demo, summary
+    from dispatcher.tools.demo import DEFAULT_SCENARIO, run_demo, summary
 
     args.scenario = args.scenario or DEFAULT_SCENARIO
     dispatch = plan_scenario(args)
@@ -284,19 +257,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from dispatcher.router import DEFAULT_ROUTER_ENDPOINT, run_router
+    from dispatcher.tools.router import DEFAULT_ROUTER_ENDPOINT, run_router
 
     if not args.listen:
         args.listen = [DEFAULT_ROUTER_ENDPOINT]
-    return run_router(zenoh_options(args, False))
+    return run_router(wire.zenoh_options(args, False))
 
 
 def cmd_review(args: argparse.Namespace) -> int:
-    from dispatcher.review import review_json, review_log, review_table
+    from dispatcher.review.report import review_json, review_log, review_table
 
     review = review_log(args.log)
     if args.plot:
-        from dispatcher.review_plot import plot_review
+        from dispatcher.review.plot import plot_review
 
         plot_review(review, args.plot, title=args.log.name)
     if args.json:
@@ -342,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("serve", help="the dispatcher daemon: plan, upload, follow, record")
     add_plan_arguments(p)
     p.add_argument("--log-dir", type=Path, default=Path("logs"))
-    add_zenoh_arguments(p)
+    wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_serve)
 
     p = sub.add_parser("sim", help="simulated tractors speaking MAVLink over Zenoh")
@@ -359,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve one vehicle on a MAVLink socket instead of Zenoh, as SITL does "
         "(tcpin:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT)",
     )
-    add_zenoh_arguments(p)
+    wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_sim)
 
     p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
@@ -383,11 +356,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     p.set_defaults(handler=cmd_demo, fields=None)
 
-    from dispatcher.bridge import add_bridge_arguments
+    from dispatcher.tools.bridge import add_bridge_arguments
 
     p = sub.add_parser("bridge", help="connect one real MAVLink autopilot to the dispatcher")
     add_bridge_arguments(p)
-    add_zenoh_arguments(p)
+    wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_bridge)
 
     p = sub.add_parser("review", help="what happened in a run: table, JSON, map and Gantt chart")
@@ -397,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_review)
 
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
-    add_zenoh_arguments(p, mode="router")
+    wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
     return parser
 

@@ -15,6 +15,7 @@ else connecting to it, multicast scouting off.
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -92,3 +93,35 @@ def dispatcher_options(listen: Sequence[str] = (DEFAULT_ENDPOINT,), **kw: object
 
 def client_options(connect: Sequence[str] = (DEFAULT_ENDPOINT,), **kw: object) -> ZenohOptions:
     return ZenohOptions(connect=tuple(connect), **kw)  # type: ignore[arg-type]
+
+
+# --- command-line flags of every command that opens a Zenoh session -----------------
+
+
+def zenoh_options(args: argparse.Namespace, default_listen: bool) -> ZenohOptions:
+    """The Zenoh options of a command from its ``add_zenoh_arguments`` flags; without
+    ``--listen``/``--connect`` the dispatcher listens on, and everyone else connects to,
+    ``DEFAULT_ENDPOINT``."""
+    listen = tuple(args.listen or ())
+    connect = tuple(args.connect or ())
+    if not listen and not connect and args.mode != "router":
+        if default_listen:
+            listen = (DEFAULT_ENDPOINT,)
+        else:
+            connect = (DEFAULT_ENDPOINT,)
+    return ZenohOptions(
+        mode=args.mode,
+        listen=listen,
+        connect=connect,
+        config_file=args.zenoh_config,
+        extra=tuple(args.cfg or ()),
+    )
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
+    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT")
+    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
+    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")

@@ -1,0 +1,36 @@
+"""What a scenario may choose for the solver: the objective and the algorithm.
+
+Kept apart from the compiled kernels (:mod:`planner.cost`, :mod:`planner.solve`) so that
+loading a scenario, a simulator or the bridge never imports numba.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+ALGORITHMS = ("ighoa", "ga")
+"""``ighoa``: the paper's hybrid (simulated annealing, then the genetic algorithm with its
+local search); ``ga``: the classic genetic algorithm it is compared with."""
+
+
+class Objective(IntEnum):
+    """What the solver minimises; the integer is what the kernels switch on."""
+
+    DISTANCE = 0  # sum s_i, the paper's formula (3); "minsum" on TSPLIB
+    TIME = 1  # sum t_i
+    FUEL = 2  # sum c_i
+    MAKESPAN = 3  # max t_i: when the whole farm is done
+    MINMAX = 4  # max s_i: the longest route
+
+    @classmethod
+    def parse(cls, name: str | Objective) -> Objective:
+        if isinstance(name, Objective):
+            return name
+        key = {"minsum": "distance", "min-sum": "distance", "min-max": "minmax"}.get(
+            name.lower(), name.lower()
+        )
+        try:
+            return cls[key.upper()]
+        except KeyError:
+            names = ", ".join(o.name.lower() for o in cls)
+            raise ValueError(f"unknown objective {name!r}; choose one of {names}, minsum") from None
