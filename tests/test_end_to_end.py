@@ -128,9 +128,13 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
     # A decoded frame matches its raw bytes.
     raw = log.on("agrifleet/tiny/vehicle/v1/mavlink/to")
     decoded = log.on("agrifleet/tiny/vehicle/v1/mavlink/to/json")
-    first = mc.Codec(11, 1).decode_one(raw[0].data)
-    assert first is not None and first.get_type() == "MISSION_COUNT"
-    assert decoded[0].decode_json() == mc.as_dict(first)
+    sent = [mc.Codec(11, 1).decode_one(r.data) for r in raw]
+    assert all(m is not None for m in sent)
+    assert decoded[0].decode_json() == mc.as_dict(sent[0])
+    kinds = [m.get_type() for m in sent]
+    # the ground-station heartbeat from the start, then the upload
+    assert kinds[0] == "HEARTBEAT" and sent[0].type == mc.MAV_TYPE_GCS
+    assert "MISSION_COUNT" in kinds
     # The final status: every field done exactly once, by its planned vehicle.
     status = log.on("agrifleet/tiny/dispatcher/status")[-1].decode_json()
     assert {f["status"] for f in status["fields"].values()} == {"done"}

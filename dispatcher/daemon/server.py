@@ -27,11 +27,13 @@ from dispatcher.daemon.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, Ve
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.link.mission_protocol import (
+    GCS_HEARTBEAT_PERIOD_S,
     ROVER_MODE_AUTO,
     START_REFUSAL_WINDOW_S,
     CommandSequence,
     MissionUpload,
     Outcome,
+    gcs_heartbeat,
     park_commands,
     start_mission_commands,
 )
@@ -92,6 +94,7 @@ class Dispatcher:
         self.publishers: dict[str, Any] = {}
         self._entities: list[Any] = []
         self._last_status = 0.0
+        self._next_heartbeat = 0.0
         self._started = time.monotonic()
         self.log_path: Path | None = None
         self._status_snapshot: dict[str, Any] = {}
@@ -258,6 +261,11 @@ class Dispatcher:
         return msg
 
     def _tick(self, now: float) -> None:
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + GCS_HEARTBEAT_PERIOD_S
+            beat = gcs_heartbeat()
+            for vid in self.state.vehicles:
+                self._send(vid, [beat])
         for vid, v in self.state.vehicles.items():
             link = self.links[vid]
             for machine in link.exchanges():

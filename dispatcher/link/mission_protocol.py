@@ -258,6 +258,24 @@ def start_mission_commands(first_item: int = 1, in_auto: bool = False) -> list[C
     return commands
 
 
+GCS_HEARTBEAT_PERIOD_S = 1.0
+"""The dispatcher's HEARTBEAT to every vehicle, as a ground station: ArduPilot's GCS
+failsafe (FS_GCS_ENABLE, after FS_GCS_TIMEOUT without one) can stay on."""
+
+
+def gcs_heartbeat() -> mc.MAVLinkMessage:
+    """The HEARTBEAT a ground station sends (MAV_TYPE_GCS, no autopilot)."""
+    return mc.message(
+        "HEARTBEAT",
+        type=mc.MAV_TYPE_GCS,
+        autopilot=mc.MAV_AUTOPILOT_INVALID,
+        base_mode=0,
+        custom_mode=0,
+        system_status=mc.MAV_STATE_ACTIVE,
+        mavlink_version=3,
+    )
+
+
 def park_commands() -> list[Command]:
     """What the dispatcher sends a vehicle whose mission is complete: HOLD, then disarm, so
     a tractor back in the garage is not left armed in AUTO."""

@@ -44,7 +44,7 @@ PARAMS: dict[str, float] = {
     "WP_SPEED": 3.33,
     "CRUISE_SPEED": 3.33,
     "TURN_RADIUS": 3.0,
-    "FS_GCS_ENABLE": 0,
+    "FS_GCS_ENABLE": 1,  # the dispatcher sends a ground-station HEARTBEAT at 1 Hz
     "SERVO9_FUNCTION": 0,
 }
 
