@@ -158,23 +158,23 @@ def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
     doc = dispatch.document
     print(
-        f"plan {doc['plan_id']} for {doc['farm_id']}: objective {doc['objective']}, "
-        f"{len(doc['machines'])} machines, {len(doc['fields'])} fields"
+        f"plan {doc.plan_id} for {doc.farm_id}: objective {doc.objective}, "
+        f"{len(doc.machines)} machines, {len(doc.fields)} fields"
     )
     print(
         f"{'machine':8} {'width m':>7} {'fields':>6} {'road km':>8} {'turns':>6} {'fuel L':>8} "
         f"{'time h':>7}  order"
     )
-    for m in doc["machines"]:
+    for m in doc.machines:
         print(
-            f"{m['id']:8} {m['working_width_m']:7.1f} {len(m['fields']):6d} "
-            f"{m['distance_m'] / 1000:8.2f} {m['turns']:6d} {m['fuel_l']:8.1f} {m['time_h']:7.2f}  "
-            + " ".join(m["fields"])
+            f"{m.id:8} {m.working_width_m:7.1f} {len(m.fields):6d} "
+            f"{m.distance_m / 1000:8.2f} {m.turns:6.0f} {m.fuel_l:8.1f} {m.time_h:7.2f}  "
+            + " ".join(m.fields)
         )
-    t = doc["totals"]
+    t = doc.totals
     print(
-        f"{'total':8} {'':7} {len(doc['fields']):6d} {t['distance_m'] / 1000:8.2f} "
-        f"{sum(m['turns'] for m in doc['machines']):6d} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
+        f"{'total':8} {'':7} {len(doc.fields):6d} {t['distance_m'] / 1000:8.2f} "
+        f"{sum(m.turns for m in doc.machines):6.0f} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
         f"makespan {t['makespan_h']:.2f} h"
     )
 

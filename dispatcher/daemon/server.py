@@ -142,8 +142,10 @@ class Dispatcher:
             )
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
-        self.recorder.record_plan(self.dispatch.document, plan_geojson(self.dispatch), now_ns)
-        self.publishers["plan"].put(json.dumps(self.dispatch.document))
+        self.recorder.record_plan(
+            self.dispatch.document.to_dict(), plan_geojson(self.dispatch), now_ns
+        )
+        self.publishers["plan"].put(self.dispatch.document.to_json())
         self._log(
             "info",
             f"plan {self.dispatch.plan_id} published; waiting for "

@@ -7,8 +7,6 @@ only when all of them are written, so a failure leaves nothing half-done behind.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import shutil
 import tempfile
@@ -18,6 +16,13 @@ from typing import Any
 
 from dispatcher.config.scenario import Scenario, Vehicle
 from dispatcher.mission.build import FieldVisit, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.mission.document import (
+    PlanDocument,
+    PlannedField,
+    PlannedItem,
+    PlannedMachine,
+    PlannedVisit,
+)
 from dispatcher.mission.files import write_qgc_plan, write_waypoints
 from planner.farm import Farm
 from planner.field_plan import FarmPlan, MachinePlan, Visit
@@ -30,11 +35,11 @@ class DispatchPlan:
     scenario: Scenario
     plan: FarmPlan
     missions: dict[str, Mission]  # by vehicle id
-    document: dict[str, Any]
+    document: PlanDocument
 
     @property
     def plan_id(self) -> str:
-        return str(self.document["plan_id"])
+        return self.document.plan_id
 
 
 def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
@@ -97,88 +102,86 @@ def dispatch_plan(scenario: Scenario, plan: FarmPlan) -> DispatchPlan:
     return DispatchPlan(scenario=scenario, plan=plan, missions=missions, document=doc)
 
 
-def plan_document(
-    scenario: Scenario, plan: FarmPlan, missions: dict[str, Mission]
-) -> dict[str, Any]:
+def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Mission]) -> PlanDocument:
     """plan.json: per machine its fields, figures and traceable mission items; totals."""
     farm = scenario.farm
     vehicles = {v.id: v for v in scenario.vehicles}
     machines = []
     for route in plan.machines:
         mission = missions[route.machine.id]
+        machine = route.machine
         machines.append(
-            {
-                "id": route.machine.id,
-                "system_id": vehicles[route.machine.id].system_id,
-                "working_width_m": route.machine.working_width_m,
-                "params": {
-                    "capacity_m2h": route.machine.capacity_m2h,
-                    "work_speed_kmh": route.machine.work_speed_kmh,
-                    "road_speed_kmh": route.machine.road_speed_kmh,
-                    "turn_time_h": route.machine.turn_time_h,
-                    "road_fuel_lh": route.machine.road_fuel_lh,
-                    "work_fuel_lh": route.machine.work_fuel_lh,
-                    "min_turn_radius_m": route.machine.min_turn_radius_m,
+            PlannedMachine(
+                id=machine.id,
+                system_id=vehicles[machine.id].system_id,
+                working_width_m=machine.working_width_m,
+                params={
+                    "capacity_m2h": machine.capacity_m2h,
+                    "work_speed_kmh": machine.work_speed_kmh,
+                    "road_speed_kmh": machine.road_speed_kmh,
+                    "turn_time_h": machine.turn_time_h,
+                    "road_fuel_lh": machine.road_fuel_lh,
+                    "work_fuel_lh": machine.work_fuel_lh,
+                    "min_turn_radius_m": machine.min_turn_radius_m,
                 },
-                "fields": route.field_ids,
-                "distance_m": round(route.road_m, 3),
-                "fuel_l": round(route.fuel_l, 4),
-                "time_h": round(route.time_h, 5),
-                "work_h": round(route.work_h, 5),
-                "turns": route.turns,
-                "visits": [
-                    {
-                        "field": v.field.id,
-                        "corner": v.corner,
-                        "swaths": len(v.swaths),
-                        "headland_rings": len(v.headland),
-                        "turn_m": round(v.coverage.turn_length_m(v.corner), 2),
-                        "angle_deg": round(v.coverage.angle_deg, 3),
-                    }
+                fields=tuple(route.field_ids),
+                distance_m=round(route.road_m, 3),
+                fuel_l=round(route.fuel_l, 4),
+                time_h=round(route.time_h, 5),
+                work_h=round(route.work_h, 5),
+                turns=route.turns,
+                visits=tuple(
+                    PlannedVisit(
+                        field=v.field.id,
+                        corner=v.corner,
+                        swaths=len(v.swaths),
+                        headland_rings=len(v.headland),
+                        turn_m=round(v.coverage.turn_length_m(v.corner), 2),
+                        angle_deg=round(v.coverage.angle_deg, 3),
+                    )
                     for v in route.visits
-                ],
-                "mission_items": len(mission),
-                "items": [
-                    [
-                        item.seq,
-                        tr.field_id,
-                        tr.swath_index,
-                        tr.role,
-                        item.x,
-                        item.y,
-                        item.command,
-                        item.param1,
-                        item.param2,
-                    ]
+                ),
+                items=tuple(
+                    PlannedItem(
+                        seq=item.seq,
+                        field_id=tr.field_id,
+                        swath_index=tr.swath_index,
+                        role=tr.role,
+                        x=item.x,
+                        y=item.y,
+                        command=item.command,
+                        param1=item.param1,
+                        param2=item.param2,
+                    )
                     for item, tr in zip(mission.items, mission.traces, strict=True)
-                ],
-            }
+                ),
+            )
         )
     glon, glat = farm.garage_lonlat
-    doc: dict[str, Any] = {
-        "farm_id": scenario.farm_id,
-        "objective": plan.objective.name.lower(),
-        "algorithm": plan.solver.algorithm,
-        "seed": plan.solver.seed,
-        "garage": {"lat": glat, "lon": glon},
-        "fields": {
-            f.id: {
-                "name": f.name,
-                "area_m2": round(f.area_m2, 2),
-                "polygon": [list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords],
-            }
+    return PlanDocument(
+        farm_id=scenario.farm_id,
+        objective=plan.objective.name.lower(),
+        algorithm=plan.solver.algorithm,
+        seed=plan.solver.seed,
+        garage=(glat, glon),
+        fields={
+            f.id: PlannedField(
+                name=f.name,
+                area_m2=round(f.area_m2, 2),
+                polygon=tuple(
+                    (_round7(lon), _round7(lat)) for lon, lat in f.boundary_lonlat.exterior.coords
+                ),
+            )
             for f in farm.fields
         },
-        "machines": machines,
-        "totals": {
+        machines=tuple(machines),
+        totals={
             "distance_m": round(plan.distance_m, 3),
             "fuel_l": round(plan.fuel_l, 4),
             "time_h": round(plan.time_h, 5),
             "makespan_h": round(plan.makespan_h, 5),
         },
-    }
-    digest = hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
-    return {"plan_id": digest, **doc}
+    )
 
 
 def _round7(value: float) -> float:
@@ -193,7 +196,7 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent))
     try:
-        (staging / "plan.json").write_text(json.dumps(dispatch.document, indent=1) + "\n")
+        (staging / "plan.json").write_text(dispatch.document.to_json(indent=1) + "\n")
         for vehicle_id, mission in dispatch.missions.items():
             write_waypoints(mission, staging / f"{vehicle_id}.waypoints")
             write_qgc_plan(mission, staging / f"{vehicle_id}.plan")

@@ -34,6 +34,13 @@ from pyproj import Geod
 
 from dispatcher.daemon.state import CLOCK_RESTART_S as REBOOT_CLOCK_S
 from dispatcher.link import mavlink as mc
+from dispatcher.mission.document import (
+    PlanDocument,
+    PlanDocumentError,
+    PlannedField,
+    PlannedItem,
+    PlannedMachine,
+)
 from dispatcher.recording.mcap_file import LogContents, RecordingError, read_log
 from dispatcher.review.track import TrackQuality, track_quality
 from planner.geo import LocalFrame
@@ -64,9 +71,6 @@ HEARTBEAT_GAP_S: Final = 5.0
 SLOWER_WARNING: Final = 0.10
 """Warn when a vehicle took this share longer than planned (or drove this much more)."""
 
-NAV_ROLES: Final = frozenset(
-    {"home", "road", "transit", "swath_start", "swath_end", "in_field", "turn", "return"}
-)
 MOVE_ROLES: Final = frozenset({"in_field", "turn"})
 """Waypoints of a move from one swath to the next (part of the turn, not a new leg)."""
 
@@ -221,41 +225,12 @@ class Review:
 
 
 @dataclass(frozen=True)
-class _Item:
-    seq: int
-    field_id: str | None
-    role: str
-    lat: float
-    lon: float
-
-    @property
-    def is_nav(self) -> bool:
-        return self.role in NAV_ROLES
-
-
-@dataclass(frozen=True)
-class _Machine:
-    id: str
-    params: dict[str, float]
-    fields: tuple[str, ...]
-    road_m: float
-    fuel_l: float
-    time_h: float
-    turns: int
-    items: tuple[_Item, ...]
-
-    def param(self, name: str) -> float:
-        value = self.params.get(name, 0.0)
-        return float(value) if _is_number(value) else 0.0
-
-
-@dataclass(frozen=True)
 class _Plan:
     plan_id: str | None
     farm_id: str
     log_ns: int
-    machines: tuple[_Machine, ...]
-    fields: dict[str, dict[str, Any]]
+    machines: tuple[PlannedMachine, ...]
+    fields: Mapping[str, PlannedField]
     garage: tuple[float, float] | None
     makespan_h: float | None
 
@@ -265,53 +240,21 @@ def _is_number(value: object) -> bool:
 
 
 def _parse_plan(doc: Any, log_ns: int) -> _Plan | None:
-    """The parts of a plan document a review needs; None if it is not one."""
-    if not isinstance(doc, dict) or not isinstance(doc.get("machines"), list):
+    """The plan document recorded at ``log_ns``; None if it cannot be read as one."""
+    try:
+        document = PlanDocument.from_json(doc)
+    except PlanDocumentError as exc:
+        logger.warning("a plan document in the log cannot be read: %s", exc)
         return None
-    machines = []
-    for m in doc["machines"]:
-        if not isinstance(m, dict) or not isinstance(m.get("id"), str):
-            continue
-        items: list[_Item] = []
-        for raw in m.get("items") or []:
-            if not isinstance(raw, list) or len(raw) < 6:
-                continue
-            seq, fid, _swath, role, x, y = raw[:6]
-            if not isinstance(seq, int) or seq != len(items):
-                break  # items must run 0, 1, 2 ... to map MISSION_ITEM_REACHED onto them
-            lat, lon = _number(x) / 1e7, _number(y) / 1e7
-            items.append(_Item(seq, fid if isinstance(fid, str) else None, str(role), lat, lon))
-        params: dict[str, Any] = m["params"] if isinstance(m.get("params"), dict) else {}
-        machines.append(
-            _Machine(
-                id=m["id"],
-                params={k: float(v) for k, v in params.items() if _num(v) is not None},
-                fields=tuple(f for f in m.get("fields") or [] if isinstance(f, str)),
-                road_m=_number(m.get("distance_m")),
-                fuel_l=_number(m.get("fuel_l")),
-                time_h=_number(m.get("time_h")),
-                turns=int(_number(m.get("turns"))),
-                items=tuple(items),
-            )
-        )
-    garage = None
-    g = doc.get("garage")
-    if isinstance(g, dict) and _is_number(g.get("lat")) and _is_number(g.get("lon")):
-        garage = (float(g["lat"]), float(g["lon"]))
-    fields: dict[str, Any] = doc["fields"] if isinstance(doc.get("fields"), dict) else {}
-    totals: dict[str, Any] = doc["totals"] if isinstance(doc.get("totals"), dict) else {}
-    makespan = _num(totals.get("makespan_h"))
-    if makespan is None:
-        makespan = max((m.time_h for m in machines), default=None)
-    plan_id = doc.get("plan_id")
+    lat, lon = document.garage
     return _Plan(
-        plan_id=str(plan_id) if plan_id is not None else None,
-        farm_id=str(doc.get("farm_id") or ""),
+        plan_id=document.plan_id or None,
+        farm_id=document.farm_id,
         log_ns=log_ns,
-        machines=tuple(machines),
-        fields={k: v for k, v in fields.items() if isinstance(v, dict)},
-        garage=garage,
-        makespan_h=makespan,
+        machines=document.machines,
+        fields=document.fields,
+        garage=(lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None,
+        makespan_h=document.makespan_h if document.machines else None,
     )
 
 
@@ -445,7 +388,9 @@ class _Events:
     texts: list[tuple[float | None, int, str]]  # STATUSTEXT: (run clock s, severity, text)
 
 
-def _read_events(frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[_Item]) -> _Events:
+def _read_events(
+    frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[PlannedItem]
+) -> _Events:
     """Positions, items reached with their time, heartbeats, from the vehicle's frames.
 
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
@@ -566,7 +511,7 @@ def _fix_points(fixes: Sequence[tuple[int, dict[str, Any]]]) -> list[_Point]:
 
 
 def _item_times(
-    items: Sequence[_Item], reached: Iterable[tuple[int, float | None, int]]
+    items: Sequence[PlannedItem], reached: Iterable[tuple[int, float | None, int]]
 ) -> tuple[dict[int, float], set[int], int, dict[int, int]]:
     """When each item was done (vehicle clock): an item reported reached and every item
     it skipped over. A DO item runs as the navigation item before it completes, so it
@@ -659,7 +604,7 @@ class _FieldTimes:
     finished: float | None
 
 
-def _planned_times(machine: _Machine, uploaded: Mapping[int, float]) -> list[float] | None:
+def _planned_times(machine: PlannedMachine, uploaded: Mapping[int, float]) -> list[float] | None:
     """Seconds from setting off to each item, driving the mission's legs at its set
     speeds: those of the DO_CHANGE_SPEED items uploaded (``uploaded``: seq -> m/s), else
     the plan's road speed with the implement up and working speed with it down. None if
@@ -669,7 +614,7 @@ def _planned_times(machine: _Machine, uploaded: Mapping[int, float]) -> list[flo
     out = [0.0]
     speed = road
     t = 0.0
-    last: _Item | None = machine.items[0] if machine.items else None
+    last: PlannedItem | None = machine.items[0] if machine.items else None
     for item in machine.items[1:]:
         if item.role == "speed" and item.seq in uploaded:
             speed = uploaded[item.seq]
@@ -700,10 +645,10 @@ def _uploaded_speeds(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> dict[i
     return out
 
 
-def _turn_seqs(items: Sequence[_Item]) -> set[int]:
+def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
     """Items that end a move from one swath to the next in the same field (a turn)."""
     out = set()
-    prev: _Item | None = None
+    prev: PlannedItem | None = None
     for item in items:
         if not item.is_nav or item.role in MOVE_ROLES:
             continue
@@ -767,7 +712,7 @@ class _VehicleResult:
 
 def _review_vehicle(
     vid: str,
-    machine: _Machine,
+    machine: PlannedMachine,
     traffic: _Traffic,
     status: Mapping[str, Any] | None,
     since_ns: int,
@@ -1010,11 +955,11 @@ def _review_vehicle(
         turns=turns,
         fuel_l=fuel,
         planned_distance_m=planned_distance,
-        planned_road_m=machine.road_m,
+        planned_road_m=machine.distance_m,
         planned_time_h=machine.time_h,
         mission_time_h=planned_s[-1] / 3600.0 if planned_s else None,
         planned_fuel_l=machine.fuel_l,
-        planned_turns=machine.turns,
+        planned_turns=round(machine.turns),
         upload_attempts=attempts,
         upload_retries=retries,
         upload_source=source,
@@ -1170,7 +1115,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             plan.log_ns if len(plans) > 1 else 0,
             end_ns,
-            {fid: f.get("polygon") or [] for fid, f in plan.fields.items() if isinstance(f, dict)},
+            {fid: f.polygon for fid, f in plan.fields.items()},
         )
         results[machine.id] = result
         vehicles.append(result.review)
@@ -1201,7 +1146,7 @@ def review_contents(log: LogContents) -> Review:
 
 
 def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[FieldReview]:
-    owner: dict[str, _Machine] = {}
+    owner: dict[str, PlannedMachine] = {}
     for m in plan.machines:
         for item in m.items:
             if item.field_id is not None:
@@ -1224,24 +1169,20 @@ def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[F
     ids = list(plan.fields) + [f for f in owner if f not in plan.fields]
     out = []
     for fid in ids:
-        info = plan.fields.get(fid, {})
+        info = plan.fields.get(fid)
         machine = owner.get(fid)
         result = results.get(machine.id) if machine is not None else None
         times = result.field_times.get(fid) if result is not None else None
         start = result.start_clock if result is not None else None
         started = times.started if times is not None else None
         finished = times.finished if times is not None else None
-        polygon = tuple(
-            (float(p[0]), float(p[1]))
-            for p in info.get("polygon") or []
-            if isinstance(p, list) and len(p) >= 2 and _is_number(p[0]) and _is_number(p[1])
-        )
+        polygon = info.polygon if info is not None else ()
         p_start, p_end = planned.get(fid, (None, None))
         out.append(
             FieldReview(
                 id=fid,
-                name=str(info.get("name", fid)),
-                area_m2=_number(info.get("area_m2")),
+                name=info.name if info is not None else fid,
+                area_m2=info.area_m2 if info is not None else 0.0,
                 polygon=polygon,
                 vehicle=machine.id if machine is not None else None,
                 done=finished is not None,

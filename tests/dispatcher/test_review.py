@@ -27,6 +27,12 @@ from dispatcher.mission.build import (
     MissionSpec,
     build_mission,
 )
+from dispatcher.mission.document import (
+    PlanDocument,
+    PlannedField,
+    PlannedItem,
+    PlannedMachine,
+)
 from dispatcher.recording.mcap_file import Recorder, RecordingError
 from dispatcher.review.plot import plot_review
 from dispatcher.review.report import Review, review_json, review_log, review_table
@@ -128,44 +134,57 @@ def _turns(mission: Mission) -> int:
 def _plan_doc(
     missions: dict[str, Mission], plan_id: str = PLAN_ID, with_params: bool = True
 ) -> dict[str, Any]:
+    """The plan document as the dispatcher records it (``with_params=False``: an older plan
+    without the machines' Table 1 parameters)."""
     machines = []
     for vid, mission in missions.items():
         m = _machine(vid)
+        params = {
+            "capacity_m2h": m.capacity_m2h,
+            "work_speed_kmh": m.work_speed_kmh,
+            "road_speed_kmh": m.road_speed_kmh,
+            "turn_time_h": m.turn_time_h,
+            "road_fuel_lh": m.road_fuel_lh,
+            "work_fuel_lh": m.work_fuel_lh,
+        }
         machines.append(
-            {
-                "id": vid,
-                "system_id": SYSTEM_IDS[vid],
-                "params": {
-                    "capacity_m2h": m.capacity_m2h,
-                    "work_speed_kmh": m.work_speed_kmh,
-                    "road_speed_kmh": m.road_speed_kmh,
-                    "turn_time_h": m.turn_time_h,
-                    "road_fuel_lh": m.road_fuel_lh,
-                    "work_fuel_lh": m.work_fuel_lh,
-                },
-                "fields": list(ROUTES[vid]),
-                "distance_m": 500.0,
-                **({} if with_params else {"params": None}),
-                "fuel_l": 1.5,
-                "time_h": 0.4,
-                "turns": _turns(mission),
-                "items": [
-                    [it.seq, tr.field_id, tr.swath_index, tr.role, it.x, it.y]
+            PlannedMachine(
+                id=vid,
+                system_id=SYSTEM_IDS[vid],
+                working_width_m=m.working_width_m,
+                params=params if with_params else {},
+                fields=ROUTES[vid],
+                distance_m=500.0,
+                fuel_l=1.5,
+                time_h=0.4,
+                work_h=0.3,
+                turns=_turns(mission),
+                visits=(),
+                items=tuple(
+                    PlannedItem(
+                        it.seq, tr.field_id, tr.swath_index, tr.role, it.x, it.y, it.command
+                    )
                     for it, tr in zip(mission.items, mission.traces, strict=True)
-                ],
-            }
+                ),
+            )
         )
-    return {
-        "plan_id": plan_id,
-        "farm_id": FARM,
-        "garage": {"lat": GARAGE.lat, "lon": GARAGE.lon},
-        "fields": {
-            f.id: {"name": f"field {f.id}", "area_m2": 1.0, "polygon": f.polygon()}
+    document = PlanDocument(
+        farm_id=FARM,
+        objective="makespan",
+        algorithm="ighoa",
+        seed=1,
+        garage=(GARAGE.lat, GARAGE.lon),
+        fields={
+            f.id: PlannedField(
+                f"field {f.id}", 1.0, tuple((float(x), float(y)) for x, y in f.polygon())
+            )
             for f in FIELDS.values()
         },
-        "machines": machines,
-        "totals": {"distance_m": 1000.0, "fuel_l": 3.0, "time_h": 0.8, "makespan_h": 0.4},
-    }
+        machines=tuple(machines),
+        totals={"distance_m": 1000.0, "fuel_l": 3.0, "time_h": 0.8, "makespan_h": 0.4},
+        plan_id=plan_id,
+    )
+    return document.to_dict()
 
 
 @dataclass

@@ -1,0 +1,78 @@
+"""The plan document: the one owner of plan.json and the published plan."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from dispatcher.config.scenario import load_scenario
+from dispatcher.mission.document import PlanDocument, PlanDocumentError
+from dispatcher.mission.plan import dispatch_plan, write_plan_files
+from planner.field_plan import plan_farm
+from planner.solve import stop_after
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def dispatch():
+    scenario = load_scenario(DATA / "tiny.toml")
+    machines = [v.machine for v in scenario.vehicles]
+    plan = plan_farm(scenario.farm, machines, "makespan", "ighoa", stop_after(20), seed=1)
+    return dispatch_plan(scenario, plan)
+
+
+def test_round_trip_through_json_is_identical(dispatch, tmp_path):
+    doc = dispatch.document
+    again = PlanDocument.from_json(doc.to_json())
+    assert again == doc and again.plan_id == doc.plan_id == again.content_hash()
+    write_plan_files(dispatch, tmp_path / "out")
+    from_file = PlanDocument.from_json((tmp_path / "out" / "plan.json").read_text())
+    assert from_file == doc
+
+
+def test_items_trace_every_mission_item(dispatch):
+    for machine in dispatch.document.machines:
+        mission = dispatch.missions[machine.id]
+        assert len(machine.items) == len(mission)
+        for planned, item, trace in zip(machine.items, mission.items, mission.traces, strict=True):
+            assert (planned.seq, planned.x, planned.y, planned.command) == (
+                item.seq,
+                item.x,
+                item.y,
+                item.command,
+            )
+            assert (planned.field_id, planned.role) == (trace.field_id, trace.role)
+            assert planned.is_nav == item.is_waypoint
+
+
+def test_the_plan_id_changes_with_the_content(dispatch):
+    doc = dispatch.document
+    other = replace(doc, seed=doc.seed + 1).with_id()
+    assert other.plan_id != doc.plan_id
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        (lambda d: d.pop("machines"), "missing key 'machines'"),
+        (lambda d: d["machines"][0].update(id=7), "machines[0].id"),
+        (lambda d: d["machines"][0]["items"].__setitem__(1, [5]), "machines[0].items[1]"),
+        (lambda d: d["machines"][0]["items"][2].__setitem__(0, 9), "seq 9, expected 2"),
+        (lambda d: d.update(fields=[]), "fields"),
+    ],
+)
+def test_a_bad_document_names_the_key(dispatch, edit, named):
+    doc = json.loads(dispatch.document.to_json())
+    edit(doc)
+    with pytest.raises(PlanDocumentError, match=named.replace("[", r"\[").replace("]", r"\]")):
+        PlanDocument.from_json(doc)
+    with pytest.raises(PlanDocumentError, match="not JSON"):
+        PlanDocument.from_json("{")
+
+
+def test_no_infinity_is_written(dispatch):
+    bad = replace(dispatch.document, totals={"fuel_l": float("inf")})
+    with pytest.raises(ValueError):
+        bad.to_json()
