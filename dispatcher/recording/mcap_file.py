@@ -16,14 +16,17 @@ files cut short, saying so with ``complete=False``.
 
 from __future__ import annotations
 
+import atexit
 import io
 import json
 import logging
 import math
 import os
+import queue
 import struct
 import threading
 import time
+import weakref
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -57,7 +60,13 @@ PROFILE: Final = "agrifleet"
 METADATA_NAME: Final = "agrifleet"
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_CHUNK_SIZE: Final = 256 * 1024
-DEFAULT_MAX_CHUNK_AGE_S: Final = 2.0
+# A record is in the file (handed to the OS) at most FLUSH_BOUND_S after its record call:
+# the writer closes the chunk DEFAULT_MAX_CHUNK_AGE_S after the oldest record it holds was
+# queued, which leaves the rest for the writing itself and a writer briefly behind.
+FLUSH_BOUND_S: Final = 0.5
+DEFAULT_MAX_CHUNK_AGE_S: Final = 0.25
+DEFAULT_QUEUE_SIZE: Final = 4096
+_WARNING_INTERVAL_S: Final = 10.0  # at most one back-pressure warning this often
 MAVLINK_ENCODING: Final = "mavlink2"
 JSON_ENCODING: Final = "json"
 JSONSCHEMA_ENCODING: Final = "jsonschema"
@@ -371,16 +380,35 @@ def _check_time(log_time_ns: int) -> None:
         )
 
 
+# What the record calls queue for the writer thread: (kind, payload, time.monotonic() when
+# queued). Payloads: _MESSAGES ((topic, encoding, schema name, data), ...), log_time_ns;
+# _METADATA a dict; _FLUSH an Event set when done; _STOP None.
+_Item = tuple[str, str, str | None, bytes]
+_Entry = tuple[int, Any, float]
+_MESSAGES: Final = 0
+_METADATA: Final = 1
+_FLUSH: Final = 2
+_STOP: Final = 3
+
+
 class Recorder:
     """Writes one run to one MCAP file: ``start()`` → ``record_*()`` → ``finish()``.
 
     ``output`` is a path (created or truncated) or a binary stream (left open by
     ``finish``). Every ``record_*`` takes ``log_time_ns``, integer nanoseconds since the
-    epoch. All methods are thread-safe. Records go into chunks of ``chunk_size`` bytes
-    (compressed with ``compression``: auto, zstd, lz4 or none); a chunk is also closed by
-    the first record that comes ``max_chunk_age_s`` or more after the previous chunk was
-    closed, so a crash loses at most about that much. Used as a context manager it starts
-    on entry and finishes on exit.
+    epoch. All methods are thread-safe. Used as a context manager it starts on entry and
+    finishes on exit.
+
+    A ``record_*`` call turns its document into JSON (so a bad value is refused at the
+    call, and the caller may change its dict afterwards) and puts the message on a queue
+    of ``queue_size`` entries; a writer thread does the MCAP encoding, the compression
+    and the writing. When the queue is full the call waits for room (back-pressure, never
+    a dropped record), counted in ``blocked_count`` and ``blocked_s`` and logged as a
+    warning. Records go into chunks of ``chunk_size`` bytes (compressed with
+    ``compression``: auto, zstd, lz4 or none); the writer also closes the chunk and hands
+    the file everything at most ``max_chunk_age_s`` after the oldest record not yet
+    handed over was recorded (``None``: only full chunks and :meth:`flush`), so a crash
+    or a ``kill -9`` loses at most the records of the last ``FLUSH_BOUND_S`` seconds.
     """
 
     def __init__(
@@ -392,13 +420,16 @@ class Recorder:
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         compression: str = "auto",
         max_chunk_age_s: float | None = DEFAULT_MAX_CHUNK_AGE_S,
+        queue_size: int = DEFAULT_QUEUE_SIZE,
         clock: Callable[[], int] = time.time_ns,
     ) -> None:
         self.farm_id = _check_farm_id(farm_id)
         if chunk_size < 1:
             raise RecordingError(f"chunk_size must be positive, got {chunk_size}")
-        if max_chunk_age_s is not None and max_chunk_age_s < 0:
+        if max_chunk_age_s is not None and not 0 <= max_chunk_age_s < math.inf:
             raise RecordingError(f"max_chunk_age_s must be >= 0 or None, got {max_chunk_age_s}")
+        if queue_size < 1:
+            raise RecordingError(f"queue_size must be positive, got {queue_size}")
         compression_type = _compression_type(compression)
         self._initial_metadata = {k: _metadata_value(v) for k, v in (metadata or {}).items()}
         # Checked everything: only now create the file.
@@ -416,13 +447,22 @@ class Recorder:
         self._clock = clock
         self._max_chunk_age_s = max_chunk_age_s
         self._metadata: dict[str, str] = {}
+        # Held by callers around check-and-enqueue, so nothing is queued after the stop
+        # entry; never taken by the writer thread.
         self._lock = threading.Lock()
+        self._queue: queue.Queue[_Entry] = queue.Queue(maxsize=queue_size)
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None  # what stopped the writer thread
+        # Writer thread only: the channel cache (topic -> [channel id, next sequence]).
         self._schemas: dict[str, int] = {}
-        self._channels: dict[str, list[int]] = {}  # topic -> [channel id, next sequence]
+        self._channels: dict[str, list[int]] = {}
         self._started = False
         self._finished = False
-        self._last_flush = time.monotonic()
-        self.message_count = 0
+        self._last_warning = -math.inf
+        self.message_count = 0  # messages written (by the writer thread)
+        self.flush_count = 0  # times the writer handed the file a closed chunk on time
+        self.blocked_count = 0  # record calls that waited for room in the queue
+        self.blocked_s = 0.0  # and how long they waited in all
 
     @classmethod
     def create_in(
@@ -459,7 +499,7 @@ class Recorder:
 
     # --- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:
-        """Write the MCAP header and the "agrifleet" metadata record."""
+        """Write the MCAP header and the "agrifleet" metadata record, start the writer."""
         with self._lock:
             if self._started:
                 raise RecorderStateError(f"recorder for {self._name()} is already started")
@@ -475,37 +515,71 @@ class Recorder:
             "start_time": datetime.fromtimestamp(start_ns / 1e9, UTC).isoformat(),
             "start_time_ns": str(start_ns),
         }
-        self._add_metadata_locked({**base, **self._initial_metadata})
+        values = {**base, **self._initial_metadata}
+        self._writer.add_metadata(METADATA_NAME, values)
+        self._metadata.update(values)
+        self._writer.flush()
+        self._thread = threading.Thread(
+            target=self._run, name=f"mcap writer {self._name()}", daemon=True
+        )
+        self._thread.start()
+        _unfinished.add(self)
 
     def record_metadata(self, values: Mapping[str, object]) -> None:
         """Add keys to the log's "agrifleet" metadata (a later value wins on reading)."""
+        strings = {k: _metadata_value(v) for k, v in values.items()}
         with self._lock:
             self._check_open()
-            self._add_metadata_locked({k: _metadata_value(v) for k, v in values.items()})
+            self._add_metadata_locked(strings)
 
     def flush(self) -> None:
-        """Close the chunk being built and hand everything to the OS now."""
+        """Close the chunk being built and hand everything recorded so far to the OS;
+        returns when that is done."""
+        done = threading.Event()
         with self._lock:
             self._check_open()
-            self._flush_locked()
+            self._put_locked((_FLUSH, done, time.monotonic()))
+        done.wait()
+        self._raise_if_failed()
+
+    def drain(self) -> None:
+        """Wait until the writer has taken every record so far into the MCAP writer (the
+        chunk being built may still be in memory: :meth:`flush` writes it)."""
+        self._queue.join()
 
     def finish(self) -> None:
-        """Write the summary and index and close the file (not a caller's stream).
-        Idempotent; a recorder never started is started first, so the file is a valid log."""
+        """Write every queued record, the summary and index, and close the file (not a
+        caller's stream). Idempotent; a recorder never started is started first, so the
+        file is a valid log. Raises :class:`RecordingError` if writing failed."""
         with self._lock:
             if self._finished:
                 return
-            self._finished = True
             try:
                 if not self._started:
                     self._start_locked()
+                self._put_locked((_STOP, None, time.monotonic()))
+            finally:
+                self._finished = True
+        try:
+            if self._thread is not None:
+                self._thread.join()
+            if self._error is None:
                 self._writer.finish()
                 if self._file is None:
                     self._stream.flush()
-            finally:
-                if self._file is not None:
-                    self._file.close()
-        logger.debug("finished %s: %d messages", self._name(), self.message_count)
+        except OSError as exc:
+            self._error = exc
+        finally:
+            _unfinished.discard(self)
+            if self._file is not None:
+                self._file.close()
+        self._raise_if_failed()
+        logger.debug(
+            "finished %s: %d messages, %d record calls waited for the writer",
+            self._name(),
+            self.message_count,
+            self.blocked_count,
+        )
 
     @property
     def finished(self) -> bool:
@@ -601,8 +675,9 @@ class Recorder:
         )
         plan_id = plan_doc.get("plan_id")
         if plan_id is not None:
+            value = _metadata_value(plan_id)
             with self._lock:
-                value = _metadata_value(plan_id)
+                self._check_open()
                 if self._metadata.get("plan_id") != value:
                     self._add_metadata_locked({"plan_id": value})
 
@@ -640,23 +715,122 @@ class Recorder:
             ((LOG_TOPIC, JSON_ENCODING, "foxglove.Log", _dumps(entry, "log line")),), log_time_ns
         )
 
-    # --- internals -----------------------------------------------------------------------
-    def _write(self, items: Iterable[tuple[str, str, str | None, bytes]], log_time_ns: int) -> None:
+    # --- internals: the caller's side ----------------------------------------------------
+    def _write(self, items: tuple[_Item, ...], log_time_ns: int) -> None:
         with self._lock:
             self._check_open()
-            for topic, encoding, schema_name, data in items:
-                entry = self._channels.get(topic)
-                if entry is None:
-                    entry = self._register_locked(topic, encoding, schema_name)
-                self._writer.add_message(entry[0], log_time_ns, data, log_time_ns, entry[1])
-                entry[1] = (entry[1] + 1) & 0xFFFFFFFF
-                self.message_count += 1
-            if self._max_chunk_age_s is not None:
-                now = time.monotonic()
-                if now - self._last_flush >= self._max_chunk_age_s:
-                    self._flush_locked(now)
+            self._put_locked((_MESSAGES, (items, log_time_ns), time.monotonic()))
 
-    def _register_locked(self, topic: str, encoding: str, schema_name: str | None) -> list[int]:
+    def _add_metadata_locked(self, values: dict[str, str]) -> None:
+        self._put_locked((_METADATA, values, time.monotonic()))
+        self._metadata.update(values)
+
+    def _put_locked(self, entry: _Entry) -> None:
+        """Queue ``entry`` for the writer thread; wait for room when the queue is full."""
+        try:
+            self._queue.put_nowait(entry)
+            return
+        except queue.Full:
+            pass
+        waited_from = time.monotonic()
+        self.blocked_count += 1
+        if waited_from - self._last_warning >= _WARNING_INTERVAL_S:
+            self._last_warning = waited_from
+            logger.warning(
+                "the log writer for %s is behind (%d records queued): recording waits for it "
+                "(%d times so far, %.2f s in all)",
+                self._name(),
+                self._queue.maxsize,
+                self.blocked_count,
+                self.blocked_s,
+            )
+        while True:
+            try:
+                self._queue.put(entry, timeout=0.5)
+                break
+            except queue.Full:
+                self._raise_if_failed()  # a dead writer would never make room
+        self.blocked_s += time.monotonic() - waited_from
+
+    def _check_open(self) -> None:
+        if not self._started:
+            raise RecorderStateError(f"recorder for {self._name()} is not started: call start()")
+        if self._finished:
+            raise RecorderStateError(
+                f"recorder for {self._name()} is finished; nothing more can be recorded"
+            )
+        self._raise_if_failed()
+
+    def _raise_if_failed(self) -> None:
+        if self._error is not None:
+            raise RecordingError(f"cannot write log {self._name()}: {self._error}") from self._error
+
+    def _name(self) -> str:
+        return str(self.path) if self.path is not None else "<stream>"
+
+    # --- internals: the writer thread ----------------------------------------------------
+    def _run(self) -> None:
+        """Take entries off the queue and write them; close the chunk and hand it to the
+        file when the oldest record not yet handed over is ``max_chunk_age_s`` old."""
+        get, task_done = self._queue.get, self._queue.task_done
+        max_age = self._max_chunk_age_s
+        due: float | None = None  # when what is held in memory must be in the file
+        while True:
+            if due is None:
+                kind, payload, queued_at = get()
+            else:
+                try:
+                    kind, payload, queued_at = get(timeout=max(due - time.monotonic(), 0.0))
+                except queue.Empty:
+                    self._flush_file()
+                    due = None
+                    continue
+            try:
+                if kind == _STOP:
+                    return
+                if self._error is not None:
+                    continue  # writing failed: keep taking entries so no caller waits forever
+                if kind == _MESSAGES:
+                    self._add_messages(*payload)
+                elif kind == _METADATA:
+                    self._writer.add_metadata(METADATA_NAME, payload)
+                else:  # _FLUSH
+                    self._writer.flush()
+                    due = None
+                    continue
+                if max_age is not None:
+                    if due is None:
+                        due = queued_at + max_age
+                    if time.monotonic() >= due:
+                        self._flush_file()
+                        due = None
+            except BaseException as exc:  # noqa: BLE001 - kept and raised to the callers
+                self._error = exc
+                logger.error("writing log %s failed: %s", self._name(), exc)
+            finally:
+                task_done()
+                if kind == _FLUSH:
+                    payload.set()
+
+    def _flush_file(self) -> None:
+        try:
+            self._writer.flush()
+            self.flush_count += 1
+        except BaseException as exc:  # noqa: BLE001 - kept and raised to the callers
+            self._error = exc
+            logger.error("writing log %s failed: %s", self._name(), exc)
+
+    def _add_messages(self, items: tuple[_Item, ...], log_time_ns: int) -> None:
+        add_message = self._writer.add_message
+        for topic, encoding, schema_name, data in items:
+            entry = self._channels.get(topic)
+            if entry is None:
+                entry = self._register(topic, encoding, schema_name)
+            add_message(entry[0], log_time_ns, data, log_time_ns, entry[1])
+            entry[1] = (entry[1] + 1) & 0xFFFFFFFF
+        self.message_count += len(items)
+
+    def _register(self, topic: str, encoding: str, schema_name: str | None) -> list[int]:
         schema_id = 0
         if schema_name is not None:
             schema_id = self._schemas.get(schema_name, 0)
@@ -668,29 +842,19 @@ class Recorder:
         self._channels[topic] = entry
         return entry
 
-    def _add_metadata_locked(self, values: dict[str, str]) -> None:
-        self._writer.add_metadata(METADATA_NAME, values)
-        self._metadata.update(values)
 
-    def _flush_locked(self, now: float | None = None) -> None:
-        flush = getattr(self._writer, "flush", None)  # Writer.flush is new in mcap 1.6
-        if flush is not None:
-            flush()
-        elif self._max_chunk_age_s is not None:
-            logger.warning("this mcap cannot close a chunk early (needs mcap>=1.6)")
-            self._max_chunk_age_s = None
-        self._last_flush = time.monotonic() if now is None else now
+# Recorders started and not finished: finished at interpreter exit, so a program that
+# returns without finish() still leaves a whole log (a kill leaves what was flushed).
+_unfinished: weakref.WeakSet[Recorder] = weakref.WeakSet()
 
-    def _check_open(self) -> None:
-        if not self._started:
-            raise RecorderStateError(f"recorder for {self._name()} is not started: call start()")
-        if self._finished:
-            raise RecorderStateError(
-                f"recorder for {self._name()} is finished; nothing more can be recorded"
-            )
 
-    def _name(self) -> str:
-        return str(self.path) if self.path is not None else "<stream>"
+@atexit.register
+def _finish_at_exit() -> None:
+    for recorder in list(_unfinished):
+        try:
+            recorder.finish()
+        except Exception as exc:  # noqa: BLE001 - nothing left to raise to at exit
+            logger.error("could not finish log %s at exit: %s", recorder._name(), exc)
 
 
 class RecorderLogHandler(logging.Handler):

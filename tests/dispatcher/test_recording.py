@@ -350,6 +350,7 @@ def test_crash_before_finish_keeps_finished_chunks(tmp_path: Path) -> None:
     assert rec.path is not None
     for i in range(5):
         rec.record_log("info", f"line {i}", T0 + i)
+    rec.drain()  # the writer has taken (and, at age 0, flushed) every record
     # No finish(): read the file as a crash would leave it.
     log = read_log(rec.path)
     assert not log.complete
@@ -365,6 +366,7 @@ def test_chunks_are_size_bounded_without_age_limit() -> None:
     rec.start()
     for i in range(200):
         rec.record_log("info", f"line {i}", T0 + i)
+    rec.drain()
     log = read_log(io.BytesIO(buf.getvalue()))
     assert not log.complete
     assert 100 < len(log.records) < 200  # the chunk being built is not in the file yet
