@@ -265,13 +265,15 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_review(args: argparse.Namespace) -> int:
-    from dispatcher.review.report import review_json, review_log, review_table
+    from dispatcher.recording.mcap_file import read_logs
+    from dispatcher.review.report import review_contents, review_json, review_table
 
-    review = review_log(args.log)
+    log = read_logs(args.logs)  # several files (or a directory) of one run read as one
+    review = review_contents(log)
     if args.plot:
         from dispatcher.review.plot import plot_review
 
-        plot_review(review, args.plot, title=args.log.name)
+        plot_review(review, args.plot, title=Path(log.source).name)
     if args.json:
         print(json.dumps(review_json(review)))
     else:
@@ -364,7 +366,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_bridge)
 
     p = sub.add_parser("review", help="what happened in a run: table, JSON, map and Gantt chart")
-    p.add_argument("log", type=Path, help="an MCAP log written by the dispatcher")
+    p.add_argument(
+        "logs",
+        type=Path,
+        nargs="+",
+        metavar="LOG",
+        help="MCAP logs written by the dispatcher, or a directory of them: one run, "
+        "read as one in order of start time",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", type=Path, help="write a map and Gantt chart PNG here")
     p.set_defaults(handler=cmd_review)

@@ -738,7 +738,7 @@ class Recorder:
             self._last_warning = waited_from
             logger.warning(
                 "the log writer for %s is behind (%d records queued): recording waits for it "
-                "(%d times so far, %.2f s in all)",
+                "(%d waits so far, %.2f s waited before this one)",
                 self._name(),
                 self._queue.maxsize,
                 self.blocked_count,
@@ -1148,6 +1148,74 @@ def read_log(source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = Fa
             complete=log.complete,
             problem=log.problem,
         )
+
+
+def log_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """The log files named by ``paths``: files as given, and every ``*.mcap`` directly in
+    a directory (by name). Raises :class:`RecordingError` for a path that does not exist,
+    a directory without logs, or no path at all."""
+    files: list[Path] = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            found = sorted(p for p in path.glob("*.mcap") if p.is_file())
+            if not found:
+                raise RecordingError(f"{path} holds no .mcap log")
+            files.extend(found)
+        elif path.exists():
+            files.append(path)
+        else:
+            raise RecordingError(f"cannot open log {path}: no such file or directory")
+    if not files:
+        raise RecordingError("no log given")
+    return list(dict.fromkeys(files))  # a file named twice is read once
+
+
+def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
+    """Several logs of one run (a dispatcher restarted mid-run writes a new file) read as
+    one: the files of ``paths`` (see :func:`log_files`) in order of their start time, their
+    messages merged in log-time order. Header and metadata are those of the first file;
+    ``complete`` is that of the last (an earlier one cut short is where the dispatcher was
+    restarted); ``problem`` joins the problems of every file, each naming its file.
+    Raises :class:`RecordingError` for a file that is not an agrifleet log, or for logs of
+    different farms."""
+    given = [Path(p) for p in paths]
+    logs = [read_log(path) for path in log_files(given)]
+    if len(logs) == 1:
+        return logs[0]
+    logs.sort(key=_start_key)
+    farms = {log.metadata.get("farm_id") for log in logs}
+    if len(farms) > 1:
+        listing = ", ".join(f"{log.source} ({log.metadata.get('farm_id')})" for log in logs)
+        raise RecordingError(f"these logs are of different farms, not one run: {listing}")
+    first, last = logs[0], logs[-1]
+    # Each file is in log-time order (or nearly, if cut short): a stable sort merges them.
+    records = sorted(
+        (record for log in logs for record in log.records), key=lambda r: r.log_time_ns
+    )
+    problems = [log.problem for log in logs if log.problem]
+    if len(given) == 1 and given[0].is_dir():
+        source = str(given[0])
+    else:
+        source = f"{first.source} (+{len(logs) - 1} more)"
+    return LogContents(
+        source=source,
+        profile=first.profile,
+        library=first.library,
+        metadata=dict(first.metadata),
+        records=records,
+        complete=last.complete,
+        problem="; ".join(problems) if problems else None,
+    )
+
+
+def _start_key(log: LogContents) -> tuple[int, str]:
+    """A log's start: its start_time_ns, else its first message, else never."""
+    start = log.metadata.get("start_time_ns", "")
+    if start.isdigit():
+        return int(start), log.source
+    first = min((r.log_time_ns for r in log.records), default=2**64)
+    return first, log.source
 
 
 def iter_records(

@@ -6,7 +6,12 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
+import signal
+import subprocess
+import sys
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -20,6 +25,7 @@ from mcap.writer import Writer
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.recording.mcap_file import (
+    FLUSH_BOUND_S,
     LIBRARY,
     LOCATION_FIX_SCHEMA,
     SCHEMAS,
@@ -32,6 +38,7 @@ from dispatcher.recording.mcap_file import (
     metadata,
     open_log,
     read_log,
+    read_logs,
 )
 
 FARM = "changji"
@@ -534,3 +541,238 @@ def test_four_threads_writing() -> None:
     for _, channel, message in reader.iter_messages(log_time_order=False):
         seqs.setdefault(channel.id, []).append(message.sequence)
     assert all(sorted(s) == list(range(len(s))) for s in seqs.values())
+
+
+# --- the writer thread: flush bound, kill -9, back-pressure ------------------------------------
+
+_KILLED_RECORDER = """
+import sys, time
+from dispatcher.recording.mcap_file import Recorder
+
+rec = Recorder(sys.argv[1], "changji")
+rec.start()
+begin = time.monotonic()
+for i in range(200):  # a record every 10 ms for 2 s
+    time.sleep(max(begin + i * 0.01 - time.monotonic(), 0.0))
+    t = time.time_ns()
+    rec.record_log("info", f"line {i}", t)
+    print(i, t, flush=True)
+print("quiet", flush=True)
+time.sleep(60)
+"""
+
+
+def _wait_for(condition: Any, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.002)
+
+
+@pytest.mark.parametrize("when", ["mid-run", "quiet"])
+def test_kill_9_loses_only_the_last_half_second(tmp_path: Path, when: str) -> None:
+    """A recorder killed with SIGKILL, while recording every 10 ms or after it went quiet,
+    leaves a file holding every record made more than FLUSH_BOUND_S before the kill."""
+    path = tmp_path / "killed.mcap"
+    child = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_RECORDER, str(path)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).parents[2],
+    )
+    assert child.stdout is not None
+    stamps: dict[str, int] = {}
+    try:
+        for line in child.stdout:
+            if line.strip() == "quiet":
+                time.sleep(FLUSH_BOUND_S + 0.05)  # the bound is the time that must pass
+                break
+            i, t = line.split()
+            stamps[f"line {i}"] = int(t)
+            if when == "mid-run" and len(stamps) == 150:
+                break
+        kill_ns = time.time_ns()
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.kill()
+        child.wait()
+        child.stdout.close()
+    assert child.returncode == -signal.SIGKILL
+    log = read_log(path)
+    assert not log.complete and log.problem is not None and "cut short" in log.problem
+    got = [r.decode_json()["message"] for r in log.records]
+    assert got == list(stamps)[: len(got)]  # what is there is a prefix, in order
+    old_enough = [m for m, t in stamps.items() if t < kill_ns - FLUSH_BOUND_S * 1e9]
+    assert len(old_enough) >= (100 if when == "mid-run" else 200)
+    assert set(old_enough) <= set(got)
+    if when == "quiet":
+        assert got == list(stamps)
+
+
+def test_quiet_record_reaches_the_file_within_the_bound(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with Recorder(path, FARM) as rec:
+        recorded = time.monotonic()
+        rec.record_log("info", "alone", T0)
+        _wait_for(lambda: len(read_log(path).records) == 1, timeout_s=5.0)
+        assert time.monotonic() - recorded <= FLUSH_BOUND_S
+        assert rec.flush_count == 1
+
+
+class _GatedStream(io.BytesIO):
+    """A stream whose writes wait while ``gate`` is clear (a disk that stalls) and fail
+    once ``fail`` is set (a full disk)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.gate = threading.Event()
+        self.gate.set()
+        self.fail = False
+
+    def write(self, data: Any) -> int:
+        self.gate.wait()
+        if self.fail:
+            raise OSError(28, "No space left on device")
+        return super().write(data)
+
+
+def test_full_queue_blocks_the_caller_and_drops_nothing(caplog: pytest.LogCaptureFixture) -> None:
+    stream = _GatedStream()
+    rec = Recorder(stream, FARM, queue_size=2, max_chunk_age_s=0.0)
+    rec.start()
+    stream.gate.clear()  # the writer stalls on its first write
+    done = threading.Event()
+
+    def record() -> None:
+        for i in range(50):
+            rec.record_log("info", f"line {i}", T0 + i)
+            if i == 20:
+                rec.record_metadata({"halfway": i})
+        done.set()
+
+    caller = threading.Thread(target=record)
+    with caplog.at_level(logging.WARNING, logger="dispatcher.recording.mcap_file"):
+        caller.start()
+        _wait_for(lambda: rec.blocked_count == 1)
+        assert not done.is_set() and caller.is_alive()  # waiting for room, not dropping
+        assert rec._queue.qsize() == 2
+        stream.gate.set()
+        caller.join(timeout=10)
+        assert done.is_set()
+        rec.finish()
+    warnings = [r for r in caplog.records if "is behind" in r.getMessage()]
+    assert len(warnings) == 1  # one warning per 10 s however often it waits
+    assert "(2 records queued)" in warnings[0].getMessage()
+    assert rec.blocked_count >= 1 and rec.blocked_s > 0
+    log = read_log(stream)
+    assert log.complete and log.metadata["halfway"] == "20"
+    assert [r.decode_json()["message"] for r in log.records] == [f"line {i}" for i in range(50)]
+    assert rec.message_count == 50
+
+
+def test_writer_failure_is_raised_to_the_callers_never_hangs_them() -> None:
+    stream = _GatedStream()
+    rec = Recorder(stream, FARM, queue_size=1, max_chunk_age_s=0.0)
+    rec.start()
+    stream.fail = True
+    with pytest.raises(RecordingError, match="cannot write log <stream>: .*No space left"):
+        for i in range(10_000):
+            rec.record_log("info", f"line {i}", T0 + i)
+            time.sleep(0.0005)
+    with pytest.raises(RecordingError, match="No space left"):
+        rec.finish()
+    assert rec.finished
+
+
+def test_flush_writes_the_open_chunk_now(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with Recorder(path, FARM, max_chunk_age_s=None) as rec:
+        for i in range(3):
+            rec.record_log("info", f"line {i}", T0 + i)
+        rec.drain()
+        assert read_log(path).records == []  # in the open chunk, in memory
+        rec.flush()
+        assert len(read_log(path).records) == 3
+
+
+# --- several files of one run ------------------------------------------------------------------
+
+
+def _run_file(directory: Path, start_s: int, times_s: list[float], *, finish: bool = True) -> Path:
+    start = T0 + start_s * 10**9
+    rec = Recorder.create_in(
+        directory, FARM, {"plan_id": f"p{start_s}"}, clock=lambda: start, max_chunk_age_s=0.0
+    )
+    for t in times_s:
+        rec.record_log("info", f"at {t}", T0 + int(t * 1e9))
+    rec.drain()  # at age 0 every record is in the file now
+    assert rec.path is not None
+    crashed = rec.path.read_bytes()
+    rec.finish()
+    if not finish:  # the file as a crash would have left it
+        rec.path.write_bytes(crashed)
+    return rec.path
+
+
+def test_read_logs_merges_files_by_time(tmp_path: Path) -> None:
+    restarted = _run_file(tmp_path, 30, [30.0, 31.5, 33.0])
+    first = _run_file(tmp_path, 0, [0.0, 1.0, 31.0], finish=False)  # cut short by a crash
+    (tmp_path / "notes.txt").write_text("not a log")
+    for given in ([restarted, first], [tmp_path]):
+        log = read_logs(given)
+        assert [r.decode_json()["message"] for r in log.records] == [
+            "at 0.0",
+            "at 1.0",
+            "at 30.0",
+            "at 31.0",
+            "at 31.5",
+            "at 33.0",
+        ]
+        assert log.metadata["plan_id"] == "p0"  # the first file's
+        assert log.complete  # the last file is
+        assert log.problem is not None and first.name in log.problem
+        assert "cut short" in log.problem and restarted.name not in log.problem
+    assert read_logs([tmp_path]).source == str(tmp_path)
+    assert read_logs([restarted, first]).source == f"{first} (+1 more)"
+    assert read_logs([restarted]) == read_log(restarted)
+
+
+def test_read_logs_incomplete_when_the_last_is(tmp_path: Path) -> None:
+    _run_file(tmp_path, 0, [0.0])
+    last = _run_file(tmp_path, 10, [10.0], finish=False)
+    log = read_logs([tmp_path])
+    assert not log.complete and log.problem is not None and last.name in log.problem
+    assert len(log.records) == 2
+
+
+def test_read_logs_names_a_damaged_file(tmp_path: Path) -> None:
+    good = _run_file(tmp_path, 0, [0.0, 1.0])
+    bad = _run_file(tmp_path, 10, [10.0, 11.0])
+    summary = make_reader(io.BytesIO(bad.read_bytes())).get_summary()
+    assert summary is not None
+    chunk = summary.chunk_indexes[1]
+    data = bytearray(bad.read_bytes())
+    data[chunk.chunk_start_offset + chunk.chunk_length - 10] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    log = read_logs([good, bad])
+    assert not log.complete
+    assert log.problem is not None and f"{bad} has a broken record" in log.problem
+    assert [r.decode_json()["message"] for r in log.records] == ["at 0.0", "at 1.0", "at 10.0"]
+
+
+def test_read_logs_refuses_what_is_not_one_run(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="holds no .mcap log"):
+        read_logs([tmp_path])
+    with pytest.raises(RecordingError, match="cannot open log .*nope.mcap"):
+        read_logs([tmp_path / "nope.mcap"])
+    with pytest.raises(RecordingError, match="no log given"):
+        read_logs([])
+    mine = _run_file(tmp_path, 0, [0.0])
+    other = tmp_path / "other.mcap"
+    with Recorder(other, "otherfarm", clock=_clock) as rec:
+        rec.record_log("info", "x", T0)
+    with pytest.raises(RecordingError, match="different farms"):
+        read_logs([mine, other])
+    (tmp_path / "other.mcap").write_bytes(b"junk")
+    with pytest.raises(RecordingError, match=r"other\.mcap is not an MCAP file"):
+        read_logs([tmp_path])
