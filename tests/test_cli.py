@@ -64,3 +64,45 @@ def test_bench_paper_fleet_table(capsys):
     out = capsys.readouterr().out
     assert "| 8 | 4 | GA |" in out and "| 8 | 4 | IGHOA |" in out
     assert "OUR positions" in out
+
+
+def _run_logs(directory, starts_s):
+    """One run in several log files (a dispatcher restarted), one file per start time."""
+    from dispatcher.recording.mcap_file import Recorder
+
+    t0 = 1_704_067_200_000_000_000  # 2024-01-01T00:00:00Z
+    paths = []
+    for start_s in starts_s:
+        start = t0 + start_s * 10**9
+        with Recorder.create_in(directory, "changji", clock=lambda start=start: start) as rec:
+            rec.record_status({"vehicles": {}}, start + 1)
+            rec.record_log("info", f"started at {start_s}", start + 2)
+        paths.append(rec.path)
+    return paths
+
+
+def test_review_reads_several_logs_as_one_run(tmp_path, capsys):
+    first, restarted = _run_logs(tmp_path, [0, 600])
+    assert main(["review", str(restarted), str(first), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["farm_id"], out["complete"]) == ("changji", True)
+    assert out["log_start"] == "2024-01-01 00:00:00 UTC"
+    assert out["log_end"] == "2024-01-01 00:10:00 UTC"  # the second file's end
+    assert out["source"] == f"{first} (+1 more)"
+
+
+def test_review_reads_a_directory_and_names_a_file_cut_short(tmp_path, capsys):
+    _, last = _run_logs(tmp_path, [0, 600])
+    last.write_bytes(last.read_bytes()[:-100])  # the restarted dispatcher was killed
+    (tmp_path / "plan.json").write_text("{}")  # not a log: left out
+    assert main(["review", str(tmp_path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["source"] == str(tmp_path) and out["complete"] is False
+    assert last.name in out["problem"]
+    assert main(["review", str(tmp_path)]) == 0  # the table too
+    assert capsys.readouterr().out.strip()
+
+
+def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):
+    assert main(["review", str(tmp_path)]) == 2
+    assert "holds no .mcap log" in capsys.readouterr().err
