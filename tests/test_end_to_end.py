@@ -229,3 +229,43 @@ def test_router_with_dispatcher_and_vehicles_in_client_mode(procs, tmp_path):
     status = read_log(log_path(out)).on("agrifleet/tiny/dispatcher/status")[-1].decode_json()
     assert {f["status"] for f in status["fields"].values()} == {"done"}
     assert router.poll() is None  # the router outlives its clients
+
+
+def test_a_stalled_vehicle_delays_neither_the_others_nor_the_status(procs, tmp_path):
+    """One simulator frozen (SIGSTOP) with its Zenoh session: the other vehicle keeps
+    progressing and the status keeps answering within a second."""
+    port = free_port()
+    serve(procs, port, tmp_path)
+    frozen = sim(procs, port, 2, "v1")
+    sim(procs, port, 2, "v2")
+    conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
+    session = zenoh.open(conf)
+
+    def ask() -> tuple[dict, float]:
+        t0 = time.monotonic()
+        for reply in session.get(wire.dispatcher_status("tiny"), timeout=5.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_string()), time.monotonic() - t0
+        return {}, time.monotonic() - t0
+
+    try:
+        deadline = time.monotonic() + 60
+        status, _ = ask()
+        while {v["phase"] for v in status.get("vehicles", {}).values()} != {"running"}:
+            assert time.monotonic() < deadline, status
+            time.sleep(0.1)  # the dispatcher's status changes once a second
+            status, _ = ask()
+        frozen.send_signal(signal.SIGSTOP)
+        reached = status["vehicles"]["v2"]["reached"]
+        slowest = 0.0
+        moved = False
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not moved:
+            status, took = ask()
+            slowest = max(slowest, took)
+            moved = status["vehicles"]["v2"]["reached"] > reached + 2
+        assert moved, status["vehicles"]["v2"]
+        assert slowest < 1.0, slowest
+    finally:
+        frozen.send_signal(signal.SIGCONT)
+        session.close()

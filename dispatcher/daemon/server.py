@@ -64,6 +64,38 @@ class DaemonConfig:
     on_progress: Callable[[FleetState], None] | None = None  # called at status_period_s
 
 
+class _VehicleSender:
+    """Frames to one vehicle, put on Zenoh by a thread of their own.
+
+    Publishers use congestion control BLOCK (a frame is never dropped on a full queue), so
+    a put to a vehicle whose link is stalled can block: here it blocks this vehicle's
+    thread only, never the main loop, the other vehicles or the status answers."""
+
+    def __init__(self, vid: str, publisher: Any) -> None:
+        self.vid = vid
+        self.publisher = publisher
+        self.frames: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self.thread = threading.Thread(target=self._run, name=f"send-{vid}", daemon=True)
+        self.thread.start()
+
+    def send(self, frame: bytes) -> None:
+        self.frames.put(frame)
+
+    @property
+    def backlog(self) -> int:
+        return self.frames.qsize()
+
+    def close(self) -> None:
+        self.frames.put(None)
+
+    def _run(self) -> None:
+        while (frame := self.frames.get()) is not None:
+            try:
+                self.publisher.put(frame)
+            except Exception:  # noqa: BLE001 - the session is closing; the rest is dropped
+                log.debug("%s: frame not sent (session closing)", self.vid, exc_info=True)
+
+
 @dataclass
 class _Link:
     """Per-vehicle protocol state: the upload, then the start commands, then parking."""
@@ -97,7 +129,8 @@ class Dispatcher:
         self._next_heartbeat = 0.0
         self._started = time.monotonic()
         self.log_path: Path | None = None
-        self._status_snapshot: dict[str, Any] = {}
+        self._status_json = "{}"  # the last status, serialised in the main loop
+        self.senders: dict[str, _VehicleSender] = {}
         self.upload_started: float | None = None
         self.all_acknowledged: float | None = None
 
@@ -140,6 +173,9 @@ class Dispatcher:
             self.publishers[vid] = s.declare_publisher(
                 wire.vehicle_to(self.farm, vid), congestion_control=zenoh.CongestionControl.BLOCK
             )
+        self.senders = {
+            vid: _VehicleSender(vid, self.publishers[vid]) for vid in self.state.vehicles
+        }
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
         self.recorder.record_plan(
@@ -182,6 +218,12 @@ class Dispatcher:
         """Undeclare, close the session and finish the MCAP file, within the timeout."""
         done = threading.Event()
 
+        for sender in self.senders.values():
+            sender.close()
+        deadline = time.monotonic() + 1.0  # what was queued goes out first, unless stalled
+        for sender in self.senders.values():
+            sender.thread.join(max(deadline - time.monotonic(), 0.0))
+
         def close() -> None:
             try:
                 for entity in self._entities:
@@ -219,7 +261,7 @@ class Dispatcher:
         self.inbox.put((kind, str(sample.key_expr), b"", time.time_ns()))
 
     def _on_query(self, query: zenoh.Query) -> None:
-        query.reply(query.key_expr, json.dumps(self._status_snapshot))
+        query.reply(query.key_expr, self._status_json)  # an immutable string: consistent
 
     # --- main loop -----------------------------------------------------------------------
     def _handle(self, item: tuple[str, str, bytes, int], now: float) -> None:
@@ -410,16 +452,20 @@ class Dispatcher:
 
     def _send(self, vid: str, messages: list[mc.MAVLinkMessage]) -> None:
         key = wire.vehicle_to(self.farm, vid)
+        sender = self.senders.get(vid)
         for msg in messages:
             frame = self.codec.encode(msg)
-            self.publishers[vid].put(frame)
+            if sender is not None:
+                sender.send(frame)
+            else:  # not started (a test driving the daemon by hand): straight out
+                self.publishers[vid].put(frame)
             if self.recorder is not None:
                 self.recorder.record_frame(key, frame, time.time_ns(), mc.as_dict(msg))
 
     def _publish_status(self, now: float) -> None:
         self._last_status = now
         doc = self.state.status_doc()
-        self._status_snapshot = doc
+        self._status_json = json.dumps(doc)
         if self.recorder is not None:
             self.recorder.record_status(doc, time.time_ns())
         if self.config.on_progress is not None:
