@@ -11,15 +11,16 @@ import statistics
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 
 from planner.problem import Machine, Problem, Task
 from planner.solve import Result, solve, stop_after
 from planner.tsplib import read_instance
 
-REPO = Path(__file__).resolve().parents[1]
-TSPLIB_DIR = REPO / "benchmarks" / "tsplib"
-TABLE7_LAYOUT = REPO / "config" / "paper-table7.toml"
+# Installed with agrifleet (benchmarks/tsplib and config/ in a checkout).
+TSPLIB_DIR = Path(str(files("agrifleet_tsplib")))
+TABLE7_LAYOUT = Path(str(files("agrifleet_config") / "paper-table7.toml"))
 
 
 @dataclass(frozen=True)

@@ -106,3 +106,28 @@ def test_review_reads_a_directory_and_names_a_file_cut_short(tmp_path, capsys):
 def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):
     assert main(["review", str(tmp_path)]) == 2
     assert "holds no .mcap log" in capsys.readouterr().err
+
+
+def test_every_package_is_installed_and_the_light_ones_stay_light():
+    """pyproject lists its packages: none left out; a scenario, the link and the simulator
+    load without the solver (numba), as a tractor's companion computer needs."""
+    import subprocess
+    import sys
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(
+        tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    on_disk = {
+        ".".join(p.parent.relative_to(root).parts)
+        for top in ("planner", "dispatcher", "sim_vehicles")
+        for p in (root / top).rglob("__init__.py")
+    }
+    assert on_disk <= listed, on_disk - listed
+    code = (
+        "import sys, sim_vehicles, sim_vehicles.runner, sim_vehicles.mavlink_port, "
+        "dispatcher.config.scenario, dispatcher.link.mission_protocol, dispatcher.tools.bridge; "
+        "assert 'numba' not in sys.modules and 'planner.solve' not in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)

@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
@@ -25,8 +26,8 @@ from dispatcher.mission.plan import DispatchPlan
 
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_SCENARIO = REPO / "config" / "changji.toml"
+# The demo farm ships with agrifleet (config/ in a checkout).
+DEFAULT_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
 
 
