@@ -22,7 +22,6 @@ import json
 import logging
 import math
 import os
-import queue
 import struct
 import threading
 import time
@@ -382,13 +381,74 @@ def _check_time(log_time_ns: int) -> None:
 
 # What the record calls queue for the writer thread: (kind, payload, time.monotonic() when
 # queued). Payloads: _MESSAGES ((topic, encoding, schema name, data), ...), log_time_ns;
-# _METADATA a dict; _FLUSH an Event set when done; _STOP None.
+# _METADATA a dict; _FLUSH and _SYNC an Event set when done; _STOP None.
 _Item = tuple[str, str, str | None, bytes]
 _Entry = tuple[int, Any, float]
 _MESSAGES: Final = 0
 _METADATA: Final = 1
 _FLUSH: Final = 2
-_STOP: Final = 3
+_SYNC: Final = 3
+_STOP: Final = 4
+# The writer takes what is queued this often (or when the queue is half full, or for a
+# flush, drain or finish): a wake-up per record would cost more than the writing.
+_BATCH_INTERVAL_S: Final = 0.05
+
+
+class _WriteQueue:
+    """A bounded FIFO from the record calls to the writer thread. ``put`` waits while it
+    holds ``maxsize`` entries; the writer takes every entry queued at once, and is woken
+    only when it sleeps with nothing to do, when the queue is half full, or when asked."""
+
+    def __init__(self, maxsize: int) -> None:
+        self.maxsize = maxsize
+        self._wake_at = max(maxsize // 2, 1)
+        self._items: list[_Entry] = []
+        lock = threading.Lock()
+        self._has_items = threading.Condition(lock)
+        self._has_room = threading.Condition(lock)
+        self._writer_idle = False  # the writer waits with no timeout: wake it for anything
+
+    def qsize(self) -> int:
+        return len(self._items)
+
+    def try_put(self, entry: _Entry, wake: bool = False) -> bool:
+        """Queue ``entry`` if there is room; False if the queue is full."""
+        with self._has_items:
+            return self._put_locked(entry, wake)
+
+    def put(self, entry: _Entry, timeout: float, wake: bool = False) -> bool:
+        """Queue ``entry``, waiting up to ``timeout`` for room; False if there was none."""
+        with self._has_items:
+            deadline = time.monotonic() + timeout
+            while len(self._items) >= self.maxsize:
+                self._has_items.notify()
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._has_room.wait(remaining)
+            return self._put_locked(entry, wake)
+
+    def _put_locked(self, entry: _Entry, wake: bool) -> bool:
+        items = self._items
+        if len(items) >= self.maxsize:
+            return False
+        items.append(entry)
+        if wake or self._writer_idle or len(items) >= self._wake_at:
+            self._has_items.notify()
+        return True
+
+    def take(self, timeout: float | None) -> list[_Entry]:
+        """Everything queued (oldest first), after waiting up to ``timeout`` (None: until
+        something comes) unless woken earlier; maybe nothing."""
+        with self._has_items:
+            if not self._items or (timeout is not None and len(self._items) < self._wake_at):
+                self._writer_idle = timeout is None
+                self._has_items.wait(timeout)
+                self._writer_idle = False
+            batch, self._items = self._items, []
+            if batch:
+                self._has_room.notify_all()
+            return batch
 
 
 class Recorder:
@@ -450,7 +510,7 @@ class Recorder:
         # Held by callers around check-and-enqueue, so nothing is queued after the stop
         # entry; never taken by the writer thread.
         self._lock = threading.Lock()
-        self._queue: queue.Queue[_Entry] = queue.Queue(maxsize=queue_size)
+        self._queue = _WriteQueue(queue_size)
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None  # what stopped the writer thread
         # Writer thread only: the channel cache (topic -> [channel id, next sequence]).
@@ -535,17 +595,20 @@ class Recorder:
     def flush(self) -> None:
         """Close the chunk being built and hand everything recorded so far to the OS;
         returns when that is done."""
-        done = threading.Event()
-        with self._lock:
-            self._check_open()
-            self._put_locked((_FLUSH, done, time.monotonic()))
-        done.wait()
-        self._raise_if_failed()
+        self._wait_for(_FLUSH)
 
     def drain(self) -> None:
         """Wait until the writer has taken every record so far into the MCAP writer (the
         chunk being built may still be in memory: :meth:`flush` writes it)."""
-        self._queue.join()
+        self._wait_for(_SYNC)
+
+    def _wait_for(self, kind: int) -> None:
+        done = threading.Event()
+        with self._lock:
+            self._check_open()
+            self._put_locked((kind, done, time.monotonic()), wake=True)
+        done.wait()
+        self._raise_if_failed()
 
     def finish(self) -> None:
         """Write every queued record, the summary and index, and close the file (not a
@@ -557,7 +620,7 @@ class Recorder:
             try:
                 if not self._started:
                     self._start_locked()
-                self._put_locked((_STOP, None, time.monotonic()))
+                self._put_locked((_STOP, None, time.monotonic()), wake=True)
             finally:
                 self._finished = True
         try:
@@ -725,13 +788,10 @@ class Recorder:
         self._put_locked((_METADATA, values, time.monotonic()))
         self._metadata.update(values)
 
-    def _put_locked(self, entry: _Entry) -> None:
+    def _put_locked(self, entry: _Entry, wake: bool = False) -> None:
         """Queue ``entry`` for the writer thread; wait for room when the queue is full."""
-        try:
-            self._queue.put_nowait(entry)
+        if self._queue.try_put(entry, wake):
             return
-        except queue.Full:
-            pass
         waited_from = time.monotonic()
         self.blocked_count += 1
         if waited_from - self._last_warning >= _WARNING_INTERVAL_S:
@@ -744,12 +804,8 @@ class Recorder:
                 self.blocked_count,
                 self.blocked_s,
             )
-        while True:
-            try:
-                self._queue.put(entry, timeout=0.5)
-                break
-            except queue.Full:
-                self._raise_if_failed()  # a dead writer would never make room
+        while not self._queue.put(entry, timeout=0.5, wake=wake):
+            self._raise_if_failed()  # a dead writer would never make room
         self.blocked_s += time.monotonic() - waited_from
 
     def _check_open(self) -> None:
@@ -772,45 +828,47 @@ class Recorder:
     def _run(self) -> None:
         """Take entries off the queue and write them; close the chunk and hand it to the
         file when the oldest record not yet handed over is ``max_chunk_age_s`` old."""
-        get, task_done = self._queue.get, self._queue.task_done
         max_age = self._max_chunk_age_s
         due: float | None = None  # when what is held in memory must be in the file
+        timeout: float | None = None
         while True:
-            if due is None:
-                kind, payload, queued_at = get()
-            else:
+            batch = self._queue.take(timeout)
+            for kind, payload, queued_at in batch:
                 try:
-                    kind, payload, queued_at = get(timeout=max(due - time.monotonic(), 0.0))
-                except queue.Empty:
-                    self._flush_file()
-                    due = None
-                    continue
-            try:
-                if kind == _STOP:
-                    return
-                if self._error is not None:
-                    continue  # writing failed: keep taking entries so no caller waits forever
-                if kind == _MESSAGES:
-                    self._add_messages(*payload)
-                elif kind == _METADATA:
-                    self._writer.add_metadata(METADATA_NAME, payload)
-                else:  # _FLUSH
-                    self._writer.flush()
-                    due = None
-                    continue
-                if max_age is not None:
-                    if due is None:
-                        due = queued_at + max_age
-                    if time.monotonic() >= due:
-                        self._flush_file()
+                    if kind == _STOP:
+                        return
+                    if self._error is not None:
+                        continue  # writing failed: keep taking entries so no caller waits
+                    if kind == _MESSAGES:
+                        self._add_messages(*payload)
+                    elif kind == _METADATA:
+                        self._writer.add_metadata(METADATA_NAME, payload)
+                    elif kind == _FLUSH:
+                        self._writer.flush()
                         due = None
-            except BaseException as exc:  # noqa: BLE001 - kept and raised to the callers
-                self._error = exc
-                logger.error("writing log %s failed: %s", self._name(), exc)
-            finally:
-                task_done()
-                if kind == _FLUSH:
-                    payload.set()
+                        continue
+                    else:  # _SYNC
+                        continue
+                    if max_age is not None:
+                        if due is None:
+                            due = queued_at + max_age
+                        if time.monotonic() >= due:
+                            self._flush_file()
+                            due = None
+                except BaseException as exc:  # noqa: BLE001 - kept and raised to the callers
+                    self._error = exc
+                    logger.error("writing log %s failed: %s", self._name(), exc)
+                finally:
+                    if kind in (_FLUSH, _SYNC):
+                        payload.set()
+            now = time.monotonic()
+            if due is not None and now >= due:
+                self._flush_file()
+                due = None
+            # After a batch more may come soon: look again after a while, unwoken.
+            timeout = _BATCH_INTERVAL_S if batch else None
+            if due is not None:
+                timeout = min(timeout or math.inf, max(due - now, 0.0))
 
     def _flush_file(self) -> None:
         try:
