@@ -23,6 +23,7 @@ from typing import Any
 
 import zenoh
 
+from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
@@ -116,7 +117,7 @@ class Dispatcher:
         self.config = config
         self.dispatch = config.dispatch
         self.farm = self.dispatch.scenario.farm_id
-        self.state = FleetState(self.dispatch)
+        self.state = FleetState(self.dispatch.document)
         self.codec = mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID)
         self.should_exit = threading.Event()
         self.inbox: queue.Queue[tuple[str, str, bytes, int]] = queue.Queue()
@@ -272,11 +273,11 @@ class Dispatcher:
             return
         if kind == "alive":
             self._log("info", f"{vid} is alive")
-            self.state.on_alive(vid, now)
+            self._apply(ev.VehicleSeen(vid), now)
             return
         if kind == "gone":
             self._log("warning", f"{vid} dropped its liveliness token")
-            self.state.on_gone(vid, now, "liveliness token dropped")
+            self._apply(ev.VehicleLost(vid, "liveliness token dropped"), now)
             return
         msg = self._record_only(item)
         if msg is None:
@@ -284,7 +285,8 @@ class Dispatcher:
         v = self.state.vehicles[vid]
         if msg.get_srcSystem() != v.system_id:
             return
-        self.state.on_message(vid, msg, now)
+        for event in self.state.on_message(vid, msg, now):
+            self._apply(event, now)
         if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
             self.recorder.record_location(
                 vid, msg.lat / 1e7, msg.lon / 1e7, t_ns, msg.time_boot_ms / 1000.0
@@ -322,7 +324,7 @@ class Dispatcher:
                 and now - v.last_seen > self.config.heartbeat_timeout_s
             ):
                 self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
-                self.state.on_gone(vid, now, "heartbeats stopped")
+                self._apply(ev.VehicleLost(vid, "heartbeats stopped"), now)
             if (
                 v.off_auto_since is not None
                 and now - v.off_auto_since > 5.0
@@ -334,7 +336,7 @@ class Dispatcher:
                 v.error = ""
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
-                self.state.on_gone(vid, now, "never came alive")
+                self._apply(ev.VehicleLost(vid, "never came alive"), now)
         if now - self._last_status >= self.config.status_period_s:
             self._publish_status(now)
 
@@ -348,7 +350,6 @@ class Dispatcher:
         if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
             if not v.ready:
                 return  # still booting: it would refuse the mission (MAV_MISSION_NO_SPACE)
-            v.phase = Phase.UPLOADING
             if self.upload_started is None:
                 self.upload_started = now
             self._upload(v, link, now)
@@ -377,24 +378,24 @@ class Dispatcher:
                     )
                     link.upload_at = now + pause
                     link.upload = None
+                    self._apply(ev.UploadFailed(vid, reason, final=False), now)
                     return
-                v.phase = Phase.FAILED
-                v.error = f"upload failed after {v.upload_attempts} attempts: {reason}"
-                self._log("error", f"{vid}: {v.error}")
+                error = f"upload failed after {v.upload_attempts} attempts: {reason}"
+                self._apply(ev.UploadFailed(vid, error, final=True), now)
+                self._log("error", f"{vid}: {error}")
         elif v.phase is Phase.UPLOADING and link.upload is None and now >= link.upload_at:
             if v.ready:
                 self._upload(v, link, now)
         elif v.phase is Phase.STARTING and link.start is not None:
             if link.start.outcome is Outcome.DONE:
-                v.phase = Phase.RUNNING
-                v.error = ""
+                self._apply(ev.MissionStarted(vid, link.start_item), now)
                 self._log(
                     "info", f"{vid}: armed and in AUTO, mission started at item {link.start_item}"
                 )
             elif link.start.outcome is Outcome.FAILED:
-                v.phase = Phase.FAILED
-                v.error = f"start failed: {v.explain(link.start.reason, link.since - 1.0)}"
-                self._log("error", f"{vid}: {v.error}")
+                error = f"start failed: {v.explain(link.start.reason, link.since - 1.0)}"
+                self._apply(ev.StartFailed(vid, error), now)
+                self._log("error", f"{vid}: {error}")
             elif link.start.last_refusal:
                 waiting = v.explain(link.start.last_refusal, now - TEXT_WINDOW_S)
                 if waiting != v.error:
@@ -406,14 +407,15 @@ class Dispatcher:
             self._send(vid, link.park.start(now))
 
     def _upload(self, v: VehicleState, link: _Link, now: float) -> None:
-        v.upload_attempts += 1
+        self._apply(ev.UploadStarted(v.id, v.upload_attempts + 1), now)
         link.since = now
-        link.upload = MissionUpload(v.mission.to_mavlink(v.system_id), v.system_id)
-        self._log("info", f"{v.id}: uploading {len(v.mission)} mission items")
+        mission = self.dispatch.missions[v.id]
+        link.upload = MissionUpload(mission.to_mavlink(v.system_id), v.system_id)
+        self._log("info", f"{v.id}: uploading {len(mission)} mission items")
         self._send(v.id, link.upload.start(now))
 
     def _start(self, v: VehicleState, link: _Link, now: float) -> None:
-        v.phase = Phase.STARTING
+        self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         link.start = CommandSequence(
             start_mission_commands(link.start_item, in_auto=v.mode == ROVER_MODE_AUTO),
@@ -428,14 +430,13 @@ class Dispatcher:
         upload again first if what it holds is not our mission."""
         v.needs_restart = False
         link.start_item = v.resume_item
-        expected = len(v.mission) - 1  # MISSION_CURRENT.total counts the items after home
+        expected = len(v.items) - 1  # MISSION_CURRENT.total counts the items after home
         if v.mission_total is not None and v.mission_total != expected:
             self._log(
                 "warning",
                 f"{v.id}: rebooted holding {v.mission_total + 1} items, not our "
-                f"{len(v.mission)}; uploading again, then resuming at item {link.start_item}",
+                f"{len(v.items)}; uploading again, then resuming at item {link.start_item}",
             )
-            v.phase = Phase.UPLOADING
             self._upload(v, link, now)
             return
         self._log("warning", f"{v.id}: the autopilot rebooted; resuming at item {link.start_item}")
@@ -470,6 +471,14 @@ class Dispatcher:
             self.recorder.record_status(doc, time.time_ns())
         if self.config.on_progress is not None:
             self.config.on_progress(self.state)
+
+    def _apply(self, event: ev.Event, now: float) -> None:
+        """Every change of the fleet's state goes through here: applied, then recorded."""
+        self.state.apply(event, now)
+        if self.recorder is not None:
+            self.recorder.record_log(
+                "debug", f"event {json.dumps(ev.to_dict(event))}", time.time_ns()
+            )
 
     def _log(self, level: str, text: str) -> None:
         getattr(log, level)(text)

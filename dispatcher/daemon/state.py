@@ -1,9 +1,14 @@
 """The dispatcher's state, kept in one place: every vehicle and every field.
 
-The daemon changes it only through the ``on_*`` methods, each fed one fact from the
-link (a heartbeat, an item reached, a lost token); status JSON, progress lines and the
-end-of-run summary are read from it. Times are simulated (vehicle) seconds where they
-come from the vehicle and wall seconds (``time.monotonic``) for link liveness.
+Knowledge changes only through :meth:`FleetState.apply`, one
+:mod:`~dispatcher.daemon.events` event at a time (a vehicle seen or lost, an upload
+started or failed, a mission started, an item reached, a reboot); the daemon records every
+event, and review replays them from the log with the same method. What the vehicles merely
+report (mode, armed, position, clock, the autopilot's texts) is kept by
+:meth:`FleetState.on_message`, which also turns a report into the events it implies.
+Status JSON, progress lines and the end-of-run summary are read from it. Times are the
+vehicle's run clock (seconds) where they come from the vehicle and wall seconds
+(``time.monotonic``, or log time on replay) for link liveness.
 """
 
 from __future__ import annotations
@@ -14,10 +19,10 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from dispatcher.daemon import events as ev
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import ROVER_MODE_AUTO
-from dispatcher.mission.build import Mission
-from dispatcher.mission.plan import DispatchPlan
+from dispatcher.mission.document import PlanDocument, PlannedItem
 
 
 class Phase(enum.StrEnum):
@@ -48,7 +53,7 @@ TEXT_WINDOW_S = 10.0
 class VehicleState:
     id: str
     system_id: int
-    mission: Mission
+    items: tuple[PlannedItem, ...]  # the mission as planned (plan document)
     planned_s: list[float]  # simulated seconds from the start to reaching each item
     phase: Phase = Phase.WAITING
     reached: int = 0  # highest item seq reached
@@ -86,7 +91,7 @@ class VehicleState:
     @property
     def resume_item(self) -> int:
         """Where the mission goes on: the item after the last one reached (never item 0)."""
-        return min(max(self.reached + 1, 1), len(self.mission) - 1)
+        return min(max(self.reached + 1, 1), len(self.items) - 1)
 
     def problems(self, since: float) -> list[str]:
         """The autopilot's problem texts (STATUSTEXT, WARNING or worse) since ``since``,
@@ -116,10 +121,7 @@ class VehicleState:
 
     @property
     def current_field(self) -> str | None:
-        _, trace = self.mission.item_for_seq(
-            min(max(self.current, self.reached), len(self.mission) - 1)
-        )
-        return trace.field_id
+        return self.items[min(max(self.current, self.reached), len(self.items) - 1)].field_id
 
 
 @dataclass
@@ -133,30 +135,63 @@ class FieldState:
 
 
 class FleetState:
-    def __init__(self, dispatch: DispatchPlan) -> None:
-        self.plan_id = dispatch.plan_id
-        vehicles = {v.id: v for v in dispatch.scenario.vehicles}
+    def __init__(self, document: PlanDocument) -> None:
+        self.plan_id = document.plan_id
         self.vehicles: dict[str, VehicleState] = {}
         self.fields: dict[str, FieldState] = {}
-        for vid, mission in dispatch.missions.items():
-            self.vehicles[vid] = VehicleState(
-                id=vid,
-                system_id=vehicles[vid].system_id,
-                mission=mission,
-                planned_s=planned_times(mission, vehicles[vid].machine.road_speed_kmh),
+        for m in document.machines:
+            self.vehicles[m.id] = VehicleState(
+                id=m.id,
+                system_id=m.system_id,
+                items=m.items,
+                planned_s=planned_times(m.items, m.param("road_speed_kmh")),
             )
-        for route in dispatch.plan.machines:
-            for fid in route.field_ids:
-                self.fields[fid] = FieldState(fid, route.machine.id)
+            for fid in m.fields:
+                self.fields[fid] = FieldState(fid, m.id)
         self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
 
-    # --- facts from the link -------------------------------------------------------------
-    def on_alive(self, vid: str, now: float) -> None:
-        v = self.vehicles[vid]
-        self._back(v, now)
-        if v.phase is Phase.WAITING:
-            v.phase = Phase.ALIVE
-        v.last_seen = now
+    # --- knowledge: events ----------------------------------------------------------------
+    def apply(self, event: ev.Event, now: float) -> None:
+        """Change the state by one event; ``now`` is the wall (or log) time it happened."""
+        v = self.vehicles[event.vehicle]
+        match event:
+            case ev.VehicleSeen():
+                self._back(v, now)
+                if v.phase is Phase.WAITING:
+                    v.phase = Phase.ALIVE
+                v.last_seen = now
+            case ev.VehicleLost(why=why):
+                if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
+                    return
+                v.phase_before_lost = v.phase
+                v.phase = Phase.LOST
+                v.lost_at = now
+                v.error = why
+            case ev.UploadStarted():
+                v.phase = Phase.UPLOADING
+                v.upload_attempts += 1
+            case ev.UploadFailed(reason=reason, final=final):
+                if final:
+                    v.phase = Phase.FAILED
+                    v.error = reason
+            case ev.StartRequested():
+                v.phase = Phase.STARTING
+            case ev.MissionStarted():
+                v.phase = Phase.RUNNING
+                v.error = ""
+            case ev.StartFailed(reason=reason):
+                v.phase = Phase.FAILED
+                v.error = reason
+            case ev.ItemReached(seq=seq, clock_s=clock_s):
+                self._item_reached(v, seq, clock_s)
+            case ev.Rebooted():
+                v.reboots += 1
+                v.system_status = None  # booting: not ready until a heartbeat says so
+                v.mission_total = None  # what it holds now is to be heard again
+                if v.phase in (Phase.RUNNING, Phase.STARTING) or (
+                    v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
+                ):
+                    v.needs_restart = True
 
     def _back(self, v: VehicleState, now: float) -> None:
         """The link to a lost vehicle works again: resume where it was."""
@@ -171,19 +206,53 @@ class FleetState:
         v.phase_before_lost = None
         v.error = ""
 
-    def on_gone(self, vid: str, now: float, why: str) -> None:
-        v = self.vehicles[vid]
-        if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
+    def _item_reached(self, v: VehicleState, seq: int, clock_s: float) -> None:
+        if not 0 <= seq < len(v.items) or v.phase not in (
+            Phase.RUNNING,
+            Phase.STARTING,
+            Phase.LOST,
+        ):
             return
-        v.phase_before_lost = v.phase
-        v.phase = Phase.LOST
-        v.lost_at = now
-        v.error = why
+        for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
+            self._item_done(v, s, clock_s, reported=s == seq)
+        v.reached = max(v.reached, seq)
+        if v.reached == len(v.items) - 1:
+            v.phase = Phase.DONE
+            v.finished_s = clock_s
+            v.finished_at_next_fix = True
 
-    def on_message(self, vid: str, msg: mc.MAVLinkMessage, now: float) -> None:
-        """Telemetry that any phase may bring."""
+    def _item_done(self, v: VehicleState, seq: int, clock_s: float, reported: bool) -> None:
+        """Item ``seq`` is done; ``reported`` when the vehicle said so itself (its time is
+        then exact), not when it is inferred from a later item."""
+        item = v.items[seq]
+        if item.field_id is None or item.field_id not in self.fields:
+            return
+        f = self.fields[item.field_id]
+        if item.role == "transit" and f.status == "pending":
+            # At the field's entry. ArduPilot does not report DO_SET_SERVO/RELAY as
+            # reached, so this is the start unless the implement-down item says better.
+            f.status = "working"
+            f.started_s = clock_s
+        elif item.role == "implement_down" and f.status != "done":
+            f.status = "working"
+            if reported or f.started_s is None:
+                f.started_s = clock_s
+        elif item.role == "swath_end":
+            f.swaths_done += 1
+        elif item.role == "implement_up" and f.status != "done":
+            f.status = "done"
+            f.finished_s = clock_s
+            if f.started_s is None:
+                f.started_s = clock_s
+            v.fields_done.append(f.id)
+
+    # --- reports: what the vehicle says, and the events it implies ------------------------
+    def on_message(self, vid: str, msg: mc.MAVLinkMessage, now: float) -> list[ev.Event]:
+        """Keep what a vehicle reports; return the events it implies (to be applied)."""
         v = self.vehicles[vid]
-        self._back(v, now)
+        out: list[ev.Event] = []
+        if v.phase in (Phase.LOST, Phase.WAITING):
+            out.append(ev.VehicleSeen(vid))
         v.last_seen = now
         kind = msg.get_type()
         if kind == "HEARTBEAT":
@@ -191,10 +260,9 @@ class FleetState:
             v.armed = bool(msg.base_mode & mc.MAV_MODE_FLAG_SAFETY_ARMED)
             status = int(msg.system_status)
             if v.ready and status in (mc.MAV_STATE_UNINIT, mc.MAV_STATE_BOOT):
-                self._rebooted(v)  # booting again (before its clock tells)
-            v.system_status = status
-            if v.phase is Phase.WAITING:
-                v.phase = Phase.ALIVE
+                out.append(ev.Rebooted(vid))  # booting again (before its clock tells)
+            else:
+                v.system_status = status
             if v.needs_restart:
                 v.off_auto_since = None  # expected: the daemon starts it again
             elif v.phase is Phase.RUNNING and (v.mode != ROVER_MODE_AUTO or not v.armed):
@@ -206,14 +274,14 @@ class FleetState:
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0
-            self._clock(v, msg.time_boot_ms / 1000.0)
+            out += self._clock(v, msg.time_boot_ms / 1000.0)
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s
                 v.finished_at_next_fix = False
         elif kind == "SYSTEM_TIME":
             if msg.time_boot_ms > 0:
-                self._clock(v, msg.time_boot_ms / 1000.0)
+                out += self._clock(v, msg.time_boot_ms / 1000.0)
         elif kind == "MISSION_CURRENT":
             v.current = int(msg.seq)
             total = getattr(msg, "total", None)
@@ -223,66 +291,19 @@ class FleetState:
             text = mc.statustext(msg)
             v.texts.append((now, int(msg.severity), text))
         elif kind == "MISSION_ITEM_REACHED":
-            self.on_item_reached(vid, int(msg.seq))
+            out.append(ev.ItemReached(vid, int(msg.seq), v.sim_time_s))
+        return out
 
-    def _clock(self, v: VehicleState, clock_s: float) -> None:
+    def _clock(self, v: VehicleState, clock_s: float) -> list[ev.Event]:
         """The vehicle's clock; a restart is a reboot, and its time carries on from there."""
+        out: list[ev.Event] = []
         if v.boot_clock_s is not None and clock_s < v.boot_clock_s - CLOCK_RESTART_S:
             v.clock_offset_s += v.boot_clock_s - clock_s
             if not v.needs_restart:
-                self._rebooted(v)
+                out.append(ev.Rebooted(v.id))
         v.boot_clock_s = clock_s
         v.sim_time_s = max(v.sim_time_s, clock_s + v.clock_offset_s)
-
-    def _rebooted(self, v: VehicleState) -> None:
-        v.reboots += 1
-        v.system_status = None  # booting: not ready until a heartbeat says so
-        v.mission_total = None  # what it holds now is to be heard again
-        if v.phase in (Phase.RUNNING, Phase.STARTING) or (
-            v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
-        ):
-            v.needs_restart = True
-
-    def on_item_reached(self, vid: str, seq: int) -> None:
-        v = self.vehicles[vid]
-        if not 0 <= seq < len(v.mission) or v.phase not in (
-            Phase.RUNNING,
-            Phase.STARTING,
-            Phase.LOST,
-        ):
-            return
-        for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
-            self._item_done(v, s, reported=s == seq)
-        v.reached = max(v.reached, seq)
-        if v.reached == len(v.mission) - 1:
-            v.phase = Phase.DONE
-            v.finished_s = v.sim_time_s
-            v.finished_at_next_fix = True
-
-    def _item_done(self, v: VehicleState, seq: int, reported: bool = True) -> None:
-        """Item ``seq`` is done; ``reported`` when the vehicle said so itself (its time is
-        then exact), not when it is inferred from a later item."""
-        _, trace = v.mission.item_for_seq(seq)
-        if trace.field_id is None or trace.field_id not in self.fields:
-            return
-        f = self.fields[trace.field_id]
-        if trace.role == "transit" and f.status == "pending":
-            # At the field's entry. ArduPilot does not report DO_SET_SERVO/RELAY as
-            # reached, so this is the start unless the implement-down item says better.
-            f.status = "working"
-            f.started_s = v.sim_time_s
-        elif trace.role == "implement_down" and f.status != "done":
-            f.status = "working"
-            if reported or f.started_s is None:
-                f.started_s = v.sim_time_s
-        elif trace.role == "swath_end":
-            f.swaths_done += 1
-        elif trace.role == "implement_up" and f.status != "done":
-            f.status = "done"
-            f.finished_s = v.sim_time_s
-            if f.started_s is None:
-                f.started_s = v.sim_time_s
-            v.fields_done.append(f.id)
+        return out
 
     # --- reading -------------------------------------------------------------------------
     def finished(self, now: float, lost_grace_s: float) -> bool:
@@ -308,7 +329,7 @@ class FleetState:
                     "mode": v.mode,
                     "armed": v.armed,
                     "reached": v.reached,
-                    "items": len(v.mission),
+                    "items": len(v.items),
                     "current_field": v.current_field,
                     "share_done": round(v.share_done, 4),
                     "eta_s": round(v.eta_s, 1),
@@ -342,21 +363,20 @@ class FleetState:
         }
 
 
-def planned_times(mission: Mission, road_speed_kmh: float) -> list[float]:
+def planned_times(items: tuple[PlannedItem, ...], road_speed_kmh: float) -> list[float]:
     """Simulated seconds to reach each item when driving the mission's straight legs at
     the speeds its DO_CHANGE_SPEED items set (the road speed until the first one)."""
-    speed = road_speed_kmh / 3.6
+    speed = road_speed_kmh / 3.6 if road_speed_kmh > 0 else 1.0
     out = [0.0]
     last: tuple[float, float] | None = None
     t = 0.0
-    for item in mission.items[1:]:
+    for item in items[1:]:
         if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
             speed = float(item.param2)
-        elif item.is_waypoint:
+        elif item.is_nav:
             here = (item.lat, item.lon)
             if last is None:
-                first = mission.items[0]
-                last = (first.lat, first.lon)
+                last = (items[0].lat, items[0].lon)
             t += _metres(last, here) / speed
             last = here
         out.append(t)

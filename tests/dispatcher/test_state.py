@@ -6,6 +6,7 @@ import pytest
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
+from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.plan import dispatch_plan, write_plan_files
@@ -29,6 +30,12 @@ def dispatch():
     return dispatch_plan(scenario, plan)
 
 
+def feed(state, vid, msg, now):
+    """A report from a vehicle, and the events it implies, as the daemon does."""
+    for event in state.on_message(vid, msg, now):
+        state.apply(event, now)
+
+
 def heartbeat(sysid):
     msg = mc.message(
         "HEARTBEAT",
@@ -44,24 +51,24 @@ def heartbeat(sysid):
 
 @pytest.mark.parametrize("phase", [Phase.UPLOADING, Phase.STARTING, Phase.RUNNING])
 def test_a_vehicle_lost_for_a_moment_resumes_its_phase(dispatch, phase):
-    state = FleetState(dispatch)
+    state = FleetState(dispatch.document)
     v = state.vehicles["v1"]
     v.phase = phase
-    state.on_gone("v1", 10.0, "liveliness token dropped")
+    state.apply(ev.VehicleLost("v1", "liveliness token dropped"), 10.0)
     assert v.phase is Phase.LOST
     assert not state.finished(12.0, lost_grace_s=30.0)  # not given up yet
-    state.on_alive("v1", 14.0)
+    state.apply(ev.VehicleSeen("v1"), 14.0)
     assert v.phase is phase and v.lost_s == pytest.approx(4.0) and v.error == ""
-    state.on_gone("v1", 20.0, "heartbeats stopped")
-    state.on_message("v1", heartbeat(11), 21.0)  # frames again: the link is back
+    state.apply(ev.VehicleLost("v1", "heartbeats stopped"), 20.0)
+    feed(state, "v1", heartbeat(11), 21.0)  # frames again: the link is back
     assert v.phase is phase and v.lost_s == pytest.approx(5.0)
 
 
 def test_a_vehicle_lost_for_good_ends_the_run_after_the_grace(dispatch):
-    state = FleetState(dispatch)
+    state = FleetState(dispatch.document)
     state.vehicles["v2"].phase = Phase.DONE
     state.vehicles["v1"].phase = Phase.RUNNING
-    state.on_gone("v1", 100.0, "heartbeats stopped")
+    state.apply(ev.VehicleLost("v1", "heartbeats stopped"), 100.0)
     assert not state.finished(120.0, lost_grace_s=30.0)
     assert state.finished(131.0, lost_grace_s=30.0)
 
@@ -124,8 +131,8 @@ def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
 
     daemon = daemon_for(dispatch)
     for vid, v in daemon.state.vehicles.items():
-        daemon.state.on_alive(vid, 0.0)
-        daemon.state.on_message(vid, heartbeat(v.system_id), 0.0)
+        daemon.state.apply(ev.VehicleSeen(vid), 0.0)
+        feed(daemon.state, vid, heartbeat(v.system_id), 0.0)
     daemon._advance("v1", 0.0)
     first = daemon.links["v1"].upload
     assert daemon.state.vehicles["v1"].phase is Phase.UPLOADING and first is not None
@@ -151,12 +158,12 @@ def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
 def test_a_booting_autopilot_gets_its_mission_once_it_is_ready(dispatch):
     daemon = daemon_for(dispatch)
     for vid, v in daemon.state.vehicles.items():
-        daemon.state.on_alive(vid, 0.0)
-        daemon.state.on_message(vid, booting(v.system_id), 0.0)
+        daemon.state.apply(ev.VehicleSeen(vid), 0.0)
+        feed(daemon.state, vid, booting(v.system_id), 0.0)
     daemon._tick(0.5)
     assert daemon.links["v1"].upload is None
     assert [m.get_type() for m in daemon.publishers["v1"].sent()] == ["HEARTBEAT"]  # the GCS's
-    daemon.state.on_message("v1", heartbeat(11), 1.0)  # STANDBY/ACTIVE: booted
+    feed(daemon.state, "v1", heartbeat(11), 1.0)  # STANDBY/ACTIVE: booted
     daemon._advance("v1", 1.0)
     assert daemon.links["v1"].upload is not None
     assert daemon.publishers["v1"].sent()[-1].get_type() == "MISSION_COUNT"
@@ -177,8 +184,8 @@ def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
     v = daemon.state.vehicles["v1"]
     hold = heartbeat(11)
     hold.custom_mode = 4
-    daemon.state.on_alive("v1", 0.0)
-    daemon.state.on_message("v1", hold, 0.0)
+    daemon.state.apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", hold, 0.0)
     daemon._start(v, daemon.links["v1"], 0.0)
     start = daemon.links["v1"].start
     sent = daemon.publishers["v1"].sent()
@@ -189,7 +196,7 @@ def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
         start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.1)
     start.on_message(ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_FAILED), 0.2)
     text = "Arm: Battery 1 below minimum arming voltage"
-    daemon.state.on_message("v1", statustext(11, text), 0.25)
+    feed(daemon.state, "v1", statustext(11, text), 0.25)
     daemon._advance("v1", 0.3)
     assert text in v.error and "ARM_DISARM refused" in v.error
     assert daemon.state.status_doc()["vehicles"]["v1"]["autopilot_says"] == [text]
@@ -235,12 +242,12 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     daemon.state.vehicles["v2"].phase = Phase.DONE
     running = heartbeat(11)
     running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
-    daemon.state.on_alive("v1", 0.0)
-    daemon.state.on_message("v1", running, 0.0)
+    daemon.state.apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", running, 0.0)
     v.phase = Phase.RUNNING
-    daemon.state.on_message("v1", position(11, 500_000), 1.0)
-    daemon.state.on_item_reached("v1", 7)
-    daemon.state.on_message("v1", position(11, 3_000), 2.0)  # its clock started again
+    feed(daemon.state, "v1", position(11, 500_000), 1.0)
+    daemon.state.apply(ev.ItemReached("v1", 7, v.sim_time_s), 1.5)
+    feed(daemon.state, "v1", position(11, 3_000), 2.0)  # its clock started again
     assert v.needs_restart and v.reboots == 1 and not v.ready
     assert v.sim_time_s >= 500.0  # the run's time does not go back
     daemon._tick(2.1)
@@ -248,11 +255,11 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     assert not commands  # still booting
     manual = heartbeat(11)
     manual.custom_mode = 0  # MANUAL, disarmed: how ArduPilot comes back
-    daemon.state.on_message("v1", manual, 3.0)
+    feed(daemon.state, "v1", manual, 3.0)
     total = mc.message(
-        "MISSION_CURRENT", seq=0, total=len(v.mission) - 1, mission_state=2, mission_mode=0
+        "MISSION_CURRENT", seq=0, total=len(v.items) - 1, mission_state=2, mission_mode=0
     )
-    daemon.state.on_message("v1", total, 3.0)
+    feed(daemon.state, "v1", total, 3.0)
     assert v.off_auto_since is None  # expected, not a failsafe
     daemon._advance("v1", 3.1)
     first = next(m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG")
@@ -278,33 +285,30 @@ def test_a_vehicle_left_in_auto_is_put_in_hold_before_its_next_start(dispatch):
 
 
 def test_a_running_vehicle_out_of_auto_is_flagged_and_given_up_after_the_grace(dispatch):
-    state = FleetState(dispatch)
+    state = FleetState(dispatch.document)
     state.vehicles["v2"].phase = Phase.DONE
     v = state.vehicles["v1"]
     v.phase = Phase.RUNNING
     hold = heartbeat(11)
     hold.custom_mode = 4  # HOLD: a failsafe or the operator stopped it
-    state.on_message("v1", hold, 10.0)
+    feed(state, "v1", hold, 10.0)
     assert v.off_auto_since == 10.0 and not state.finished(20.0, lost_grace_s=30.0)
     assert state.status_doc()["vehicles"]["v1"]["stopped_outside_auto"] is True
     assert state.finished(41.0, lost_grace_s=30.0)
     auto = heartbeat(11)
     auto.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
-    state.on_message("v1", auto, 42.0)  # back in AUTO and armed
+    feed(state, "v1", auto, 42.0)  # back in AUTO and armed
     assert v.off_auto_since is None and not state.finished(43.0, lost_grace_s=30.0)
 
 
 def test_a_field_starts_at_its_entry_when_the_implement_item_is_not_reported(dispatch):
-    state = FleetState(dispatch)
+    state = FleetState(dispatch.document)
     v = state.vehicles["v1"]
     v.phase = Phase.RUNNING
-    mission = v.mission
-    entry = next(s for s, t in enumerate(mission.traces) if t.role == "transit" and t.field_id)
-    first_end = next(s for s, t in enumerate(mission.traces) if t.role == "swath_end")
-    fid = mission.traces[entry].field_id
-    v.sim_time_s = 100.0
-    state.on_item_reached("v1", entry)
+    entry = next(s for s, t in enumerate(v.items) if t.role == "transit" and t.field_id)
+    first_end = next(s for s, t in enumerate(v.items) if t.role == "swath_end")
+    fid = v.items[entry].field_id
+    state.apply(ev.ItemReached("v1", entry, 100.0), 1.0)
     assert state.fields[fid].status == "working" and state.fields[fid].started_s == 100.0
-    v.sim_time_s = 300.0
-    state.on_item_reached("v1", first_end)  # real ArduPilot skips the DO items' reports
+    state.apply(ev.ItemReached("v1", first_end, 300.0), 2.0)  # ArduPilot skips DO items
     assert state.fields[fid].started_s == 100.0  # not moved to the end of the first swath

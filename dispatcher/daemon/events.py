@@ -1,0 +1,122 @@
+"""What changes the dispatcher's knowledge of its fleet, one event at a time.
+
+:meth:`dispatcher.daemon.state.FleetState.apply` is the only code that turns events into
+state; the daemon produces them (from what the vehicles send, from its protocol exchanges
+and from its timers), records them to the run's log and replays them on restart, and
+``agrifleet review`` replays them from the log: the live status and the review cannot
+disagree on when a field was started or finished.
+
+Every event is a frozen dataclass with a ``kind``; :func:`to_dict` / :func:`from_dict`
+give its JSON form (``{"kind": ..., field: value, ...}``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any, ClassVar
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: ClassVar[str] = ""
+    vehicle: str
+
+
+@dataclass(frozen=True)
+class VehicleSeen(Event):
+    """The vehicle is there: its liveliness token, or a message after a loss of link."""
+
+    kind: ClassVar[str] = "vehicle_seen"
+
+
+@dataclass(frozen=True)
+class VehicleLost(Event):
+    """Token gone, heartbeats stopped, or never came alive."""
+
+    kind: ClassVar[str] = "vehicle_lost"
+    why: str
+
+
+@dataclass(frozen=True)
+class UploadStarted(Event):
+    kind: ClassVar[str] = "upload_started"
+    attempt: int
+
+
+@dataclass(frozen=True)
+class UploadFailed(Event):
+    """An upload attempt failed; ``final`` when no attempt is left."""
+
+    kind: ClassVar[str] = "upload_failed"
+    reason: str
+    final: bool
+
+
+@dataclass(frozen=True)
+class StartRequested(Event):
+    """The mission was acknowledged; the start sequence runs from ``item``."""
+
+    kind: ClassVar[str] = "start_requested"
+    item: int
+
+
+@dataclass(frozen=True)
+class MissionStarted(Event):
+    """Armed and in AUTO from ``item``."""
+
+    kind: ClassVar[str] = "mission_started"
+    item: int
+
+
+@dataclass(frozen=True)
+class StartFailed(Event):
+    kind: ClassVar[str] = "start_failed"
+    reason: str
+
+
+@dataclass(frozen=True)
+class ItemReached(Event):
+    """MISSION_ITEM_REACHED ``seq`` at ``clock_s`` on the vehicle's run clock."""
+
+    kind: ClassVar[str] = "item_reached"
+    seq: int
+    clock_s: float
+
+
+@dataclass(frozen=True)
+class Rebooted(Event):
+    """The autopilot restarted (its clock went back, or it reported booting again)."""
+
+    kind: ClassVar[str] = "rebooted"
+
+
+EVENTS: dict[str, type[Event]] = {
+    cls.kind: cls
+    for cls in (
+        VehicleSeen,
+        VehicleLost,
+        UploadStarted,
+        UploadFailed,
+        StartRequested,
+        MissionStarted,
+        StartFailed,
+        ItemReached,
+        Rebooted,
+    )
+}
+
+
+def to_dict(event: Event) -> dict[str, Any]:
+    return {"kind": event.kind, **asdict(event)}
+
+
+def from_dict(doc: Any) -> Event:
+    """An event from its JSON form; ValueError names what is wrong."""
+    if not isinstance(doc, dict) or doc.get("kind") not in EVENTS:
+        raise ValueError(f"not an event: {doc!r:.120}")
+    cls = EVENTS[doc["kind"]]
+    names = [f.name for f in fields(cls)]
+    missing = [n for n in names if n not in doc]
+    if missing:
+        raise ValueError(f"event {doc['kind']!r}: missing {', '.join(missing)}")
+    return cls(**{n: doc[n] for n in names})
