@@ -6,12 +6,15 @@ log lines, all stamped with integer nanoseconds since the Unix epoch (the receiv
 time). Topics and schemas are listed in ``docs/recording.md``; the JSON ones follow
 Foxglove's schemas so the file opens in Foxglove as it is.
 
-The file is written in chunks of at most ``chunk_size`` bytes or ``max_chunk_age_s``
-seconds, each handed to the operating system as soon as it is complete, so a run that
-dies mid-way still leaves a readable file holding everything up to its last finished
-chunk. :func:`read_log` and :func:`open_log` read finished files through the summary
+The record calls queue their messages for a writer thread (a bounded queue: a full one
+makes the caller wait, nothing is dropped), which writes them in chunks and hands each
+chunk to the operating system when it is full or at most ``max_chunk_age_s`` after its
+oldest record: a record is in the file at most ``FLUSH_BOUND_S`` (0.5 s) after it was
+recorded, so a run killed mid-way leaves a readable file holding all but its last half
+second. :func:`read_log` and :func:`open_log` read finished files through the summary
 (seeking reader) and fall back to a streaming read up to the first broken record for
-files cut short, saying so with ``complete=False``.
+files cut short, saying so with ``complete=False``; :func:`read_logs` reads the several
+files of one run (a dispatcher restarted) as one.
 """
 
 from __future__ import annotations
