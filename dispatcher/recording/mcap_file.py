@@ -620,12 +620,15 @@ class Recorder:
         with self._lock:
             if self._finished:
                 return
+            self._finished = True
             try:
                 if not self._started:
                     self._start_locked()
                 self._put_locked((_STOP, None, time.monotonic()), wake=True)
-            finally:
-                self._finished = True
+            except BaseException:
+                if self._file is not None:
+                    self._file.close()
+                raise
         try:
             if self._thread is not None:
                 self._thread.join()

@@ -603,7 +603,7 @@ def test_kill_9_loses_only_the_last_half_second(tmp_path: Path, when: str) -> No
     got = [r.decode_json()["message"] for r in log.records]
     assert got == list(stamps)[: len(got)]  # what is there is a prefix, in order
     old_enough = [m for m, t in stamps.items() if t < kill_ns - FLUSH_BOUND_S * 1e9]
-    assert len(old_enough) >= (100 if when == "mid-run" else 200)
+    assert len(old_enough) >= (80 if when == "mid-run" else 200)
     assert set(old_enough) <= set(got)
     if when == "quiet":
         assert got == list(stamps)
