@@ -118,7 +118,11 @@ class Sitl:
         the bridge connects to SERIAL0."""
         self.workdir.mkdir(parents=True, exist_ok=True)
         extra = self.workdir / "agrifleet-test.parm"
-        extra.write_text("".join(f"{k} {v:g}\n" for k, v in self.params.items()))
+        # The dispatcher's ground-station heartbeat comes once a wall second, that is every
+        # `speedup` seconds of the autopilot's time: the GCS failsafe's timeout (5 s on a
+        # tractor) is stretched by the same factor.
+        params = {"FS_GCS_TIMEOUT": min(5.0 * self.speedup, 120.0), **self.params}
+        extra.write_text("".join(f"{k} {v:g}\n" for k, v in params.items()))
         lat, lon = home or HOME
         args = [
             str(self.binary),
