@@ -50,6 +50,47 @@ TEXT_WINDOW_S = 10.0
 
 
 @dataclass
+class RunClock:
+    """A vehicle's own clock (``time_boot_ms``) made continuous across reboots: the run's
+    clock. When the vehicle's clock goes back by more than CLOCK_RESTART_S the autopilot
+    rebooted; the run's clock carries on from where it was, plus the receive-time gap scaled
+    by how fast the vehicle's clock ran against the receive clock before (its speedup).
+    The daemon (live) and review (from the log) keep a vehicle's time with this one rule."""
+
+    now: float | None = None  # the run's clock, latest (s)
+    _offset: float = 0.0
+    _raw_last: float | None = None
+    _first: tuple[float, float] | None = None  # (run clock, receive time) when first heard
+    _last_wall: float = 0.0
+
+    def update(self, raw_s: float, wall_s: float) -> tuple[float, bool]:
+        """The run time of a report at ``raw_s`` on the vehicle's clock, received at
+        ``wall_s``; and whether the vehicle rebooted before it."""
+        rebooted = False
+        if (
+            self._raw_last is not None
+            and self.now is not None
+            and raw_s < self._raw_last - CLOCK_RESTART_S
+        ):
+            rate = 1.0
+            if (
+                self._first is not None
+                and self._last_wall > self._first[1]
+                and self.now > self._first[0]
+            ):
+                rate = (self.now - self._first[0]) / (self._last_wall - self._first[1])
+            self._offset = self.now - raw_s + max(wall_s - self._last_wall, 0.0) * rate
+            rebooted = True
+        self._raw_last = raw_s
+        t = raw_s + self._offset
+        self.now = t if self.now is None else max(self.now, t)
+        if self._first is None:
+            self._first = (t, wall_s)
+        self._last_wall = wall_s
+        return t, rebooted
+
+
+@dataclass
 class VehicleState:
     id: str
     system_id: int
@@ -76,8 +117,7 @@ class VehicleState:
     error: str = ""
     fields_done: list[str] = field(default_factory=list)
     system_status: int | None = None  # HEARTBEAT.system_status (MAV_STATE)
-    boot_clock_s: float | None = None  # the vehicle's own clock (time_boot_ms), last heard
-    clock_offset_s: float = 0.0  # added to the vehicle's clock so that it never goes back
+    clock: RunClock = field(default_factory=RunClock)  # the vehicle's clock, continuous
     reboots: int = 0
     needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
     mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
@@ -274,14 +314,14 @@ class FleetState:
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0
-            out += self._clock(v, msg.time_boot_ms / 1000.0)
+            out += self._clock(v, msg.time_boot_ms / 1000.0, now)
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s
                 v.finished_at_next_fix = False
         elif kind == "SYSTEM_TIME":
             if msg.time_boot_ms > 0:
-                out += self._clock(v, msg.time_boot_ms / 1000.0)
+                out += self._clock(v, msg.time_boot_ms / 1000.0, now)
         elif kind == "MISSION_CURRENT":
             v.current = int(msg.seq)
             total = getattr(msg, "total", None)
@@ -294,16 +334,11 @@ class FleetState:
             out.append(ev.ItemReached(vid, int(msg.seq), v.sim_time_s))
         return out
 
-    def _clock(self, v: VehicleState, clock_s: float) -> list[ev.Event]:
+    def _clock(self, v: VehicleState, clock_s: float, now: float) -> list[ev.Event]:
         """The vehicle's clock; a restart is a reboot, and its time carries on from there."""
-        out: list[ev.Event] = []
-        if v.boot_clock_s is not None and clock_s < v.boot_clock_s - CLOCK_RESTART_S:
-            v.clock_offset_s += v.boot_clock_s - clock_s
-            if not v.needs_restart:
-                out.append(ev.Rebooted(v.id))
-        v.boot_clock_s = clock_s
-        v.sim_time_s = max(v.sim_time_s, clock_s + v.clock_offset_s)
-        return out
+        t, rebooted = v.clock.update(clock_s, now)
+        v.sim_time_s = max(v.sim_time_s, t)
+        return [ev.Rebooted(v.id)] if rebooted and not v.needs_restart else []
 
     # --- reading -------------------------------------------------------------------------
     def finished(self, now: float, lost_grace_s: float) -> bool:

@@ -32,7 +32,7 @@ from typing import IO, Any, Final
 import numpy as np
 from pyproj import Geod
 
-from dispatcher.daemon.state import CLOCK_RESTART_S as REBOOT_CLOCK_S
+from dispatcher.daemon.state import RunClock
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.document import (
     PlanDocument,
@@ -408,10 +408,7 @@ def _read_events(
     texts: list[tuple[float | None, int, str]] = []
     now: float | None = None
     reboots: list[float] = []
-    offset = 0.0  # added to the vehicle's clock since its last reboot
-    raw_last: float | None = None  # the vehicle's own clock, last heard
-    first: tuple[float, int] | None = None  # (run clock, log ns) when first heard
-    last_ns = 0
+    clock = RunClock()  # the daemon's rule: the same run times live and in review
     pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
 
     def settle(t: float | None) -> None:
@@ -422,22 +419,15 @@ def _read_events(
 
     def run_clock(raw: float, log_ns: int) -> float:
         """The vehicle's clock made continuous across reboots."""
-        nonlocal offset, raw_last, first
-        if raw_last is not None and now is not None and raw < raw_last - REBOOT_CLOCK_S:
-            rate = 1.0
-            if first is not None and log_ns > first[1] and now > first[0]:
-                rate = (now - first[0]) / ((last_ns - first[1]) / 1e9 or 1.0)
-            offset = now - raw + max(log_ns - last_ns, 0) / 1e9 * rate
-            reboots.append(now)
-        raw_last = raw
-        return raw + offset
+        before = clock.now
+        t, rebooted = clock.update(raw, log_ns / 1e9)
+        if rebooted and before is not None:
+            reboots.append(before)
+        return t
 
     def tick(t: float, log_ns: int) -> None:
-        nonlocal now, first, last_ns
+        nonlocal now
         now = t if now is None else max(now, t)
-        if first is None:
-            first = (t, log_ns)
-        last_ns = log_ns
 
     for order, (log_ns, msg) in enumerate(frames):
         kind = msg.get("mavpackettype")
