@@ -162,6 +162,12 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
     assert {fid: f["done"] for fid, f in doc["fields"].items()} == {"A": True, "B": True, "C": True}
     worked = [fid for v in doc["vehicles"] for fid in v["fields_done"]]
     assert sorted(worked) == ["A", "B", "C"]
+    # Review replays the recorded events with the daemon's FleetState.apply: it agrees with
+    # the live status on when every field was started and finished.
+    for fid, live in status["fields"].items():
+        reviewed = doc["fields"][fid]
+        assert reviewed["started_clock_s"] == round(live["started_s"], 1), fid
+        assert reviewed["finished_clock_s"] == round(live["finished_s"], 1), fid
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -473,12 +473,11 @@ class Dispatcher:
             self.config.on_progress(self.state)
 
     def _apply(self, event: ev.Event, now: float) -> None:
-        """Every change of the fleet's state goes through here: applied, then recorded."""
+        """Every change of the fleet's state goes through here: applied, then recorded
+        (review replays the recorded events with the same ``FleetState.apply``)."""
         self.state.apply(event, now)
         if self.recorder is not None:
-            self.recorder.record_log(
-                "debug", f"event {json.dumps(ev.to_dict(event))}", time.time_ns()
-            )
+            self.recorder.record_event(ev.to_dict(event), time.time_ns())
 
     def _log(self, level: str, text: str) -> None:
         getattr(log, level)(text)

@@ -74,6 +74,9 @@ JSON_ENCODING: Final = "json"
 JSONSCHEMA_ENCODING: Final = "jsonschema"
 LOG_TOPIC: Final = "/log"
 PLAN_GEOJSON_TOPIC: Final = "/plan/geojson"
+EVENTS_TOPIC: Final = "/dispatcher/events"
+"""Every change of the fleet state (``dispatcher.daemon.events``), as applied: review
+replays them."""
 # Records longer than this are taken as corruption rather than read into memory.
 _RECORD_SIZE_LIMIT: Final = 256 * 2**20
 
@@ -250,6 +253,15 @@ STATUS_SCHEMA: Final[dict[str, Any]] = {
     "additionalProperties": True,
 }
 
+EVENT_SCHEMA: Final[dict[str, Any]] = {
+    "title": "agrifleet.Event",
+    "description": "A change of the fleet state (dispatcher.daemon.events), as applied",
+    "type": "object",
+    "properties": {"kind": {"type": "string"}, "vehicle": {"type": "string"}},
+    "required": ["kind", "vehicle"],
+    "additionalProperties": True,
+}
+
 SCHEMAS: Final[dict[str, dict[str, Any]]] = {
     s["title"]: s
     for s in (
@@ -259,6 +271,7 @@ SCHEMAS: Final[dict[str, dict[str, Any]]] = {
         MAVLINK_JSON_SCHEMA,
         PLAN_SCHEMA,
         STATUS_SCHEMA,
+        EVENT_SCHEMA,
     )
 }
 
@@ -749,6 +762,13 @@ class Recorder:
                 self._check_open()
                 if self._metadata.get("plan_id") != value:
                     self._add_metadata_locked({"plan_id": value})
+
+    def record_event(self, event: Mapping[str, Any], log_time_ns: int) -> None:
+        """A fleet-state event (its JSON form) on ``EVENTS_TOPIC``; ``log_time_ns`` is when
+        it was applied."""
+        _check_time(log_time_ns)
+        data = _dumps(event, "fleet event")
+        self._write(((EVENTS_TOPIC, JSON_ENCODING, "agrifleet.Event", data),), log_time_ns)
 
     def record_status(self, status_doc: Mapping[str, Any], log_time_ns: int) -> None:
         """A status document on ``agrifleet/<farm>/dispatcher/status``."""

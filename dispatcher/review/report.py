@@ -32,7 +32,8 @@ from typing import IO, Any, Final
 import numpy as np
 from pyproj import Geod
 
-from dispatcher.daemon.state import RunClock
+from dispatcher.daemon import events as ev
+from dispatcher.daemon.state import FleetState, RunClock
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.document import (
     PlanDocument,
@@ -41,7 +42,7 @@ from dispatcher.mission.document import (
     PlannedItem,
     PlannedMachine,
 )
-from dispatcher.recording.mcap_file import LogContents, RecordingError, read_log
+from dispatcher.recording.mcap_file import EVENTS_TOPIC, LogContents, RecordingError, read_log
 from dispatcher.review.track import TrackQuality, track_quality
 from planner.geo import LocalFrame
 
@@ -233,6 +234,7 @@ class _Plan:
     fields: Mapping[str, PlannedField]
     garage: tuple[float, float] | None
     makespan_h: float | None
+    document: PlanDocument | None = None
 
 
 def _is_number(value: object) -> bool:
@@ -255,6 +257,7 @@ def _parse_plan(doc: Any, log_ns: int) -> _Plan | None:
         fields=document.fields,
         garage=(lat, lon) if math.isfinite(lat) and math.isfinite(lon) else None,
         makespan_h=document.makespan_h if document.machines else None,
+        document=document,
     )
 
 
@@ -1114,6 +1117,13 @@ def review_contents(log: LogContents) -> Review:
     if strangers:
         warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
 
+    replayed = _replay_events(log, plan)
+    if replayed is not None:
+        # The dispatcher's own account, replayed with its FleetState.apply: review and the
+        # live status agree on when each field was started and finished.
+        for fid, f in replayed.fields.items():
+            if f.vehicle in results:
+                results[f.vehicle].field_times[fid] = _FieldTimes(f.started_s, f.finished_s)
     fields = _field_reviews(plan, results)
     not_done = [f"{f.id} ({f.vehicle or 'nobody'})" for f in fields if not f.done]
     if not_done:
@@ -1133,6 +1143,26 @@ def review_contents(log: LogContents) -> Review:
         planned_makespan_h=plan.makespan_h,
         warnings=tuple(warnings),
     )
+
+
+def _replay_events(log: LogContents, plan: _Plan) -> FleetState | None:
+    """The fleet state the recorded events of ``plan`` lead to (None: no events recorded,
+    a log from before they were)."""
+    if plan.document is None:
+        return None
+    state = FleetState(plan.document)
+    seen = False
+    for rec in log.on(EVENTS_TOPIC):
+        if rec.log_time_ns < plan.log_ns:
+            continue
+        try:
+            event = ev.from_dict(rec.decode_json())
+            state.apply(event, rec.log_time_ns / 1e9)
+        except (ValueError, KeyError) as exc:
+            logger.warning("a recorded event cannot be replayed: %s", exc)
+            continue
+        seen = True
+    return state if seen else None
 
 
 def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[FieldReview]:
