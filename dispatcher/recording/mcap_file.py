@@ -69,6 +69,7 @@ FLUSH_BOUND_S: Final = 0.5
 DEFAULT_MAX_CHUNK_AGE_S: Final = 0.25
 DEFAULT_QUEUE_SIZE: Final = 4096
 _WARNING_INTERVAL_S: Final = 10.0  # at most one back-pressure warning this often
+_EXIT_TIMEOUT_S: Final = 5.0  # finishing unfinished logs at interpreter exit
 MAVLINK_ENCODING: Final = "mavlink2"
 JSON_ENCODING: Final = "json"
 JSONSCHEMA_ENCODING: Final = "jsonschema"
@@ -934,11 +935,31 @@ _unfinished: weakref.WeakSet[Recorder] = weakref.WeakSet()
 
 @atexit.register
 def _finish_at_exit() -> None:
-    for recorder in list(_unfinished):
-        try:
-            recorder.finish()
-        except Exception as exc:  # noqa: BLE001 - nothing left to raise to at exit
-            logger.error("could not finish log %s at exit: %s", recorder._name(), exc)
+    recorders = list(_unfinished)
+    if not recorders:
+        return
+
+    def finish_all() -> None:
+        for recorder in recorders:
+            try:
+                recorder.finish()
+            except Exception as exc:  # noqa: BLE001 - nothing left to raise to at exit
+                logger.error("could not finish log %s at exit: %s", recorder._name(), exc)
+
+    # A writer stuck on a stalled disk must not hang the exit: give up after a while.
+    finisher = threading.Thread(target=finish_all, name="finish logs at exit", daemon=True)
+    try:
+        finisher.start()
+    except RuntimeError:  # no new threads this late in some Pythons: finish here
+        finish_all()
+        return
+    finisher.join(_EXIT_TIMEOUT_S)
+    if finisher.is_alive():
+        logger.error(
+            "could not finish %s within %.0f s at exit; they hold what was flushed",
+            ", ".join(r._name() for r in recorders),
+            _EXIT_TIMEOUT_S,
+        )
 
 
 class RecorderLogHandler(logging.Handler):

@@ -620,16 +620,19 @@ def test_quiet_record_reaches_the_file_within_the_bound(tmp_path: Path) -> None:
 
 
 class _GatedStream(io.BytesIO):
-    """A stream whose writes wait while ``gate`` is clear (a disk that stalls) and fail
-    once ``fail`` is set (a full disk)."""
+    """A stream whose writes wait while ``gate`` is clear (a disk that stalls; ``stalled``
+    is set then) and fail once ``fail`` is set (a full disk)."""
 
     def __init__(self) -> None:
         super().__init__()
         self.gate = threading.Event()
         self.gate.set()
+        self.stalled = threading.Event()
         self.fail = False
 
     def write(self, data: Any) -> int:
+        if not self.gate.is_set():
+            self.stalled.set()
         self.gate.wait()
         if self.fail:
             raise OSError(28, "No space left on device")
@@ -640,11 +643,13 @@ def test_full_queue_blocks_the_caller_and_drops_nothing(caplog: pytest.LogCaptur
     stream = _GatedStream()
     rec = Recorder(stream, FARM, queue_size=2, max_chunk_age_s=0.0)
     rec.start()
-    stream.gate.clear()  # the writer stalls on its first write
+    stream.gate.clear()
+    rec.record_log("info", "line 0", T0)
+    assert stream.stalled.wait(10)  # the writer is stuck writing line 0's chunk
     done = threading.Event()
 
     def record() -> None:
-        for i in range(50):
+        for i in range(1, 50):
             rec.record_log("info", f"line {i}", T0 + i)
             if i == 20:
                 rec.record_metadata({"halfway": i})
@@ -653,10 +658,12 @@ def test_full_queue_blocks_the_caller_and_drops_nothing(caplog: pytest.LogCaptur
     caller = threading.Thread(target=record)
     with caplog.at_level(logging.WARNING, logger="dispatcher.recording.mcap_file"):
         caller.start()
-        _wait_for(lambda: rec.blocked_count == 1)
-        assert not done.is_set() and caller.is_alive()  # waiting for room, not dropping
-        assert rec._queue.qsize() == 2
-        stream.gate.set()
+        try:
+            _wait_for(lambda: rec.blocked_count == 1)
+            assert not done.is_set() and caller.is_alive()  # waiting for room, not dropping
+            assert rec._queue.qsize() == 2
+        finally:
+            stream.gate.set()
         caller.join(timeout=10)
         assert done.is_set()
         rec.finish()
@@ -682,6 +689,26 @@ def test_writer_failure_is_raised_to_the_callers_never_hangs_them() -> None:
     with pytest.raises(RecordingError, match="No space left"):
         rec.finish()
     assert rec.finished
+
+
+def test_unfinished_recorder_is_finished_at_exit(tmp_path: Path) -> None:
+    path = tmp_path / "forgotten.mcap"
+    program = (
+        "import sys\n"
+        "from dispatcher.recording.mcap_file import Recorder\n"
+        "rec = Recorder(sys.argv[1], 'changji', max_chunk_age_s=None)\n"
+        "rec.start()\n"
+        "for i in range(100):\n"
+        "    rec.record_log('info', f'line {i}', 1_704_067_200_000_000_000 + i)\n"
+    )
+    subprocess.run(
+        [sys.executable, "-c", program, str(path)],
+        check=True,
+        timeout=60,
+        cwd=Path(__file__).parents[2],
+    )
+    log = read_log(path)
+    assert log.complete and len(log.records) == 100
 
 
 def test_flush_writes_the_open_chunk_now(tmp_path: Path) -> None:
