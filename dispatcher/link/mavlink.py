@@ -86,6 +86,20 @@ def message(name: str, **fields: Any) -> MAVLinkMessage:
     return cls(**fields)
 
 
+def peer_heartbeat(mav_type: int) -> MAVLinkMessage:
+    """The HEARTBEAT of a component that is no autopilot (a ground station, a companion
+    computer): its type, no autopilot, active."""
+    return message(
+        "HEARTBEAT",
+        type=mav_type,
+        autopilot=mavlink2.MAV_AUTOPILOT_INVALID,
+        base_mode=0,
+        custom_mode=0,
+        system_status=mavlink2.MAV_STATE_ACTIVE,
+        mavlink_version=3,
+    )
+
+
 def is_message_name(name: str) -> bool:
     """Whether ``name`` is a message of the dialect, e.g. "GLOBAL_POSITION_INT"."""
     return name.isupper() and hasattr(mavlink2, f"MAVLink_{name.lower()}_message")

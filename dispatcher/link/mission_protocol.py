@@ -265,15 +265,7 @@ failsafe (FS_GCS_ENABLE, after FS_GCS_TIMEOUT without one) can stay on."""
 
 def gcs_heartbeat() -> mc.MAVLinkMessage:
     """The HEARTBEAT a ground station sends (MAV_TYPE_GCS, no autopilot)."""
-    return mc.message(
-        "HEARTBEAT",
-        type=mc.MAV_TYPE_GCS,
-        autopilot=mc.MAV_AUTOPILOT_INVALID,
-        base_mode=0,
-        custom_mode=0,
-        system_status=mc.MAV_STATE_ACTIVE,
-        mavlink_version=3,
-    )
+    return mc.peer_heartbeat(mc.MAV_TYPE_GCS)
 
 
 def park_commands() -> list[Command]:

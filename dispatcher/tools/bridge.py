@@ -421,15 +421,7 @@ class _Bridge:
         if self.companion is None or self.link is None or now < self._next_companion_beat:
             return
         self._next_companion_beat = now + COMPANION_HEARTBEAT_PERIOD_S
-        beat = mc.message(
-            "HEARTBEAT",
-            type=mc.MAV_TYPE_ONBOARD_CONTROLLER,
-            autopilot=mc.MAV_AUTOPILOT_INVALID,
-            base_mode=0,
-            custom_mode=0,
-            system_status=mc.MAV_STATE_ACTIVE,
-            mavlink_version=3,
-        )
+        beat = mc.peer_heartbeat(mc.MAV_TYPE_ONBOARD_CONTROLLER)
         try:
             self.link.write(self.companion.encode(beat))
         except mc.LinkDown as exc:
