@@ -20,7 +20,9 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from helpers import messages
 from helpers.mavlink_wire import Wire
+from helpers.messages import from_vehicle
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
@@ -58,18 +60,7 @@ def vehicle_msg(name: str, system: int = SYSTEM, component: int = 1, **fields: o
 
 
 def position(t_ms: int = 0):
-    return vehicle_msg(
-        "GLOBAL_POSITION_INT",
-        time_boot_ms=t_ms,
-        lat=0,
-        lon=0,
-        alt=0,
-        relative_alt=0,
-        vx=0,
-        vy=0,
-        vz=0,
-        hdg=0,
-    )
+    return from_vehicle(messages.position(t_ms), SYSTEM)
 
 
 def mission_current(seq: int):

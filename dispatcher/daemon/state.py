@@ -184,7 +184,7 @@ class FleetState:
                 id=m.id,
                 system_id=m.system_id,
                 items=m.items,
-                planned_s=planned_times(m.items, m.param("road_speed_kmh")),
+                planned_s=m.planned_times() or [],
             )
             for fid in m.fields:
                 self.fields[fid] = FieldState(fid, m.id)
@@ -396,31 +396,3 @@ class FleetState:
                 for f in self.fields.values()
             },
         }
-
-
-def planned_times(items: tuple[PlannedItem, ...], road_speed_kmh: float) -> list[float]:
-    """Simulated seconds to reach each item when driving the mission's straight legs at
-    the speeds its DO_CHANGE_SPEED items set (the road speed until the first one)."""
-    speed = road_speed_kmh / 3.6 if road_speed_kmh > 0 else 1.0
-    out = [0.0]
-    last: tuple[float, float] | None = None
-    t = 0.0
-    for item in items[1:]:
-        if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
-            speed = float(item.param2)
-        elif item.is_nav:
-            here = (item.lat, item.lon)
-            if last is None:
-                last = (items[0].lat, items[0].lon)
-            t += _metres(last, here) / speed
-            last = here
-        out.append(t)
-    return out
-
-
-def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
-    """Equirectangular distance, ample for legs of a farm."""
-    lat = math.radians((a[0] + b[0]) / 2)
-    dy = math.radians(b[0] - a[0]) * 6371008.8
-    dx = math.radians(b[1] - a[1]) * 6371008.8 * math.cos(lat)
-    return math.hypot(dx, dy)

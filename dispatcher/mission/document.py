@@ -27,6 +27,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Final
 
+import numpy as np
+from pyproj import Geod
+
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import mavlink as mc
 
@@ -41,6 +44,9 @@ ITEM_FIELDS: Final = (
     "param1",
     "param2",
 )
+
+
+_GEOD = Geod(ellps="WGS84")
 
 
 class PlanDocumentError(DispatcherError, ValueError):
@@ -109,6 +115,31 @@ class PlannedMachine:
     def param(self, name: str) -> float:
         """A machine parameter (0 when the plan does not give it)."""
         return float(self.params.get(name, 0.0))
+
+    def planned_times(self) -> list[float] | None:
+        """Seconds from setting off to reaching each item, driving the mission's legs
+        (geodesic, WGS84) at the speeds its DO_CHANGE_SPEED items set, the road speed
+        before the first one. None when a leg's speed is not known."""
+        if not self.items:
+            return None
+        nav = [item for item in self.items[1:] if item.is_nav]
+        lats = np.array([self.items[0].lat] + [i.lat for i in nav])
+        lons = np.array([self.items[0].lon] + [i.lon for i in nav])
+        legs = iter(_GEOD.inv(lons[:-1], lats[:-1], lons[1:], lats[1:])[2].tolist())
+        speed = self.param("road_speed_kmh") / 3.6
+        out = [0.0]
+        t = 0.0
+        for item in self.items[1:]:
+            if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
+                speed = item.param2
+            elif item.is_nav:
+                leg = next(legs)
+                if leg > 0:
+                    if speed <= 0:
+                        return None
+                    t += leg / speed
+            out.append(t)
+        return out
 
 
 @dataclass(frozen=True)

@@ -409,7 +409,6 @@ def _read_events(
     reached: list[tuple[int, float | None, int]] = []
     heartbeats: list[int] = []
     texts: list[tuple[float | None, int, str]] = []
-    now: float | None = None
     reboots: list[float] = []
     clock = RunClock()  # the daemon's rule: the same run times live and in review
     pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
@@ -428,16 +427,13 @@ def _read_events(
             reboots.append(before)
         return t
 
-    def tick(t: float, log_ns: int) -> None:
-        nonlocal now
-        now = t if now is None else max(now, t)
-
     for order, (log_ns, msg) in enumerate(frames):
         kind = msg.get("mavpackettype")
         if kind == "GLOBAL_POSITION_INT":
             t_ms, lat_i, lon_i = (_num(msg.get(k)) for k in ("time_boot_ms", "lat", "lon"))
             if t_ms is None or lat_i is None or lon_i is None:
                 continue
+            heard_before = clock.now
             t, lat, lon = run_clock(t_ms / 1000.0, log_ns), lat_i / 1e7, lon_i / 1e7
             valid = _valid_position(lat, lon)
             if pending is not None:
@@ -445,8 +441,7 @@ def _read_events(
                 at_waypoint = (
                     valid and _metres((lat, lon), (item.lat, item.lon)) <= WAYPOINT_MATCH_M
                 )
-                settle(t if at_waypoint or now is None else now)
-            tick(t, log_ns)
+                settle(t if at_waypoint or heard_before is None else heard_before)
             if valid:
                 vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
                 speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
@@ -454,25 +449,25 @@ def _read_events(
         elif kind == "SYSTEM_TIME":
             t_ms = _num(msg.get("time_boot_ms"))
             if t_ms is not None and t_ms > 0:
-                tick(run_clock(t_ms / 1000.0, log_ns), log_ns)
+                run_clock(t_ms / 1000.0, log_ns)
         elif kind == "MISSION_ITEM_REACHED":
             seq = msg.get("seq")
             if not isinstance(seq, int):
                 continue
-            settle(now)
+            settle(clock.now)
             if 0 <= seq < len(items) and items[seq].is_nav:
                 pending = (seq, order)
             else:
-                reached.append((seq, now, order))
+                reached.append((seq, clock.now, order))
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
         elif kind == "STATUSTEXT":
             text = _statustext(msg.get("text"))
             severity = msg.get("severity")
             if text and isinstance(severity, int):
-                texts.append((now, severity, text))
-    settle(now)
-    return _Events(points, reached, heartbeats, now, reboots, texts)
+                texts.append((clock.now, severity, text))
+    settle(clock.now)
+    return _Events(points, reached, heartbeats, clock.now, reboots, texts)
 
 
 def _statustext(value: object) -> str:
@@ -597,47 +592,6 @@ class _FieldTimes:
     finished: float | None
 
 
-def _planned_times(machine: PlannedMachine, uploaded: Mapping[int, float]) -> list[float] | None:
-    """Seconds from setting off to each item, driving the mission's legs at its set
-    speeds: those of the DO_CHANGE_SPEED items uploaded (``uploaded``: seq -> m/s), else
-    the plan's road speed with the implement up and working speed with it down. None if
-    a leg's speed is not known."""
-    road = machine.param("road_speed_kmh") / 3.6
-    work = machine.param("work_speed_kmh") / 3.6
-    out = [0.0]
-    speed = road
-    t = 0.0
-    last: PlannedItem | None = machine.items[0] if machine.items else None
-    for item in machine.items[1:]:
-        if item.role == "speed" and item.seq in uploaded:
-            speed = uploaded[item.seq]
-        elif item.role == "implement_down" and not uploaded:
-            speed = work
-        elif item.role == "implement_up" and not uploaded:
-            speed = road
-        elif item.is_nav and last is not None:
-            d = _metres((last.lat, last.lon), (item.lat, item.lon))
-            if d > 0 and speed <= 0:
-                return None
-            t += d / speed if d > 0 else 0.0
-            last = item
-        out.append(t)
-    return out
-
-
-def _uploaded_speeds(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> dict[int, float]:
-    """The speed (m/s) of each DO_CHANGE_SPEED item sent to the vehicle, by seq."""
-    out: dict[int, float] = {}
-    for _ns, msg in to_vehicle:
-        if msg.get("mavpackettype") not in ("MISSION_ITEM_INT", "MISSION_ITEM"):
-            continue
-        seq, speed = msg.get("seq"), _num(msg.get("param2"))
-        is_speed = msg.get("command") == mc.MAV_CMD_DO_CHANGE_SPEED
-        if is_speed and isinstance(seq, int) and speed is not None and speed > 0:
-            out[seq] = speed
-    return out
-
-
 def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
     """Items that end a move from one swath to the next in the same field (a turn)."""
     out = set()
@@ -710,7 +664,7 @@ def _review_vehicle(
     status: Mapping[str, Any] | None,
     since_ns: int,
     end_ns: int | None,
-    fields: Mapping[str, Sequence[Sequence[float]]] = {},  # noqa: B006 - read only
+    fields: Mapping[str, Sequence[Sequence[float]]],
 ) -> _VehicleResult:
     items = machine.items
     warnings: list[str] = []
@@ -737,10 +691,12 @@ def _review_vehicle(
     times, reported, last, order_of = _item_times(items, events.reached)
     n = len(items)
     complete = n > 1 and last == n - 1
-    uploaded = _uploaded_speeds(frames_to)
     road_ms = machine.param("road_speed_kmh") / 3.6
-    if road_ms <= 0 and uploaded:
-        road_ms = uploaded[min(uploaded)]  # the mission's first speed: the road speed
+    if road_ms <= 0:  # an older plan without the machine's speeds: the mission's first
+        road_ms = next(
+            (i.param2 for i in items if i.command == mc.MAV_CMD_DO_CHANGE_SPEED and i.param2 > 0),
+            0.0,
+        )
 
     # Positions in time order, with the exact waypoints merged in.
     track = sorted(points, key=lambda p: (p.t, p.order))
@@ -841,7 +797,7 @@ def _review_vehicle(
         warnings.append(
             f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
         )
-    planned_s = _planned_times(machine, uploaded) if items else None
+    planned_s = machine.planned_times()
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
     planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())

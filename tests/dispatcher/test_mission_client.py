@@ -1,6 +1,8 @@
 """The ground-station side of the mission protocol against recorded ArduPilot-style
 exchanges: what a Rover sends, in the order it sends it."""
 
+from helpers.messages import command_ack
+
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import (
     Command,
@@ -116,18 +118,6 @@ def test_refusal_and_early_accept_fail_the_upload():
     up.on_message(request(0), 0.1)
     up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.2)
     assert up.outcome is Outcome.FAILED
-
-
-def command_ack(command, result):
-    return mc.message(
-        "COMMAND_ACK",
-        command=command,
-        result=result,
-        progress=0,
-        result_param2=0,
-        target_system=255,
-        target_component=190,
-    )
 
 
 def test_start_sequence_sets_the_item_disarmed_then_arms_then_sets_auto_with_retries():

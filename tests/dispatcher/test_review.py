@@ -162,7 +162,15 @@ def _plan_doc(
                 visits=(),
                 items=tuple(
                     PlannedItem(
-                        it.seq, tr.field_id, tr.swath_index, tr.role, it.x, it.y, it.command
+                        it.seq,
+                        tr.field_id,
+                        tr.swath_index,
+                        tr.role,
+                        it.x,
+                        it.y,
+                        it.command,
+                        it.param1,
+                        it.param2,
                     )
                     for it, tr in zip(mission.items, mission.traces, strict=True)
                 ),

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+from helpers.messages import command_ack, from_vehicle, position
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
@@ -206,34 +207,11 @@ def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
 
 
 def ack(command, result):
-    return mc.Codec(11, 1).decode_one(
-        mc.Codec(11, 1).encode(
-            mc.message(
-                "COMMAND_ACK",
-                command=command,
-                result=result,
-                progress=0,
-                result_param2=0,
-                target_system=255,
-                target_component=190,
-            )
-        )
-    )
+    return from_vehicle(command_ack(command, result), 11)
 
 
-def position(sysid, t_ms):
-    return mc.message(
-        "GLOBAL_POSITION_INT",
-        time_boot_ms=t_ms,
-        lat=440003000,
-        lon=872995000,
-        alt=0,
-        relative_alt=0,
-        vx=0,
-        vy=0,
-        vz=0,
-        hdg=0,
-    )
+def position_of_v1(t_ms):
+    return position(t_ms, 440003000, 872995000)
 
 
 def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(dispatch):
@@ -245,9 +223,9 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     daemon.state.apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", running, 0.0)
     v.phase = Phase.RUNNING
-    feed(daemon.state, "v1", position(11, 500_000), 1.0)
+    feed(daemon.state, "v1", position_of_v1(500_000), 1.0)
     daemon.state.apply(ev.ItemReached("v1", 7, v.sim_time_s), 1.5)
-    feed(daemon.state, "v1", position(11, 3_000), 2.0)  # its clock started again
+    feed(daemon.state, "v1", position_of_v1(3_000), 2.0)  # its clock started again
     assert v.needs_restart and v.reboots == 1 and not v.ready
     assert v.sim_time_s >= 500.0  # the run's time does not go back
     daemon._tick(2.1)

@@ -1,0 +1,42 @@
+"""MAVLink messages the tests need again and again."""
+
+from __future__ import annotations
+
+from dispatcher.link import mavlink as mc
+
+
+def from_vehicle(msg: mc.MAVLinkMessage, system: int, component: int = 1) -> mc.MAVLinkMessage:
+    """``msg`` as if received from (system, component): encoded and decoded again."""
+    codec = mc.Codec(system, component)
+    decoded = codec.decode_one(codec.encode(msg))
+    assert decoded is not None
+    return decoded
+
+
+def command_ack(command: int, result: int) -> mc.MAVLinkMessage:
+    """A vehicle's COMMAND_ACK to the dispatcher (system 255, component 190)."""
+    return mc.message(
+        "COMMAND_ACK",
+        command=command,
+        result=result,
+        progress=0,
+        result_param2=0,
+        target_system=255,
+        target_component=190,
+    )
+
+
+def position(t_ms: int, lat_e7: int = 0, lon_e7: int = 0) -> mc.MAVLinkMessage:
+    """A GLOBAL_POSITION_INT at ``t_ms`` on the vehicle's clock, standing still."""
+    return mc.message(
+        "GLOBAL_POSITION_INT",
+        time_boot_ms=t_ms,
+        lat=lat_e7,
+        lon=lon_e7,
+        alt=0,
+        relative_alt=0,
+        vx=0,
+        vy=0,
+        vz=0,
+        hdg=0,
+    )
