@@ -355,8 +355,6 @@ class Dispatcher:
             self._upload(v, link, now)
         elif v.phase is Phase.UPLOADING and link.upload is not None:
             v.upload_retries = link.upload.stats.retries
-            if link.upload.outcome is Outcome.RUNNING and link.upload_at > now:
-                return
             if link.upload.outcome is Outcome.DONE:
                 self._log("info", f"{vid}: mission acknowledged")
                 if self.all_acknowledged is None and all(

@@ -26,12 +26,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Final, Protocol
+from typing import Final
 
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from dispatcher.mission.document import PlannedItem
 from planner.geo import LocalFrame
 
 LOOP_EXTRA_DEG: Final = 180.0
@@ -41,23 +42,6 @@ OUTSIDE_TOLERANCE_M: Final = 0.1
 (a swath end on the border reads a few centimetres out after projection and rounding)."""
 MIN_STEP_M: Final = 0.5
 """Positions closer than this to the previous one give no heading (GPS jitter)."""
-
-
-class TrackItem(Protocol):
-    """A planned mission item as review knows it."""
-
-    @property
-    def seq(self) -> int: ...
-    @property
-    def field_id(self) -> str | None: ...
-    @property
-    def role(self) -> str: ...
-    @property
-    def lat(self) -> float: ...
-    @property
-    def lon(self) -> float: ...
-    @property
-    def is_nav(self) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -77,7 +61,7 @@ class TrackQuality:
 
 
 def track_quality(
-    items: Sequence[TrackItem],
+    items: Sequence[PlannedItem],
     times: Mapping[int, float],
     track: Sequence[tuple[float, float, float]],
     fields: Mapping[str, Sequence[Sequence[float]]],
@@ -95,7 +79,7 @@ def track_quality(
     )
     points = shapely.points(x, y)
 
-    def local(item: TrackItem) -> tuple[float, float]:
+    def local(item: PlannedItem) -> tuple[float, float]:
         lx, ly = frame.to_local(float(item.lon), float(item.lat))
         return float(lx), float(ly)
 
@@ -163,7 +147,7 @@ LOWER_ROLES: Final = frozenset({"implement_down", "implement_lower"})
 RAISE_ROLES: Final = frozenset({"implement_up", "implement_raise"})
 
 
-def _stretches(items: Sequence[TrackItem]) -> list[tuple[int, int]]:
+def _stretches(items: Sequence[PlannedItem]) -> list[tuple[int, int]]:
     """(seq lowering the implement, seq raising it next) for every working stretch: a
     whole field when turns are not planned, else one swath or headland run each."""
     out = []
@@ -177,12 +161,12 @@ def _stretches(items: Sequence[TrackItem]) -> list[tuple[int, int]]:
     return out
 
 
-def _nav_before(items: Sequence[TrackItem], seq: int) -> int:
+def _nav_before(items: Sequence[PlannedItem], seq: int) -> int:
     """The navigation item before ``seq`` (0, home, when there is none)."""
     return next((s for s in range(seq - 1, -1, -1) if items[s].is_nav), 0)
 
 
-def _nav_between(items: Sequence[TrackItem], down_seq: int, up_seq: int) -> list[int]:
+def _nav_between(items: Sequence[PlannedItem], down_seq: int, up_seq: int) -> list[int]:
     """The working line: the navigation item before ``down_seq`` and those up to
     ``up_seq``."""
     seqs = [_nav_before(items, down_seq)]
@@ -207,13 +191,13 @@ def _heading_change(xs: np.ndarray, ys: np.ndarray) -> float:
 
 
 def _looped(
-    items: Sequence[TrackItem],
+    items: Sequence[PlannedItem],
     after: tuple[int, float],
     before: tuple[int, float],
     t: np.ndarray,
     x: np.ndarray,
     y: np.ndarray,
-    local: Callable[[TrackItem], tuple[float, float]],
+    local: Callable[[PlannedItem], tuple[float, float]],
 ) -> bool:
     """Whether the turn from the stretch ending at ``after`` to the one starting at
     ``before`` was driven with a loop."""
