@@ -52,8 +52,13 @@ def sitl(tmp_path: Path) -> Iterator[Sitl]:
     autopilot.stop()
 
 
-def finished(proc, timeout_s: float = RUN_TIMEOUT_S) -> int:
-    wait_for("the dispatcher to finish", lambda: proc.poll() is not None, timeout_s)
+def finished(proc, procs: Processes, sitl: Sitl, timeout_s: float = RUN_TIMEOUT_S) -> int:
+    wait_for(
+        "the dispatcher to finish",
+        lambda: proc.poll() is not None,
+        timeout_s,
+        lambda: procs.report(sitl),
+    )
     return int(proc.returncode)
 
 
@@ -80,7 +85,7 @@ def test_a_run_started_while_the_autopilot_boots_then_a_second_job_without_a_reb
     serve = procs.serve(SCENARIO, port, tmp_path / "logs1")
     bridge = procs.bridge(SCENARIO, "r1", sitl, port)
     sitl.start(wipe=True)
-    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     first = review_log(log_of(Processes.output(serve)))
     check_worked_once(first)
     (v,) = first.vehicles
@@ -91,7 +96,7 @@ def test_a_run_started_while_the_autopilot_boots_then_a_second_job_without_a_reb
     bridge.wait(15)
     serve = procs.serve(SCENARIO, port, tmp_path / "logs2")
     procs.bridge(SCENARIO, "r1", sitl, port)
-    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     second = review_log(log_of(Processes.output(serve)))
     check_worked_once(second)
     assert sitl.starts == 1 and not second.vehicles[0].reboots
@@ -109,10 +114,17 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
         state: dict = {}
 
         def well_under_way() -> bool:
+            if serve.poll() is not None:
+                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
             state.update(status().get("vehicles", {}).get("r1", {}))
             return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
 
-        wait_for("40 % of the mission", well_under_way, RUN_TIMEOUT_S)
+        wait_for(
+            "40 % of the mission",
+            well_under_way,
+            RUN_TIMEOUT_S,
+            lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
+        )
         # A power cut: the autopilot stops, and restarts on its eeprom where the tractor
         # stands (SITL would put it back in the garage): read where that is once the
         # dispatcher has heard its last position.
@@ -124,7 +136,7 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
         reached = state["reached"]
         sitl.kill()
         sitl.start(home=(state["lat"], state["lon"]), heading=state.get("heading_deg") or 0)
-        assert finished(serve) == 0, Processes.output(serve)[-3000:]
+        assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     path = log_of(Processes.output(serve))
     review = review_log(path)
     check_worked_once(review)
@@ -163,11 +175,16 @@ def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(
             seen.update(status().get("vehicles", {}).get("r1", {}))
             return "ARM_DISARM refused" in seen.get("error", "") and "(autopilot:" in seen["error"]
 
-        wait_for("the refusal and its reason", refused_with_a_reason, 60.0)
+        wait_for(
+            "the refusal and its reason",
+            refused_with_a_reason,
+            60.0,
+            lambda: f"last status of r1: {seen}\n{procs.report(sitl)}",
+        )
     reason = seen["error"].split("(autopilot: ", 1)[1]
     assert "Battery" in reason or "battery" in reason, seen
     sitl.set_param("BATT_ARM_VOLT", 0.0)  # the operator fixes it; the dispatcher asks again
-    assert finished(serve) == 0, Processes.output(serve)[-3000:]
+    assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     path = log_of(Processes.output(serve))
     lines = [r.decode_json()["message"] for r in read_log(path).on(LOG_TOPIC)]
     assert any("refused" in ln and "Battery" in ln for ln in lines), lines

@@ -82,13 +82,21 @@ def free_instance(first: int = 20) -> int:
     raise RuntimeError("no free SITL instance number")
 
 
-def wait_for(what: str, predicate: Callable[[], bool], timeout_s: float) -> None:
+def wait_for(
+    what: str,
+    predicate: Callable[[], bool],
+    timeout_s: float,
+    explain: Callable[[], str] | None = None,
+) -> None:
+    """Poll ``predicate`` until it holds; on time-out fail with ``explain()`` (what the
+    processes said) in the message."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if predicate():
             return
         time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    why = f"\n{explain()}" if explain is not None else ""
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}{why}")
 
 
 @dataclass
@@ -243,6 +251,17 @@ class Processes:
     @staticmethod
     def output(proc: subprocess.Popen[str]) -> str:
         return Path(proc.output_path).read_text()  # type: ignore[attr-defined]
+
+    def report(self, sitl: Sitl | None = None, chars: int = 2500) -> str:
+        """The end of every process's output (and the autopilot's), for a failed test."""
+        parts = []
+        for p in self.procs:
+            state = "running" if p.poll() is None else f"exit {p.returncode}"
+            parts.append(f"--- {p.args[3]} ({state}) ---\n{self.output(p)[-chars:]}")
+        if sitl is not None:
+            for out in sorted(sitl.workdir.glob("sitl-*.out")):
+                parts.append(f"--- {out.name} ---\n{out.read_text(errors='replace')[-chars:]}")
+        return "\n".join(parts)
 
     def stop_all(self) -> None:
         for p in self.procs:
