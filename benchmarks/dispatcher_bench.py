@@ -164,7 +164,7 @@ def bench_upload(repeats: int = 3) -> str:
             port = free_port()
             daemon = Dispatcher(
                 DaemonConfig(
-                    dispatch=dispatch,
+                    job=dispatch.job(),
                     zenoh=wire.dispatcher_options((f"tcp/127.0.0.1:{port}",)),
                     log_dir=folder / "logs",
                     exit_when_done=False,
@@ -237,7 +237,7 @@ def bench_telemetry(vehicles: int = 100, hz: float = 10.0, seconds: float = 60.0
         port = free_port()
         daemon = Dispatcher(
             DaemonConfig(
-                dispatch=dispatch,
+                job=dispatch.job(),
                 zenoh=wire.dispatcher_options((f"tcp/127.0.0.1:{port}",)),
                 log_dir=folder / "logs",
                 exit_when_done=False,

@@ -49,6 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's MISSION_REQUEST",
     )
     p.add_argument(
+        "--gcs-failsafe",
+        type=float,
+        metavar="SECONDS",
+        help="ArduPilot's ground-station failsafe (FS_GCS_ENABLE): HOLD when no ground "
+        "station HEARTBEAT is heard for SECONDS simulated (default off)",
+    )
+    p.add_argument(
         "--mavlink",
         metavar="URL",
         help="serve one --vehicle on this MAVLink socket instead of Zenoh: tcpin:HOST:PORT "
@@ -141,6 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = RoverParams(
             mission_done=args.mission_done,
             upload_request="MISSION_REQUEST_INT" if args.request_int else "MISSION_REQUEST",
+            gcs_failsafe_s=args.gcs_failsafe,
         )
         fail_after = parse_fail_after(args.fail_after)
         unknown = sorted(set(fail_after) - set(ids))

@@ -53,6 +53,11 @@ ArduPilot behaviour followed (sources are ArduPilot files):
 * Mission end (``ModeAuto::exit_mission``): "Mission Complete"; with MIS_DONE_BEHAV = 0
   current Rover stays in AUTO and stops (``start_stop``); Rover 4.0 and earlier switched
   to HOLD. ``RoverParams.mission_done`` picks "stop" (current) or "hold".
+* Ground-station failsafe (``Rover::gcs_failsafe_check``, ``failsafe_trigger``), when
+  ``RoverParams.gcs_failsafe_s`` is set (FS_GCS_ENABLE = 1, FS_GCS_TIMEOUT, FS_ACTION = 2
+  Hold): once a ground station's HEARTBEAT has been heard, an armed vehicle that hears
+  nothing from its system id for that long switches to HOLD ("Failsafe GCS"); it stays
+  there when the ground station is back (which starts it again).
 * Messages addressed to another system or component are ignored.
 """
 
@@ -139,6 +144,7 @@ class RoverParams:
     upload_request: RequestMessage = "MISSION_REQUEST"  # what ArduPilot asks items with
     report_all_items: bool = True  # MISSION_ITEM_REACHED for DO_SET_SERVO/RELAY as well
     status_texts: bool = True  # STATUSTEXT as ArduPilot words them
+    gcs_failsafe_s: float | None = None  # FS_GCS_TIMEOUT with FS_GCS_ENABLE; None: off
 
     def __post_init__(self) -> None:
         if self.initial_mode not in SIMULATED_MODES or self.initial_mode == Mode.AUTO:
@@ -146,6 +152,8 @@ class RoverParams:
             raise ValueError(f"initial_mode must be one of {allowed}, got {self.initial_mode}")
         if self.mission_done not in ("stop", "hold"):
             raise ValueError(f"mission_done must be 'stop' or 'hold', not {self.mission_done!r}")
+        if self.gcs_failsafe_s is not None and not self.gcs_failsafe_s > 0.0:
+            raise ValueError(f"gcs_failsafe_s must be > 0 seconds, got {self.gcs_failsafe_s}")
         if self.upload_request not in ("MISSION_REQUEST", "MISSION_REQUEST_INT"):
             raise ValueError(
                 "upload_request must be MISSION_REQUEST or MISSION_REQUEST_INT, "
@@ -206,6 +214,8 @@ class SimTractor:
         self._rtl_done = False
         self._seen_changes = 0
         self._last_mission_current: tuple[int, int, int, int] | None = None
+        self._gcs_system: int | None = None  # the ground station's system id, once heard
+        self._gcs_heard_at: float | None = None  # sim time it was last heard
         self.servo_pwm: dict[int, int] = {}
         self.relays: dict[int, bool] = {}
 
@@ -269,7 +279,13 @@ class SimTractor:
         runs in wall time; default: ``sim_now``).
         """
         out = self._catch_up(sim_now)
-        if self._failed or not self._addressed_to_me(msg):
+        if self._failed:
+            return out
+        if msg.get_type() == "HEARTBEAT" and int(msg.type) == mc.MAV_TYPE_GCS:
+            self._gcs_system = msg.get_srcSystem()
+        if msg.get_srcSystem() == self._gcs_system:  # any message of it (MAV_GCS_SYSID)
+            self._gcs_heard_at = self._t
+        if not self._addressed_to_me(msg):
             return out
         kind = msg.get_type()
         if kind == "MISSION_SET_CURRENT":  # deprecated; answered with MISSION_CURRENT
@@ -308,7 +324,13 @@ class SimTractor:
         limit = end
         if self.fail_after_s is not None and self.fail_after_s < end:
             limit = max(self._t, self.fail_after_s)
-        out = self._drive_until(limit)
+        out: list[mc.MAVLinkMessage] = []
+        failsafe_at = self._gcs_failsafe_at()
+        if failsafe_at is not None and failsafe_at <= limit:
+            out += self._drive_until(max(self._t, failsafe_at))
+            self._t = max(self._t, failsafe_at)
+            out += self._gcs_failsafe()
+        out += self._drive_until(limit)
         self._t = end
         self._check_breakdown()
         return out
@@ -618,6 +640,22 @@ class SimTractor:
             self._rtl_done = False
         self._note_mission_current(out)
         return True, out
+
+    def _gcs_failsafe_at(self) -> float | None:
+        """When the ground-station failsafe triggers if nothing is heard before (None:
+        off, never heard, not armed, or already holding or returning)."""
+        timeout = self.params.gcs_failsafe_s
+        if timeout is None or self._gcs_heard_at is None or not self._armed:
+            return None
+        if self._mode in (Mode.HOLD, Mode.RTL):
+            return None
+        return self._gcs_heard_at + timeout
+
+    def _gcs_failsafe(self) -> list[mc.MAVLinkMessage]:
+        logger.warning("system %d: no ground station heard: failsafe HOLD", self.system_id)
+        _, out = self._set_mode(Mode.HOLD)
+        text = [_statustext(mc.MAV_SEVERITY_WARNING, "Failsafe GCS")]
+        return (text if self.params.status_texts else []) + out
 
     def _break_down(self) -> None:
         if not self._failed:

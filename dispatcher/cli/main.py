@@ -6,6 +6,7 @@ Each sub-command is one ``cmd_*`` handler; the work itself lives in planner/ and
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -131,18 +132,41 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def plan_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    """Load the scenario with the command line's overrides and plan it."""
+def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The scenario with the command line's overrides (--fields, --machines)."""
     from dispatcher.config.scenario import load_scenario
-    from dispatcher.mission.plan import dispatch_plan
-    from planner.field_plan import plan_farm
-    from planner.solve import stop_after
 
     scenario = load_scenario(args.scenario)
     if args.fields:
         scenario = scenario.with_farm(args.fields)
     if args.machines:
         scenario = scenario.with_machines(args.machines)
+    return scenario
+
+
+def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
+    """What a plan is made from: the scenario and farm files as they are now, the fleet
+    and the options that change the plan. A stored run made from other inputs is not
+    resumed by mistake."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for source in (scenario.source, scenario.farm.source):
+        with contextlib.suppress(OSError):
+            h.update(Path(source).read_bytes())
+    h.update(repr(scenario.vehicles).encode())
+    h.update(repr(scenario.solver).encode())
+    h.update(repr((args.objective, args.time_limit, args.seed)).encode())
+    return h.hexdigest()[:16]
+
+
+def plan_scenario(args: argparse.Namespace, scenario=None):  # type: ignore[no-untyped-def]
+    """Load the scenario with the command line's overrides (unless given) and plan it."""
+    from dispatcher.mission.plan import dispatch_plan
+    from planner.field_plan import plan_farm
+    from planner.solve import stop_after
+
+    scenario = scenario or load_scenario_args(args)
     solver = scenario.solver
     plan = plan_farm(
         scenario.farm,
@@ -191,13 +215,45 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.daemon.store import Store, StoreError, default_data_dir
 
-    dispatch = plan_scenario(args)
-    print_plan_table(dispatch)
-    daemon = Dispatcher(
-        DaemonConfig(dispatch=dispatch, zenoh=wire.zenoh_options(args, True), log_dir=args.log_dir)
-    )
-    code = daemon.run()
+    scenario = load_scenario_args(args)
+    data_dir = args.data_dir or default_data_dir(scenario.farm_id)
+    fingerprint = inputs_fingerprint(scenario, args)
+    store = Store.open(data_dir, scenario.farm_id, args.sync)
+    try:
+        if args.fresh and (abandoned := store.abandon_unfinished()) is not None:
+            print(f"--fresh: run {abandoned} in {store.path} abandoned (kept there as such)")
+        run = store.unfinished_run()
+        if run is not None:
+            if run.fingerprint != fingerprint:
+                raise StoreError(
+                    f"{store.path} holds unfinished run {run.id} (plan {run.job.plan_id}) "
+                    f"made from other inputs: {args.scenario}, its farm or the options changed "
+                    "since. Serve it with the same ones to finish it, or add --fresh to "
+                    "start over"
+                )
+            store.resume_run(run)
+            job = run.job
+            print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
+        else:
+            dispatch = plan_scenario(args, scenario)
+            print_plan_table(dispatch)
+            job = dispatch.job()
+            run_id = store.begin_run(job, fingerprint)
+            print(f"run {run_id} kept in {store.path}")
+        daemon = Dispatcher(
+            DaemonConfig(
+                job=job,
+                zenoh=wire.zenoh_options(args, True),
+                log_dir=args.log_dir,
+                store=store,
+                resume=run,
+            )
+        )
+        code = daemon.run()
+    finally:
+        store.close()
     print(f"log: {daemon.log_path}")
     return code
 
@@ -314,9 +370,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.set_defaults(handler=cmd_plan)
 
-    p = sub.add_parser("serve", help="the dispatcher daemon: plan, upload, follow, record")
+    p = sub.add_parser(
+        "serve",
+        help="the dispatcher daemon: plan (or resume the unfinished run), upload, follow, record",
+    )
     add_plan_arguments(p)
     p.add_argument("--log-dir", type=Path, default=Path("logs"))
+    p.add_argument(
+        "--data-dir",
+        type=Path,
+        help="where the dispatcher keeps its state (an SQLite database) to resume after a "
+        "restart (default $XDG_STATE_HOME/agrifleet/FARM, else ~/.local/state/agrifleet/FARM)",
+    )
+    p.add_argument(
+        "--fresh",
+        action="store_true",
+        help="do not resume the unfinished run of the data directory: plan again",
+    )
+    p.add_argument(
+        "--sync",
+        choices=["full", "normal"],
+        default="full",
+        help="SQLite synchronous mode: full survives a power cut, normal only a crash of "
+        "the dispatcher (docs/restart.md)",
+    )
     wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_serve)
 

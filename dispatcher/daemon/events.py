@@ -12,7 +12,7 @@ give its JSON form (``{"kind": ..., field: value, ...}``).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, fields
 from typing import Any, ClassVar
 
 
@@ -53,6 +53,21 @@ class UploadFailed(Event):
 
 
 @dataclass(frozen=True)
+class UploadAcked(Event):
+    """The vehicle acknowledged the whole mission: what it holds is the plan's."""
+
+    kind: ClassVar[str] = "upload_acked"
+
+
+@dataclass(frozen=True)
+class Resumed(Event):
+    """The dispatcher restarted on its stored state: the vehicle is to be heard again and
+    asked where it is before anything is sent to it."""
+
+    kind: ClassVar[str] = "resumed"
+
+
+@dataclass(frozen=True)
 class StartRequested(Event):
     """The mission was acknowledged; the start sequence runs from ``item``."""
 
@@ -76,11 +91,15 @@ class StartFailed(Event):
 
 @dataclass(frozen=True)
 class ItemReached(Event):
-    """MISSION_ITEM_REACHED ``seq`` at ``clock_s`` on the vehicle's run clock."""
+    """MISSION_ITEM_REACHED ``seq`` at ``clock_s`` on the vehicle's run clock;
+    ``caught_up`` when the vehicle did not say so but its MISSION_CURRENT shows it went
+    past (items it reached while the dispatcher was down; ``clock_s`` is then when that was
+    learnt)."""
 
     kind: ClassVar[str] = "item_reached"
     seq: int
     clock_s: float
+    caught_up: bool = False
 
 
 @dataclass(frozen=True)
@@ -97,6 +116,8 @@ EVENTS: dict[str, type[Event]] = {
         VehicleLost,
         UploadStarted,
         UploadFailed,
+        UploadAcked,
+        Resumed,
         StartRequested,
         MissionStarted,
         StartFailed,
@@ -116,7 +137,8 @@ def from_dict(doc: Any) -> Event:
         raise ValueError(f"not an event: {doc!r:.120}")
     cls = EVENTS[doc["kind"]]
     names = [f.name for f in fields(cls)]
-    missing = [n for n in names if n not in doc]
+    required = [f.name for f in fields(cls) if f.default is MISSING]
+    missing = [n for n in required if n not in doc]
     if missing:
         raise ValueError(f"event {doc['kind']!r}: missing {', '.join(missing)}")
-    return cls(**{n: doc[n] for n in names})
+    return cls(**{n: doc[n] for n in names if n in doc})

@@ -25,6 +25,7 @@ import zenoh
 
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
+from dispatcher.daemon.store import Store, StoredRun
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.link.mission_protocol import (
@@ -39,7 +40,7 @@ from dispatcher.link.mission_protocol import (
     start_mission_commands,
 )
 from dispatcher.link.signals import stop_on_signals
-from dispatcher.mission.plan import DispatchPlan, plan_geojson
+from dispatcher.mission.job import DispatchJob
 from dispatcher.recording.mcap_file import Recorder
 
 log = logging.getLogger(__name__)
@@ -47,11 +48,14 @@ log = logging.getLogger(__name__)
 EXIT_OK = 0
 EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lost)
 EXIT_INTERRUPTED = 130
+RESUME_ASK_S = 5.0
+"""After a restart, how long a booted vehicle has to say which mission it holds
+(MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
 
 
 @dataclass
 class DaemonConfig:
-    dispatch: DispatchPlan
+    job: DispatchJob
     zenoh: wire.ZenohOptions = field(default_factory=wire.dispatcher_options)
     log_dir: Path = Path("logs")
     heartbeat_timeout_s: float = 5.0  # wall seconds without a message: vehicle lost
@@ -63,6 +67,8 @@ class DaemonConfig:
     shutdown_timeout_s: float = 5.0
     exit_when_done: bool = True
     on_progress: Callable[[FleetState], None] | None = None  # called at status_period_s
+    store: Store | None = None  # where events are kept (begun or resumed on ``job``)
+    resume: StoredRun | None = None  # the stored run this one continues
 
 
 class _VehicleSender:
@@ -107,6 +113,7 @@ class _Link:
     upload_at: float = 0.0  # not before (back-off after a failed upload)
     start_item: int = 1  # where the mission starts (or resumes after a reboot)
     since: float = 0.0  # when the current exchange began (for the autopilot's texts)
+    ready_since: float | None = None  # resuming: when it was first heard booted
 
     def exchanges(self) -> tuple[MissionUpload | CommandSequence | None, ...]:
         return (self.upload, self.start, self.park)
@@ -115,9 +122,10 @@ class _Link:
 class Dispatcher:
     def __init__(self, config: DaemonConfig) -> None:
         self.config = config
-        self.dispatch = config.dispatch
-        self.farm = self.dispatch.scenario.farm_id
-        self.state = FleetState(self.dispatch.document)
+        self.job = config.job
+        self.farm = self.job.farm_id
+        self.store = config.store
+        self.state = config.resume.replay() if config.resume else FleetState(self.job.document)
         self.codec = mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID)
         self.should_exit = threading.Event()
         self.inbox: queue.Queue[tuple[str, str, bytes, int]] = queue.Queue()
@@ -151,7 +159,7 @@ class Dispatcher:
         cfg = self.config
         self._started = time.monotonic()
         self.recorder = Recorder.create_in(
-            cfg.log_dir, self.farm, metadata={"plan_id": self.dispatch.plan_id}
+            cfg.log_dir, self.farm, metadata={"plan_id": self.job.plan_id}
         )
         self.log_path = Path(self.recorder.path) if self.recorder.path else None
         log.info("recording to %s", self.log_path)
@@ -179,14 +187,13 @@ class Dispatcher:
         }
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
-        self.recorder.record_plan(
-            self.dispatch.document.to_dict(), plan_geojson(self.dispatch), now_ns
-        )
-        self.publishers["plan"].put(self.dispatch.document.to_json())
+        self.recorder.record_plan(self.job.document.to_dict(), dict(self.job.geojson), now_ns)
+        self.publishers["plan"].put(self.job.document.to_json())
+        if cfg.resume is not None:
+            self._resume_run(cfg.resume)
         self._log(
             "info",
-            f"plan {self.dispatch.plan_id} published; waiting for "
-            f"{len(self.state.vehicles)} vehicles",
+            f"plan {self.job.plan_id} published; waiting for {len(self.state.vehicles)} vehicles",
         )
 
     def main_loop(self) -> int:
@@ -203,6 +210,8 @@ class Dispatcher:
                 except queue.Empty:
                     item = None
             self._tick(now)
+            if self.store is not None:
+                self.store.commit(self.state)
             if (
                 self.config.exit_when_done
                 and self.state.finished(now, self.config.lost_grace_s)
@@ -248,6 +257,10 @@ class Dispatcher:
                 self._record_only(self.inbox.get_nowait())
             except queue.Empty:
                 break
+        if self.store is not None:
+            self.store.commit(self.state)
+            if self.state.all_fields_done():
+                self.store.end_run("done")
         if self.recorder is not None:
             self.recorder.record_status(self.state.status_doc(), time.time_ns())
             self.recorder.finish()
@@ -345,6 +358,12 @@ class Dispatcher:
         uploaded, start again after a reboot, park once done."""
         v = self.state.vehicles[vid]
         link = self.links[vid]
+        if v.resuming:
+            if v.phase is Phase.ALIVE and v.ready and v.mode is not None:
+                link.ready_since = link.ready_since or now
+                if v.mission_total is not None or now - link.ready_since > RESUME_ASK_S:
+                    self._resume(v, link, now)
+            return
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
         if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
@@ -356,6 +375,7 @@ class Dispatcher:
         elif v.phase is Phase.UPLOADING and link.upload is not None:
             v.upload_retries = link.upload.stats.retries
             if link.upload.outcome is Outcome.DONE:
+                self._apply(ev.UploadAcked(vid), now)
                 self._log("info", f"{vid}: mission acknowledged")
                 if self.all_acknowledged is None and all(
                     lk.upload is not None and lk.upload.outcome is Outcome.DONE
@@ -407,7 +427,7 @@ class Dispatcher:
     def _upload(self, v: VehicleState, link: _Link, now: float) -> None:
         self._apply(ev.UploadStarted(v.id, v.upload_attempts + 1), now)
         link.since = now
-        mission = self.dispatch.missions[v.id]
+        mission = self.job.missions[v.id]
         link.upload = MissionUpload(mission.to_mavlink(v.system_id), v.system_id)
         self._log("info", f"{v.id}: uploading {len(mission)} mission items")
         self._send(v.id, link.upload.start(now))
@@ -440,6 +460,48 @@ class Dispatcher:
         self._log("warning", f"{v.id}: the autopilot rebooted; resuming at item {link.start_item}")
         self._start(v, link, now)
 
+    def _resume_run(self, run: StoredRun) -> None:
+        """Continue a stored run: every vehicle not done is to be heard again and asked
+        where it is (:meth:`_resume`) before anything is sent to it."""
+        done = sum(f.status == "done" for f in self.state.fields.values())
+        self._log(
+            "warning",
+            f"resuming run {run.id} of plan {run.job.plan_id} from its {len(run.events)} "
+            f"stored events: {done}/{len(self.state.fields)} fields done; not planning again",
+        )
+        now = time.monotonic()
+        for vid in self.state.vehicles:
+            self._apply(ev.Resumed(vid), now)  # one done is parked again (HOLD, disarm)
+
+    def _resume(self, v: VehicleState, link: _Link, now: float) -> None:
+        """After a restart, the vehicle has told where it is: keep it driving if it drives
+        our mission, catch up with the items it reached meanwhile, go on from there; upload
+        again first when what it holds is not our mission (an upload cut by the crash)."""
+        last = len(v.items) - 1
+        if not (v.acked and v.mission_total == last):
+            held = "no mission it told" if v.mission_total is None else f"{v.mission_total + 1}"
+            link.start_item = v.resume_item
+            self._log(
+                "warning",
+                f"{v.id}: holds {held} items, not our acknowledged {len(v.items)}; uploading "
+                f"again, then going on at item {link.start_item}",
+            )
+            self._upload(v, link, now)
+            return
+        on_vehicle = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
+        if on_vehicle > v.reached:
+            self._log("info", f"{v.id}: reached items {v.reached + 1}..{on_vehicle} meanwhile")
+            self._apply(ev.ItemReached(v.id, on_vehicle, v.sim_time_s, caught_up=True), now)
+        if v.phase is Phase.DONE:
+            self._log("info", f"{v.id}: finished its mission while the dispatcher was down")
+        elif v.driving and v.mission_state in (None, mc.MISSION_STATE_ACTIVE):
+            self._apply(ev.MissionStarted(v.id, v.current), now)
+            self._log("info", f"{v.id}: still driving its mission at item {v.current}; kept")
+        else:
+            link.start_item = v.resume_item
+            self._log("warning", f"{v.id}: stopped; going on at item {link.start_item}")
+            self._start(v, link, now)
+
     def _parking(self) -> bool:
         return any(
             lk.park is not None and lk.park.outcome is Outcome.RUNNING for lk in self.links.values()
@@ -450,6 +512,8 @@ class Dispatcher:
         return all(v.phase is not Phase.WAITING for v in self.state.vehicles.values())
 
     def _send(self, vid: str, messages: list[mc.MAVLinkMessage]) -> None:
+        if messages and self.store is not None:
+            self.store.commit(self.state)  # what a command depends on is kept first
         key = wire.vehicle_to(self.farm, vid)
         sender = self.senders.get(vid)
         for msg in messages:
@@ -474,6 +538,8 @@ class Dispatcher:
         """Every change of the fleet's state goes through here: applied, then recorded
         (review replays the recorded events with the same ``FleetState.apply``)."""
         self.state.apply(event, now)
+        if self.store is not None:
+            self.store.append(event, time.time())
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
 

@@ -121,12 +121,20 @@ class VehicleState:
     reboots: int = 0
     needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
     mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
+    mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
+    acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
+    resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
 
     @property
     def ready(self) -> bool:
         """The autopilot has booted: a mission may be uploaded and started."""
         return self.system_status in READY_STATES
+
+    @property
+    def driving(self) -> bool:
+        """Armed in AUTO: the autopilot is driving a mission."""
+        return self.mode == ROVER_MODE_AUTO and self.armed
 
     @property
     def resume_item(self) -> int:
@@ -210,15 +218,23 @@ class FleetState:
             case ev.UploadStarted():
                 v.phase = Phase.UPLOADING
                 v.upload_attempts += 1
+                v.acked = False
+                v.resuming = False
+            case ev.UploadAcked():
+                v.acked = True
             case ev.UploadFailed(reason=reason, final=final):
                 if final:
                     v.phase = Phase.FAILED
                     v.error = reason
             case ev.StartRequested():
                 v.phase = Phase.STARTING
+                v.resuming = False
             case ev.MissionStarted():
                 v.phase = Phase.RUNNING
+                v.resuming = False
                 v.error = ""
+            case ev.Resumed():
+                self._resumed(v)
             case ev.StartFailed(reason=reason):
                 v.phase = Phase.FAILED
                 v.error = reason
@@ -232,6 +248,21 @@ class FleetState:
                     v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
                 ):
                     v.needs_restart = True
+
+    def _resumed(self, v: VehicleState) -> None:
+        """The dispatcher restarted: what it knew of the link is gone; what was reached
+        stays. A vehicle not done is heard again and asked where it is (the daemon)."""
+        if v.phase is Phase.DONE:
+            return
+        v.phase = Phase.WAITING
+        v.resuming = True
+        v.upload_attempts = 0
+        v.needs_restart = False
+        v.error = ""
+        v.last_seen = v.lost_at = v.off_auto_since = None
+        v.phase_before_lost = None
+        v.mode = v.system_status = v.mission_total = v.mission_state = None
+        v.armed = False
 
     def _back(self, v: VehicleState, now: float) -> None:
         """The link to a lost vehicle works again: resume where it was."""
@@ -247,17 +278,16 @@ class FleetState:
         v.error = ""
 
     def _item_reached(self, v: VehicleState, seq: int, clock_s: float) -> None:
-        if not 0 <= seq < len(v.items) or v.phase not in (
-            Phase.RUNNING,
-            Phase.STARTING,
-            Phase.LOST,
-        ):
+        if not 0 <= seq < len(v.items):
+            return
+        if v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST) and not v.resuming:
             return
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
             self._item_done(v, s, clock_s, reported=s == seq)
         v.reached = max(v.reached, seq)
         if v.reached == len(v.items) - 1:
             v.phase = Phase.DONE
+            v.resuming = False
             v.finished_s = clock_s
             v.finished_at_next_fix = True
 
@@ -327,6 +357,9 @@ class FleetState:
             total = getattr(msg, "total", None)
             if isinstance(total, int) and total != 0xFFFF:
                 v.mission_total = total
+            state = getattr(msg, "mission_state", None)
+            if isinstance(state, int) and state != mc.MISSION_STATE_UNKNOWN:
+                v.mission_state = state
         elif kind == "STATUSTEXT":
             text = mc.statustext(msg)
             v.texts.append((now, int(msg.severity), text))

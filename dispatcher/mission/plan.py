@@ -24,6 +24,7 @@ from dispatcher.mission.document import (
     PlannedVisit,
 )
 from dispatcher.mission.files import write_qgc_plan, write_waypoints
+from dispatcher.mission.job import DispatchJob
 from planner.farm import Farm
 from planner.field_plan import FarmPlan, MachinePlan, Visit
 
@@ -40,6 +41,10 @@ class DispatchPlan:
     @property
     def plan_id(self) -> str:
         return self.document.plan_id
+
+    def job(self) -> DispatchJob:
+        """What the daemon dispatches (and its store keeps): document, missions, GeoJSON."""
+        return DispatchJob(self.document, self.missions, plan_geojson(self))
 
 
 def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:

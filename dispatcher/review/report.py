@@ -69,6 +69,10 @@ STILL_SPEED_MS: Final = 0.1
 """Below this ground speed a vehicle stands still."""
 HEARTBEAT_GAP_S: Final = 5.0
 """Wall seconds without a heartbeat that count as link lost (the daemon's default)."""
+RECORDING_GAP_S: Final = 1.0
+"""Receive-time seconds between two positions (and five times their usual spacing) that
+make a gap in the recording, as while the dispatcher was down: the vehicle's path across
+it is its mission's, from the item it was heading to before to the one after."""
 SLOWER_WARNING: Final = 0.10
 """Warn when a vehicle took this share longer than planned (or drove this much more)."""
 
@@ -326,6 +330,26 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
             doc = _decode(rec.data)
             if doc is not None:
                 of(fix.group(1)).fixes.append((rec.log_time_ns, doc))
+        elif topic == EVENTS_TOPIC:
+            # Items the dispatcher caught up with after a restart (reached while it was
+            # down): reports of the vehicle's, as its MISSION_CURRENT showed them.
+            doc = _decode(rec.data)
+            if (
+                doc is not None
+                and doc.get("kind") == ev.ItemReached.kind
+                and doc.get("caught_up")
+                and isinstance(doc.get("vehicle"), str)
+            ):
+                of(doc["vehicle"]).from_vehicle.append(
+                    (
+                        rec.log_time_ns,
+                        {
+                            "mavpackettype": "MISSION_ITEM_REACHED",
+                            "seq": doc.get("seq"),
+                            "caught_up": True,
+                        },
+                    )
+                )
         elif topic.startswith("agrifleet/") and topic.endswith("/dispatcher/plan"):
             plans.append((rec.log_time_ns, _decode(rec.data)))
         elif topic.startswith("agrifleet/") and topic.endswith("/dispatcher/status"):
@@ -354,6 +378,7 @@ class _Point:
     lon: float
     speed: float | None  # reported ground speed, m/s
     waypoint: bool = False
+    log_ns: int | None = None  # when it was received (positions the vehicle reported)
 
 
 def _valid_position(lat: float, lon: float) -> bool:
@@ -389,6 +414,8 @@ class _Events:
     last_clock_s: float | None
     reboots: list[float]  # run clock (s) where the vehicle's clock started again
     texts: list[tuple[float | None, int, str]]  # STATUSTEXT: (run clock s, severity, text)
+    heading_to: list[tuple[int, int, bool]]  # (file position, nav item seq, from a reach)
+    caught_up: set[int]  # items the dispatcher caught up with after a restart (no position)
 
 
 def _read_events(
@@ -412,6 +439,8 @@ def _read_events(
     reboots: list[float] = []
     clock = RunClock()  # the daemon's rule: the same run times live and in review
     pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
+    heading_to: list[tuple[int, int, bool]] = []
+    caught_up: set[int] = set()
 
     def settle(t: float | None) -> None:
         nonlocal pending
@@ -445,7 +474,7 @@ def _read_events(
             if valid:
                 vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
                 speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
-                points.append(_Point(t, order, lat, lon, speed))
+                points.append(_Point(t, order, lat, lon, speed, log_ns=log_ns))
         elif kind == "SYSTEM_TIME":
             t_ms = _num(msg.get("time_boot_ms"))
             if t_ms is not None and t_ms > 0:
@@ -455,10 +484,24 @@ def _read_events(
             if not isinstance(seq, int):
                 continue
             settle(clock.now)
+            if msg.get("caught_up"):
+                # Caught up after a restart: reached at some time before now (not where
+                # the vehicle is now), heading to the next item since.
+                if 0 <= seq < len(items):
+                    heading_to.append((order, seq + 1, False))
+                    caught_up.add(seq)
+                reached.append((seq, clock.now, order))
+                continue
+            if 0 <= seq < len(items):
+                heading_to.append((order, seq, True))
             if 0 <= seq < len(items) and items[seq].is_nav:
                 pending = (seq, order)
             else:
                 reached.append((seq, clock.now, order))
+        elif kind == "MISSION_CURRENT":
+            seq = msg.get("seq")
+            if isinstance(seq, int) and 0 < seq < len(items):
+                heading_to.append((order, seq, False))
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
         elif kind == "STATUSTEXT":
@@ -467,7 +510,63 @@ def _read_events(
             if text and isinstance(severity, int):
                 texts.append((clock.now, severity, text))
     settle(clock.now)
-    return _Events(points, reached, heartbeats, clock.now, reboots, texts)
+    return _Events(points, reached, heartbeats, clock.now, reboots, texts, heading_to, caught_up)
+
+
+def _across_gaps(
+    track: list[_Point], heading_to: Sequence[tuple[int, int, bool]], items: Sequence[PlannedItem]
+) -> list[_Point]:
+    """``track`` with the mission's waypoints put into each gap of the recording.
+
+    Across a gap (positions RECORDING_GAP_S, and five times their median spacing, or more
+    apart in receive time, as while the dispatcher was down) the vehicle drove its mission:
+    from the item it was heading to before (the last MISSION_CURRENT, or the item after the
+    last one reached) to the one it is heading to after (the first MISSION_CURRENT after,
+    unless it reports reaching an item first: then that one). A straight line would cut
+    every turn in between."""
+    if not heading_to:
+        return track
+    reports = sorted(heading_to)
+    orders = [o for o, _, _ in reports]
+    received = [p.log_ns for p in track if p.log_ns is not None]
+    spacing = float(np.median(np.diff(received))) if len(received) > 2 else 0.0
+    gap_ns = max(RECORDING_GAP_S * 1e9, 5.0 * spacing)
+    out: list[_Point] = []
+    a: _Point | None = None  # the last position the vehicle reported
+    for b in track:
+        if b.log_ns is None:  # a waypoint merged in
+            out.append(b)
+            continue
+        if a is not None and a.log_ns is not None and b.log_ns - a.log_ns >= gap_ns and b.t > a.t:
+            out += _mission_between(a, b, reports, orders, items)
+        out.append(b)
+        a = b
+    return out
+
+
+def _mission_between(
+    a: _Point,
+    b: _Point,
+    reports: Sequence[tuple[int, int, bool]],
+    orders: Sequence[int],
+    items: Sequence[PlannedItem],
+) -> list[_Point]:
+    """The mission's waypoints the vehicle passed between positions ``a`` and ``b``."""
+    k = bisect.bisect_right(orders, a.order)
+    j = bisect.bisect_right(orders, b.order)
+    if k == 0 or j == len(reports):
+        return []
+    _, seq, reached = reports[k - 1]
+    before = seq + 1 if reached else seq  # heading to, at a
+    after = reports[j][1]  # heading to, at b (a reach after b: the item it reached)
+    between = [s for s in range(before, after) if items[s].is_nav]
+    out = []
+    for n, s in enumerate(between, 1):
+        item = items[s]
+        if _valid_position(item.lat, item.lon):
+            t = a.t + (b.t - a.t) * n / (len(between) + 1)
+            out.append(_Point(t, a.order, item.lat, item.lon, None, True))
+    return out
 
 
 def _statustext(value: object) -> str:
@@ -700,11 +799,12 @@ def _review_vehicle(
 
     # Positions in time order, with the exact waypoints merged in.
     track = sorted(points, key=lambda p: (p.t, p.order))
-    for seq in reported:
+    for seq in reported - events.caught_up:
         item = items[seq]
         if item.is_nav and _valid_position(item.lat, item.lon):
             track.append(_Point(times[seq], order_of[seq], item.lat, item.lon, None, True))
     track.sort(key=lambda p: (p.t, p.order))
+    track = _across_gaps(track, events.heading_to, items)
 
     start = _start_time(track, road_ms)
     if start is None and times:
@@ -1025,7 +1125,13 @@ def review_contents(log: LogContents) -> Review:
     for p in plans:
         if p.plan_id is not None and p.plan_id not in plan_ids:
             plan_ids.append(p.plan_id)
-    plan = plans[-1] if plans else None
+    # The last plan, from where it was first recorded: a dispatcher restarted on its stored
+    # run records the same plan again at the start of its new log.
+    first = len(plans) - 1
+    while first > 0 and plans[first - 1].plan_id == plans[first].plan_id:
+        first -= 1
+    plan = plans[first] if plans else None
+    since_ns = plan.log_ns if plan is not None and first > 0 else 0
     if len(plan_ids) > 1 and plan is not None:
         warnings.append(
             f"the log holds {len(plan_ids)} plans ({', '.join(plan_ids)}); "
@@ -1062,7 +1168,7 @@ def review_contents(log: LogContents) -> Review:
             machine,
             t,
             vstatus if isinstance(vstatus, dict) else None,
-            plan.log_ns if len(plans) > 1 else 0,
+            since_ns,
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
         )

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
 from dispatcher.daemon.state import FleetState
+from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
@@ -153,8 +154,14 @@ def run_demo(
         f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}",
         flush=True,
     )
+    # The demo keeps its state beside its logs, and always starts a new run.
+    store = Store.open(log_dir, dispatch.document.farm_id)
+    store.abandon_unfinished()
+    job = dispatch.job()
+    store.begin_run(job, fingerprint="demo")
     config = DaemonConfig(
-        dispatch=dispatch,
+        job=job,
+        store=store,
         zenoh=wire.dispatcher_options((endpoint,)),
         log_dir=log_dir,
         heartbeat_timeout_s=heartbeat_timeout_s,
@@ -184,6 +191,7 @@ def run_demo(
         if children is not None:
             children.stop()
         daemon.shutdown()
+        store.close()
         restore_signals()
     return code, daemon
 

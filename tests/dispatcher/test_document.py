@@ -6,21 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from dispatcher.config.scenario import load_scenario
 from dispatcher.mission.document import PlanDocument, PlanDocumentError
-from dispatcher.mission.plan import dispatch_plan, write_plan_files
-from planner.field_plan import plan_farm
-from planner.solve import stop_after
+from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-
-
-@pytest.fixture(scope="module")
-def dispatch():
-    scenario = load_scenario(DATA / "tiny.toml")
-    machines = [v.machine for v in scenario.vehicles]
-    plan = plan_farm(scenario.farm, machines, "makespan", "ighoa", stop_after(20), seed=1)
-    return dispatch_plan(scenario, plan)
 
 
 def test_round_trip_through_json_is_identical(dispatch, tmp_path):

@@ -10,25 +10,9 @@ from dispatcher.config.scenario import load_scenario
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
-from dispatcher.mission.plan import dispatch_plan, write_plan_files
-from planner.field_plan import plan_farm
-from planner.solve import stop_after
+from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-
-
-@pytest.fixture(scope="module")
-def dispatch():
-    scenario = load_scenario(DATA / "tiny.toml")
-    plan = plan_farm(
-        scenario.farm,
-        [v.machine for v in scenario.vehicles],
-        "makespan",
-        "ighoa",
-        stop_after(20),
-        seed=1,
-    )
-    return dispatch_plan(scenario, plan)
 
 
 def feed(state, vid, msg, now):
@@ -116,7 +100,7 @@ class Pub:
 def daemon_for(dispatch):
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
 
-    daemon = Dispatcher(DaemonConfig(dispatch=dispatch))
+    daemon = Dispatcher(DaemonConfig(job=dispatch.job()))
     daemon.publishers = {vid: Pub() for vid in dispatch.missions}
     return daemon
 
@@ -290,3 +274,112 @@ def test_a_field_starts_at_its_entry_when_the_implement_item_is_not_reported(dis
     assert state.fields[fid].status == "working" and state.fields[fid].started_s == 100.0
     state.apply(ev.ItemReached("v1", first_end, 300.0), 2.0)  # ArduPilot skips DO items
     assert state.fields[fid].started_s == 100.0  # not moved to the end of the first swath
+
+
+def resumed_daemon(dispatch, tmp_path, stored):
+    """A daemon restarted on a store that holds ``stored`` events of the plan's run."""
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.daemon.store import Store
+
+    store = Store.open(tmp_path, "tiny")
+    job = dispatch.job()
+    store.begin_run(job, "x")
+    for event in stored:
+        store.append(event, 0.0)
+    store.commit()
+    run = store.unfinished_run()
+    daemon = Dispatcher(DaemonConfig(job=job, store=store, resume=run))
+    daemon.publishers = {vid: Pub() for vid in dispatch.missions}
+    daemon._resume_run(run)
+    return daemon
+
+
+def running_events(vid, reached):
+    return [
+        ev.VehicleSeen(vid),
+        ev.UploadStarted(vid, 1),
+        ev.UploadAcked(vid),
+        ev.StartRequested(vid, 1),
+        ev.MissionStarted(vid, 1),
+        ev.ItemReached(vid, reached, 100.0),
+    ]
+
+
+def mission_current(sysid, seq, total, state):
+    msg = mc.message("MISSION_CURRENT", seq=seq, total=total, mission_state=state, mission_mode=1)
+    return from_vehicle(msg, sysid)
+
+
+def commands_to(daemon, vid, system):
+    return [
+        (m.command, m.param1)
+        for m in daemon.publishers[vid].sent(system)
+        if m.get_type() == "COMMAND_LONG"
+    ]
+
+
+def test_after_a_restart_nothing_is_sent_before_the_vehicle_says_where_it_is(dispatch, tmp_path):
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    assert v.phase is Phase.WAITING and v.resuming and v.reached == 7 and v.acked
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    daemon._advance("v1", 0.1)
+    assert not commands_to(daemon, "v1", 11) and v.phase is Phase.ALIVE
+
+
+def test_a_vehicle_still_driving_its_mission_is_kept_and_caught_up(dispatch, tmp_path):
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    driving = heartbeat(11)
+    driving.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    feed(daemon.state, "v1", driving, 0.0)
+    feed(daemon.state, "v1", mission_current(11, 12, len(v.items) - 1, 3), 0.0)  # ACTIVE
+    daemon._advance("v1", 0.1)
+    assert v.phase is Phase.RUNNING and not v.resuming
+    assert v.reached == 11  # items 8..11 were reached while the dispatcher was down
+    assert not commands_to(daemon, "v1", 11)  # left as it is
+    kinds = [k for _, k in daemon.store.rows("SELECT vehicle, kind FROM events") if _ == "v1"]
+    assert kinds[-2:] == ["item_reached", "mission_started"]
+
+
+def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp_path):
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    holding = heartbeat(11)
+    holding.custom_mode, holding.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED  # failsafe HOLD
+    feed(daemon.state, "v1", holding, 0.0)
+    feed(daemon.state, "v1", mission_current(11, 9, len(v.items) - 1, 2), 0.0)
+    daemon._advance("v1", 0.1)
+    assert v.phase is Phase.STARTING and v.reached == 8
+    assert commands_to(daemon, "v1", 11)[0] == (mc.MAV_CMD_DO_SET_MISSION_CURRENT, 9.0)
+
+
+def test_a_vehicle_that_finished_meanwhile_is_done_and_parked(dispatch, tmp_path):
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", heartbeat(11), 0.0)
+    last = len(v.items) - 1
+    feed(daemon.state, "v1", mission_current(11, last, last, 5), 0.0)  # COMPLETE
+    daemon._advance("v1", 0.1)
+    assert v.phase is Phase.DONE and sorted(v.fields_done) == sorted(
+        dispatch.document.machine("v1").fields
+    )
+    daemon._advance("v1", 0.2)
+    assert commands_to(daemon, "v1", 11)[0][0] == mc.MAV_CMD_DO_SET_MODE  # HOLD, then disarm
+
+
+@pytest.mark.parametrize("total_offset", [0, -3])
+def test_an_upload_cut_by_the_crash_is_made_again_before_going_on(dispatch, tmp_path, total_offset):
+    stored = running_events("v1", 7)[:2]  # upload started, never acknowledged
+    daemon = resumed_daemon(dispatch, tmp_path, stored)
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", mission_current(11, 0, len(v.items) - 1 + total_offset, 2), 0.0)
+    daemon._advance("v1", 0.1)
+    assert v.phase is Phase.UPLOADING
+    sent = [m.get_type() for m in daemon.publishers["v1"].sent(11)]
+    assert "MISSION_COUNT" in sent

@@ -395,3 +395,32 @@ def test_params_are_checked() -> None:
         RoverParams(initial_mode=Mode.AUTO)
     with pytest.raises(ValueError, match="mission_done"):
         RoverParams(mission_done="loiter")  # type: ignore[arg-type]
+
+
+def test_the_ground_station_failsafe_holds_where_the_heartbeats_stopped(
+    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire
+) -> None:
+    tractor = SimTractor(vehicle, home_lonlat, params=RoverParams(gcs_failsafe_s=5.0))
+    gcs_beat = mc.peer_heartbeat(mc.MAV_TYPE_GCS)
+    upload(tractor, wire, mission)
+    arm_and_start(tractor, wire)
+    tractor.advance(20.0)  # no ground station heard yet: no failsafe
+    assert tractor.mode == Mode.AUTO
+    for _ in range(10):  # heard every 4 s: driving on
+        send(tractor, wire, gcs_beat)
+        tractor.advance(4.0)
+    assert tractor.mode == Mode.AUTO
+    send(tractor, wire, gcs_beat)
+    heard_at, seq = tractor.sim_time, tractor.current_seq
+    events = wire.down(tractor.advance(60.0))
+    assert tractor.mode == Mode.HOLD and tractor.armed
+    assert any(m.get_type() == "STATUSTEXT" and "Failsafe" in m.text for m in events)
+    lat, lon = tractor.lat, tractor.lon
+    tractor.advance(100.0)  # it stands where the failsafe stopped it, 5 s after the last
+    assert (tractor.lat, tractor.lon) == (lat, lon)
+    send(tractor, wire, gcs_beat)  # the ground station is back: it stays in HOLD
+    tractor.advance(10.0)
+    assert tractor.mode == Mode.HOLD and tractor.current_seq >= seq
+    assert heard_at + 5.0 <= tractor.sim_time
+    with pytest.raises(ValueError, match="gcs_failsafe_s"):
+        RoverParams(gcs_failsafe_s=0.0)

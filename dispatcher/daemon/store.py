@@ -1,0 +1,371 @@
+"""The dispatcher's memory across restarts: one SQLite database in its data directory.
+
+It holds every run the dispatcher made on this farm: the job it dispatched (plan document,
+missions as uploaded, GeoJSON), every event of :mod:`dispatcher.daemon.events` in the order
+applied, and the current state of each vehicle and field (for a reader with ``sqlite3``; a
+restart rebuilds the state by replaying the events through the same
+:meth:`FleetState.apply <dispatcher.daemon.state.FleetState.apply>`). A run stays
+*unfinished* until every field is done; ``agrifleet serve`` on a data directory with an
+unfinished run resumes it instead of planning again (``--fresh`` abandons it, kept in the
+database as such).
+
+Durability. The database is in WAL mode. The daemon commits the events before it sends any
+command that depends on them, and at the end of each turn of its loop. ``synchronous=FULL``
+(the default) makes a commit survive a power cut, at the price of an fsync per commit, that
+is at most one per loop turn (tens a second with a busy fleet; ``make bench`` measures it).
+``normal`` skips that fsync: a commit still survives a crash of the dispatcher (the WAL is
+written before the commit returns), but a power cut may lose the last commits. That is safe
+for what we keep, because the vehicles are the other half of the truth: a restarted
+dispatcher asks each vehicle which item it is on and catches up with what it missed. Pick it
+for a gateway whose storage makes fsync slow (SD cards).
+
+Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``application_id`` =
+:data:`APPLICATION_ID`)::
+
+    meta(key, value)                 farm_id, created
+    runs(id, plan_id, farm_id, fingerprint, started, ended, outcome,
+         document, geojson)          outcome NULL while unfinished
+    missions(run, vehicle, items)    items: JSON arrays (dispatcher.mission.job)
+    events(id, run, wall, vehicle, kind, body)
+    vehicles(run, vehicle, phase, reached, items, reboots, error, updated)
+    fields(run, field, vehicle, status, started_s, finished_s, swaths_done)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sqlite3
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dispatcher.config.errors import DispatcherError
+from dispatcher.daemon import events as ev
+from dispatcher.daemon.state import FleetState
+from dispatcher.mission.document import PlanDocument, PlanDocumentError
+from dispatcher.mission.job import DispatchJob
+
+SCHEMA_VERSION = 1
+APPLICATION_ID = 0x41475246  # "AGRF"
+DB_NAME = "agrifleet.sqlite3"
+SYNC_MODES = ("full", "normal")
+
+_SCHEMA = """
+CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE runs(
+    id INTEGER PRIMARY KEY,
+    plan_id TEXT NOT NULL,
+    farm_id TEXT NOT NULL,
+    fingerprint TEXT NOT NULL,
+    started REAL NOT NULL,
+    ended REAL,
+    outcome TEXT,
+    document TEXT NOT NULL,
+    geojson TEXT NOT NULL
+);
+CREATE TABLE missions(
+    run INTEGER NOT NULL REFERENCES runs(id),
+    vehicle TEXT NOT NULL,
+    items TEXT NOT NULL,
+    PRIMARY KEY(run, vehicle)
+);
+CREATE TABLE events(
+    id INTEGER PRIMARY KEY,
+    run INTEGER NOT NULL REFERENCES runs(id),
+    wall REAL NOT NULL,
+    vehicle TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    body TEXT NOT NULL
+);
+CREATE INDEX events_by_run ON events(run, id);
+CREATE TABLE vehicles(
+    run INTEGER NOT NULL REFERENCES runs(id),
+    vehicle TEXT NOT NULL,
+    phase TEXT NOT NULL,
+    reached INTEGER NOT NULL,
+    items INTEGER NOT NULL,
+    reboots INTEGER NOT NULL,
+    error TEXT NOT NULL,
+    updated REAL NOT NULL,
+    PRIMARY KEY(run, vehicle)
+);
+CREATE TABLE fields(
+    run INTEGER NOT NULL REFERENCES runs(id),
+    field TEXT NOT NULL,
+    vehicle TEXT NOT NULL,
+    status TEXT NOT NULL,
+    started_s REAL,
+    finished_s REAL,
+    swaths_done INTEGER NOT NULL,
+    PRIMARY KEY(run, field)
+);
+"""
+
+
+class StoreError(DispatcherError):
+    """The data directory's database cannot be used for this farm or run; the message says
+    which file and why, and what to do."""
+
+
+def _quote(text: str) -> str:
+    """An SQL string literal."""
+    return "'" + text.replace("'", "''") + "'"
+
+
+def default_data_dir(farm_id: str) -> Path:
+    """``$XDG_STATE_HOME/agrifleet/FARM`` (``~/.local/state/agrifleet/FARM`` without it)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "agrifleet" / farm_id
+
+
+@dataclass(frozen=True)
+class StoredRun:
+    """An unfinished run read back: its job and its events ``(wall time, event)``."""
+
+    id: int
+    job: DispatchJob
+    fingerprint: str
+    started: float
+    events: tuple[tuple[float, ev.Event], ...]
+
+    def replay(self) -> FleetState:
+        """The fleet's state as the events left it (time: each event's wall time)."""
+        state = FleetState(self.job.document)
+        for wall, event in self.events:
+            state.apply(event, wall)
+        return state
+
+
+class Store:
+    """One farm's database (module doc). Used from the daemon's main thread only."""
+
+    def __init__(self, path: Path, conn: sqlite3.Connection, farm_id: str) -> None:
+        self.path = path
+        self.conn = conn
+        self.farm_id = farm_id
+        self.run_id: int | None = None
+        self._in_transaction = False
+        self._touched: set[str] = set()
+        self.commits = 0
+
+    # --- opening -------------------------------------------------------------------------
+    @classmethod
+    def open(cls, data_dir: Path, farm_id: str, sync: str = "full") -> Store:
+        """Open (or create) ``data_dir/agrifleet.sqlite3`` for ``farm_id``."""
+        if sync not in SYNC_MODES:
+            raise StoreError(f"synchronous mode {sync!r}: one of {', '.join(SYNC_MODES)}")
+        data_dir = Path(data_dir)
+        try:
+            data_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"data directory {data_dir}: {exc.strerror or exc}") from exc
+        path = data_dir / DB_NAME
+        try:
+            conn = sqlite3.connect(path, isolation_level=None)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute(f"PRAGMA synchronous={sync.upper()}")
+            conn.execute("PRAGMA foreign_keys=ON")
+            store = cls(path, conn, farm_id)
+            store._check_or_create()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{path}: not a database agrifleet can use ({exc})") from exc
+        return store
+
+    def _check_or_create(self) -> None:
+        c = self.conn
+        app = c.execute("PRAGMA application_id").fetchone()[0]
+        version = c.execute("PRAGMA user_version").fetchone()[0]
+        tables = c.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
+        if app == 0 and version == 0 and tables == 0:  # a new file
+            created = json.dumps(time.time())
+            c.executescript(
+                f"BEGIN IMMEDIATE; {_SCHEMA}"
+                f"INSERT INTO meta VALUES ('farm_id', {_quote(self.farm_id)});"
+                f"INSERT INTO meta VALUES ('created', '{created}');"
+                f"PRAGMA application_id={APPLICATION_ID};"
+                f"PRAGMA user_version={SCHEMA_VERSION}; COMMIT;"
+            )
+            return
+        if app != APPLICATION_ID:
+            raise StoreError(f"{self.path}: not an agrifleet database; use another --data-dir")
+        if version != SCHEMA_VERSION:
+            raise StoreError(
+                f"{self.path}: database schema version {version}, this agrifleet reads "
+                f"version {SCHEMA_VERSION}; use another --data-dir"
+            )
+        row = c.execute("SELECT value FROM meta WHERE key = 'farm_id'").fetchone()
+        if row is None or row[0] != self.farm_id:
+            held = row[0] if row else "?"
+            raise StoreError(
+                f"{self.path} holds the state of farm {held!r}, not {self.farm_id!r}: "
+                "give this farm its own --data-dir"
+            )
+
+    @contextlib.contextmanager
+    def _transaction(self) -> Iterator[None]:
+        self.commit()
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+        self.conn.execute("COMMIT")
+
+    def close(self) -> None:
+        self.commit()
+        self.conn.close()
+
+    # --- runs ----------------------------------------------------------------------------
+    def unfinished_run(self) -> StoredRun | None:
+        """The run that has not ended, with its events; None when there is none."""
+        row = self.conn.execute(
+            "SELECT id, fingerprint, started, document, geojson FROM runs "
+            "WHERE outcome IS NULL ORDER BY id DESC LIMIT 1"
+        ).fetchone()
+        if row is None:
+            return None
+        run_id, fingerprint, started, document, geojson = row
+        where = f"{self.path} run {run_id}"
+        try:
+            doc = PlanDocument.from_json(document)
+            items = {
+                vid: json.loads(text)
+                for vid, text in self.conn.execute(
+                    "SELECT vehicle, items FROM missions WHERE run = ?", (run_id,)
+                )
+            }
+            job = DispatchJob.from_parts(doc, items, json.loads(geojson))
+            events = tuple(
+                (wall, ev.from_dict(json.loads(body)))
+                for wall, body in self.conn.execute(
+                    "SELECT wall, body FROM events WHERE run = ? ORDER BY id", (run_id,)
+                )
+            )
+        except (PlanDocumentError, ValueError) as exc:
+            raise StoreError(f"{where}: {exc}") from exc
+        unknown = {e.vehicle for _, e in events} - {m.id for m in doc.machines}
+        if unknown:
+            raise StoreError(f"{where}: events of vehicles not in its plan: {sorted(unknown)}")
+        return StoredRun(run_id, job, fingerprint, started, events)
+
+    def begin_run(self, job: DispatchJob, fingerprint: str) -> int:
+        """Keep a new run's job; its events follow. There must be no unfinished run."""
+        if job.farm_id != self.farm_id:
+            raise StoreError(
+                f"{self.path}: plan of farm {job.farm_id!r} in {self.farm_id!r}'s store"
+            )
+        with self._transaction():
+            if self.conn.execute("SELECT 1 FROM runs WHERE outcome IS NULL").fetchone():
+                raise StoreError(f"{self.path}: a run is unfinished; resume it or abandon it")
+            cur = self.conn.execute(
+                "INSERT INTO runs(plan_id, farm_id, fingerprint, started, document, geojson) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (
+                    job.plan_id,
+                    job.farm_id,
+                    fingerprint,
+                    time.time(),
+                    job.document.to_json(),
+                    json.dumps(job.geojson),
+                ),
+            )
+            run_id = int(cur.lastrowid or 0)
+            self.conn.executemany(
+                "INSERT INTO missions VALUES (?, ?, ?)",
+                [(run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions],
+            )
+        self.run_id = run_id
+        return run_id
+
+    def resume_run(self, run: StoredRun) -> None:
+        """Append to ``run`` from now on."""
+        self.run_id = run.id
+
+    def end_run(self, outcome: str, run_id: int | None = None) -> None:
+        """Mark a run ended (``done``, or ``abandoned`` by ``--fresh``); it is not resumed."""
+        run_id = self.run_id if run_id is None else run_id
+        if run_id is None:
+            raise StoreError("no run begun or resumed")
+        with self._transaction():
+            self.conn.execute(
+                "UPDATE runs SET ended = ?, outcome = ? WHERE id = ?",
+                (time.time(), outcome, run_id),
+            )
+
+    def abandon_unfinished(self) -> int | None:
+        """``--fresh``: end the unfinished run (kept, marked abandoned); its id or None."""
+        row = self.conn.execute("SELECT id FROM runs WHERE outcome IS NULL").fetchone()
+        if row is None:
+            return None
+        self.end_run("abandoned", int(row[0]))
+        return int(row[0])
+
+    # --- events --------------------------------------------------------------------------
+    def append(self, event: ev.Event, wall: float) -> None:
+        """Add an event to the open transaction (committed by :meth:`commit`)."""
+        if self.run_id is None:
+            raise StoreError("no run begun or resumed")
+        if not self._in_transaction:
+            self.conn.execute("BEGIN IMMEDIATE")
+            self._in_transaction = True
+        self.conn.execute(
+            "INSERT INTO events(run, wall, vehicle, kind, body) VALUES (?, ?, ?, ?, ?)",
+            (self.run_id, wall, event.vehicle, event.kind, json.dumps(ev.to_dict(event))),
+        )
+        self._touched.add(event.vehicle)
+
+    @property
+    def pending(self) -> bool:
+        return self._in_transaction
+
+    def commit(self, state: FleetState | None = None) -> None:
+        """Commit the events appended since the last commit, with the current state of the
+        vehicles they concern (and of those vehicles' fields) when ``state`` is given."""
+        if not self._in_transaction:
+            return
+        if state is not None:
+            now = time.time()
+            for vid in sorted(self._touched):
+                v = state.vehicles[vid]
+                self.conn.execute(
+                    "INSERT OR REPLACE INTO vehicles VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        self.run_id,
+                        vid,
+                        v.phase.value,
+                        v.reached,
+                        len(v.items),
+                        v.reboots,
+                        v.error,
+                        now,
+                    ),
+                )
+            self.conn.executemany(
+                "INSERT OR REPLACE INTO fields VALUES (?, ?, ?, ?, ?, ?, ?)",
+                [
+                    (
+                        self.run_id,
+                        f.id,
+                        f.vehicle,
+                        f.status,
+                        f.started_s,
+                        f.finished_s,
+                        f.swaths_done,
+                    )
+                    for f in state.fields.values()
+                    if f.vehicle in self._touched
+                ],
+            )
+        self.conn.execute("COMMIT")
+        self._in_transaction = False
+        self._touched.clear()
+        self.commits += 1
+
+    def rows(self, sql: str, *args: Any) -> list[tuple[Any, ...]]:
+        """Read-only query (tests, tools)."""
+        return list(self.conn.execute(sql, args))

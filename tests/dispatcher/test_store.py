@@ -1,0 +1,155 @@
+"""The dispatcher's SQLite store: a run kept, read back and replayed; bad databases refused."""
+
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from dispatcher.cli.main import main
+from dispatcher.daemon import events as ev
+from dispatcher.daemon.state import Phase
+from dispatcher.daemon.store import DB_NAME, Store, StoreError, default_data_dir
+from dispatcher.mission.plan import DispatchPlan
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def run_events(vid: str, reached: int) -> list[ev.Event]:
+    out: list[ev.Event] = [
+        ev.VehicleSeen(vid),
+        ev.UploadStarted(vid, 1),
+        ev.UploadAcked(vid),
+        ev.StartRequested(vid, 1),
+        ev.MissionStarted(vid, 1),
+    ]
+    out += [ev.ItemReached(vid, seq, 10.0 * seq) for seq in range(1, reached + 1)]
+    return out
+
+
+def test_a_run_is_kept_and_read_back_as_it_was(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    job = dispatch.job()
+    store = Store.open(tmp_path, "tiny")
+    run_id = store.begin_run(job, "inputs-1")
+    v1 = job.document.machines[0]
+    events = run_events(v1.id, len(v1.items) - 1)  # v1 did all its work
+    for k, event in enumerate(events):
+        store.append(event, 1000.0 + k)
+    store.commit()
+    store.close()
+
+    store = Store.open(tmp_path, "tiny")
+    run = store.unfinished_run()
+    assert run is not None and run.id == run_id and run.fingerprint == "inputs-1"
+    assert run.job.document == job.document
+    assert {vid: m.items for vid, m in run.job.missions.items()} == {
+        vid: m.items for vid, m in job.missions.items()
+    }
+    assert run.job.missions[v1.id].traces == job.missions[v1.id].traces
+    assert [e for _, e in run.events] == events
+    state = run.replay()
+    assert state.vehicles[v1.id].phase is Phase.DONE
+    assert sorted(state.vehicles[v1.id].fields_done) == sorted(v1.fields)
+    store.resume_run(run)
+    store.end_run("done")
+    assert store.unfinished_run() is None
+    store.close()
+
+
+def test_uncommitted_events_are_not_kept(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(dispatch.job(), "x")
+    store.append(ev.VehicleSeen("v1"), 1.0)
+    store.commit()
+    store.append(ev.VehicleLost("v1", "gone"), 2.0)  # the process dies before the commit
+    store.conn.close()
+    run = Store.open(tmp_path, "tiny").unfinished_run()
+    assert run is not None and [e for _, e in run.events] == [ev.VehicleSeen("v1")]
+
+
+def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    job = dispatch.job()
+    store = Store.open(tmp_path, "tiny", sync="normal")
+    store.begin_run(job, "x")
+    v1 = job.document.machines[0]
+    state = store.unfinished_run().replay()  # type: ignore[union-attr]
+    for event in run_events(v1.id, len(v1.items) - 1):
+        state.apply(event, 0.0)
+        store.append(event, 0.0)
+    store.commit(state)
+    rows = store.rows("SELECT vehicle, phase, reached FROM vehicles")
+    assert rows == [(v1.id, "done", len(v1.items) - 1)]
+    fields = dict(store.rows("SELECT field, status FROM fields"))
+    assert fields == {fid: "done" for fid in v1.fields}
+    assert store.rows("PRAGMA journal_mode") == [("wal",)]
+    assert store.rows("PRAGMA synchronous") == [(1,)]  # NORMAL
+    store.close()
+    assert Store.open(tmp_path, "tiny").rows("PRAGMA synchronous") == [(2,)]  # FULL
+
+
+def test_fresh_abandons_the_unfinished_run_and_keeps_it(
+    dispatch: DispatchPlan, tmp_path: Path
+) -> None:
+    store = Store.open(tmp_path, "tiny")
+    first = store.begin_run(dispatch.job(), "x")
+    with pytest.raises(StoreError, match="unfinished"):
+        store.begin_run(dispatch.job(), "x")
+    assert store.abandon_unfinished() == first
+    assert store.unfinished_run() is None
+    second = store.begin_run(dispatch.job(), "y")
+    assert store.rows("SELECT id, outcome FROM runs") == [(first, "abandoned"), (second, None)]
+
+
+def test_a_database_of_another_farm_is_refused_with_both_names(tmp_path: Path) -> None:
+    Store.open(tmp_path, "north").close()
+    with pytest.raises(StoreError) as info:
+        Store.open(tmp_path, "south")
+    message = str(info.value)
+    assert str(tmp_path / DB_NAME) in message and "'north'" in message and "'south'" in message
+
+
+def test_foreign_and_newer_databases_are_refused(tmp_path: Path) -> None:
+    other = tmp_path / "other"
+    other.mkdir()
+    with sqlite3.connect(other / DB_NAME) as db:
+        db.execute("CREATE TABLE t(x)")
+    with pytest.raises(StoreError, match="not an agrifleet database"):
+        Store.open(other, "tiny")
+    newer = tmp_path / "newer"
+    Store.open(newer, "tiny").close()
+    with sqlite3.connect(newer / DB_NAME) as db:
+        db.execute("PRAGMA user_version = 99")
+    with pytest.raises(StoreError, match="schema version 99"):
+        Store.open(newer, "tiny")
+    (tmp_path / "text").mkdir()
+    (tmp_path / "text" / DB_NAME).write_text("not a database at all, but long enough " * 40)
+    with pytest.raises(StoreError, match="not a database"):
+        Store.open(tmp_path / "text", "tiny")
+    with pytest.raises(StoreError, match="synchronous"):
+        Store.open(tmp_path / "x", "tiny", sync="off")
+
+
+def test_a_damaged_stored_run_names_the_run(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    store = Store.open(tmp_path, "tiny")
+    run_id = store.begin_run(dispatch.job(), "x")
+    store.conn.execute("UPDATE missions SET items = '[[1, 2]]' WHERE vehicle = 'v1'")
+    with pytest.raises(StoreError, match=rf"run {run_id}: machine 'v1': 1 mission items"):
+        store.unfinished_run()
+
+
+def test_default_data_dir_is_under_the_user_state_dir(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("XDG_STATE_HOME", "/var/lib/somewhere")
+    assert default_data_dir("farm1") == Path("/var/lib/somewhere/agrifleet/farm1")
+    monkeypatch.delenv("XDG_STATE_HOME")
+    assert default_data_dir("farm1") == Path.home() / ".local/state/agrifleet/farm1"
+
+
+def test_serve_refuses_to_resume_a_run_of_other_inputs(
+    dispatch: DispatchPlan, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(dispatch.job(), "made-from-something-else")
+    store.close()
+    code = main(["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "unfinished run 1" in err and "--fresh" in err and str(tmp_path / DB_NAME) in err

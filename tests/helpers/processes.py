@@ -1,0 +1,153 @@
+"""agrifleet processes a test starts (``python -m dispatcher.cli ...`` or ``python -m
+sim_vehicles ...``), each with its output in a file, all stopped at the end; free ports,
+waiting on a condition, the dispatcher's status and its log path."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from dispatcher.link import wire
+
+if TYPE_CHECKING:
+    from helpers.sitl import Sitl
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for(
+    what: str,
+    predicate: Callable[[], bool],
+    timeout_s: float,
+    explain: Callable[[], str] | None = None,
+) -> None:
+    """Poll ``predicate`` until it holds; on time-out fail with ``explain()`` (what the
+    processes said) in the message."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    why = f"\n{explain()}" if explain is not None else ""
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}{why}")
+
+
+class Processes:
+    """agrifleet processes a test starts (``python -m dispatcher.cli ...``); all stopped
+    at the end."""
+
+    def __init__(self, workdir: Path) -> None:
+        self.workdir = workdir
+        self.procs: list[subprocess.Popen[str]] = []
+
+    def start(self, name: str, *args: str, module: str = "dispatcher.cli") -> subprocess.Popen[str]:
+        out = open(self.workdir / f"{name}-{len(self.procs)}.out", "w")  # noqa: SIM115
+        proc = subprocess.Popen(
+            [sys.executable, "-m", module, *args],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        out.close()
+        proc.output_path = out.name  # type: ignore[attr-defined]
+        self.procs.append(proc)
+        return proc
+
+    def serve(self, scenario: Path, port: int, log_dir: Path, *extra: str) -> subprocess.Popen[str]:
+        return self.start(
+            "serve",
+            "serve",
+            str(scenario),
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+            "--log-dir",
+            str(log_dir),
+            *extra,
+        )
+
+    def bridge(self, scenario: Path, vehicle: str, sitl: Sitl, port: int) -> subprocess.Popen[str]:
+        return self.start(
+            "bridge",
+            "bridge",
+            str(scenario),
+            "--vehicle",
+            vehicle,
+            "--mavlink",
+            sitl.url,
+            "--connect",
+            f"tcp/127.0.0.1:{port}",
+        )
+
+    def sim(
+        self, scenario: Path, port: int, speedup: float, *vehicles: str, extra: tuple[str, ...] = ()
+    ) -> subprocess.Popen[str]:
+        """Simulated tractors (``python -m sim_vehicles``) connected to the dispatcher."""
+        args = [str(scenario), "--connect", f"tcp/127.0.0.1:{port}", "--speedup", f"{speedup:g}"]
+        for v in vehicles:
+            args += ["--vehicle", v]
+        return self.start("sim", *args, *extra, module="sim_vehicles")
+
+    @staticmethod
+    def output(proc: subprocess.Popen[str]) -> str:
+        return Path(proc.output_path).read_text()  # type: ignore[attr-defined]
+
+    def report(self, sitl: Sitl | None = None, chars: int = 2500) -> str:
+        """The end of every process's output (and the autopilot's), for a failed test."""
+        parts = []
+        for p in self.procs:
+            state = "running" if p.poll() is None else f"exit {p.returncode}"
+            name = " ".join(str(a) for a in list(p.args)[2:4])  # type: ignore[arg-type]
+            parts.append(f"--- {name} ({state}) ---\n{self.output(p)[-chars:]}")
+        if sitl is not None:
+            for out in sorted(sitl.workdir.glob("sitl-*.out")):
+                parts.append(f"--- {out.name} ---\n{out.read_text(errors='replace')[-chars:]}")
+        return "\n".join(parts)
+
+    def stop_all(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in self.procs:
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def log_of(output: str) -> Path:
+    lines = [ln for ln in output.splitlines() if ln.startswith("log: ")]
+    assert lines, output[-3000:]
+    return Path(lines[-1][5:])
+
+
+@contextlib.contextmanager
+def status_reader(port: int, farm: str) -> Iterator[Callable[[], dict]]:
+    """A function that asks the dispatcher's status queryable (``{}`` until it answers)."""
+    conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
+    with zenoh.open(conf) as session:
+
+        def ask() -> dict:
+            for reply in session.get(wire.dispatcher_status(farm), timeout=2.0):
+                if reply.ok is not None:
+                    doc = json.loads(reply.ok.payload.to_string())
+                    if doc:
+                        return doc
+            return {}
+
+        yield ask
