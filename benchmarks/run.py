@@ -5,7 +5,8 @@ has it, and the classic GA on a few of the paper's cells at equal time, as ratio
 paper's figures and to the best-known solutions; ``upload`` — time from "plan ready" to
 "every mission acknowledged" for 6 vehicles with ~300 items each on loopback;
 ``telemetry`` — 100 simulated vehicles sending telemetry at 10 Hz for 60 s into one
-dispatcher: share of messages in the MCAP, dispatcher CPU; ``sitl`` — a 4-field farm
+dispatcher: share of messages in the MCAP, dispatcher CPU; ``store`` — what a commit of
+the dispatcher's SQLite store costs with synchronous FULL and NORMAL; ``sitl`` — a 4-field farm
 driven by ArduPilot Rover in SITL through the bridge: planned vs driven, cross-track error,
 implement down outside a field, turns without a loop.
 
@@ -97,6 +98,12 @@ def bench_telemetry() -> str:
     return run()
 
 
+def bench_store() -> str:
+    from benchmarks.store_bench import bench_store as run
+
+    return run()
+
+
 def bench_sitl() -> str:
     from benchmarks.sitl_bench import bench_sitl as run
 
@@ -107,6 +114,7 @@ SECTIONS = {
     "solver": bench_solver,
     "upload": bench_upload,
     "telemetry": bench_telemetry,
+    "store": bench_store,
     "sitl": bench_sitl,
 }
 

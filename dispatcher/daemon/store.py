@@ -11,8 +11,8 @@ database as such).
 
 Durability. The database is in WAL mode. The daemon commits the events before it sends any
 command that depends on them, and at the end of each turn of its loop. ``synchronous=FULL``
-(the default) makes a commit survive a power cut, at the price of an fsync per commit, that
-is at most one per loop turn (tens a second with a busy fleet; ``make bench`` measures it).
+(the default) makes a commit survive a power cut, at the price of an fsync per commit (tens
+a second with a busy fleet; ``make bench BENCH_ARGS=store`` measures one).
 ``normal`` skips that fsync: a commit still survives a crash of the dispatcher (the WAL is
 written before the commit returns), but a power cut may lose the last commits. That is safe
 for what we keep, because the vehicles are the other half of the truth: a restarted
