@@ -90,6 +90,30 @@ class StartFailed(Event):
 
 
 @dataclass(frozen=True)
+class StartRefused(Event):
+    """The vehicle refused to arm or to start (pre-arm checks ...); asked again."""
+
+    kind: ClassVar[str] = "start_refused"
+    reason: str
+
+
+@dataclass(frozen=True)
+class LeftAuto(Event):
+    """A running vehicle is out of AUTO or disarmed, not by our doing (a failsafe, the
+    operator ...): it does not drive its mission."""
+
+    kind: ClassVar[str] = "left_auto"
+    reason: str
+
+
+@dataclass(frozen=True)
+class BackInAuto(Event):
+    """A vehicle that had left AUTO drives its mission again."""
+
+    kind: ClassVar[str] = "back_in_auto"
+
+
+@dataclass(frozen=True)
 class ItemReached(Event):
     """MISSION_ITEM_REACHED ``seq`` at ``clock_s`` on the vehicle's run clock;
     ``caught_up`` when the vehicle did not say so but its MISSION_CURRENT shows it went
@@ -121,6 +145,9 @@ EVENTS: dict[str, type[Event]] = {
         StartRequested,
         MissionStarted,
         StartFailed,
+        StartRefused,
+        LeftAuto,
+        BackInAuto,
         ItemReached,
         Rebooted,
     )

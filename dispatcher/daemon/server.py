@@ -48,6 +48,9 @@ log = logging.getLogger(__name__)
 EXIT_OK = 0
 EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lost)
 EXIT_INTERRUPTED = 130
+LEFT_AUTO = "left AUTO"
+LEFT_AUTO_AFTER_S = 5.0
+"""Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -340,13 +343,14 @@ class Dispatcher:
                 self._apply(ev.VehicleLost(vid, "heartbeats stopped"), now)
             if (
                 v.off_auto_since is not None
-                and now - v.off_auto_since > 5.0
-                and not v.error.startswith("left AUTO")
+                and now - v.off_auto_since > LEFT_AUTO_AFTER_S
+                and not v.error.startswith(LEFT_AUTO)
             ):
-                v.error = f"left AUTO: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
-                self._log("warning", f"{vid}: {v.error}; not driving its mission")
-            if v.off_auto_since is None and v.error.startswith("left AUTO"):
-                v.error = ""
+                reason = f"{LEFT_AUTO}: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
+                self._apply(ev.LeftAuto(vid, reason), now)
+                self._log("warning", f"{vid}: {reason}; not driving its mission")
+            if v.off_auto_since is None and v.error.startswith(LEFT_AUTO):
+                self._apply(ev.BackInAuto(vid), now)
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
                 self._apply(ev.VehicleLost(vid, "never came alive"), now)
@@ -417,7 +421,7 @@ class Dispatcher:
             elif link.start.last_refusal:
                 waiting = v.explain(link.start.last_refusal, now - TEXT_WINDOW_S)
                 if waiting != v.error:
-                    v.error = waiting
+                    self._apply(ev.StartRefused(vid, waiting), now)
                     self._log("warning", f"{vid}: {waiting}; asking again")
         elif v.phase is Phase.DONE and link.park is None:
             link.park = CommandSequence(park_commands(), v.system_id)

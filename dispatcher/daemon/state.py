@@ -238,6 +238,10 @@ class FleetState:
             case ev.StartFailed(reason=reason):
                 v.phase = Phase.FAILED
                 v.error = reason
+            case ev.StartRefused(reason=reason) | ev.LeftAuto(reason=reason):
+                v.error = reason
+            case ev.BackInAuto():
+                v.error = ""
             case ev.ItemReached(seq=seq, clock_s=clock_s):
                 self._item_reached(v, seq, clock_s)
             case ev.Rebooted():
