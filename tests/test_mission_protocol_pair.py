@@ -5,7 +5,12 @@ messages lost on the way."""
 import pytest
 from helpers.mavlink_wire import Wire
 
-from dispatcher.link.mission_protocol import MissionUpload, Outcome
+from dispatcher.link.mission_protocol import (
+    MissionDownload,
+    MissionUpload,
+    Outcome,
+    mission_differences,
+)
 from sim_vehicles.mission_server import MissionServer, StoredItem
 
 VEHICLE = 21
@@ -53,12 +58,12 @@ def mission(n):
     ]
 
 
-def run_pair(n, lose=(), request="MISSION_REQUEST"):
-    """Drive client and server on a shared clock; ``lose`` numbers the messages (in send
-    order, both directions) that never arrive."""
+def run_pair(n, lose=(), request="MISSION_REQUEST", client=None, server=None):
+    """Drive client (default: an upload of ``n`` items) and server on a shared clock;
+    ``lose`` numbers the messages (in send order, both directions) that never arrive."""
     wire = Wire(VEHICLE)
-    server = MissionServer(home, request_message=request)
-    client = MissionUpload(mission(n), VEHICLE)
+    server = server or MissionServer(home, request_message=request)
+    client = client or MissionUpload(mission(n), VEHICLE)
     sent = 0
     now = 0.0
     to_vehicle = client.start(now)
@@ -104,3 +109,22 @@ def test_lost_messages_are_recovered(lost):
 def test_a_dead_link_fails_after_the_retries():
     client, _ = run_pair(5, lose=set(range(2, 100)))
     assert client.outcome is Outcome.FAILED
+
+
+@pytest.mark.parametrize("lost", [(), (1,), (2,), (5, 6), (30,)])
+def test_a_mission_read_back_is_the_one_uploaded(lost):
+    _, server = run_pair(25)
+    reader, _ = run_pair(0, lose=set(lost), client=MissionDownload(VEHICLE), server=server)
+    assert reader.outcome is Outcome.DONE, reader.reason
+    assert [m.seq for m in reader.items] == list(range(25))
+    assert mission_differences(reader.items, mission(25)) == []
+    other = mission(25)
+    other[7].x += 1
+    other[9].param1 = 5.0
+    assert mission_differences(reader.items, other) == ["item 7", "item 9"]
+    assert mission_differences(reader.items, mission(24)) == ["25 items, not 24"]
+
+
+def test_a_download_from_a_silent_vehicle_fails_after_the_retries():
+    reader, _ = run_pair(0, lose=set(range(1, 100)), client=MissionDownload(VEHICLE))
+    assert reader.outcome is Outcome.FAILED and "MISSION_REQUEST_LIST" in reader.reason

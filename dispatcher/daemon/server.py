@@ -33,9 +33,11 @@ from dispatcher.link.mission_protocol import (
     ROVER_MODE_AUTO,
     START_REFUSAL_WINDOW_S,
     CommandSequence,
+    MissionDownload,
     MissionUpload,
     Outcome,
     gcs_heartbeat,
+    mission_differences,
     park_commands,
     start_mission_commands,
 )
@@ -111,6 +113,7 @@ class _Link:
     """Per-vehicle protocol state: the upload, then the start commands, then parking."""
 
     upload: MissionUpload | None = None
+    download: MissionDownload | None = None  # reading back what a vehicle holds
     start: CommandSequence | None = None
     park: CommandSequence | None = None
     upload_at: float = 0.0  # not before (back-off after a failed upload)
@@ -118,8 +121,8 @@ class _Link:
     since: float = 0.0  # when the current exchange began (for the autopilot's texts)
     ready_since: float | None = None  # resuming: when it was first heard booted
 
-    def exchanges(self) -> tuple[MissionUpload | CommandSequence | None, ...]:
-        return (self.upload, self.start, self.park)
+    def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
+        return (self.upload, self.download, self.start, self.park)
 
 
 class Dispatcher:
@@ -482,16 +485,34 @@ class Dispatcher:
         our mission, catch up with the items it reached meanwhile, go on from there; upload
         again first when what it holds is not our mission (an upload cut by the crash)."""
         last = len(v.items) - 1
-        if not (v.acked and v.mission_total == last):
+        different = ""
+        if v.mission_total != last:
             held = "no mission it told" if v.mission_total is None else f"{v.mission_total + 1}"
+            different = f"holds {held} items, not our {len(v.items)}"
+        elif link.download is None:  # the same length: read it back to be sure
+            link.download = MissionDownload(v.system_id)
+            link.since = now
+            self._log("info", f"{v.id}: holds {len(v.items)} items; reading them back")
+            self._send(v.id, link.download.start(now))
+            return
+        elif link.download.outcome is Outcome.RUNNING:
+            return
+        elif link.download.outcome is Outcome.FAILED:
+            different = f"its mission could not be read back ({link.download.reason})"
+        else:
+            ours = self.job.missions[v.id].to_mavlink(v.system_id)
+            if diffs := mission_differences(link.download.items, ours):
+                different = f"holds another mission (differs at {', '.join(diffs)})"
+        if different:
             link.start_item = v.resume_item
             self._log(
                 "warning",
-                f"{v.id}: holds {held} items, not our acknowledged {len(v.items)}; uploading "
-                f"again, then going on at item {link.start_item}",
+                f"{v.id}: {different}; uploading again, then going on at item {link.start_item}",
             )
             self._upload(v, link, now)
             return
+        if not v.acked:  # acknowledged before the crash, not yet stored: it is ours
+            self._apply(ev.UploadAcked(v.id), now)
         on_vehicle = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
         if on_vehicle > v.reached:
             self._log("info", f"{v.id}: reached items {v.reached + 1}..{on_vehicle} meanwhile")

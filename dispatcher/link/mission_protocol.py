@@ -5,8 +5,10 @@ Each machine here is fed the vehicle's messages (``on_message``) and the clock
 keeps the protocol testable against recorded exchanges and a simulated vehicle alike.
 
 Mission upload (https://mavlink.io/en/services/mission.html): MISSION_COUNT, then the
-vehicle pulls each item with MISSION_REQUEST_INT(seq) and ends with MISSION_ACK. Timeouts
-follow the protocol: 1.5 s without an answer resends the last message, at most 5 times.
+vehicle pulls each item with MISSION_REQUEST_INT(seq) and ends with MISSION_ACK. Download,
+the other way round: MISSION_REQUEST_LIST, the vehicle's MISSION_COUNT, then each item asked
+for with MISSION_REQUEST_INT, and our MISSION_ACK. Timeouts follow the protocol: 1.5 s
+without an answer resends the last message, at most 5 times.
 """
 
 from __future__ import annotations
@@ -140,6 +142,115 @@ class MissionUpload(_Exchange):
         self._last = msg
         self._deadline = now + self.timeout_s
         return [msg]
+
+
+class MissionDownload(_Exchange):
+    """Read a vehicle's mission back: MISSION_REQUEST_LIST, its MISSION_COUNT, then each
+    item with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends it. ``items`` holds
+    the MISSION_ITEM_INT messages once the outcome is DONE."""
+
+    def __init__(self, target_system: int, **kw: float) -> None:
+        super().__init__(target_system, **kw)  # type: ignore[arg-type]
+        self.count: int | None = None
+        self.items: list[mc.MAVLinkMessage] = []
+        self._last: mc.MAVLinkMessage | None = None
+        self._deadline = 0.0
+        self._retries_left = self.max_retries
+
+    def start(self, now: float) -> list[mc.MAVLinkMessage]:
+        ask = mc.message(
+            "MISSION_REQUEST_LIST",
+            target_system=self.target_system,
+            target_component=self.target_component,
+            mission_type=mc.MAV_MISSION_TYPE_MISSION,
+        )
+        return self._send(ask, now)
+
+    def on_message(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING:
+            return []
+        if getattr(msg, "mission_type", 0) != mc.MAV_MISSION_TYPE_MISSION:
+            return []
+        kind = msg.get_type()
+        if kind == "MISSION_COUNT" and self.count is None:
+            self.count = int(msg.count)
+            self._retries_left = self.max_retries
+            return self._next(now)
+        if kind == "MISSION_ITEM_INT" and self.count is not None:
+            if int(msg.seq) != len(self.items):
+                return []  # a late answer to a request sent again
+            self.items.append(msg)
+            self._retries_left = self.max_retries
+            return self._next(now)
+        if kind == "MISSION_ACK" and int(msg.type) != mc.MAV_MISSION_ACCEPTED:
+            result = mc.constant_name("MAV_MISSION_", int(msg.type))
+            return self._fail(f"vehicle refused the download: {result}")
+        return []
+
+    def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
+        if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
+            return []
+        if self._retries_left <= 0:
+            return self._fail(
+                f"no answer to {self._last.get_type()} after {self.max_retries} retries"
+            )
+        self._retries_left -= 1
+        self.stats.retries += 1
+        return self._send(self._last, now)
+
+    def _next(self, now: float) -> list[mc.MAVLinkMessage]:
+        assert self.count is not None
+        if len(self.items) == self.count:
+            self.outcome = Outcome.DONE
+            ack = mc.message(
+                "MISSION_ACK",
+                target_system=self.target_system,
+                target_component=self.target_component,
+                type=mc.MAV_MISSION_ACCEPTED,
+                mission_type=mc.MAV_MISSION_TYPE_MISSION,
+            )
+            return [ack]
+        request = mc.message(
+            "MISSION_REQUEST_INT",
+            target_system=self.target_system,
+            target_component=self.target_component,
+            seq=len(self.items),
+            mission_type=mc.MAV_MISSION_TYPE_MISSION,
+        )
+        return self._send(request, now)
+
+    def _send(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+        self._last = msg
+        self._deadline = now + self.timeout_s
+        return [msg]
+
+
+def mission_differences(
+    held: Sequence[mc.MAVLinkMessage], ours: Sequence[mc.MAVLinkMessage], limit: int = 3
+) -> list[str]:
+    """Where a mission read back from a vehicle is not ours (at most ``limit`` places; empty:
+    the same). Item 0, home, is left out: the autopilot sets it itself. Compared: command,
+    frame (an integer frame and its float twin are one), position, and the parameters our
+    items use (param1, param2: hold time, speed, channel and setting) as float32 carries
+    them; not what an autopilot may store in its own way (param3, param4, altitude)."""
+    out = []
+    if len(held) != len(ours):
+        return [f"{len(held)} items, not {len(ours)}"]
+    for a, b in zip(held[1:], ours[1:], strict=True):
+        same = (
+            a.command == b.command
+            and mc.float_frame(a.frame) == mc.float_frame(b.frame)
+            and (a.x, a.y) == (b.x, b.y)
+            and all(
+                abs(getattr(a, p) - getattr(b, p)) <= 1e-4 * max(1.0, abs(getattr(b, p)))
+                for p in ("param1", "param2")
+            )
+        )
+        if not same:
+            out.append(f"item {b.seq}")
+            if len(out) == limit:
+                break
+    return out
 
 
 @dataclass(frozen=True)

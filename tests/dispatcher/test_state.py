@@ -310,6 +310,22 @@ def mission_current(sysid, seq, total, state):
     return from_vehicle(msg, sysid)
 
 
+def read_back(daemon, vid, sysid, items=None):
+    """The daemon asks the vehicle for its mission; the vehicle answers with ``items``
+    (default: the plan's mission)."""
+    link = daemon.links[vid]
+    daemon._advance(vid, 0.1)
+    assert link.download is not None, "no MISSION_REQUEST_LIST"
+    items = items if items is not None else daemon.job.missions[vid].to_mavlink(255)
+    count = mc.message(
+        "MISSION_COUNT", target_system=255, target_component=190, count=len(items), mission_type=0
+    )
+    link.download.on_message(from_vehicle(count, sysid), 0.2)
+    for item in items:
+        link.download.on_message(from_vehicle(item, sysid), 0.2)
+    daemon._advance(vid, 0.3)
+
+
 def commands_to(daemon, vid, system):
     return [
         (m.command, m.param1)
@@ -335,7 +351,7 @@ def test_a_vehicle_still_driving_its_mission_is_kept_and_caught_up(dispatch, tmp
     driving.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
     feed(daemon.state, "v1", driving, 0.0)
     feed(daemon.state, "v1", mission_current(11, 12, len(v.items) - 1, 3), 0.0)  # ACTIVE
-    daemon._advance("v1", 0.1)
+    read_back(daemon, "v1", 11)
     assert v.phase is Phase.RUNNING and not v.resuming
     assert v.reached == 11  # items 8..11 were reached while the dispatcher was down
     assert not commands_to(daemon, "v1", 11)  # left as it is
@@ -351,7 +367,7 @@ def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp
     holding.custom_mode, holding.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED  # failsafe HOLD
     feed(daemon.state, "v1", holding, 0.0)
     feed(daemon.state, "v1", mission_current(11, 9, len(v.items) - 1, 2), 0.0)
-    daemon._advance("v1", 0.1)
+    read_back(daemon, "v1", 11)
     assert v.phase is Phase.STARTING and v.reached == 8
     assert commands_to(daemon, "v1", 11)[0] == (mc.MAV_CMD_DO_SET_MISSION_CURRENT, 9.0)
 
@@ -363,7 +379,7 @@ def test_a_vehicle_that_finished_meanwhile_is_done_and_parked(dispatch, tmp_path
     feed(daemon.state, "v1", heartbeat(11), 0.0)
     last = len(v.items) - 1
     feed(daemon.state, "v1", mission_current(11, last, last, 5), 0.0)  # COMPLETE
-    daemon._advance("v1", 0.1)
+    read_back(daemon, "v1", 11)
     assert v.phase is Phase.DONE and sorted(v.fields_done) == sorted(
         dispatch.document.machine("v1").fields
     )
@@ -371,15 +387,38 @@ def test_a_vehicle_that_finished_meanwhile_is_done_and_parked(dispatch, tmp_path
     assert commands_to(daemon, "v1", 11)[0][0] == mc.MAV_CMD_DO_SET_MODE  # HOLD, then disarm
 
 
-@pytest.mark.parametrize("total_offset", [0, -3])
-def test_an_upload_cut_by_the_crash_is_made_again_before_going_on(dispatch, tmp_path, total_offset):
+@pytest.mark.parametrize("held", ["shorter", "mixed"])
+def test_an_upload_cut_by_the_crash_is_made_again_before_going_on(dispatch, tmp_path, held):
     stored = running_events("v1", 7)[:2]  # upload started, never acknowledged
     daemon = resumed_daemon(dispatch, tmp_path, stored)
     v = daemon.state.vehicles["v1"]
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", heartbeat(11), 0.0)
-    feed(daemon.state, "v1", mission_current(11, 0, len(v.items) - 1 + total_offset, 2), 0.0)
-    daemon._advance("v1", 0.1)
+    ours = daemon.job.missions["v1"].to_mavlink(255)
+    if held == "shorter":  # the autopilot kept what it had received
+        feed(daemon.state, "v1", mission_current(11, 0, len(ours) - 4, 2), 0.0)
+        daemon._advance("v1", 0.1)
+    else:  # as long as ours, but the end is an older mission's (ArduPilot replaces in place)
+        feed(daemon.state, "v1", mission_current(11, 0, len(ours) - 1, 2), 0.0)
+        older = list(ours)
+        older[-2] = from_vehicle(ours[-2], 11)
+        older[-2].x += 100
+        read_back(daemon, "v1", 11, older)
     assert v.phase is Phase.UPLOADING
     sent = [m.get_type() for m in daemon.publishers["v1"].sent(11)]
     assert "MISSION_COUNT" in sent
+
+
+def test_an_acknowledgement_lost_in_the_crash_is_found_by_reading_the_mission_back(
+    dispatch, tmp_path
+):
+    stored = running_events("v1", 7)[:2]  # the vehicle acked; the dispatcher died first
+    daemon = resumed_daemon(dispatch, tmp_path, stored)
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", mission_current(11, 0, len(v.items) - 1, 2), 0.0)
+    read_back(daemon, "v1", 11)
+    assert v.acked and v.phase is Phase.STARTING  # no second upload
+    sent = [m.get_type() for m in daemon.publishers["v1"].sent(11)]
+    assert "MISSION_COUNT" not in sent and "MISSION_REQUEST_LIST" in sent
