@@ -23,8 +23,8 @@ from helpers.sitl import (
     wait_for,
 )
 
-from dispatcher.recording.mcap_file import LOG_TOPIC, read_log
-from dispatcher.review.report import Review, review_log, review_table
+from dispatcher.recording.mcap_file import LOG_TOPIC, read_log, read_logs
+from dispatcher.review.report import Review, review_contents, review_log, review_table
 
 ARDUROVER = find_ardurover()
 pytestmark = pytest.mark.skipif(
@@ -191,3 +191,36 @@ def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(
     review = review_log(path)
     check_worked_once(review)
     assert any("Battery" in w for w in review.warnings), review_table(review)
+
+
+def test_a_dispatcher_killed_mid_mission_finds_the_rover_on_its_mission_and_keeps_it(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    port = free_port()
+    data = ("--data-dir", str(tmp_path / "data"))
+    sitl.start(wipe=True)
+    first = procs.serve(SCENARIO, port, tmp_path / "logs", *data)
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+
+        def under_way() -> bool:
+            if first.poll() is not None:
+                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
+            state.update(status().get("vehicles", {}).get("r1", {}))
+            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
+
+        wait_for("40 % of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl))
+    first.kill()
+    first.wait(10)
+    second = procs.serve(SCENARIO, port, tmp_path / "logs", *data)
+    assert finished(second, procs, sitl) == 0, procs.report(sitl)
+    out = Processes.output(second)
+    # ArduPilot's mission read back is ours item by item: the rover is not stopped, and
+    # nothing is uploaded again.
+    assert "reading them back" in out and "uploading" not in out, out
+    assert "still driving its mission" in out or "going on at item" in out, out
+    review = review_contents(read_logs([tmp_path / "logs"]))
+    check_worked_once(review)
+    (v,) = review.vehicles
+    assert v.distance_m < v.planned_distance_m * 1.2, review_table(review)

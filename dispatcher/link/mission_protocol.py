@@ -230,16 +230,21 @@ def mission_differences(
 ) -> list[str]:
     """Where a mission read back from a vehicle is not ours (at most ``limit`` places; empty:
     the same). Item 0, home, is left out: the autopilot sets it itself. Compared: command,
-    frame (an integer frame and its float twin are one), position, and the parameters our
-    items use (param1, param2: hold time, speed, channel and setting) as float32 carries
-    them; not what an autopilot may store in its own way (param3, param4, altitude)."""
+    position, the parameters our items use (param1, param2: hold time, speed, channel and
+    setting) as float32 carries them, and the frame of a navigation item (an integer frame
+    and its float twin are one). Not what an autopilot stores in its own way: a DO item's
+    frame (ArduPilot returns MAV_FRAME_GLOBAL for our MAV_FRAME_MISSION), param3, param4,
+    altitude."""
     out = []
     if len(held) != len(ours):
         return [f"{len(held)} items, not {len(ours)}"]
     for a, b in zip(held[1:], ours[1:], strict=True):
         same = (
             a.command == b.command
-            and mc.float_frame(a.frame) == mc.float_frame(b.frame)
+            and (
+                b.command > mc.MAV_CMD_NAV_LAST
+                or mc.float_frame(a.frame) == mc.float_frame(b.frame)
+            )
             and (a.x, a.y) == (b.x, b.y)
             and all(
                 abs(getattr(a, p) - getattr(b, p)) <= 1e-4 * max(1.0, abs(getattr(b, p)))

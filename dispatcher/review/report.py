@@ -379,6 +379,7 @@ class _Point:
     speed: float | None  # reported ground speed, m/s
     waypoint: bool = False
     log_ns: int | None = None  # when it was received (positions the vehicle reported)
+    filled: bool = False  # a waypoint put into a gap of the recording (_across_gaps)
 
 
 def _valid_position(lat: float, lon: float) -> bool:
@@ -515,7 +516,7 @@ def _read_events(
 
 def _across_gaps(
     track: list[_Point], heading_to: Sequence[tuple[int, int, bool]], items: Sequence[PlannedItem]
-) -> list[_Point]:
+) -> tuple[list[_Point], dict[int, float]]:
     """``track`` with the mission's waypoints put into each gap of the recording.
 
     Across a gap (positions RECORDING_GAP_S, and five times their median spacing, or more
@@ -523,9 +524,11 @@ def _across_gaps(
     from the item it was heading to before (the last MISSION_CURRENT, or the item after the
     last one reached) to the one it is heading to after (the first MISSION_CURRENT after,
     unless it reports reaching an item first: then that one). A straight line would cut
-    every turn in between."""
+    every turn in between. Also returned: when each of those waypoints was passed (the
+    gap's time spread over them)."""
+    passed: dict[int, float] = {}
     if not heading_to:
-        return track
+        return track, passed
     reports = sorted(heading_to)
     orders = [o for o, _, _ in reports]
     received = [p.log_ns for p in track if p.log_ns is not None]
@@ -538,10 +541,12 @@ def _across_gaps(
             out.append(b)
             continue
         if a is not None and a.log_ns is not None and b.log_ns - a.log_ns >= gap_ns and b.t > a.t:
-            out += _mission_between(a, b, reports, orders, items)
+            for seq, point in _mission_between(a, b, reports, orders, items):
+                out.append(point)
+                passed[seq] = point.t
         out.append(b)
         a = b
-    return out
+    return out, passed
 
 
 def _mission_between(
@@ -550,7 +555,7 @@ def _mission_between(
     reports: Sequence[tuple[int, int, bool]],
     orders: Sequence[int],
     items: Sequence[PlannedItem],
-) -> list[_Point]:
+) -> list[tuple[int, _Point]]:
     """The mission's waypoints the vehicle passed between positions ``a`` and ``b``."""
     k = bisect.bisect_right(orders, a.order)
     j = bisect.bisect_right(orders, b.order)
@@ -565,7 +570,7 @@ def _mission_between(
         item = items[s]
         if _valid_position(item.lat, item.lon):
             t = a.t + (b.t - a.t) * n / (len(between) + 1)
-            out.append(_Point(t, a.order, item.lat, item.lon, None, True))
+            out.append((s, _Point(t, a.order, item.lat, item.lon, None, True, filled=True)))
     return out
 
 
@@ -598,12 +603,16 @@ def _fix_points(fixes: Sequence[tuple[int, dict[str, Any]]]) -> list[_Point]:
 
 
 def _item_times(
-    items: Sequence[PlannedItem], reached: Iterable[tuple[int, float | None, int]]
+    items: Sequence[PlannedItem],
+    reached: Iterable[tuple[int, float | None, int]],
+    passed: Mapping[int, float] | None = None,
 ) -> tuple[dict[int, float], set[int], int, dict[int, int]]:
     """When each item was done (vehicle clock): an item reported reached and every item
-    it skipped over. A DO item runs as the navigation item before it completes, so it
+    it skipped over (at the time it was ``passed`` in a gap of the recording, else that of
+    the item reported). A DO item runs as the navigation item before it completes, so it
     takes that item's time. Also: the items reported themselves, the highest reached and
     each reported item's file position."""
+    passed = passed or {}
     times: dict[int, float] = {}
     reported: set[int] = set()
     order_of: dict[int, int] = {}
@@ -614,7 +623,7 @@ def _item_times(
             continue
         for s in range(last + 1, seq + 1):
             if items[s].is_nav:
-                times[s] = t
+                times[s] = min(passed.get(s, t), t) if s != seq else t
                 last_nav = s
             elif s == seq or last_nav not in times:
                 times[s] = t
@@ -787,7 +796,12 @@ def _review_vehicle(
             f"{vid}: the autopilot rebooted {len(events.reboots)} time(s) "
             f"(its clock started again); the run's times carry on across"
         )
-    times, reported, last, order_of = _item_times(items, events.reached)
+    # Positions in time order; across a gap in the recording, the mission's waypoints the
+    # vehicle passed meanwhile (and when, spread over the gap).
+    track, passed = _across_gaps(
+        sorted(points, key=lambda p: (p.t, p.order)), events.heading_to, items
+    )
+    times, reported, last, order_of = _item_times(items, events.reached, passed)
     n = len(items)
     complete = n > 1 and last == n - 1
     road_ms = machine.param("road_speed_kmh") / 3.6
@@ -797,14 +811,12 @@ def _review_vehicle(
             0.0,
         )
 
-    # Positions in time order, with the exact waypoints merged in.
-    track = sorted(points, key=lambda p: (p.t, p.order))
+    # The exact waypoints the vehicle reported merged in.
     for seq in reported - events.caught_up:
         item = items[seq]
         if item.is_nav and _valid_position(item.lat, item.lon):
             track.append(_Point(times[seq], order_of[seq], item.lat, item.lon, None, True))
     track.sort(key=lambda p: (p.t, p.order))
-    track = _across_gaps(track, events.heading_to, items)
 
     start = _start_time(track, road_ms)
     if start is None and times:
@@ -973,8 +985,10 @@ def _review_vehicle(
             problems.append(text)
     if problems:
         warnings.append(f"{vid}: the autopilot said: {'; '.join(problems[:5])}")
+    # Driving quality from the reported positions, and across a gap in the recording from
+    # the mission's waypoints put there (the best known of where it drove).
     quality = track_quality(
-        items, times, [(p.t, p.lat, p.lon) for p in track if not p.waypoint], fields
+        items, times, [(p.t, p.lat, p.lon) for p in track if not p.waypoint or p.filled], fields
     )
     if quality is not None and quality.outside_down_s > 0:
         warnings.append(
