@@ -6,7 +6,10 @@ For machine i driving route r (its tasks in order):
     c_i = s_i / v_i * c_vi + sum_j n_turn(i,j) * t_T(i) * c_vi + sum_j S_j / w_i * c_wi  (5)
     t_i = s_i / v_i + sum_j n_turn(i,j) * t_T(i) + sum_j S_j / w_i                       (6)
 
-with s in metres and v in km/h (so s / v is s / (1000 v) hours). The in-field parts
+with s in metres and v in km/h (so s / v is s / (1000 v) hours). A machine busy for
+``ready_h[i]`` hours before it can start (a re-plan) has that added to t_i when its route
+has a task; a machine with no task costs nothing (it is not part of the plan), so it never
+sets the makespan. Its fuel is not charged: that work is done whatever the plan. The in-field parts
 depend only on which machine works which task, so they are precomputed per
 [machine, task] in :class:`CostTables`; a route's time and fuel then follow from its
 distance. Objectives: ``distance`` = sum s_i (formula 3), ``time`` = sum t_i,
@@ -42,6 +45,8 @@ class CostTables:
     road_fuel_lh: FloatArray  # [machine] c_vi
     task_hours: FloatArray  # [machine, task] n_turn * t_T + S / w
     task_fuel: FloatArray  # [machine, task] n_turn * t_T * c_v + S / w * c_w
+    ready_h: FloatArray  # [machine] hours busy before the route starts (time objectives)
+    pinned_machine: np.ndarray  # [task] int64, the machine a task stays first with, or -1
 
     @classmethod
     def of(cls, problem: Problem) -> CostTables:
@@ -59,9 +64,12 @@ class CostTables:
             road_fuel_lh=road_fuel,
             task_hours=task_hours,
             task_fuel=task_fuel,
+            ready_h=np.ascontiguousarray(problem.ready_h, dtype=np.float64),
+            pinned_machine=np.ascontiguousarray(problem.pinned_machine, dtype=np.int64),
         )
 
     def kernel_args(self) -> tuple[FloatArray, ...]:
+        """What every kernel takes as ``tables`` (the pins are passed on their own)."""
         return (
             self.dist,
             self.start_dist,
@@ -70,6 +78,7 @@ class CostTables:
             self.road_fuel_lh,
             self.task_hours,
             self.task_fuel,
+            self.ready_h,
         )
 
 
@@ -95,7 +104,9 @@ def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-un
     objective adds up or maximises: s_i for distance and minmax, t_i for time and makespan,
     c_i for fuel (the "path cost" of §4.3's overshoot).
     """
-    dist, start_dist, end_dist, road_hours_per_m, road_fuel_lh, task_hours, task_fuel = tables
+    dist, start_dist, end_dist, road_hours_per_m, road_fuel_lh, task_hours, task_fuel, ready = (
+        tables
+    )
     m = counts.shape[0]
     total = 0.0
     worst = 0.0
@@ -115,6 +126,8 @@ def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-un
                     value += task_fuel[i, perm[k]]
             else:
                 value = drive_h
+                if cnt > 0:
+                    value += ready[i]
                 for k in range(begin, begin + cnt):
                     value += task_hours[i, perm[k]]
         route_cost[i] = value
@@ -220,7 +233,9 @@ def figures(problem: Problem, routes: list[list[int]] | tuple[tuple[int, ...], .
                 distance_m=s,
                 fuel_l=drive_h * float(tables.road_fuel_lh[i])
                 + sum(float(tables.task_fuel[i, j]) for j in route),
-                time_h=drive_h + sum(float(tables.task_hours[i, j]) for j in route),
+                time_h=drive_h
+                + sum(float(tables.task_hours[i, j]) for j in route)
+                + (float(tables.ready_h[i]) if route else 0.0),
                 turns=int(sum(problem.turns[i, j] for j in route)),
             )
         )

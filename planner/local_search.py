@@ -37,12 +37,16 @@ def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def _route_value(objective, machine, s, extra, road_h, road_f):  # type: ignore[no-untyped-def]
+def _route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
+    """A route's share of the objective (see :func:`planner.cost.evaluate`); ``size`` is its
+    number of tasks (an empty route costs nothing, a busy machine's ready time included)."""
     if objective == 0 or objective == 4:
         return s
     if objective == 2:
         return s * road_h[machine] * road_f[machine] + extra
-    return s * road_h[machine] + extra
+    if size == 0:
+        return s * road_h[machine] + extra
+    return s * road_h[machine] + extra + ready[machine]
 
 
 @njit(cache=True)
@@ -68,7 +72,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
 ):
     """Relocate and exchange tasks between routes while it pays; then 2-opt each route.
     Works in place on the chromosome and returns the number of moves applied."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
     task_x = task_f if objective == 2 else task_h
@@ -99,7 +103,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                 extras[r] += task_x[r, prev]
         s += leg(prev, -2, r, dist, start_dist, end_dist)
         lengths[r] = s
-        values[r] = _route_value(objective, r, s, extras[r], road_h, road_f)
+        values[r] = _route_value(objective, r, s, extras[r], road_h, road_f, ready, sizes[r])
     current = _objective(objective, values, lengths)
     trial_values = values.copy()
     trial_lengths = lengths.copy()
@@ -142,10 +146,10 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                         ea = extras[a] - (task_x[a, t] if use_extra else 0.0)
                         eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
                         trial_values[a] = _route_value(
-                            objective, a, trial_lengths[a], ea, road_h, road_f
+                            objective, a, trial_lengths[a], ea, road_h, road_f, ready, sizes[a] - 1
                         )
                         trial_values[b] = _route_value(
-                            objective, b, trial_lengths[b], eb, road_h, road_f
+                            objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b] + 1
                         )
                         gain = current - _objective(objective, trial_values, trial_lengths)
                         if gain > best_gain:
@@ -171,8 +175,12 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                 trial_lengths[b] = lengths[b] + db
                 ea = extras[a] + ((task_x[a, w] - task_x[a, t]) if use_extra else 0.0)
                 eb = extras[b] + ((task_x[b, t] - task_x[b, w]) if use_extra else 0.0)
-                trial_values[a] = _route_value(objective, a, trial_lengths[a], ea, road_h, road_f)
-                trial_values[b] = _route_value(objective, b, trial_lengths[b], eb, road_h, road_f)
+                trial_values[a] = _route_value(
+                    objective, a, trial_lengths[a], ea, road_h, road_f, ready, sizes[a]
+                )
+                trial_values[b] = _route_value(
+                    objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b]
+                )
                 gain = current - _objective(objective, trial_values, trial_lengths)
                 if gain > best_gain:
                     best_gain, best_kind, best_b, best_p, best_w = gain, 1, b, pw, w
@@ -224,8 +232,12 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                 if use_extra:
                     extras[a] += task_x[a, w] - task_x[a, t]
                     extras[b] += task_x[b, t] - task_x[b, w]
-            values[a] = _route_value(objective, a, lengths[a], extras[a], road_h, road_f)
-            values[b] = _route_value(objective, b, lengths[b], extras[b], road_h, road_f)
+            values[a] = _route_value(
+                objective, a, lengths[a], extras[a], road_h, road_f, ready, sizes[a]
+            )
+            values[b] = _route_value(
+                objective, b, lengths[b], extras[b], road_h, road_f, ready, sizes[b]
+            )
             trial_values[:] = values
             trial_lengths[:] = lengths
             current = _objective(objective, values, lengths)
@@ -249,7 +261,7 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
     with machine k taking the k-th stretch): dynamic programming over how many tasks the
     first k machines take, O(m n^2). Changes ``counts`` only; returns the new cost
     without the min-max tie-breaker."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f = tables
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     n = perm.shape[0]
     m = counts.shape[0]
     use_max = objective == 3 or objective == 4
@@ -290,6 +302,8 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
                         + end_dist[mk, perm[j - 1]]
                     )
                     value = s * rate + (extra[mk, j] - extra[mk, i])
+                    if objective == 1 or objective == 3:
+                        value += ready[mk]
                 total = max(before, value) if use_max else before + value
                 if total < best[k, j]:
                     best[k, j] = total

@@ -8,14 +8,19 @@ A problem is built from the paper's parameters with :func:`Problem.build`; the
 per-machine, per-task work (turns, hours) defaults to the paper's rectangle model and can
 be replaced by real coverage geometry (``turns=`` and ``work_hours=``).
 Each machine has its own start and end point, so a re-plan can start vehicles where they
-are; the paper's garage is the case where all of them are the same point.
+are (:meth:`Problem.starting_at`); the paper's garage is the case where all of them are the
+same point. A machine may also be busy for ``ready_h`` hours before it can start (the rest
+of the swath it is on), and a task may be pinned to the machine already working it
+(``pinned_machine``): every solution then keeps it first in that machine's route.
+A machine that is not available is simply left out of the problem
+(:meth:`Problem.only_machines`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +28,9 @@ from numpy.typing import NDArray
 from planner.errors import ProblemError
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+XY = tuple[float, float]
+NOT_PINNED = -1
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,11 @@ class Problem:
     ``dist[j, k]`` is the driving distance from task j to task k; ``start_dist[i, j]`` from
     machine i's start to task j and ``end_dist[i, j]`` from task j to machine i's end.
     ``turns[i, j]`` and ``work_hours[i, j]`` are what task j costs machine i inside the field.
+    ``ready_h[i]`` is how long machine i is busy before it can start its route (added to its
+    route time t_i when the route has a task; an idle machine costs nothing, so a busy but
+    idle machine never sets the makespan). ``pinned_machine[j]`` is the machine task j must
+    stay with, first in its route, or :data:`NOT_PINNED`; at most one task per machine.
+    Both default to "none" (an empty array given is read as that).
     """
 
     machines: tuple[Machine, ...]
@@ -98,9 +111,15 @@ class Problem:
     min_tasks_per_machine: int = 1
     name: str = "problem"
     depot: tuple[float, float] | None = field(default=None)
+    ready_h: FloatArray = field(default_factory=lambda: np.zeros(0))
+    pinned_machine: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         m, n = len(self.machines), len(self.tasks)
+        if isinstance(self.ready_h, np.ndarray) and self.ready_h.size == 0 and m:
+            object.__setattr__(self, "ready_h", np.zeros(m))
+        if isinstance(self.pinned_machine, np.ndarray) and self.pinned_machine.size == 0 and n:
+            object.__setattr__(self, "pinned_machine", np.full(n, NOT_PINNED, dtype=np.int64))
         if m == 0:
             raise ProblemError("no machines: the fleet is empty")
         if n == 0:
@@ -130,6 +149,33 @@ class Problem:
             if np.any(arr < 0):
                 raise ProblemError(f"{name} has a negative entry")
             arr.setflags(write=False)
+        ready = self.ready_h
+        if not isinstance(ready, np.ndarray) or ready.dtype != np.float64 or ready.shape != (m,):
+            raise ProblemError(f"ready_h must be a float64 array of shape ({m},)")
+        for i, value in enumerate(ready):
+            _check_non_negative(f"machine {self.machines[i].id!r}: ready_h", float(value))
+        ready.setflags(write=False)
+        self._check_pins()
+
+    def _check_pins(self) -> None:
+        m, n = len(self.machines), len(self.tasks)
+        pins = self.pinned_machine
+        if not isinstance(pins, np.ndarray) or pins.dtype != np.int64 or pins.shape != (n,):
+            raise ProblemError(f"pinned_machine must be an int64 array of shape ({n},)")
+        holder: dict[int, str] = {}
+        for j, i in enumerate(pins.tolist()):
+            if i == NOT_PINNED:
+                continue
+            task = self.tasks[j].id
+            if not 0 <= i < m:
+                raise ProblemError(f"task {task!r} is pinned to machine {i}, not one of 0..{m - 1}")
+            if i in holder:
+                raise ProblemError(
+                    f"machine {self.machines[i].id!r} has two pinned tasks, "
+                    f"{holder[i]!r} and {task!r}: it works one field at a time"
+                )
+            holder[i] = task
+        pins.setflags(write=False)
 
     @classmethod
     def build(
@@ -201,6 +247,73 @@ class Problem:
     def machine_array(self, attr: str) -> FloatArray:
         """One machine parameter as an array over the fleet."""
         return np.array([getattr(mc, attr) for mc in self.machines], dtype=np.float64)
+
+    @property
+    def has_pins(self) -> bool:
+        return bool(np.any(self.pinned_machine != NOT_PINNED))
+
+    def starting_at(
+        self,
+        positions: Sequence[XY | None],
+        *,
+        ready_h: Sequence[float] | None = None,
+        distance: Callable[[XY, Task], float] | None = None,
+    ) -> Problem:
+        """The same problem with machine i starting at ``positions[i]`` now (``None``: where
+        it started before), and busy for ``ready_h[i]`` hours first; ends are unchanged
+        (the garage for a problem from :meth:`build`). Distances from a position to a task
+        are straight lines to the task's point, or ``distance(position, task)``."""
+        m = self.num_machines
+        if len(positions) != m:
+            raise ProblemError(f"{len(positions)} start positions given for {m} machines")
+        start = np.array(self.start_dist, dtype=np.float64)
+        for i, pos in enumerate(positions):
+            if pos is None:
+                continue
+            label = f"machine {self.machines[i].id!r}: start"
+            _check_finite(f"{label} x", pos[0])
+            _check_finite(f"{label} y", pos[1])
+            for j, task in enumerate(self.tasks):
+                start[i, j] = (
+                    distance(pos, task)
+                    if distance
+                    else math.hypot(task.x - pos[0], task.y - pos[1])
+                )
+        ready = self.ready_h if ready_h is None else np.array(ready_h, dtype=np.float64)
+        return replace(self, start_dist=start, ready_h=np.array(ready, dtype=np.float64))
+
+    def pinned(self, pins: dict[int, int]) -> Problem:
+        """The same problem with task j pinned to machine i for each ``{j: i}`` (others
+        as they were)."""
+        arr = np.array(self.pinned_machine, dtype=np.int64)
+        for j, i in pins.items():
+            if not 0 <= j < self.num_tasks:
+                raise ProblemError(f"cannot pin task {j}: there are {self.num_tasks} tasks")
+            arr[j] = i
+        return replace(self, pinned_machine=arr)
+
+    def only_machines(self, keep: Sequence[int]) -> Problem:
+        """The same tasks for a subset of the machines (the available ones), in ``keep``
+        order; pins to a machine left out are dropped (the task becomes an ordinary one)."""
+        idx = [int(i) for i in keep]
+        if not idx:
+            raise ProblemError("no machines: the fleet is empty")
+        new_index = {old: new for new, old in enumerate(idx)}
+        pins = np.array(
+            [new_index.get(int(i), NOT_PINNED) for i in self.pinned_machine], dtype=np.int64
+        )
+        min_tasks = self.min_tasks_per_machine if len(idx) <= self.num_tasks else 0
+        return replace(
+            self,
+            machines=tuple(self.machines[i] for i in idx),
+            start_dist=np.array(self.start_dist[idx]),
+            end_dist=np.array(self.end_dist[idx]),
+            turns=np.array(self.turns[idx]),
+            work_hours=np.array(self.work_hours[idx]),
+            ready_h=np.array(self.ready_h[idx]),
+            pinned_machine=pins,
+            min_tasks_per_machine=min_tasks,
+        )
 
 
 def euclidean_matrix(xy: FloatArray) -> FloatArray:

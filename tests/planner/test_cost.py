@@ -1,6 +1,7 @@
 """Formulas (1)-(6) against cases computed by hand, and the compiled evaluation against a
 slow pure-Python recomputation."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.cost import CostTables, Objective, evaluate, figures, split_routes
+from planner.errors import ProblemError
 from planner.problem import Machine, Problem, Task, rectangle_turns
 
 
@@ -145,3 +147,104 @@ def test_compiled_cost_equals_slow_recomputation(case, objective):
         tie = 1e-9 * sum(r.distance_m for r in figures(problem, routes).routes)
     assert value == pytest.approx(expected + tie, rel=1e-9, abs=1e-9)
     assert figures(problem, routes).value(objective) == pytest.approx(expected, rel=1e-9)
+
+
+@st.composite
+def replanned_problems(draw):
+    """A random problem re-planned: machines at random points now, busy for random hours,
+    ending at the garage; some machines may stay idle (min_tasks_per_machine = 0)."""
+    problem, perm, counts = draw(problems_and_chromosomes())
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    m = problem.num_machines
+    starts = [
+        None if rng.random() < 0.2 else (float(rng.uniform(0, 2000)), float(rng.uniform(0, 2000)))
+        for _ in range(m)
+    ]
+    ready = [0.0 if rng.random() < 0.3 else float(rng.uniform(0, 5)) for _ in range(m)]
+    problem = dataclasses.replace(problem, min_tasks_per_machine=0).starting_at(
+        starts, ready_h=ready
+    )
+    if m > 1 and rng.random() < 0.5:  # an idle machine, possibly a busy one
+        counts = counts.copy()
+        idle = int(rng.integers(m))
+        counts[(idle + 1) % m] += counts[idle]
+        counts[idle] = 0
+    return problem, perm, counts, starts, ready
+
+
+def slow_replanned_value(problem, routes, objective, starts, ready):
+    """Formulas (1)-(6) in plain Python from each machine's own start, plus its ready
+    time for the time figures when it has a task; an idle machine costs nothing."""
+    per_route = []
+    for i, route in enumerate(routes):
+        mc = problem.machines[i]
+        if not route:
+            per_route.append((0.0, 0.0, 0.0))
+            continue
+        start = starts[i] if starts[i] is not None else problem.depot
+        pts = [start] + [(problem.tasks[j].x, problem.tasks[j].y) for j in route]
+        pts.append(problem.depot)
+        s = sum(math.dist(a, b) for a, b in zip(pts, pts[1:], strict=False))
+        turns = sum(rectangle_turns(problem.tasks[j].width_m, mc.working_width_m) for j in route)
+        work = sum(problem.tasks[j].area_m2 / mc.capacity_m2h for j in route)
+        drive = s / (mc.road_speed_kmh * 1000)
+        t = ready[i] + drive + turns * mc.turn_time_h + work
+        c = (
+            drive * mc.road_fuel_lh
+            + turns * mc.turn_time_h * mc.road_fuel_lh
+            + work * mc.work_fuel_lh
+        )
+        per_route.append((s, t, c))
+    s_all = [r[0] for r in per_route]
+    return {
+        Objective.DISTANCE: sum(s_all),
+        Objective.TIME: sum(r[1] for r in per_route),
+        Objective.FUEL: sum(r[2] for r in per_route),
+        Objective.MAKESPAN: max(r[1] for r in per_route),
+        Objective.MINMAX: max(s_all),
+    }[objective]
+
+
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(replanned_problems(), st.sampled_from(list(Objective)))
+def test_costs_from_starts_and_ready_times_equal_slow_recomputation(case, objective):
+    problem, perm, counts, starts, ready = case
+    tables = CostTables.of(problem).kernel_args()
+    route_cost = np.empty(problem.num_machines)
+    value = evaluate(perm, counts, int(objective), tables, route_cost)
+    routes = split_routes(perm, counts)
+    expected = slow_replanned_value(problem, routes, objective, starts, ready)
+    tie = 0.0
+    if objective in (Objective.MAKESPAN, Objective.MINMAX):
+        tie = 1e-9 * sum(r.distance_m for r in figures(problem, routes).routes)
+    assert value == pytest.approx(expected + tie, rel=1e-9, abs=1e-9)
+    assert figures(problem, routes).value(objective) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+
+
+def test_idle_busy_machine_does_not_set_the_makespan():
+    tasks = [Task("A", 300.0, 400.0, 7000.0, 60.0, 70.0)]
+    machines = [paper_machine("a"), paper_machine("b")]
+    problem = Problem.build(machines, tasks, (0.0, 0.0), min_tasks_per_machine=0).starting_at(
+        [None, (300.0, 400.0)], ready_h=[0.0, 9.0]
+    )
+    idle_b = figures(problem, [[0], []])
+    assert idle_b.routes[1].time_h == 0.0 and idle_b.routes[1].distance_m == 0.0
+    assert idle_b.makespan_h == idle_b.routes[0].time_h < 9.0
+    busy_b = figures(problem, [[], [0]])
+    # b is on the field already (0 m there), 500 m home, and busy 9 h first.
+    assert busy_b.routes[1].distance_m == pytest.approx(500.0)
+    assert busy_b.makespan_h == pytest.approx(9.0 + 0.05 + 8 * 0.004 + 1.0)
+
+
+def test_starting_at_with_a_distance_function_and_bad_input():
+    tasks = [Task("A", 300.0, 400.0), Task("B", 0.0, 100.0)]
+    problem = Problem.build([paper_machine()], tasks, (0.0, 0.0))
+    moved = problem.starting_at([(1.0, 2.0)], distance=lambda p, t: 10.0 * p[0] + t.y)
+    np.testing.assert_allclose(moved.start_dist, [[410.0, 110.0]])
+    np.testing.assert_allclose(moved.end_dist, problem.end_dist)
+    with pytest.raises(ProblemError, match="2 start positions given for 1 machines"):
+        problem.starting_at([None, None])
+    with pytest.raises(ProblemError, match="ready_h must not be negative"):
+        problem.starting_at([None], ready_h=[-1.0])
+    with pytest.raises(ProblemError, match="start x must be a finite number"):
+        problem.starting_at([(math.nan, 0.0)])

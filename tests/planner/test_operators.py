@@ -1,5 +1,7 @@
 """Every operator keeps the chromosome valid; local search reports true costs."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -167,3 +169,59 @@ def test_optimal_split_is_optimal_for_its_order(case, objective):
     assert_valid(perm, split, n, m)
     value = evaluate(perm, split, int(objective), tables, route)
     assert value <= best + 1e-6 * max(1.0, best)
+
+
+def replanned_problem_for(n, m, seed):
+    """``problem_for`` with machines at random points now, busy for random hours."""
+    rng = np.random.default_rng(seed + 1)
+    problem = problem_for(n, m, seed)
+    starts = [(float(x), float(y)) for x, y in rng.uniform(0, 3000, size=(m, 2))]
+    ready = rng.uniform(0, 3, size=m) * (rng.random(m) < 0.7)
+    problem = dataclasses.replace(problem, min_tasks_per_machine=0)
+    return problem.starting_at(starts, ready_h=ready.tolist())
+
+
+@SETTINGS
+@given(chromosomes(min_count=0), st.sampled_from(list(Objective)))
+def test_local_search_with_starts_and_ready_times_never_worsens(case, objective):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = replanned_problem_for(n, m, int(perm[0]) + 5 * n)
+    tables = CostTables.of(problem).kernel_args()
+    route = np.empty(m)
+    before = evaluate(perm, counts, int(objective), tables, route)
+    nn = nearest_neighbours(problem.dist, 5)
+    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn)
+    assert cost <= before + 1e-9 * max(1.0, before)
+    improve_allocation(perm, counts, int(objective), tables, nn, 0, 20)
+    assert_valid(perm, counts, n, m, min_count=0)
+    after = evaluate(perm, counts, int(objective), tables, route)
+    assert after <= cost + 1e-9 * max(1.0, cost)
+
+
+@SETTINGS
+@given(chromosomes(min_count=0), st.sampled_from(list(Objective)))
+def test_optimal_split_with_ready_times_is_optimal_for_its_order(case, objective):
+    import itertools
+
+    from planner.local_search import optimal_split
+
+    _, perm, counts = case
+    perm = perm[perm < 9]
+    n, m = perm.size, min(counts.size, 4)
+    problem = replanned_problem_for(n, m, 13)
+    tables = CostTables.of(problem).kernel_args()
+    route = np.empty(m)
+    best = np.inf
+    # Every composition of n into m parts, empty routes allowed.
+    for cuts in itertools.combinations_with_replacement(range(n + 1), m - 1):
+        trial = np.diff(np.array((0, *cuts, n))).astype(np.int64)
+        best = min(best, evaluate(perm, trial, int(objective), tables, route))
+    split = np.zeros(m, dtype=np.int64)
+    split[0] = n
+    value = optimal_split(perm, split, int(objective), tables, 0)
+    assert_valid(perm, split, n, m, min_count=0)
+    got = evaluate(perm, split, int(objective), tables, route)
+    assert got <= best + 1e-6 * max(1.0, best)
+    if objective in (Objective.DISTANCE, Objective.TIME, Objective.FUEL):
+        assert value == pytest.approx(got, rel=1e-9)
