@@ -15,6 +15,7 @@ import zenoh
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
+from sim_vehicles.impairment import add_impairment_arguments, impairment_of
 
 EXIT_BAD_INPUT = 2
 EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
@@ -48,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="ask for upload items with MISSION_REQUEST_INT, not ArduPilot's MISSION_REQUEST",
     )
+    add_impairment_arguments(p)
     p.add_argument(
         "--gcs-failsafe",
         type=float,
@@ -150,6 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             upload_request="MISSION_REQUEST_INT" if args.request_int else "MISSION_REQUEST",
             gcs_failsafe_s=args.gcs_failsafe,
         )
+        impairment = impairment_of(args)
         fail_after = parse_fail_after(args.fail_after)
         unknown = sorted(set(fail_after) - set(ids))
         if unknown:
@@ -185,6 +188,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         fail_after=fail_after,
         params=params,
         stats_path=args.stats,
+        impairment=impairment,
+        seed=args.radio_seed,
     )
 
 

@@ -33,6 +33,7 @@ from dispatcher.config.scenario import Scenario
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.link.signals import stop_on_signals
+from sim_vehicles.impairment import DelayLine, Impairment
 from sim_vehicles.tractor import RoverParams, SimTractor
 
 logger = logging.getLogger(__name__)
@@ -68,11 +69,25 @@ class _Link:
     subscriber: zenoh.Subscriber[None]
     token: zenoh.LivelinessToken
     sent: int = 0  # frames published
+    outbound: DelayLine[bytes] | None = None  # an impaired radio, vehicle to ground
+    inbound_line: DelayLine[bytes] | None = None  # and ground to vehicle
 
     def send(self, messages: Sequence[mc.MAVLinkMessage]) -> None:
+        now = time.monotonic()
         for msg in messages:
-            self.publisher.put(self.codec.encode(msg))
-            self.sent += 1
+            frame = self.codec.encode(msg)
+            if self.outbound is not None:
+                self.outbound.push(frame, now)
+            else:
+                self.publisher.put(frame)
+                self.sent += 1
+
+    def flush(self, now: float) -> None:
+        """Frames of the impaired radio whose time has come."""
+        if self.outbound is not None:
+            for frame in self.outbound.due(now):
+                self.publisher.put(frame)
+                self.sent += 1
 
 
 def run(
@@ -85,10 +100,14 @@ def run(
     fail_after: dict[str, float] | None = None,
     params: RoverParams | None = None,
     stats_path: str | None = None,
+    impairment: Impairment | None = None,
+    seed: int = 1,
 ) -> int:
     """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
 
     ``fail_after`` maps a vehicle id to the simulated second it breaks down at.
+    ``impairment`` makes every vehicle's radio lose, duplicate and delay frames both ways
+    (random numbers seeded with ``seed`` and the vehicle's place).
     ``stats_path``, if given, receives a JSON object of frames sent per vehicle at exit.
     Returns the exit code (0). Raises :class:`ConfigError` for an unknown vehicle id.
     """
@@ -135,6 +154,10 @@ def run(
                             ),
                         )
                     )
+                    if impairment is not None and impairment.active:
+                        links[-1].outbound = DelayLine(impairment, seed * 1000 + 2 * index)
+                        links[-1].inbound_line = DelayLine(impairment, seed * 1000 + 2 * index + 1)
+                        logger.info("%s: an impaired radio: %s", vehicle.id, impairment)
                     logger.info(
                         "simulating %s (system %d) at home %s",
                         vehicle.id,
@@ -205,14 +228,25 @@ def serve_vehicles(
 def _zenoh_receiver(links: list[_Link], inbox: queue.Queue[tuple[int, bytes]]) -> Receive:
     """Frames queued by the Zenoh subscribers, decoded (a sample that is no frame is dropped)."""
 
+    impaired = any(link.inbound_line is not None for link in links)
+
     def receive(timeout_s: float) -> list[tuple[int, mc.MAVLinkMessage]]:
         frames: list[tuple[int, bytes]] = []
         try:
-            frames.append(inbox.get(timeout=timeout_s))
+            frames.append(inbox.get(timeout=min(timeout_s, 0.01) if impaired else timeout_s))
             while True:
                 frames.append(inbox.get_nowait())
         except queue.Empty:
             pass
+        if impaired:  # through the impaired radios: some lost, some twice, late
+            now = time.monotonic()
+            for link in links:
+                link.flush(now)
+            for index, frame in frames:
+                line = links[index].inbound_line
+                assert line is not None
+                line.push(frame, now)
+            frames = [(k, f) for k, link in enumerate(links) for f in link.inbound_line.due(now)]  # type: ignore[union-attr]
         inbound: list[tuple[int, mc.MAVLinkMessage]] = []
         for index, frame in frames:
             msg = links[index].inbound.decode_one(frame)

@@ -23,7 +23,17 @@ from dispatcher.link import mavlink as mc
 log = logging.getLogger(__name__)
 
 REQUEST_TIMEOUT_S = 1.5
+"""The protocol's timeout for an answer; shortened to a few round trips once they are
+measured (never under MIN_TIMEOUT_S), so a lossy link resends soon."""
+MIN_TIMEOUT_S = 0.3
 MAX_RETRIES = 5
+"""Resends of one message without an answer before a command fails."""
+TRANSFER_RETRIES = 12
+"""The same for one step of a mission upload or download: each item is a round trip of its
+own, and with 30 % of the frames lost each way about half of them fail (0.51^13 ≈ 1e-4)."""
+TRANSFER_STALL_S = 10.0
+"""A transfer also needs this long without progress before it fails (its retries may come
+faster than the vehicle's own one-second re-requests; ArduPilot gives up after 8 s)."""
 REFUSAL_BACKOFF_S = 2.0  # pause before asking again after a refused command
 START_REFUSAL_WINDOW_S = 60.0  # how long a vehicle may refuse to arm before it is failed
 
@@ -44,6 +54,7 @@ class Outcome(enum.Enum):
 class Stats:
     attempts: int = 1  # times the whole exchange was (re)started
     retries: int = 0  # messages resent after a timeout
+    stray: int = 0  # frames of the protocol that fit no step (late, duplicated, stale): ignored
 
 
 class _Exchange:
@@ -63,19 +74,36 @@ class _Exchange:
         self.outcome = Outcome.RUNNING
         self.reason = ""
         self.stats = Stats()
+        self._base_timeout_s = timeout_s
+        self._srtt: float | None = None  # smoothed round trip (s)
+        self._sent_at = 0.0
+        self._resent = False  # the last message went out more than once
 
     def _fail(self, reason: str) -> list[mc.MAVLinkMessage]:
         self.outcome = Outcome.FAILED
         self.reason = reason
         return []
 
+    def _answered(self, now: float) -> None:
+        """An answer to what was last sent: measure the round trip (not of a message sent
+        again: the answer may be to either copy, Karn's rule) and adapt the timeout."""
+        if self._resent:
+            return
+        sample = max(now - self._sent_at, 0.0)
+        self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
+        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
+
 
 class MissionUpload(_Exchange):
     """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
 
     def __init__(self, items: Sequence[mc.MAVLinkMessage], target_system: int, **kw: float) -> None:
+        kw.setdefault("max_retries", TRANSFER_RETRIES)
         super().__init__(target_system, **kw)  # type: ignore[arg-type]
         self.items = list(items)
+        self.last_refusal = ""
+        self._highest = -1  # the highest item asked for
+        self._progress_at = 0.0
         self._last: mc.MAVLinkMessage | None = None
         self._deadline = 0.0
         self._retries_left = self.max_retries
@@ -86,14 +114,17 @@ class MissionUpload(_Exchange):
         return len(self._sent_seqs) / max(len(self.items), 1)
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
-        count = mc.message(
+        self._progress_at = now
+        return self._send(self._count(), now)
+
+    def _count(self) -> mc.MAVLinkMessage:
+        return mc.message(
             "MISSION_COUNT",
             target_system=self.target_system,
             target_component=self.target_component,
             count=len(self.items),
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
-        return self._send(count, now)
 
     def on_message(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
         if self.outcome is not Outcome.RUNNING:
@@ -101,45 +132,68 @@ class MissionUpload(_Exchange):
         kind = msg.get_type()
         if getattr(msg, "mission_type", 0) != mc.MAV_MISSION_TYPE_MISSION:
             return []
+        # On a lossy link frames come late, twice or from an earlier attempt: what fits no
+        # step of this transfer is counted and ignored; only the timeouts end it.
         if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
             seq = int(msg.seq)
             if not 0 <= seq < len(self.items):
-                return self._fail(f"vehicle asked for item {seq} of {len(self.items)}")
+                self.stats.stray += 1
+                return []
+            if seq in self._sent_seqs and seq != self._highest:
+                # A late duplicate of an earlier request, or the vehicle started the transfer
+                # again (a duplicated MISSION_COUNT): answered all the same; the vehicle says
+                # MAV_MISSION_INVALID_SEQUENCE to an item it did not ask for.
+                self.stats.stray += 1
+            self._highest = max(self._highest, seq)
+            self._answered(now)
             self._sent_seqs.add(seq)
             self._retries_left = self.max_retries
+            self._progress_at = now
             return self._send(self.items[seq], now)
         if kind == "MISSION_ACK":
             result = int(msg.type)
-            if result == mc.MAV_MISSION_ACCEPTED:
-                if len(self._sent_seqs) < len(self.items):
-                    return self._fail(
-                        f"vehicle accepted after {len(self._sent_seqs)} of {len(self.items)} items"
-                    )
+            if result == mc.MAV_MISSION_ACCEPTED and len(self._sent_seqs) == len(self.items):
                 self.outcome = Outcome.DONE
                 return []
-            if result == mc.MAV_MISSION_INVALID_SEQUENCE:
-                # ArduPilot says so for an item it did not ask for and goes on with the
-                # transfer: keep waiting for its next request.
-                return []
-            return self._fail(
-                f"vehicle refused the mission: {mc.constant_name('MAV_MISSION_', result)}"
-            )
+            if result not in (mc.MAV_MISSION_ACCEPTED, mc.MAV_MISSION_INVALID_SEQUENCE):
+                # The vehicle gave up this transfer (or an earlier one): start it again
+                # from the count at the next timeout, and say why if it never goes through.
+                self.last_refusal = mc.constant_name("MAV_MISSION_", result)
+                self._last = self._count()
+                self._sent_seqs.clear()
+                self._highest = -1
+            self.stats.stray += 1
+            return []
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
         if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
             return []
-        if self._retries_left <= 0:
+        if self._retries_left <= 0 and now - self._progress_at >= TRANSFER_STALL_S:
+            if self.last_refusal:
+                return self._fail(f"vehicle refused the mission: {self.last_refusal}")
             return self._fail(
                 f"no answer to {self._last.get_type()} after {self.max_retries} retries"
             )
         self._retries_left -= 1
         self.stats.retries += 1
         log.debug("resending %s to system %d", self._last.get_type(), self.target_system)
-        return self._send(self._last, now)
+        out = self._send(self._last, now, again=True)
+        if self._last.get_type() != "MISSION_COUNT" and int(self._last.seq) + 1 < len(self.items):
+            # The vehicle may hold that item and its request for the next be what was lost:
+            # the next one too (the vehicle takes the item it expects whether it asked for
+            # it or not, and answers MAV_MISSION_INVALID_SEQUENCE to the other): a lost
+            # request costs one timeout of ours, not the vehicle's one-second re-request.
+            out.append(self.items[int(self._last.seq) + 1])
+            self._sent_seqs.add(int(self._last.seq) + 1)
+        return out
 
-    def _send(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+    def _send(
+        self, msg: mc.MAVLinkMessage, now: float, again: bool = False
+    ) -> list[mc.MAVLinkMessage]:
+        self._resent = again
         self._last = msg
+        self._sent_at = now
         self._deadline = now + self.timeout_s
         return [msg]
 
@@ -150,14 +204,17 @@ class MissionDownload(_Exchange):
     the MISSION_ITEM_INT messages once the outcome is DONE."""
 
     def __init__(self, target_system: int, **kw: float) -> None:
+        kw.setdefault("max_retries", TRANSFER_RETRIES)
         super().__init__(target_system, **kw)  # type: ignore[arg-type]
         self.count: int | None = None
         self.items: list[mc.MAVLinkMessage] = []
+        self._progress_at = 0.0
         self._last: mc.MAVLinkMessage | None = None
         self._deadline = 0.0
         self._retries_left = self.max_retries
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
+        self._progress_at = now
         ask = mc.message(
             "MISSION_REQUEST_LIST",
             target_system=self.target_system,
@@ -173,30 +230,33 @@ class MissionDownload(_Exchange):
             return []
         kind = msg.get_type()
         if kind == "MISSION_COUNT" and self.count is None:
+            self._answered(now)
             self.count = int(msg.count)
             self._retries_left = self.max_retries
+            self._progress_at = now
             return self._next(now)
         if kind == "MISSION_ITEM_INT" and self.count is not None:
             if int(msg.seq) != len(self.items):
-                return []  # a late answer to a request sent again
+                self.stats.stray += 1  # a late answer to a request sent again
+                return []
+            self._answered(now)
             self.items.append(msg)
             self._retries_left = self.max_retries
+            self._progress_at = now
             return self._next(now)
-        if kind == "MISSION_ACK" and int(msg.type) != mc.MAV_MISSION_ACCEPTED:
-            result = mc.constant_name("MAV_MISSION_", int(msg.type))
-            return self._fail(f"vehicle refused the download: {result}")
+        self.stats.stray += 1  # a second count, an ACK (an error: asked again at the timeout)
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
         if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
             return []
-        if self._retries_left <= 0:
+        if self._retries_left <= 0 and now - self._progress_at >= TRANSFER_STALL_S:
             return self._fail(
                 f"no answer to {self._last.get_type()} after {self.max_retries} retries"
             )
         self._retries_left -= 1
         self.stats.retries += 1
-        return self._send(self._last, now)
+        return self._send(self._last, now, again=True)
 
     def _next(self, now: float) -> list[mc.MAVLinkMessage]:
         assert self.count is not None
@@ -219,8 +279,12 @@ class MissionDownload(_Exchange):
         )
         return self._send(request, now)
 
-    def _send(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
+    def _send(
+        self, msg: mc.MAVLinkMessage, now: float, again: bool = False
+    ) -> list[mc.MAVLinkMessage]:
+        self._resent = again
         self._last = msg
+        self._sent_at = now
         self._deadline = now + self.timeout_s
         return [msg]
 

@@ -5,6 +5,8 @@ from helpers.messages import command_ack
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import (
+    MIN_TIMEOUT_S,
+    TRANSFER_RETRIES,
     Command,
     CommandSequence,
     MissionUpload,
@@ -90,34 +92,60 @@ def test_timeout_then_retry_then_success():
     (resent,) = up.on_tick(1.6)  # no request came: resend the count
     assert resent.get_type() == "MISSION_COUNT"
     up.on_message(request(0), 1.7)
-    (item,) = up.on_tick(3.3)  # item 0 lost on the way: resend it
-    assert item.get_type() == "MISSION_ITEM_INT" and item.seq == 0
+    # Item 0 (or the request for item 1) lost on the way: resend it, and item 1 with it.
+    item, following = up.on_tick(3.3)
+    assert (item.get_type(), item.seq, following.seq) == ("MISSION_ITEM_INT", 0, 1)
     up.on_message(request(1), 3.4)
     up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 3.5)
     assert up.outcome is Outcome.DONE and up.stats.retries == 2
 
 
-def test_gives_up_after_five_retries():
+def test_gives_up_after_its_retries():
     up = MissionUpload(items(2), VEHICLE)
     up.start(0.0)
     now, sent = 0.0, 0
     while up.outcome is Outcome.RUNNING:
         now += 1.6
         sent += len(up.on_tick(now))
-    assert sent == 5 and up.outcome is Outcome.FAILED
-    assert "after 5 retries" in up.reason
+    assert sent == TRANSFER_RETRIES and up.outcome is Outcome.FAILED
+    assert f"after {TRANSFER_RETRIES} retries" in up.reason
 
 
-def test_refusal_and_early_accept_fail_the_upload():
+def test_a_refusal_is_asked_again_from_the_count_and_named_when_it_never_goes_through():
     up = MissionUpload(items(2), VEHICLE)
     up.start(0.0)
-    up.on_message(ack(mc.MAV_MISSION_NO_SPACE), 0.1)
-    assert up.outcome is Outcome.FAILED and "MAV_MISSION_NO_SPACE" in up.reason
-    up = MissionUpload(items(2), VEHICLE)
+    assert up.on_message(ack(mc.MAV_MISSION_NO_SPACE), 0.1) == []
+    assert up.outcome is Outcome.RUNNING and up.stats.stray == 1
+    (again,) = up.on_tick(1.7)
+    assert again.get_type() == "MISSION_COUNT"  # the transfer starts over
+    now = 1.7
+    while up.outcome is Outcome.RUNNING:
+        now += 1.6
+        up.on_message(ack(mc.MAV_MISSION_NO_SPACE), now)
+        up.on_tick(now + 1.6)
+    assert "refused the mission: MAV_MISSION_NO_SPACE" in up.reason
+
+
+def test_stray_frames_are_counted_and_ignored():
+    up = MissionUpload(items(3), VEHICLE)
     up.start(0.0)
+    assert up.on_message(request(7), 0.05) == []  # no such item
     up.on_message(request(0), 0.1)
-    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.2)
-    assert up.outcome is Outcome.FAILED
+    assert up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.15) == []  # early: not all sent
+    up.on_message(request(1), 0.2)
+    (item0,) = up.on_message(request(0), 0.25)  # a late duplicate: answered all the same
+    assert item0.seq == 0
+    up.on_message(request(2), 0.3)
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.35)
+    assert up.outcome is Outcome.DONE and up.stats.stray == 3
+
+
+def test_the_timeout_follows_the_round_trip():
+    up = MissionUpload(items(40), VEHICLE)
+    up.start(0.0)
+    for k in range(40):
+        up.on_message(request(k), 0.02 * (k + 1))  # 20 ms round trips
+    assert up.timeout_s == MIN_TIMEOUT_S
 
 
 def test_start_sequence_sets_the_item_disarmed_then_arms_then_sets_auto_with_retries():
