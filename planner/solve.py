@@ -3,13 +3,21 @@
 Python drives the generations; each generation is one compiled call. Stopping criteria
 are small callables started on their first call, so numba's compilation (done by
 :func:`warm_up` before the clock starts) is never charged to a time limit.
+
+The search is anytime: a :class:`StopFlag` set from another thread (a re-plan that must
+answer now) is looked at between generations, between the steps of one, and between the
+individuals of the initial population, so :func:`solve` returns the best solution found so
+far soon after (well under 100 ms on a farm's few dozen fields, once the kernels are
+compiled). A warm start (``initial_routes``, e.g. the remaining routes of the plan being
+carried out) enters the first population, so the result is never worse than it.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,11 +44,12 @@ log = logging.getLogger(__name__)
 
 
 class MaxGenerations:
-    """Stop after ``limit`` generations (the paper's MAXGEN)."""
+    """Stop after ``limit`` generations (the paper's MAXGEN); 0 returns the best of the
+    initial population (with a warm start: the warm start, unless beaten)."""
 
     def __init__(self, limit: int) -> None:
-        if limit < 1:
-            raise ValueError(f"the generation limit must be at least 1, not {limit}")
+        if limit < 0:
+            raise ValueError(f"the generation limit must not be negative, not {limit}")
         self.limit = limit
         self.done = 0
 
@@ -79,10 +88,36 @@ class MaxRuntime:
         return min(self.elapsed() / self.seconds, 1.0)
 
 
+class StopFlag:
+    """Stop as soon as ``event`` is set, from any thread (the search returns its best so
+    far); a flag already set when the run starts stops it before the first generation."""
+
+    def __init__(self, event: threading.Event | None = None) -> None:
+        self.event = event if event is not None else threading.Event()
+
+    def set(self) -> None:
+        self.event.set()
+
+    def is_set(self) -> bool:
+        return self.event.is_set()
+
+    def start(self) -> None:
+        """Nothing to reset: a flag is the caller's to clear."""
+
+    def __call__(self, best_cost: float) -> bool:
+        return self.event.is_set()
+
+    def progress(self) -> float:
+        return 0.0
+
+
+Criterion = MaxGenerations | MaxRuntime | StopFlag
+
+
 class AnyOf:
     """Stop as soon as any criterion says so; progress is the furthest along."""
 
-    def __init__(self, *criteria: MaxGenerations | MaxRuntime) -> None:
+    def __init__(self, *criteria: Criterion) -> None:
         if not criteria:
             raise ValueError("give at least one stopping criterion")
         self.criteria = criteria
@@ -103,14 +138,25 @@ class AnyOf:
         limits = [c.limit for c in self.criteria if isinstance(c, MaxGenerations)]
         return min(limits) if limits else 1_000_000
 
+    def interrupted(self) -> bool:
+        """Whether a :class:`StopFlag` among the criteria is set (looked at mid-generation)."""
+        return any(c.is_set() for c in self.criteria if isinstance(c, StopFlag))
 
-def stop_after(generations: int | None = 2000, seconds: float | None = None) -> AnyOf:
-    """The usual criterion: MAXGEN generations or a wall-clock limit, whichever first."""
-    criteria: list[MaxGenerations | MaxRuntime] = []
+
+def stop_after(
+    generations: int | None = 2000,
+    seconds: float | None = None,
+    flag: StopFlag | threading.Event | None = None,
+) -> AnyOf:
+    """The usual criterion: MAXGEN generations or a wall-clock limit, whichever first, or
+    as soon as ``flag`` is set."""
+    criteria: list[Criterion] = []
     if generations is not None:
         criteria.append(MaxGenerations(generations))
     if seconds is not None:
         criteria.append(MaxRuntime(seconds))
+    if flag is not None:
+        criteria.append(flag if isinstance(flag, StopFlag) else StopFlag(flag))
     return AnyOf(*criteria)
 
 
@@ -145,20 +191,29 @@ def solve(
     problem: Problem,
     objective: str | Objective = Objective.DISTANCE,
     algorithm: str = "ighoa",
-    stop: AnyOf | None = None,
+    stop: AnyOf | Criterion | None = None,
     seed: int = 1,
     params: ighoa.IGHOAParams | ga.GAParams | None = None,
     annealing: AnnealingParams | None = None,
     on_generation: GenerationCallback | None = None,
+    initial_routes: Sequence[Sequence[int]] | None = None,
 ) -> Result:
     """Allocate and order the tasks of ``problem`` over its machines.
 
     ``on_generation(generation, best_cost, elapsed_s)`` is called after every generation.
+    ``initial_routes`` (task indices per machine, in driving order) is a warm start put
+    into the first population: see :func:`warm_chromosome` for how an incomplete one is
+    completed. The result is never worse than it, and equal to it when no generation runs
+    (``MaxGenerations(0)``, or a :class:`StopFlag` already set) and nothing in the first
+    population beats it.
     """
     obj = Objective.parse(objective)
     if algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
-    stop = stop or stop_after()
+    if stop is None:
+        stop = stop_after()
+    elif not isinstance(stop, AnyOf):
+        stop = AnyOf(stop)
     if algorithm == "ighoa":
         params = params or ighoa.IGHOAParams()
         if not isinstance(params, ighoa.IGHOAParams):
@@ -168,6 +223,7 @@ def solve(
         if not isinstance(params, ga.GAParams):
             raise TypeError("ga takes GAParams")
     annealing = annealing or AnnealingParams()
+    warm = None if initial_routes is None else warm_chromosome(problem, initial_routes)
     warm_up()
 
     tables = CostTables.of(problem).kernel_args()
@@ -178,29 +234,36 @@ def solve(
     counts = np.empty((pop, m), dtype=np.int64)
     started = time.perf_counter()
     stop.start()
-    _initial_population(
-        state,
-        perms,
-        counts,
-        min_count,
-        tables,
-        algorithm == "ighoa",
-        annealing.t_start,
-        annealing.t_end,
-        annealing.alpha,
-        annealing.chain,
-    )
+    for p in range(pop):
+        # One call per individual, so that a stop flag is seen during a long pre-planning;
+        # once it is set the rest are random orders (cheap), never left empty.
+        _initial_individual(
+            state,
+            perms[p],
+            counts[p],
+            min_count,
+            tables,
+            algorithm == "ighoa" and not stop.interrupted(),
+            annealing.t_start,
+            annealing.t_end,
+            annealing.alpha,
+            annealing.chain,
+        )
+    if warm is not None:
+        perms[0], counts[0] = warm
     costs = np.empty(pop)
     route_costs = np.empty((pop, m))
     evaluate_population(perms, counts, int(obj), tables, costs, route_costs)
     best = int(np.argmin(costs))
+    if warm is not None and costs[0] <= costs[best]:
+        best = 0  # a tie keeps the warm start
     elite_perm, elite_counts = perms[best].copy(), counts[best].copy()
     elite_route, elite_cost = route_costs[best].copy(), float(costs[best])
     history: list[float] = []
     neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
     stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
     gen = 0
-    while True:
+    while not stop.interrupted() and stop.max_generations > 0:
         gen += 1
         if isinstance(params, ighoa.IGHOAParams):
             sp = ighoa.adaptive_tolerance(
@@ -230,6 +293,7 @@ def solve(
             stats["crossovers"] += cx
             stats["mutations"] += mu
             _polish(
+                stop,
                 state,
                 perms,
                 counts,
@@ -295,6 +359,7 @@ def solve(
 
 
 def _polish(  # type: ignore[no-untyped-def]
+    stop,
     state,
     perms,
     counts,
@@ -308,11 +373,14 @@ def _polish(  # type: ignore[no-untyped-def]
     stats,
 ) -> None:
     """§4.5 on the generation's best (and, with the extended local search, on
-    ``params.memetic`` random others); a polished chromosome replaces its original."""
+    ``params.memetic`` random others); a polished chromosome replaces its original.
+    Skipped as soon as ``stop`` is interrupted."""
     targets = [int(np.argmin(costs))]
     if params.local_search == "extended" and params.memetic:
         targets += [randint(state, len(costs)) for _ in range(params.memetic)]
     for idx in dict.fromkeys(targets):
+        if stop.interrupted():
+            return
         perm, cnt, route = perms[idx].copy(), counts[idx].copy(), route_costs[idx].copy()
         route_nn = neighbours if params.local_search == "extended" else neighbours[:, :0]
         cost = ighoa.polish(
@@ -328,22 +396,52 @@ def _polish(  # type: ignore[no-untyped-def]
             perms[idx], counts[idx], route_costs[idx], costs[idx] = perm, cnt, route, cost
 
 
+def warm_chromosome(
+    problem: Problem, routes: Sequence[Sequence[int]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """A warm start as a two-part chromosome. One route per machine, task indices in
+    driving order, none twice; a task in no route is added at the end of the shortest
+    route, and a route short of ``min_tasks_per_machine`` takes the last task of the
+    longest one (so the remaining routes of a plan with a machine gone can be given as
+    they are, that machine's route left out)."""
+    m, n = problem.num_machines, problem.num_tasks
+    if len(routes) != m:
+        raise ValueError(f"the warm start has {len(routes)} routes for {m} machines")
+    lists = [[int(j) for j in route] for route in routes]
+    seen: set[int] = set()
+    for route in lists:
+        for j in route:
+            if not 0 <= j < n:
+                raise ValueError(f"the warm start names task {j}; there are {n} tasks")
+            if j in seen:
+                raise ValueError(f"the warm start has task {j} twice")
+            seen.add(j)
+    for j in range(n):
+        if j not in seen:
+            min(lists, key=len).append(j)
+    for route in lists:
+        while len(route) < problem.min_tasks_per_machine:
+            route.append(max(lists, key=len).pop())
+    perm = np.array([j for route in lists for j in route], dtype=np.int64)
+    counts = np.array([len(route) for route in lists], dtype=np.int64)
+    return perm, counts
+
+
 @njit(cache=True)
-def _initial_population(  # type: ignore[no-untyped-def]
-    state, perms, counts, min_count, tables, pre_plan, t_start, t_end, alpha, chain
+def _initial_individual(  # type: ignore[no-untyped-def]
+    state, perm, counts, min_count, tables, pre_plan, t_start, t_end, alpha, chain
 ):
-    """§4.6 (1)-(2): random task orders, annealed when ``pre_plan`` (IGHOA's SA path
-    pre-planning), each with a random split of the tasks over the machines."""
+    """§4.6 (1)-(2) for one individual: a random task order, annealed when ``pre_plan``
+    (IGHOA's SA path pre-planning), with a random split of the tasks over the machines."""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
-    pop, n = perms.shape
-    m = counts.shape[1]
-    for p in range(pop):
-        for k in range(n):
-            perms[p, k] = k
-        shuffle(state, perms[p])
-        if pre_plan:
-            anneal(state, perms[p], dist, start_dist, end_dist, t_start, t_end, alpha, chain)
-        random_counts(state, n, m, min_count, counts[p])
+    n = perm.shape[0]
+    m = counts.shape[0]
+    for k in range(n):
+        perm[k] = k
+    shuffle(state, perm)
+    if pre_plan:
+        anneal(state, perm, dist, start_dist, end_dist, t_start, t_end, alpha, chain)
+    random_counts(state, n, m, min_count, counts)
 
 
 _warmed = False

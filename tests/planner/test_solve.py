@@ -4,14 +4,17 @@ import json
 import os
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
 
+from planner.cost import figures
 from planner.ga import GAParams
 from planner.ighoa import IGHOAParams
 from planner.problem import Machine, Problem, Task
-from planner.solve import MaxGenerations, MaxRuntime, solve, stop_after
+from planner.solve import MaxGenerations, MaxRuntime, StopFlag, solve, stop_after, warm_up
 from planner.tsplib import read_instance
 
 DATA = Path(__file__).parent.parent / "data"
@@ -113,3 +116,81 @@ def test_compiled_and_pure_python_kernels_agree():
         )
         out[jit] = json.loads(proc.stdout)
     assert out["0"] == out["1"]
+
+
+def test_a_stop_flag_set_from_another_thread_returns_the_best_within_100_ms():
+    warm_up()
+    problem = read_instance(DATA / "eil51.tsp").to_problem(3)
+    for delay in (0.4, 0.005):  # during the generations; during the initial population
+        flag = StopFlag()
+        set_at: list[float] = []
+
+        def set_later(
+            flag: StopFlag = flag, delay: float = delay, set_at: list[float] = set_at
+        ) -> None:
+            time.sleep(delay)
+            set_at.append(time.perf_counter())
+            flag.set()
+
+        thread = threading.Thread(target=set_later)
+        thread.start()
+        result = solve(problem, "distance", "ighoa", stop_after(None, 60.0, flag), seed=2)
+        returned = time.perf_counter()
+        thread.join()
+        assert returned - set_at[0] < 0.1
+        assert valid_routes(result, problem.num_tasks)
+        assert result.cost == pytest.approx(result.figures.value(result.objective))
+
+
+def test_a_flag_set_before_the_run_stops_it_before_the_first_generation():
+    flag = threading.Event()
+    flag.set()
+    params = IGHOAParams(population=10)
+    result = solve(small_farm(), "makespan", "ighoa", StopFlag(flag), seed=1, params=params)
+    assert result.generations == 0 and result.history == ()
+    assert valid_routes(result, 8)
+
+
+@pytest.mark.parametrize("objective", ["distance", "makespan", "fuel"])
+def test_warm_start_is_kept_with_no_generation_and_never_beaten_by_worse(objective):
+    problem = small_farm()
+    params = IGHOAParams(population=20)
+    first = solve(problem, objective, "ighoa", stop_after(40), seed=3, params=params)
+    kept = solve(problem, objective, "ga", MaxGenerations(0), seed=9, initial_routes=first.routes)
+    assert kept.routes == first.routes and kept.generations == 0
+    assert kept.cost == pytest.approx(first.cost)
+    # A poor warm start (all on one machine, in index order) is never made worse.
+    poor = [list(range(7)), [7]]
+    poor_cost = figures(problem, poor).value(kept.objective)
+    for gens in (1, 5, 30):
+        for algorithm in ("ighoa", "ga"):
+            again = solve(
+                problem,
+                objective,
+                algorithm,
+                stop_after(gens),
+                seed=gens,
+                params=IGHOAParams(population=20) if algorithm == "ighoa" else GAParams(20),
+                initial_routes=poor,
+            )
+            assert again.cost <= poor_cost + 1e-9
+            assert valid_routes(again, 8)
+
+
+def test_warm_start_from_a_plan_with_a_machine_gone():
+    problem = small_farm()
+    three = Problem.build(
+        [*problem.machines, Machine("t3", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)],
+        problem.tasks,
+        (-100.0, -100.0),
+    )
+    before = solve(three, "makespan", "ighoa", stop_after(20), seed=1)
+    after = three.only_machines([0, 2])  # t2 broke down; its fields must go somewhere
+    warm = [before.routes[0], before.routes[2]]
+    result = solve(after, "makespan", "ighoa", MaxGenerations(0), initial_routes=warm)
+    flat = sorted(j for r in result.routes for j in r)
+    assert flat == list(range(8))
+    with pytest.raises(ValueError, match="task 3 twice"):
+        solve(after, initial_routes=[[3, 1], [3]], stop=MaxGenerations(0))
+    with pytest.raises(ValueError, match="3 routes for 2 machines"):
+        solve(after, initial_routes=[[], [], []], stop=MaxGenerations(0))
