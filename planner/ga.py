@@ -11,6 +11,7 @@ from numba import njit
 
 from planner.cost import evaluate
 from planner.operators import INSERT, OX, SWAP, crossover, mutate
+from planner.pins import repair_pins
 from planner.population import keep_elite, tournament
 from planner.rng import randint, shuffle, uniform
 
@@ -42,6 +43,7 @@ def generation(  # type: ignore[no-untyped-def]
     objective,
     tables,
     min_count,
+    pins,
     crossover_rate,
     mutation_rate,
     tournament_size,
@@ -50,7 +52,7 @@ def generation(  # type: ignore[no-untyped-def]
     elite_route,
     elite_cost,
 ):
-    """One classic GA generation in place."""
+    """One classic GA generation in place; every chromosome keeps its pinned tasks."""
     pop = perms.shape[0]
     winners = np.empty(pop, dtype=np.int64)
     tournament(state, costs, tournament_size, winners)
@@ -74,5 +76,6 @@ def generation(  # type: ignore[no-untyped-def]
         if uniform(state) < mutation_rate:
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, False)
+        repair_pins(perms[p], counts[p], pins, min_count)
         costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)

@@ -26,6 +26,7 @@ from planner.operators import (
     mutate,
     random_two_opt,
 )
+from planner.pins import repair_pins
 from planner.population import keep_elite, positional_similarity, tournament
 from planner.rng import randint, shuffle, uniform
 
@@ -113,6 +114,7 @@ def generation(  # type: ignore[no-untyped-def]
     objective,
     tables,
     min_count,
+    pins,
     sp,
     pc_min,
     pc_mid,
@@ -126,7 +128,8 @@ def generation(  # type: ignore[no-untyped-def]
     elite_cost,
 ):
     """One IGHOA generation in place on the population arrays; returns the number of
-    crossovers and mutations done (for statistics)."""
+    crossovers and mutations done (for statistics). Children and mutants are repaired to
+    keep their pinned tasks (:mod:`planner.pins`)."""
     pop, n = perms.shape
 
     # §4.2 tournament selection into a new population.
@@ -168,6 +171,7 @@ def generation(  # type: ignore[no-untyped-def]
             perms[k + 1] = sel_perms[mo]
             counts[k + 1] = sel_counts[mo]
     for p in range(pop):
+        repair_pins(perms[p], counts[p], pins, min_count)
         costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
 
     # §4.4 adaptive mutation: formula (19) diversity and (20) rate per individual.
@@ -184,16 +188,20 @@ def generation(  # type: ignore[no-untyped-def]
             mutations += 1
             kind = SWAP if randint(state, 2) == 0 else INSERT
             mutate(state, kind, perms[p], counts[p], min_count, shift_counts)
+            repair_pins(perms[p], counts[p], pins, min_count)
             costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
     keep_elite(perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route)
     return crossovers, mutations
 
 
 @njit(cache=True)
-def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours):  # type: ignore[no-untyped-def]
-    """§4.5 on one chromosome in place: ``tries`` random 2-opt reversals of both parts,
-    each kept only if it lowers the cost, then the circle modification of every route
-    (neighbour-list 2-opt when ``neighbours`` has columns). Returns the new cost."""
+def polish(  # type: ignore[no-untyped-def]
+    state, perm, counts, objective, tables, tries, route_cost, neighbours, pins, min_count
+):
+    """§4.5 on one chromosome in place: ``tries`` random 2-opt reversals of both parts
+    (each repaired for its pins), each kept only if it lowers the cost, then the circle
+    modification of every route (neighbour-list 2-opt when ``neighbours`` has columns).
+    Returns the new cost."""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     cost = evaluate(perm, counts, objective, tables, route_cost)
     trial_perm = perm.copy()
@@ -203,11 +211,12 @@ def polish(state, perm, counts, objective, tables, tries, route_cost, neighbours
         trial_perm[:] = perm
         trial_counts[:] = counts
         random_two_opt(state, trial_perm, trial_counts)
+        repair_pins(trial_perm, trial_counts, pins, min_count)
         trial = evaluate(trial_perm, trial_counts, objective, tables, trial_route)
         if trial < cost - 1e-12:
             perm[:] = trial_perm
             counts[:] = trial_counts
             route_cost[:] = trial_route
             cost = trial
-    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
+    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return evaluate(perm, counts, objective, tables, route_cost)

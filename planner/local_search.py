@@ -68,10 +68,11 @@ def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
 
 @njit(cache=True)
 def improve_allocation(  # type: ignore[no-untyped-def]
-    perm, counts, objective, tables, neighbours, min_count, max_passes
+    perm, counts, objective, tables, neighbours, min_count, max_passes, pins
 ):
     """Relocate and exchange tasks between routes while it pays; then 2-opt each route.
-    Works in place on the chromosome and returns the number of moves applied."""
+    Works in place on the chromosome and returns the number of moves applied. A pinned
+    task (``pins``) is never moved, and nothing is put before it."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
@@ -111,6 +112,8 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     for _ in range(max_passes):
         improved = False
         for t in range(n):
+            if pins[t] >= 0:
+                continue
             a = route_of[t]
             pa = pos[t]
             prev_t = _node(routes, sizes, a, pa - 1)
@@ -134,6 +137,8 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                 # Relocate t next to w (before: between pw-1 and pw; after: pw and pw+1).
                 if sizes[a] > min_count:
                     for side in range(2):
+                        if side == 0 and pins[w] >= 0:
+                            continue  # nothing goes before a pinned task
                         u = _node(routes, sizes, b, pw - 1 + side)
                         v = _node(routes, sizes, b, pw + side)
                         insertion = (
@@ -157,6 +162,8 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                         trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
                         trial_values[a], trial_values[b] = values[a], values[b]
                 # Exchange t and w.
+                if pins[w] >= 0:
+                    continue
                 prev_w = _node(routes, sizes, b, pw - 1)
                 next_w = _node(routes, sizes, b, pw + 1)
                 da = (
@@ -251,16 +258,18 @@ def improve_allocation(  # type: ignore[no-untyped-def]
             perm[begin + k] = routes[r, k]
         counts[r] = sizes[r]
         begin += sizes[r]
-    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours)
+    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves
 
 
 @njit(cache=True)
-def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[no-untyped-def]
+def optimal_split(perm, counts, objective, tables, min_count, pins):  # type: ignore[no-untyped-def]
     """Re-cut the task order into routes optimally for the objective (Prins's Split,
     with machine k taking the k-th stretch): dynamic programming over how many tasks the
     first k machines take, O(m n^2). Changes ``counts`` only; returns the new cost
-    without the min-max tie-breaker."""
+    without the min-max tie-breaker. With pins, a machine's stretch starts with its pinned
+    task and holds no other; when the order allows no such cut, ``counts`` is kept and
+    the return is infinite."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     n = perm.shape[0]
     m = counts.shape[0]
@@ -275,6 +284,14 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
         for k in range(m):
             for t in range(n):
                 extra[k, t + 1] = extra[k, t] + task_x[k, perm[t]]
+    # Pinned tasks: where each machine's is in the order, and how many lie before a place.
+    pin_at = np.full(m, -1, dtype=np.int64)
+    pinned_before = np.zeros(n + 1, dtype=np.int64)
+    for t in range(n):
+        pinned_before[t + 1] = pinned_before[t]
+        if pins[perm[t]] >= 0:
+            pin_at[pins[perm[t]]] = t
+            pinned_before[t + 1] += 1
     inf = np.inf
     best = np.full((m + 1, n + 1), inf)
     cut = np.zeros((m + 1, n + 1), dtype=np.int64)
@@ -292,6 +309,11 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
                 before = best[k - 1, i]
                 if before == inf:
                     continue
+                if pin_at[mk] >= 0:
+                    if j == i or i != pin_at[mk] or pinned_before[j] - pinned_before[i + 1] > 0:
+                        continue
+                elif pinned_before[j] - pinned_before[i] > 0:
+                    continue
                 if j == i:
                     value = 0.0
                 else:
@@ -308,6 +330,8 @@ def optimal_split(perm, counts, objective, tables, min_count):  # type: ignore[n
                 if total < best[k, j]:
                     best[k, j] = total
                     cut[k, j] = i
+    if best[m, n] == inf:
+        return inf
     j = n
     for k in range(m, 0, -1):
         i = cut[k, j]

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from planner.pins import first_fixed
 from planner.rng import randint
 
 OX = 0
@@ -200,9 +201,10 @@ def leg(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-d
 
 
 @njit(cache=True)
-def circle_modification(perm, begin, count, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-def]
+def circle_modification(perm, begin, count, machine, dist, start_dist, end_dist, fixed):  # type: ignore[no-untyped-def]
     """§4.5(2): improve one route's Hamilton circle (start, tasks, end) by 2-opt exchanges
-    until none shortens it. Returns the total gain. Assumes ``dist`` is symmetric."""
+    until none shortens it. Returns the total gain. Assumes ``dist`` is symmetric.
+    The first ``fixed`` tasks (0 or 1: a pinned task) stay where they are."""
     if count < 2:
         return 0.0
     nodes = np.empty(count + 2, dtype=np.int64)
@@ -214,7 +216,7 @@ def circle_modification(perm, begin, count, machine, dist, start_dist, end_dist)
     improved = True
     while improved:
         improved = False
-        for i in range(0, count):
+        for i in range(fixed, count):
             a, b = nodes[i], nodes[i + 1]
             d_ab = leg(a, b, machine, dist, start_dist, end_dist)
             for j in range(i + 2, count + 1):
@@ -253,10 +255,13 @@ def edge(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-
 
 
 @njit(cache=True)
-def two_opt_neighbours(perm, begin, count, machine, dist, start_dist, end_dist, neighbours, where):  # type: ignore[no-untyped-def]
+def two_opt_neighbours(  # type: ignore[no-untyped-def]
+    perm, begin, count, machine, dist, start_dist, end_dist, neighbours, where, fixed
+):
     """2-opt on one route with candidate edges from each task's nearest neighbours:
     O(count k) per pass instead of the circle modification's O(count^2), for long routes.
-    ``where`` is scratch of one int per task, all -1 on entry and on exit."""
+    ``where`` is scratch of one int per task, all -1 on entry and on exit. The first
+    ``fixed`` tasks (0 or 1: a pinned task) stay where they are."""
     if count < 2:
         return 0.0
     nodes = np.empty(count + 2, dtype=np.int64)
@@ -296,6 +301,8 @@ def two_opt_neighbours(perm, begin, count, machine, dist, start_dist, end_dist, 
                             lo, hi = (i + 1, j) if j > i else (j + 1, i)
                         else:
                             lo, hi = (i, j - 1) if j > i else (j, i - 1)
+                        if lo <= fixed:
+                            continue
                         reverse(nodes, lo, hi)
                         for k in range(lo, hi + 1):
                             where[nodes[k]] = k
@@ -311,16 +318,18 @@ def two_opt_neighbours(perm, begin, count, machine, dist, start_dist, end_dist, 
 
 
 @njit(cache=True)
-def improve_routes(perm, counts, dist, start_dist, end_dist, neighbours):  # type: ignore[no-untyped-def]
+def improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins):  # type: ignore[no-untyped-def]
     """Improve every route of a chromosome: the paper's circle modification when
-    ``neighbours`` has no columns, the neighbour-list 2-opt otherwise."""
+    ``neighbours`` has no columns, the neighbour-list 2-opt otherwise; a pinned task
+    (``pins``, see :mod:`planner.pins`) first in its route stays first."""
     begin = 0
     where = np.full(perm.shape[0], -1, dtype=np.int64)
     for i in range(counts.shape[0]):
+        fixed = first_fixed(perm, begin, counts[i], i, pins)
         if neighbours.shape[1] == 0:
-            circle_modification(perm, begin, counts[i], i, dist, start_dist, end_dist)
+            circle_modification(perm, begin, counts[i], i, dist, start_dist, end_dist, fixed)
         else:
             two_opt_neighbours(
-                perm, begin, counts[i], i, dist, start_dist, end_dist, neighbours, where
+                perm, begin, counts[i], i, dist, start_dist, end_dist, neighbours, where, fixed
             )
         begin += counts[i]

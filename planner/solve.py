@@ -35,6 +35,7 @@ from planner.cost import (
     split_routes,
 )
 from planner.local_search import improve_allocation, nearest_neighbours, optimal_split
+from planner.pins import repair_pins
 from planner.population import random_counts
 from planner.problem import Problem
 from planner.rng import make_state, randint, shuffle
@@ -226,7 +227,9 @@ def solve(
     warm = None if initial_routes is None else warm_chromosome(problem, initial_routes)
     warm_up()
 
-    tables = CostTables.of(problem).kernel_args()
+    cost_tables = CostTables.of(problem)
+    tables = cost_tables.kernel_args()
+    pins = cost_tables.pinned_machine
     state = make_state(seed)
     n, m, pop = problem.num_tasks, problem.num_machines, params.population
     min_count = problem.min_tasks_per_machine
@@ -242,6 +245,7 @@ def solve(
             perms[p],
             counts[p],
             min_count,
+            pins,
             tables,
             algorithm == "ighoa" and not stop.interrupted(),
             annealing.t_start,
@@ -278,6 +282,7 @@ def solve(
                 int(obj),
                 tables,
                 min_count,
+                pins,
                 sp,
                 params.pc_min,
                 params.pc_mid,
@@ -304,6 +309,7 @@ def solve(
                 params,
                 neighbours,
                 min_count,
+                pins,
                 stats,
             )
         else:
@@ -316,6 +322,7 @@ def solve(
                 int(obj),
                 tables,
                 min_count,
+                pins,
                 params.crossover_rate,
                 params.mutation_rate,
                 params.tournament_size,
@@ -370,6 +377,7 @@ def _polish(  # type: ignore[no-untyped-def]
     params,
     neighbours,
     min_count,
+    pins,
     stats,
 ) -> None:
     """§4.5 on the generation's best (and, with the extended local search, on
@@ -384,12 +392,21 @@ def _polish(  # type: ignore[no-untyped-def]
         perm, cnt, route = perms[idx].copy(), counts[idx].copy(), route_costs[idx].copy()
         route_nn = neighbours if params.local_search == "extended" else neighbours[:, :0]
         cost = ighoa.polish(
-            state, perm, cnt, objective, tables, params.two_opt_tries, route, route_nn
+            state,
+            perm,
+            cnt,
+            objective,
+            tables,
+            params.two_opt_tries,
+            route,
+            route_nn,
+            pins,
+            min_count,
         )
         if params.local_search == "extended":
             if idx == targets[0]:
-                optimal_split(perm, cnt, objective, tables, min_count)
-            improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50)
+                optimal_split(perm, cnt, objective, tables, min_count, pins)
+            improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50, pins)
             cost = evaluate(perm, cnt, objective, tables, route)
         if cost < costs[idx] - 1e-12:
             stats["polish_gains"] += 1
@@ -403,7 +420,8 @@ def warm_chromosome(
     driving order, none twice; a task in no route is added at the end of the shortest
     route, and a route short of ``min_tasks_per_machine`` takes the last task of the
     longest one (so the remaining routes of a plan with a machine gone can be given as
-    they are, that machine's route left out)."""
+    they are, that machine's route left out); pinned tasks are moved to the front of
+    their machine's route."""
     m, n = problem.num_machines, problem.num_tasks
     if len(routes) != m:
         raise ValueError(f"the warm start has {len(routes)} routes for {m} machines")
@@ -424,15 +442,18 @@ def warm_chromosome(
             route.append(max(lists, key=len).pop())
     perm = np.array([j for route in lists for j in route], dtype=np.int64)
     counts = np.array([len(route) for route in lists], dtype=np.int64)
+    pins = np.ascontiguousarray(problem.pinned_machine, dtype=np.int64)
+    repair_pins(perm, counts, pins, problem.min_tasks_per_machine)
     return perm, counts
 
 
 @njit(cache=True)
 def _initial_individual(  # type: ignore[no-untyped-def]
-    state, perm, counts, min_count, tables, pre_plan, t_start, t_end, alpha, chain
+    state, perm, counts, min_count, pins, tables, pre_plan, t_start, t_end, alpha, chain
 ):
     """§4.6 (1)-(2) for one individual: a random task order, annealed when ``pre_plan``
-    (IGHOA's SA path pre-planning), with a random split of the tasks over the machines."""
+    (IGHOA's SA path pre-planning), with a random split of the tasks over the machines,
+    repaired for its pinned tasks."""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     n = perm.shape[0]
     m = counts.shape[0]
@@ -442,6 +463,7 @@ def _initial_individual(  # type: ignore[no-untyped-def]
     if pre_plan:
         anneal(state, perm, dist, start_dist, end_dist, t_start, t_end, alpha, chain)
     random_counts(state, n, m, min_count, counts)
+    repair_pins(perm, counts, pins, min_count)
 
 
 _warmed = False

@@ -18,6 +18,10 @@ from planner.rng import make_state
 SETTINGS = settings(max_examples=80, deadline=None, derandomize=True)
 
 
+def NO_PINS(n):  # noqa: N802
+    return np.full(n, -1, dtype=np.int64)
+
+
 @st.composite
 def chromosomes(draw, min_count=1):
     n = draw(st.integers(2, 30))
@@ -103,13 +107,13 @@ def test_local_search_keeps_validity_and_reports_true_cost(case, objective):
     route = np.empty(m)
     before = evaluate(perm, counts, int(objective), tables, route)
     nn = nearest_neighbours(problem.dist, 5)
-    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn[:, :0])
+    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn[:, :0], NO_PINS(n), 1)
     assert_valid(perm, counts, n, m)
     check = np.empty(m)
     assert cost == pytest.approx(evaluate(perm, counts, int(objective), tables, check), rel=1e-12)
     assert cost <= before + 1e-9 * max(1.0, before)
     np.testing.assert_allclose(route, check)
-    improve_allocation(perm, counts, int(objective), tables, nn, 1, 20)
+    improve_allocation(perm, counts, int(objective), tables, nn, 1, 20, NO_PINS(n))
     assert_valid(perm, counts, n, m)
     after = evaluate(perm, counts, int(objective), tables, check)
     assert after <= cost + 1e-9 * max(1.0, cost)
@@ -124,7 +128,9 @@ def test_route_improvement_never_lengthens_a_route(case, with_neighbours):
     route = np.empty(counts.size)
     before = evaluate(perm, counts, 0, tables.kernel_args(), route)
     nn = nearest_neighbours(tables.dist, 4)[:, : 4 if with_neighbours else 0]
-    ops.improve_routes(perm, counts, tables.dist, tables.start_dist, tables.end_dist, nn)
+    ops.improve_routes(
+        perm, counts, tables.dist, tables.start_dist, tables.end_dist, nn, NO_PINS(perm.size)
+    )
     after = evaluate(perm, counts, 0, tables.kernel_args(), route)
     assert after <= before + 1e-9
     assert sorted(perm.tolist()) == list(range(perm.size))
@@ -165,7 +171,7 @@ def test_optimal_split_is_optimal_for_its_order(case, objective):
         trial = np.diff(np.array((0, *cuts, n))).astype(np.int64)
         best = min(best, evaluate(perm, trial, int(objective), tables, route))
     split = counts.copy()
-    optimal_split(perm, split, int(objective), tables, 1)
+    optimal_split(perm, split, int(objective), tables, 1, NO_PINS(n))
     assert_valid(perm, split, n, m)
     value = evaluate(perm, split, int(objective), tables, route)
     assert value <= best + 1e-6 * max(1.0, best)
@@ -191,9 +197,9 @@ def test_local_search_with_starts_and_ready_times_never_worsens(case, objective)
     route = np.empty(m)
     before = evaluate(perm, counts, int(objective), tables, route)
     nn = nearest_neighbours(problem.dist, 5)
-    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn)
+    cost = polish(state, perm, counts, int(objective), tables, 20, route, nn, NO_PINS(n), 0)
     assert cost <= before + 1e-9 * max(1.0, before)
-    improve_allocation(perm, counts, int(objective), tables, nn, 0, 20)
+    improve_allocation(perm, counts, int(objective), tables, nn, 0, 20, NO_PINS(n))
     assert_valid(perm, counts, n, m, min_count=0)
     after = evaluate(perm, counts, int(objective), tables, route)
     assert after <= cost + 1e-9 * max(1.0, cost)
@@ -219,7 +225,7 @@ def test_optimal_split_with_ready_times_is_optimal_for_its_order(case, objective
         best = min(best, evaluate(perm, trial, int(objective), tables, route))
     split = np.zeros(m, dtype=np.int64)
     split[0] = n
-    value = optimal_split(perm, split, int(objective), tables, 0)
+    value = optimal_split(perm, split, int(objective), tables, 0, NO_PINS(n))
     assert_valid(perm, split, n, m, min_count=0)
     got = evaluate(perm, split, int(objective), tables, route)
     assert got <= best + 1e-6 * max(1.0, best)
