@@ -54,6 +54,11 @@ class Visit:
     # Transit from where the machine was (garage or the previous field's exit) to this
     # field's entry: the points in between, along roads or around other fields.
     approach: tuple[XY, ...] = ()
+    # A re-plan's visit of the rest of a field in progress (planner.replan): the share of
+    # the field's work left, and for each of this visit's segments (swaths, then headland
+    # ring edges, as laid out for a mission) its index among the planned visit's segments.
+    work_share: float = 1.0
+    original_segments: tuple[int, ...] = ()
 
     @property
     def entry(self) -> XY:
@@ -90,6 +95,7 @@ class MachinePlan:
     fuel_l: float
     # Transit from the last field's exit back to the garage: the points in between.
     return_path: tuple[XY, ...] = ()
+    ready_h: float = 0.0  # busy before the route starts (a re-plan), included in time_h
 
     @property
     def field_ids(self) -> list[str]:
@@ -199,17 +205,21 @@ def field_work(
     for i, machine in enumerate(machines):
         for j, f in enumerate(farm.fields):
             cov = coverage[(machine.id, f.id)]
-            work_hours[i, j] = f.area_m2 / machine.capacity_m2h
-            planned_m = sum(cov.turn_length_m(c) for c in range(CORNERS)) / CORNERS
-            if planned_m <= 0.0:
-                turns[i, j] = cov.turns
-                continue
-            hours = planned_m / (1000.0 * machine.work_speed_kmh)
-            if machine.turn_time_h > 0.0:
-                turns[i, j] = hours / machine.turn_time_h
-            else:
-                work_hours[i, j] += hours
+            turns[i, j], work_hours[i, j] = work_of(machine, f.area_m2, cov)
     return turns, work_hours
+
+
+def work_of(machine: Machine, area_m2: float, cov: FieldCoverage) -> tuple[float, float]:
+    """The solver's (turns, work hours) for ``machine`` working ``area_m2`` laid out as
+    ``cov``: see :func:`field_work`."""
+    work_hours = area_m2 / machine.capacity_m2h
+    planned_m = sum(cov.turn_length_m(c) for c in range(CORNERS)) / CORNERS
+    if planned_m <= 0.0:
+        return float(cov.turns), work_hours
+    hours = planned_m / (1000.0 * machine.work_speed_kmh)
+    if machine.turn_time_h > 0.0:
+        return hours / machine.turn_time_h, work_hours
+    return 0.0, work_hours + hours
 
 
 def field_anchor(field: Field) -> XY:
@@ -252,10 +262,13 @@ def lay_out(
     covs: Sequence[FieldCoverage],
     corners: Sequence[int],
     network: TransitNetwork | None = None,
+    start: XY | None = None,
+    start_field: str | None = None,
 ) -> tuple[tuple[Visit, ...], tuple[XY, ...]]:
-    """The visits of one route with their approach paths, and the path back to the garage."""
+    """The visits of one route with their approach paths, and the path back to the garage.
+    The route starts at ``start`` (default: the garage), inside ``start_field`` if any."""
     visits = []
-    where, inside = garage, None
+    where, inside = (garage, None) if start is None else (start, start_field)
     for f, cov, corner in zip(fields, covs, corners, strict=True):
         via = network.route(where, cov.entry(corner), inside, f.id)[1] if network else ()
         visits.append(Visit(f, cov, corner, approach=via))
@@ -268,11 +281,16 @@ TransitLength = Callable[[XY, XY, str | None, str | None], float]
 
 
 def best_corners(
-    garage: XY, covs: Sequence[FieldCoverage], network: TransitNetwork | None = None
+    garage: XY,
+    covs: Sequence[FieldCoverage],
+    network: TransitNetwork | None = None,
+    start: XY | None = None,
+    start_field: str | None = None,
 ) -> tuple[list[int], float]:
     """The start corner of each field along a fixed order that minimises the road driven
     (garage -> fields -> garage along ``network``'s transit, straight lines without it,
-    plus in-field driving between cells); exact DP over 4 corners, 16 cached routes a leg."""
+    plus in-field driving between cells); exact DP over 4 corners, 16 cached routes a leg.
+    The route starts at ``start`` (default: the garage), inside ``start_field`` if any."""
     if not covs:
         return [], 0.0
     leg: TransitLength = network.length if network is not None else _straight
@@ -280,8 +298,10 @@ def best_corners(
     n = len(covs)
     cost = np.full((n, CORNERS), np.inf)
     back = np.zeros((n, CORNERS), dtype=np.int64)
+    origin, origin_field = (garage, None) if start is None else (start, start_field)
     for c in range(CORNERS):
-        cost[0, c] = leg(garage, covs[0].entry(c), None, ids[0]) + covs[0].transit_inside_m(c)
+        approach = leg(origin, covs[0].entry(c), origin_field, ids[0])
+        cost[0, c] = approach + covs[0].transit_inside_m(c)
     for k in range(1, n):
         for c in range(CORNERS):
             here = covs[k].entry(c)
@@ -307,12 +327,15 @@ def machine_figures(
     visits: tuple[Visit, ...],
     road_m: float,
     return_path: tuple[XY, ...] = (),
+    ready_h: float = 0.0,
 ) -> MachinePlan:
     """Formulas (5)-(6) with the coverage's turns: drive ``road_m`` at road speed and rate,
     work S / w at the working rate, and turn at the road fuel rate for the turns' length at
-    the working speed when the coverage plans them, else t_T per U-turn."""
+    the working speed when the coverage plans them, else t_T per U-turn. A machine busy
+    for ``ready_h`` hours first has them added to its time when it has a visit."""
     turns = sum(v.coverage.turns for v in visits)
-    work_h = sum(v.field.area_m2 / machine.capacity_m2h for v in visits)
+    work_h = sum(v.field.area_m2 * v.work_share / machine.capacity_m2h for v in visits)
+    busy_h = ready_h if visits else 0.0
     drive_h = road_m / (1000.0 * machine.road_speed_kmh)
     turn_h = sum(turn_hours(machine, v) for v in visits)
     return MachinePlan(
@@ -321,9 +344,10 @@ def machine_figures(
         road_m=road_m,
         work_h=work_h,
         turns=turns,
-        time_h=drive_h + turn_h + work_h,
+        time_h=busy_h + drive_h + turn_h + work_h,
         fuel_l=(drive_h + turn_h) * machine.road_fuel_lh + work_h * machine.work_fuel_lh,
         return_path=return_path,
+        ready_h=busy_h,
     )
 
 

@@ -1,0 +1,158 @@
+"""Re-planning the rest of a day: machines where they are, fields done and half done."""
+
+import logging
+
+import pytest
+
+from planner.coverage import rectangle_field
+from planner.errors import ProblemError
+from planner.farm import Farm, Field
+from planner.field_plan import Visit, cover_farm, plan_farm
+from planner.geo import LocalFrame
+from planner.problem import Machine
+from planner.replan import (
+    FieldProgress,
+    MachineState,
+    remaining_coverage,
+    replan_farm,
+    visit_segments,
+)
+from planner.solve import stop_after
+
+WIDE = Machine("a", 6.0, 5000.0, 10.0, 0.003, 2.5, 5.0, work_speed_kmh=8.0, min_turn_radius_m=4.5)
+WIDE2 = Machine("b", 6.0, 4500.0, 10.0, 0.003, 2.5, 5.0, work_speed_kmh=8.0, min_turn_radius_m=4.5)
+NARROW = Machine("c", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)
+
+
+def row_farm(k: int = 5) -> Farm:
+    frame = LocalFrame.around(87.3, 44.0)
+    fields = tuple(
+        Field(
+            f"f{i}",
+            f"f{i}",
+            rectangle_field(60.0, 90.0, 0.0, (130.0 * i, 0.0)),
+            rectangle_field(60.0, 90.0, 0.0, (130.0 * i, 0.0)),
+        )
+        for i in range(k)
+    )
+    return Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+
+
+def undirected(segment):
+    a, b = segment
+    return (tuple(round(c, 6) for c in a), tuple(round(c, 6) for c in b))
+
+
+def same_segment(new, old):
+    return undirected(new) in (undirected(old), undirected(old[::-1]))
+
+
+@pytest.mark.parametrize("machine", [WIDE, NARROW])
+def test_the_rest_of_a_visit_is_exactly_the_segments_not_done(machine):
+    farm = row_farm(1)
+    cov = cover_farm(farm, [machine])[(machine.id, "f0")]
+    for corner in range(4):
+        visit = Visit(farm.fields[0], cov, corner)
+        old = visit_segments(visit)
+        for done in range(len(old)):
+            rest, share, orders = remaining_coverage(visit, done)
+            assert 0.0 < share <= 1.0
+            for c in range(4):
+                new = visit_segments(Visit(farm.fields[0], rest, c))
+                assert sorted(orders[c]) == list(range(done, len(old)))  # none twice, none skipped
+                assert all(same_segment(s, old[k]) for s, k in zip(new, orders[c], strict=True))
+                # Consecutive segments and the moves between them as a mission lays them out.
+                assert len(rest.link(c)) == len(new) - 1
+                if machine.min_turn_radius_m > 0:
+                    assert len(rest.turn(c)) == len(new) - 1
+                else:
+                    assert rest.turn(c) == ()
+            forward = visit_segments(Visit(farm.fields[0], rest, 0))
+            assert forward == old[done:]
+        with pytest.raises(ProblemError, match="segments done"):
+            remaining_coverage(visit, len(old))
+
+
+def previous_plan():
+    farm = row_farm()
+    plan = plan_farm(farm, [WIDE, WIDE2, NARROW], "makespan", "ighoa", stop_after(40), seed=2)
+    return farm, plan
+
+
+def half_done(plan, machine_id):
+    route = next(m for m in plan.machines if m.machine.id == machine_id)
+    visit = route.visits[0]
+    segments = visit_segments(visit)
+    done = len(segments) // 2
+    return visit, done, segments[done - 1][1]  # the machine stands where it stopped
+
+
+@pytest.mark.parametrize("objective", ["makespan", "distance", "time", "fuel"])
+def test_replan_with_a_machine_gone_and_a_field_half_done(objective):
+    farm, plan = previous_plan()
+    visit, done, where = half_done(plan, "a")
+    gone = next(m for m in plan.machines if m.machine.id == "b")
+    finished = [gone.visits[0].field.id] if gone.visits else []
+    states = [MachineState(WIDE, where, ready_h=0.1), MachineState(NARROW, (-60.0, 20.0))]
+    progress = [FieldProgress(visit, "a", done, split_ok=False)]
+    new = replan_farm(
+        farm, states, finished, progress, objective, "ighoa", stop_after(30), 3, previous=plan
+    )
+    ids = sorted(fid for m in new.machines for fid in m.field_ids)
+    assert ids == sorted(f.id for f in farm.fields if f.id not in finished)
+    a = new.machines[0]
+    assert a.machine.id == "a" and a.field_ids[0] == visit.field.id  # pinned, first
+    rest = a.visits[0]
+    old = visit_segments(visit)
+    new_segments = visit_segments(rest)
+    assert sorted(rest.original_segments) == list(range(done, len(old)))
+    assert all(
+        same_segment(s, old[k]) for s, k in zip(new_segments, rest.original_segments, strict=True)
+    )
+    assert rest.original_segments[0] == done and rest.entry == old[done][0]  # goes on
+    assert 0.0 < rest.work_share < 1.0
+    assert a.ready_h == 0.1 and a.time_h > a.work_h + 0.1
+    assert a.work_h == pytest.approx(
+        sum(v.field.area_m2 * v.work_share for v in a.visits) / WIDE.capacity_m2h
+    )
+    assert new.solver.problem.ready_h.tolist() == [0.1, 0.0]
+    if new.objective.name == "MAKESPAN":
+        assert new.makespan_h == max(m.time_h for m in new.machines)
+
+
+def test_a_field_that_may_be_split_goes_to_a_machine_that_can_drive_its_swaths():
+    farm, plan = previous_plan()
+    visit, done, where = half_done(plan, "a")
+    # a broke down in the field; b (same width and radius) is near; c is narrower.
+    states = [MachineState(WIDE2, where), MachineState(NARROW, (-60.0, 20.0))]
+    progress = [FieldProgress(visit, "a", done, split_ok=True)]
+    new = replan_farm(farm, states, (), progress, "distance", "ga", stop_after(30), 1)
+    holder = next(m for m in new.machines if visit.field.id in m.field_ids)
+    rest = next(v for v in holder.visits if v.field.id == visit.field.id)
+    if holder.machine.id == "b":
+        assert sorted(rest.original_segments) == list(range(done, len(visit_segments(visit))))
+    else:  # the narrow machine works the field whole with its own swaths
+        assert rest.original_segments == () and rest.work_share == 1.0
+
+
+def test_a_field_no_alive_machine_can_finish_is_planned_whole(caplog):
+    farm, plan = previous_plan()
+    visit, done, _ = half_done(plan, "a")
+    progress = [FieldProgress(visit, "a", done)]
+    with caplog.at_level(logging.WARNING, logger="planner.replan"):
+        new = replan_farm(
+            farm, [MachineState(NARROW, (0.0, 0.0))], (), progress, stop=stop_after(5)
+        )
+    assert "planned whole again" in caplog.text
+    assert len(new.machines[0].visits) == 5
+    assert all(v.work_share == 1.0 for v in new.machines[0].visits)
+
+
+def test_bad_progress_is_named():
+    farm, plan = previous_plan()
+    visit, done, where = half_done(plan, "a")
+    states = [MachineState(WIDE, where)]
+    with pytest.raises(ProblemError, match="given as done or in progress twice"):
+        replan_farm(farm, states, [visit.field.id], [FieldProgress(visit, "a", done)])
+    with pytest.raises(ProblemError, match="every field is done"):
+        replan_farm(farm, states, [f.id for f in farm.fields])
