@@ -72,6 +72,7 @@ class DaemonConfig:
     shutdown_timeout_s: float = 5.0
     exit_when_done: bool = True
     on_progress: Callable[[FleetState], None] | None = None  # called at status_period_s
+    verify_missions: bool = True  # read each mission back before it is started
     store: Store | None = None  # where events are kept (begun or resumed on ``job``)
     resume: StoredRun | None = None  # the stored run this one continues
 
@@ -382,32 +383,37 @@ class Dispatcher:
         elif v.phase is Phase.UPLOADING and link.upload is not None:
             v.upload_retries = link.upload.stats.retries
             if link.upload.outcome is Outcome.DONE:
-                self._apply(ev.UploadAcked(vid), now)
-                self._log("info", f"{vid}: mission acknowledged")
-                if self.all_acknowledged is None and all(
-                    lk.upload is not None and lk.upload.outcome is Outcome.DONE
-                    for lk in self.links.values()
-                ):
-                    self.all_acknowledged = now
+                if not v.acked:
+                    self._apply(ev.UploadAcked(vid), now)
+                    self._log("info", f"{vid}: mission acknowledged")
+                    if self.all_acknowledged is None and all(
+                        lk.upload is not None and lk.upload.outcome is Outcome.DONE
+                        for lk in self.links.values()
+                    ):
+                        self.all_acknowledged = now
+                    if self.config.verify_missions:
+                        # An ArduPilot upload is not atomic and the link may be lossy:
+                        # read the mission back before it is driven (docs/restart.md).
+                        link.download = MissionDownload(v.system_id)
+                        self._send(vid, link.download.start(now))
+                        return
+                if link.download is not None:
+                    if link.download.outcome is Outcome.RUNNING:
+                        return
+                    read, link.download = link.download, None
+                    if read.outcome is Outcome.FAILED:
+                        self._upload_failed(v, link, f"not read back ({read.reason})", now)
+                        return
+                    ours = self.job.missions[vid].to_mavlink(v.system_id)
+                    if diffs := mission_differences(read.items, ours):
+                        self._upload_failed(
+                            v, link, f"read back different ({', '.join(diffs)})", now
+                        )
+                        return
+                    self._log("info", f"{vid}: mission read back, item by item ours")
                 self._start(v, link, now)
             elif link.upload.outcome is Outcome.FAILED:
-                reason = v.explain(link.upload.reason, link.since - 1.0)
-                if v.upload_attempts < self.config.upload_attempts:
-                    # The vehicle may hold the whole mission and only its last ACK was
-                    # lost, or it gave up half-way, or it is busy: after a pause, start the
-                    # upload again from the count.
-                    pause = self.config.upload_backoff_s * 2 ** (v.upload_attempts - 1)
-                    self._log(
-                        "warning",
-                        f"{vid}: upload failed ({reason}); uploading again in {pause:g} s",
-                    )
-                    link.upload_at = now + pause
-                    link.upload = None
-                    self._apply(ev.UploadFailed(vid, reason, final=False), now)
-                    return
-                error = f"upload failed after {v.upload_attempts} attempts: {reason}"
-                self._apply(ev.UploadFailed(vid, error, final=True), now)
-                self._log("error", f"{vid}: {error}")
+                self._upload_failed(v, link, v.explain(link.upload.reason, link.since - 1.0), now)
         elif v.phase is Phase.UPLOADING and link.upload is None and now >= link.upload_at:
             if v.ready:
                 self._upload(v, link, now)
@@ -430,6 +436,23 @@ class Dispatcher:
             link.park = CommandSequence(park_commands(), v.system_id)
             self._log("info", f"{vid}: mission complete; HOLD and disarm")
             self._send(vid, link.park.start(now))
+
+    def _upload_failed(self, v: VehicleState, link: _Link, reason: str, now: float) -> None:
+        """An upload attempt failed: again after a pause, unless it was the last."""
+        if v.upload_attempts < self.config.upload_attempts:
+            # The vehicle may hold the whole mission and only its last ACK was lost, or it
+            # gave up half-way, or it is busy: after a pause, upload again from the count.
+            pause = self.config.upload_backoff_s * 2 ** (v.upload_attempts - 1)
+            self._log(
+                "warning", f"{v.id}: upload failed ({reason}); uploading again in {pause:g} s"
+            )
+            link.upload_at = now + pause
+            link.upload = None
+            self._apply(ev.UploadFailed(v.id, reason, final=False), now)
+            return
+        error = f"upload failed after {v.upload_attempts} attempts: {reason}"
+        self._apply(ev.UploadFailed(v.id, error, final=True), now)
+        self._log("error", f"{v.id}: {error}")
 
     def _upload(self, v: VehicleState, link: _Link, now: float) -> None:
         self._apply(ev.UploadStarted(v.id, v.upload_attempts + 1), now)

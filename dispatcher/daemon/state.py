@@ -41,10 +41,14 @@ READY_STATES = frozenset({mc.MAV_STATE_STANDBY, mc.MAV_STATE_ACTIVE})
 """HEARTBEAT.system_status of an autopilot that has finished booting (ArduPilot reports
 UNINIT/BOOT with mode 16 INITIALISING before, and refuses a mission then)."""
 CLOCK_RESTART_S = 1.0
-"""The vehicle's clock going back by more than this is a reboot."""
+"""The vehicle's clock going back by more than this, to less than half of where it was, is
+a reboot (a clock restarts from zero; a report that comes late over a radio that delays
+and reorders frames is only a little behind)."""
 PROBLEM_SEVERITY = mc.MAV_SEVERITY_WARNING
 """STATUSTEXT at this severity or worse (PreArm/Arm refusals are CRITICAL) is kept as the
 autopilot's word on a problem."""
+CURRENT_SETTLE_S = 2.0
+"""Wall seconds after a start before MISSION_CURRENT counts as news of the started mission."""
 TEXT_WINDOW_S = 10.0
 """How far back (wall seconds) an autopilot's problem text explains a refusal."""
 
@@ -67,6 +71,16 @@ class RunClock:
         """The run time of a report at ``raw_s`` on the vehicle's clock, received at
         ``wall_s``; and whether the vehicle rebooted before it."""
         rebooted = False
+        if (
+            self._raw_last is not None
+            and raw_s < self._raw_last
+            and not (raw_s < self._raw_last - CLOCK_RESTART_S and raw_s < 0.5 * self._raw_last)
+        ):
+            # A late report: its time, without moving the clock back.
+            t = raw_s + self._offset
+            if self.now is None or t > self.now:
+                self.now = t
+            return t, False
         if (
             self._raw_last is not None
             and self.now is not None
@@ -123,6 +137,8 @@ class VehicleState:
     mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
     mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
     acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
+    started_at: float | None = None  # wall time of the last MissionStarted
+    active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
 
@@ -223,6 +239,7 @@ class FleetState:
             case ev.UploadAcked():
                 v.acked = True
             case ev.UploadFailed(reason=reason, final=final):
+                v.acked = False
                 if final:
                     v.phase = Phase.FAILED
                     v.error = reason
@@ -233,6 +250,7 @@ class FleetState:
                 v.phase = Phase.RUNNING
                 v.resuming = False
                 v.error = ""
+                v.started_at, v.active_seen = now, False
             case ev.Resumed():
                 self._resumed(v)
             case ev.StartFailed(reason=reason):
@@ -364,12 +382,36 @@ class FleetState:
             state = getattr(msg, "mission_state", None)
             if isinstance(state, int) and state != mc.MISSION_STATE_UNKNOWN:
                 v.mission_state = state
+            out += self._progress_of_current(v, now)
         elif kind == "STATUSTEXT":
             text = mc.statustext(msg)
             v.texts.append((now, int(msg.severity), text))
         elif kind == "MISSION_ITEM_REACHED":
             out.append(ev.ItemReached(vid, int(msg.seq), v.sim_time_s))
         return out
+
+    def _progress_of_current(self, v: VehicleState, now: float) -> list[ev.Event]:
+        """What MISSION_CURRENT says of a running mission that MISSION_ITEM_REACHED did not
+        (lost on the link): the items before the current one are reached, all of them once
+        the mission is complete. Only once the vehicle has said its mission is active,
+        CURRENT_SETTLE_S after the start: a report still on its way from before the start
+        (of an earlier mission, complete) says nothing of this one."""
+        if (
+            v.phase is not Phase.RUNNING
+            or v.mission_total != len(v.items) - 1
+            or v.started_at is None
+            or now - v.started_at < CURRENT_SETTLE_S
+        ):
+            return []
+        if v.mission_state == mc.MISSION_STATE_ACTIVE:
+            v.active_seen = True
+        if not v.active_seen:
+            return []
+        last = len(v.items) - 1
+        done = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
+        if done > v.reached:
+            return [ev.ItemReached(v.id, done, v.sim_time_s, caught_up=True)]
+        return []
 
     def _clock(self, v: VehicleState, clock_s: float, now: float) -> list[ev.Event]:
         """The vehicle's clock; a restart is a reboot, and its time carries on from there."""

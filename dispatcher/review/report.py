@@ -415,7 +415,9 @@ class _Events:
     last_clock_s: float | None
     reboots: list[float]  # run clock (s) where the vehicle's clock started again
     texts: list[tuple[float | None, int, str]]  # STATUSTEXT: (run clock s, severity, text)
-    heading_to: list[tuple[int, int, bool]]  # (file position, nav item seq, from a reach)
+    # What the vehicle said of the item it drives to: (receive ns, file position, the item
+    # it was heading to before the report, the item it heads to after it).
+    heading_to: list[tuple[int, int, int, int]]
     caught_up: set[int]  # items the dispatcher caught up with after a restart (no position)
 
 
@@ -439,8 +441,9 @@ def _read_events(
     texts: list[tuple[float | None, int, str]] = []
     reboots: list[float] = []
     clock = RunClock()  # the daemon's rule: the same run times live and in review
-    pending: tuple[int, int] | None = None  # (seq, file position) of a nav item reached
-    heading_to: list[tuple[int, int, bool]] = []
+    # A nav item reached: (seq, file position, the clock when it was reported).
+    pending: tuple[int, int, float | None] | None = None
+    heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
 
     def settle(t: float | None) -> None:
@@ -463,7 +466,6 @@ def _read_events(
             t_ms, lat_i, lon_i = (_num(msg.get(k)) for k in ("time_boot_ms", "lat", "lon"))
             if t_ms is None or lat_i is None or lon_i is None:
                 continue
-            heard_before = clock.now
             t, lat, lon = run_clock(t_ms / 1000.0, log_ns), lat_i / 1e7, lon_i / 1e7
             valid = _valid_position(lat, lon)
             if pending is not None:
@@ -471,7 +473,7 @@ def _read_events(
                 at_waypoint = (
                     valid and _metres((lat, lon), (item.lat, item.lon)) <= WAYPOINT_MATCH_M
                 )
-                settle(t if at_waypoint or heard_before is None else heard_before)
+                settle(t if at_waypoint or pending[2] is None else pending[2])
             if valid:
                 vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
                 speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
@@ -489,20 +491,20 @@ def _read_events(
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
                 if 0 <= seq < len(items):
-                    heading_to.append((order, seq + 1, False))
+                    heading_to.append((log_ns, order, seq + 1, seq + 1))
                     caught_up.add(seq)
                 reached.append((seq, clock.now, order))
                 continue
             if 0 <= seq < len(items):
-                heading_to.append((order, seq, True))
+                heading_to.append((log_ns, order, seq, seq + 1))
             if 0 <= seq < len(items) and items[seq].is_nav:
-                pending = (seq, order)
+                pending = (seq, order, clock.now)
             else:
                 reached.append((seq, clock.now, order))
         elif kind == "MISSION_CURRENT":
             seq = msg.get("seq")
             if isinstance(seq, int) and 0 < seq < len(items):
-                heading_to.append((order, seq, False))
+                heading_to.append((log_ns, order, seq, seq))
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
         elif kind == "STATUSTEXT":
@@ -515,24 +517,25 @@ def _read_events(
 
 
 def _across_gaps(
-    track: list[_Point], heading_to: Sequence[tuple[int, int, bool]], items: Sequence[PlannedItem]
+    track: list[_Point],
+    heading_to: Sequence[tuple[int, int, int, int]],
+    items: Sequence[PlannedItem],
 ) -> tuple[list[_Point], dict[int, float]]:
     """``track`` with the mission's waypoints put into each gap of the recording.
 
     Across a gap (positions RECORDING_GAP_S, and five times their median spacing, or more
     apart in receive time, as while the dispatcher was down) the vehicle drove its mission:
-    from the item it was heading to before (the last MISSION_CURRENT, or the item after the
-    last one reached) to the one it is heading to after (the first MISSION_CURRENT after,
-    unless it reports reaching an item first: then that one). A straight line would cut
-    every turn in between. Also returned: when each of those waypoints was passed (the
-    gap's time spread over them)."""
+    from the item it was heading to before the gap (the last MISSION_CURRENT or item reached
+    received in its first half) to the one it was heading to after (the first received in
+    its second half). A straight line would cut every turn in between. Also returned: when
+    each of those waypoints was passed (the gap's time spread over them)."""
     passed: dict[int, float] = {}
     if not heading_to:
         return track, passed
     reports = sorted(heading_to)
-    orders = [o for o, _, _ in reports]
-    received = [p.log_ns for p in track if p.log_ns is not None]
-    spacing = float(np.median(np.diff(received))) if len(received) > 2 else 0.0
+    received_at = [r[0] for r in reports]
+    positions = [p.log_ns for p in track if p.log_ns is not None]
+    spacing = float(np.median(np.diff(positions))) if len(positions) > 2 else 0.0
     gap_ns = max(RECORDING_GAP_S * 1e9, 5.0 * spacing)
     out: list[_Point] = []
     a: _Point | None = None  # the last position the vehicle reported
@@ -541,30 +544,23 @@ def _across_gaps(
             out.append(b)
             continue
         if a is not None and a.log_ns is not None and b.log_ns - a.log_ns >= gap_ns and b.t > a.t:
-            for seq, point in _mission_between(a, b, reports, orders, items):
-                out.append(point)
-                passed[seq] = point.t
+            middle = bisect.bisect_left(received_at, (a.log_ns + b.log_ns) // 2)
+            if 0 < middle < len(reports):
+                before, after = reports[middle - 1][3], reports[middle][2]
+                for seq, point in _mission_between(a, b, before, after, items):
+                    out.append(point)
+                    passed[seq] = point.t
         out.append(b)
         a = b
     return out, passed
 
 
 def _mission_between(
-    a: _Point,
-    b: _Point,
-    reports: Sequence[tuple[int, int, bool]],
-    orders: Sequence[int],
-    items: Sequence[PlannedItem],
+    a: _Point, b: _Point, before: int, after: int, items: Sequence[PlannedItem]
 ) -> list[tuple[int, _Point]]:
-    """The mission's waypoints the vehicle passed between positions ``a`` and ``b``."""
-    k = bisect.bisect_right(orders, a.order)
-    j = bisect.bisect_right(orders, b.order)
-    if k == 0 or j == len(reports):
-        return []
-    _, seq, reached = reports[k - 1]
-    before = seq + 1 if reached else seq  # heading to, at a
-    after = reports[j][1]  # heading to, at b (a reach after b: the item it reached)
-    between = [s for s in range(before, after) if items[s].is_nav]
+    """The mission's waypoints from item ``before`` up to (not with) ``after``, passed
+    between positions ``a`` and ``b``, at times spread between theirs."""
+    between = [s for s in range(max(before, 1), min(after, len(items))) if items[s].is_nav]
     out = []
     for n, s in enumerate(between, 1):
         item = items[s]

@@ -422,3 +422,22 @@ def test_an_acknowledgement_lost_in_the_crash_is_found_by_reading_the_mission_ba
     assert v.acked and v.phase is Phase.STARTING  # no second upload
     sent = [m.get_type() for m in daemon.publishers["v1"].sent(11)]
     assert "MISSION_COUNT" not in sent and "MISSION_REQUEST_LIST" in sent
+
+
+def test_progress_lost_on_the_link_is_read_from_mission_current(dispatch):
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    last = len(v.items) - 1
+    for event in running_events("v1", 3)[:5]:
+        state.apply(event, 10.0)  # started at t = 10 s
+    assert v.phase is Phase.RUNNING
+    # Still on its way from before the start: an earlier mission, complete.
+    stale = mission_current(11, last, last, mc.MISSION_STATE_COMPLETE)
+    feed(state, "v1", stale, 10.5)
+    assert v.reached == 0
+    feed(state, "v1", mission_current(11, 9, last, mc.MISSION_STATE_ACTIVE), 13.0)
+    assert v.reached == 8  # the MISSION_ITEM_REACHED of items 1..8 were lost
+    feed(state, "v1", mission_current(11, last, last, mc.MISSION_STATE_COMPLETE), 20.0)
+    assert v.phase is Phase.DONE and sorted(v.fields_done) == sorted(
+        dispatch.document.machine("v1").fields
+    )
