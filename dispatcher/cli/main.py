@@ -247,6 +247,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 job=job,
                 zenoh=wire.zenoh_options(args, True),
                 log_dir=args.log_dir,
+                heartbeat_timeout_s=scenario.watch.lost_after_s,
+                stall_after_s=scenario.watch.stall_after_s,
+                lost_grace_s=scenario.watch.lost_grace_s,
                 store=store,
                 resume=run,
             )

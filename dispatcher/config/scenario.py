@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import re
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -71,12 +71,22 @@ class SolverSettings:
 
 
 @dataclass(frozen=True)
+class WatchSettings:
+    """When the dispatcher gives a vehicle up as lost (the scenario's ``[dispatcher]``)."""
+
+    lost_after_s: float = 5.0  # wall seconds without any message from it
+    stall_after_s: float = 60.0  # its own seconds driving in AUTO without getting anywhere
+    lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back
+
+
+@dataclass(frozen=True)
 class Scenario:
     farm_id: str
     farm: Farm
     vehicles: tuple[Vehicle, ...]
     solver: SolverSettings
     source: str
+    watch: WatchSettings = WatchSettings()
 
     def vehicle(self, vehicle_id: str) -> Vehicle:
         for v in self.vehicles:
@@ -148,6 +158,7 @@ def load_scenario(path: str | Path) -> Scenario:
         vehicles=vehicles,
         solver=_solver(doc.get("solver", {}), src),
         source=src,
+        watch=_watch(doc.get("dispatcher", {}), src),
     )
 
 
@@ -243,3 +254,19 @@ def _solver(raw: Any, src: str) -> SolverSettings:
     if not isinstance(settings.seed, int):
         raise ConfigError(f"{src}: solver.seed must be an integer")
     return settings
+
+
+def _watch(raw: Any, src: str) -> WatchSettings:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{src}: [dispatcher] must be a table")
+    names = {f.name for f in fields(WatchSettings)}
+    unknown = set(raw) - names
+    if unknown:
+        raise ConfigError(
+            f"{src}: unknown key(s) in [dispatcher]: {', '.join(sorted(unknown))} "
+            f"(known: {', '.join(sorted(names))})"
+        )
+    for key, value in raw.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+            raise ConfigError(f"{src}: dispatcher.{key} must be a positive number of seconds")
+    return WatchSettings(**{k: float(v) for k, v in raw.items()})

@@ -38,6 +38,15 @@ class VehicleLost(Event):
 
 
 @dataclass(frozen=True)
+class VehicleStalled(Event):
+    """Armed in AUTO and heard, but it got nowhere for ``seconds`` of its own time: lost
+    until it moves again."""
+
+    kind: ClassVar[str] = "vehicle_stalled"
+    seconds: float
+
+
+@dataclass(frozen=True)
 class UploadStarted(Event):
     kind: ClassVar[str] = "upload_started"
     attempt: int
@@ -138,6 +147,7 @@ EVENTS: dict[str, type[Event]] = {
     for cls in (
         VehicleSeen,
         VehicleLost,
+        VehicleStalled,
         UploadStarted,
         UploadFailed,
         UploadAcked,

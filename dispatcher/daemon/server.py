@@ -38,6 +38,7 @@ from dispatcher.link.mission_protocol import (
     Outcome,
     gcs_heartbeat,
     mission_differences,
+    hold_commands,
     park_commands,
     start_mission_commands,
 )
@@ -64,6 +65,7 @@ class DaemonConfig:
     zenoh: wire.ZenohOptions = field(default_factory=wire.dispatcher_options)
     log_dir: Path = Path("logs")
     heartbeat_timeout_s: float = 5.0  # wall seconds without a message: vehicle lost
+    stall_after_s: float = 60.0  # its own seconds in AUTO getting nowhere: vehicle lost
     alive_timeout_s: float = 60.0  # wall seconds for every vehicle to show up
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back before we give up
     upload_attempts: int = 3  # whole uploads tried before a vehicle is failed
@@ -116,6 +118,7 @@ class _Link:
     upload: MissionUpload | None = None
     download: MissionDownload | None = None  # reading back what a vehicle holds
     start: CommandSequence | None = None
+    hold: CommandSequence | None = None  # a lost vehicle told to stop where it is
     park: CommandSequence | None = None
     upload_at: float = 0.0  # not before (back-off after a failed upload)
     start_item: int = 1  # where the mission starts (or resumes after a reboot)
@@ -123,7 +126,7 @@ class _Link:
     ready_since: float | None = None  # resuming: when it was first heard booted
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
-        return (self.upload, self.download, self.start, self.park)
+        return (self.upload, self.download, self.start, self.hold, self.park)
 
 
 class Dispatcher:
@@ -345,6 +348,12 @@ class Dispatcher:
             ):
                 self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
                 self._apply(ev.VehicleLost(vid, "heartbeats stopped"), now)
+                self._hold(v, link, now)  # in case it still hears us
+            idle = self.state.stalled_for(v, self.config.stall_after_s)
+            if idle is not None:
+                self._apply(ev.VehicleStalled(vid, round(idle, 1)), now)
+                self._log("warning", f"{vid}: {v.error}; told to HOLD")
+                self._hold(v, link, now)
             if (
                 v.off_auto_since is not None
                 and now - v.off_auto_since > LEFT_AUTO_AFTER_S
@@ -374,6 +383,17 @@ class Dispatcher:
             return
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
+        elif (
+            link.hold is not None
+            and link.hold.outcome is not Outcome.RUNNING
+            and v.phase is Phase.RUNNING
+            and v.ready
+        ):
+            # Back after we told it to HOLD when it was lost: on with its mission.
+            link.hold = None
+            link.start_item = v.resume_item
+            self._log("info", f"{vid}: back; going on at item {link.start_item}")
+            self._start(v, link, now)
         if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
             if not v.ready:
                 return  # still booting: it would refuse the mission (MAV_MISSION_NO_SPACE)
@@ -549,6 +569,15 @@ class Dispatcher:
             link.start_item = v.resume_item
             self._log("warning", f"{v.id}: stopped; going on at item {link.start_item}")
             self._start(v, link, now)
+
+    def _hold(self, v: VehicleState, link: _Link, now: float) -> None:
+        """Tell a lost vehicle to stop where it is (HOLD), once; it may not hear it."""
+        for exchange in (link.upload, link.download, link.start):
+            if exchange is not None and exchange.outcome is Outcome.RUNNING:
+                exchange.outcome, exchange.reason = Outcome.FAILED, "vehicle lost"
+        link.start = None
+        link.hold = CommandSequence(hold_commands(), v.system_id)
+        self._send(v.id, link.hold.start(now))
 
     def _parking(self) -> bool:
         return any(

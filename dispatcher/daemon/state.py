@@ -47,6 +47,8 @@ and reorders frames is only a little behind)."""
 PROBLEM_SEVERITY = mc.MAV_SEVERITY_WARNING
 """STATUSTEXT at this severity or worse (PreArm/Arm refusals are CRITICAL) is kept as the
 autopilot's word on a problem."""
+STALL_MOVE_M = 3.0
+"""Moving this far counts as getting somewhere (a stalled vehicle's position jitters)."""
 CURRENT_SETTLE_S = 2.0
 """Wall seconds after a start before MISSION_CURRENT counts as news of the started mission."""
 TEXT_WINDOW_S = 10.0
@@ -138,6 +140,9 @@ class VehicleState:
     mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
     acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
     started_at: float | None = None  # wall time of the last MissionStarted
+    progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
+    progress_at: tuple[float, float] | None = None  # (lat, lon) there
+    stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
@@ -225,12 +230,10 @@ class FleetState:
                     v.phase = Phase.ALIVE
                 v.last_seen = now
             case ev.VehicleLost(why=why):
-                if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
-                    return
-                v.phase_before_lost = v.phase
-                v.phase = Phase.LOST
-                v.lost_at = now
-                v.error = why
+                self._lost(v, why, now)
+            case ev.VehicleStalled(seconds=seconds):
+                self._lost(v, f"stalled: in AUTO and not getting anywhere for {seconds:.0f} s", now)
+                v.stalled = True
             case ev.UploadStarted():
                 v.phase = Phase.UPLOADING
                 v.upload_attempts += 1
@@ -251,6 +254,7 @@ class FleetState:
                 v.resuming = False
                 v.error = ""
                 v.started_at, v.active_seen = now, False
+                v.progress_s = v.sim_time_s
             case ev.Resumed():
                 self._resumed(v)
             case ev.StartFailed(reason=reason):
@@ -270,6 +274,22 @@ class FleetState:
                     v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
                 ):
                     v.needs_restart = True
+
+    def _lost(self, v: VehicleState, why: str, now: float) -> None:
+        if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
+            return
+        v.phase_before_lost = v.phase
+        v.phase = Phase.LOST
+        v.lost_at = now
+        v.error = why
+
+    def stalled_for(self, v: VehicleState, limit_s: float) -> float | None:
+        """How long (its own seconds) a vehicle driving its mission has got nowhere, when
+        that is longer than ``limit_s``; else None."""
+        if v.phase is not Phase.RUNNING or not v.driving or v.progress_s is None:
+            return None
+        idle = v.sim_time_s - v.progress_s
+        return idle if idle > limit_s else None
 
     def _resumed(self, v: VehicleState) -> None:
         """The dispatcher restarted: what it knew of the link is gone; what was reached
@@ -298,12 +318,15 @@ class FleetState:
             v.phase = Phase.ALIVE
         v.phase_before_lost = None
         v.error = ""
+        v.stalled = False
+        v.progress_s = v.sim_time_s
 
     def _item_reached(self, v: VehicleState, seq: int, clock_s: float) -> None:
         if not 0 <= seq < len(v.items):
             return
         if v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST) and not v.resuming:
             return
+        v.progress_s = max(v.progress_s or 0.0, clock_s)
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
             self._item_done(v, s, clock_s, reported=s == seq)
         v.reached = max(v.reached, seq)
@@ -343,7 +366,7 @@ class FleetState:
         """Keep what a vehicle reports; return the events it implies (to be applied)."""
         v = self.vehicles[vid]
         out: list[ev.Event] = []
-        if v.phase in (Phase.LOST, Phase.WAITING):
+        if v.phase in (Phase.LOST, Phase.WAITING) and not v.stalled:
             out.append(ev.VehicleSeen(vid))
         v.last_seen = now
         kind = msg.get_type()
@@ -367,6 +390,10 @@ class FleetState:
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
+            if v.progress_at is None or _metres(v.progress_at, (v.lat, v.lon)) >= STALL_MOVE_M:
+                if v.stalled:
+                    out.append(ev.VehicleSeen(vid))  # it moves again
+                v.progress_at, v.progress_s = (v.lat, v.lon), v.sim_time_s
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s
@@ -475,3 +502,9 @@ class FleetState:
                 for f in self.fields.values()
             },
         }
+
+
+def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Distance between two (lat, lon) close to each other (equirectangular, metres)."""
+    k = math.cos(math.radians((a[0] + b[0]) / 2))
+    return 111_195.0 * math.hypot(b[0] - a[0], (b[1] - a[1]) * k)

@@ -449,6 +449,11 @@ def gcs_heartbeat() -> mc.MAVLinkMessage:
     return mc.peer_heartbeat(mc.MAV_TYPE_GCS)
 
 
+def hold_commands() -> list[Command]:
+    """Stop where it is: HOLD (armed; a tractor that was lost keeps its state)."""
+    return [_set_mode(ROVER_MODE_HOLD)]
+
+
 def park_commands() -> list[Command]:
     """What the dispatcher sends a vehicle whose mission is complete: HOLD, then disarm, so
     a tractor back in the garage is not left armed in AUTO."""

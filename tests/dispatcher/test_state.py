@@ -441,3 +441,51 @@ def test_progress_lost_on_the_link_is_read_from_mission_current(dispatch):
     assert v.phase is Phase.DONE and sorted(v.fields_done) == sorted(
         dispatch.document.machine("v1").fields
     )
+
+
+def driving_heartbeat(sysid):
+    msg = heartbeat(sysid)
+    msg.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    return msg
+
+
+def test_a_vehicle_that_gets_nowhere_in_auto_is_lost_held_and_back_when_it_moves(dispatch):
+    daemon = daemon_for(dispatch)
+    daemon.config.stall_after_s = 60.0
+    v = daemon.state.vehicles["v1"]
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    for event in running_events("v1", 3)[:5]:
+        daemon._apply(event, 0.0)
+    feed(daemon.state, "v1", driving_heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(10_000, 440000000, 873000000), 0.1)
+    feed(daemon.state, "v1", position(50_000, 440001000, 873000000), 0.2)  # 11 m on
+    daemon._tick(0.3)
+    assert v.phase is Phase.RUNNING
+    feed(daemon.state, "v1", position(100_000, 440001001, 873000000), 0.4)  # 0.01 m in 50 s
+    daemon._tick(0.5)
+    assert v.phase is Phase.RUNNING  # 50 s of its time: not yet
+    feed(daemon.state, "v1", position(115_000, 440001000, 873000001), 0.6)
+    daemon._tick(0.7)
+    assert v.phase is Phase.LOST and v.stalled and v.error.startswith("stalled")
+    hold = [m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG"]
+    assert (hold[-1].command, hold[-1].param2) == (mc.MAV_CMD_DO_SET_MODE, 4)  # HOLD
+    feed(daemon.state, "v1", driving_heartbeat(11), 0.8)
+    assert v.phase is Phase.LOST  # heard, but still nowhere
+    feed(daemon.state, "v1", position(120_000, 440002000, 873000001), 0.9)  # it moves
+    assert v.phase is Phase.RUNNING and not v.stalled
+
+
+def test_the_dispatcher_table_of_a_scenario_sets_when_a_vehicle_is_lost(tmp_path):
+    text = (DATA / "tiny.toml").read_text().replace(
+        'farm = "tiny-farm.geojson"', f'farm = "{DATA / "tiny-farm.geojson"}"'
+    )
+    path = tmp_path / "s.toml"
+    path.write_text(text + "\n[dispatcher]\nlost_after_s = 8\nstall_after_s = 90.5\n")
+    watch = load_scenario(path).watch
+    assert (watch.lost_after_s, watch.stall_after_s, watch.lost_grace_s) == (8.0, 90.5, 30.0)
+    path.write_text(text + "\n[dispatcher]\nstal_after_s = 9\n")
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) in \[dispatcher\]: stal_after_s"):
+        load_scenario(path)
+    path.write_text(text + "\n[dispatcher]\nlost_after_s = -1\n")
+    with pytest.raises(ConfigError, match="dispatcher.lost_after_s must be a positive"):
+        load_scenario(path)
