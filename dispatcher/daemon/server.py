@@ -37,8 +37,8 @@ from dispatcher.link.mission_protocol import (
     MissionUpload,
     Outcome,
     gcs_heartbeat,
-    mission_differences,
     hold_commands,
+    mission_differences,
     park_commands,
     start_mission_commands,
 )
