@@ -39,6 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="fault injection: machine ID breaks down after SECONDS simulated",
     )
     p.add_argument(
+        "--stall-after",
+        action="append",
+        metavar="ID:SECONDS",
+        default=[],
+        help="fault injection: machine ID stalls after SECONDS simulated (stands still, keeps "
+        "reporting; SIGUSR1 stalls every machine of the process at once)",
+    )
+    p.add_argument(
         "--mission-done",
         choices=["stop", "hold"],
         default="stop",
@@ -79,8 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_fail_after(items: Sequence[str]) -> dict[str, float]:
-    """``["t1:600", ...]`` as ``{"t1": 600.0}``."""
+def parse_fail_after(items: Sequence[str], flag: str = "--fail-after") -> dict[str, float]:
+    """``["t1:600", ...]`` as ``{"t1": 600.0}``; ValueError names ``flag`` and the item."""
     out: dict[str, float] = {}
     for item in items:
         vid, sep, seconds = item.rpartition(":")
@@ -89,7 +97,7 @@ def parse_fail_after(items: Sequence[str]) -> dict[str, float]:
         except ValueError:
             value = -1.0
         if not sep or not vid or not value >= 0.0:
-            raise ValueError(f"--fail-after wants ID:SECONDS (seconds >= 0), got {item!r}")
+            raise ValueError(f"{flag} wants ID:SECONDS (seconds >= 0), got {item!r}")
         out[vid] = value
     return out
 
@@ -154,13 +162,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         impairment = impairment_of(args)
         fail_after = parse_fail_after(args.fail_after)
-        unknown = sorted(set(fail_after) - set(ids))
-        if unknown:
-            raise ValueError(f"--fail-after names {', '.join(unknown)}, not simulated here")
+        stall_after = parse_fail_after(args.stall_after, "--stall-after")
+        for flag, faults in (("--fail-after", fail_after), ("--stall-after", stall_after)):
+            unknown = sorted(set(faults) - set(ids))
+            if unknown:
+                raise ValueError(f"{flag} names {', '.join(unknown)}, not simulated here")
         if not args.speedup > 0.0 or not args.telemetry_hz > 0.0:
             raise ValueError("--speedup and --telemetry-hz must be > 0")
         if args.mavlink:
             check_mavlink_args(args, ids)
+            if stall_after:
+                raise ValueError("--stall-after works on Zenoh only, not with --mavlink")
     except (DispatcherError, ValueError, zenoh.ZError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
@@ -190,6 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         stats_path=args.stats,
         impairment=impairment,
         seed=args.radio_seed,
+        stall_after=stall_after,
     )
 
 

@@ -5,7 +5,9 @@ Per vehicle: a subscriber on ``vehicle_to`` (frames go to a FIFO queue, never dr
 a publisher on ``vehicle_from`` (one MAVLink 2 frame per sample) and a liveliness token
 on ``vehicle_alive`` held while the process runs. A vehicle broken down by fault
 injection keeps its token (its radio lives, its autopilot is silent): the ground
-station sees heartbeats stop.
+station sees heartbeats stop. A stalled vehicle (fault injection: ``stall_after``, or
+SIGUSR1 to the process, which stalls every vehicle it simulates) keeps everything but its
+progress: armed, in AUTO, reporting, standing still.
 
 Clocks: vehicles move in simulated time, ``speedup`` simulated seconds per wall second;
 heartbeats (1 Hz), positions (``telemetry_hz``) and the mission protocol's timeouts run in
@@ -20,10 +22,12 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from types import FrameType
 from typing import Protocol, TypeAlias
 
 import zenoh
@@ -102,10 +106,14 @@ def run(
     stats_path: str | None = None,
     impairment: Impairment | None = None,
     seed: int = 1,
+    stall_after: dict[str, float] | None = None,
+    stall: threading.Event | None = None,
 ) -> int:
     """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
 
-    ``fail_after`` maps a vehicle id to the simulated second it breaks down at.
+    ``fail_after`` maps a vehicle id to the simulated second it breaks down at,
+    ``stall_after`` to the simulated second it stalls at (stands still, keeps reporting).
+    Setting ``stall`` (or SIGUSR1 to the process) stalls every vehicle at once.
     ``impairment`` makes every vehicle's radio lose, duplicate and delay frames both ways
     (random numbers seeded with ``seed`` and the vehicle's place).
     ``stats_path``, if given, receives a JSON object of frames sent per vehicle at exit.
@@ -115,12 +123,16 @@ def run(
         raise ConfigError(f"{scenario.source}: no vehicle to simulate")
     vehicles = [scenario.vehicle(vid) for vid in vehicle_ids]
     fail_after = dict(fail_after or {})
-    for vid in fail_after:
-        if vid not in vehicle_ids:
-            raise ConfigError(f"fail_after names {vid!r}, which is not simulated here")
+    stall_after = dict(stall_after or {})
+    for name, faults in (("fail_after", fail_after), ("stall_after", stall_after)):
+        for vid in faults:
+            if vid not in vehicle_ids:
+                raise ConfigError(f"{name} names {vid!r}, which is not simulated here")
     check_rates(speedup, telemetry_hz)
     stop = stop if stop is not None else threading.Event()
+    stall = stall if stall is not None else threading.Event()
     restore_signals = stop_on_signals(stop, "stopping the simulator")
+    restore_stall_signal = stall_on_signal(stall)
     inbox: queue.Queue[tuple[int, bytes]] = queue.Queue()
     farm = scenario.farm_id
     links: list[_Link] = []
@@ -134,6 +146,7 @@ def run(
                         scenario.farm.garage_lonlat,
                         params=params,
                         fail_after_s=fail_after.get(vehicle.id),
+                        stall_after_s=stall_after.get(vehicle.id),
                         unix_epoch_s=boot_unix_s,
                     )
                     links.append(
@@ -165,13 +178,16 @@ def run(
                         scenario.farm.garage_lonlat,
                     )
                 logger.info("%d vehicle(s) on farm %r at %gx", len(links), farm, speedup)
-                serve_vehicles(links, _zenoh_receiver(links, inbox), stop, speedup, telemetry_hz)
+                serve_vehicles(
+                    links, _zenoh_receiver(links, inbox), stop, speedup, telemetry_hz, stall
+                )
             finally:
                 for link in links:
                     link.token.undeclare()
                     link.subscriber.undeclare()
                     link.publisher.undeclare()
     finally:
+        restore_stall_signal()
         restore_signals()
     sent = {link.vid: link.sent for link in links}
     logger.info("simulator stopped after sending %d frames", sum(sent.values()))
@@ -179,6 +195,24 @@ def run(
         with open(stats_path, "w") as f:
             json.dump(sent, f)
     return EXIT_OK
+
+
+def stall_on_signal(stall: threading.Event) -> Callable[[], None]:
+    """Make SIGUSR1 set ``stall``; returns a function that puts the previous handler back.
+    Off the main thread (where Python allows no handlers) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        logger.info("signal %d: stalling every vehicle (fault injection)", signum)
+        stall.set()
+
+    previous = signal.signal(signal.SIGUSR1, on_signal)
+
+    def restore() -> None:
+        signal.signal(signal.SIGUSR1, previous)
+
+    return restore
 
 
 def check_rates(speedup: float, telemetry_hz: float) -> None:
@@ -195,9 +229,11 @@ def serve_vehicles(
     stop: threading.Event,
     speedup: float,
     telemetry_hz: float,
+    stall: threading.Event | None = None,
 ) -> None:
     """Run the vehicles until ``stop``: move them on in simulated time, answer what
-    ``receive`` brings, send heartbeats (1 Hz) and positions (``telemetry_hz``) in wall time."""
+    ``receive`` brings, send heartbeats (1 Hz) and positions (``telemetry_hz``) in wall time.
+    Once ``stall`` is set every vehicle stalls (fault injection)."""
     telemetry_period_s = 1.0 / telemetry_hz
     last = time.monotonic()
     next_heartbeat = last
@@ -210,6 +246,9 @@ def serve_vehicles(
         last = now
         for link in links:
             link.send(link.tractor.advance(sim_dt))
+        if stall is not None and stall.is_set():
+            for link in links:
+                link.tractor.stall()
         for index, msg in inbound:
             link = links[index]
             link.send(link.tractor.handle(msg, link.tractor.sim_time, link_now=now))

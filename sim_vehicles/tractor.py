@@ -167,7 +167,10 @@ class SimTractor:
     Simulated time starts at 0 (boot) at home, at rest, disarmed, in
     ``params.initial_mode``, with the machine's road speed as default cruise speed.
     ``fail_after_s`` (simulated seconds) injects a breakdown: from then on the vehicle
-    stops and sends nothing. ``unix_epoch_s`` is the UNIX time at boot for SYSTEM_TIME
+    stops and sends nothing. ``stall_after_s`` (simulated seconds), or :meth:`stall`,
+    injects a stall (stuck in mud): from then on the vehicle stands still, armed and in its
+    mode, its mission running but getting nowhere, and keeps reporting and answering as
+    before. ``unix_epoch_s`` is the UNIX time at boot for SYSTEM_TIME
     (None: 0, "no GPS time").
     """
 
@@ -178,6 +181,7 @@ class SimTractor:
         *,
         params: RoverParams | None = None,
         fail_after_s: float | None = None,
+        stall_after_s: float | None = None,
         unix_epoch_s: float | None = None,
         component_id: int = mc.MAV_COMP_ID_AUTOPILOT1,
     ) -> None:
@@ -186,12 +190,15 @@ class SimTractor:
             raise ValueError(f"home (lon, lat) = {home_lonlat} is not a WGS84 position")
         if fail_after_s is not None and not fail_after_s >= 0.0:
             raise ValueError(f"fail_after_s must be >= 0 simulated seconds, got {fail_after_s}")
+        if stall_after_s is not None and not stall_after_s >= 0.0:
+            raise ValueError(f"stall_after_s must be >= 0 simulated seconds, got {stall_after_s}")
         self.vehicle = vehicle
         self.params = params or RoverParams()
         self.system_id = vehicle.system_id
         self.component_id = component_id
         self.home_lat, self.home_lon = lat, lon
         self.fail_after_s = fail_after_s
+        self.stall_after_s = stall_after_s
         self.unix_epoch_s = unix_epoch_s
         self.cruise_speed_ms = vehicle.machine.road_speed_kmh / 3.6  # WP_SPEED
         self.mission = MissionServer(
@@ -207,6 +214,7 @@ class SimTractor:
         self._mode = Mode(self.params.initial_mode)
         self._armed = False
         self._failed = False
+        self._stalled = False
         self._state = MissionState.STOPPED
         self._nav_index: int | None = None
         self._resume_from: int | None = None
@@ -245,6 +253,20 @@ class SimTractor:
     def failed(self) -> bool:
         """Broken down (``fail_after_s`` passed): silent and still."""
         return self._failed
+
+    @property
+    def stalled(self) -> bool:
+        """Stuck (``stall_after_s`` passed or :meth:`stall`): still, but reporting."""
+        return self._stalled
+
+    def stall(self) -> None:
+        """Stall now: stand still from here on, keep everything else (fault injection)."""
+        if not self._stalled:
+            self._stalled = True
+            self._velocity_ne = (0.0, 0.0)
+            logger.warning(
+                "system %d stalled at t=%.1f s (fault injection)", self.system_id, self._t
+            )
 
     @property
     def speed_ms(self) -> float:
@@ -325,11 +347,21 @@ class SimTractor:
         if self.fail_after_s is not None and self.fail_after_s < end:
             limit = max(self._t, self.fail_after_s)
         out: list[mc.MAVLinkMessage] = []
-        failsafe_at = self._gcs_failsafe_at()
-        if failsafe_at is not None and failsafe_at <= limit:
-            out += self._drive_until(max(self._t, failsafe_at))
-            self._t = max(self._t, failsafe_at)
-            out += self._gcs_failsafe()
+        while True:  # the events due before ``limit``, in the order they happen
+            due = [
+                (at, event)
+                for at, event in (
+                    (self._gcs_failsafe_at(), self._gcs_failsafe),
+                    (self._stall_at(), self._stall_event),
+                )
+                if at is not None and at <= limit
+            ]
+            if not due:
+                break
+            at, event = min(due, key=lambda pair: pair[0])
+            out += self._drive_until(max(self._t, at))
+            self._t = max(self._t, at)
+            out += event()
         out += self._drive_until(limit)
         self._t = end
         self._check_breakdown()
@@ -361,10 +393,20 @@ class SimTractor:
         if self.fail_after_s is not None and self._t >= self.fail_after_s:
             self._break_down()
 
+    def _stall_at(self) -> float | None:
+        """When the injected stall happens (None: none to come)."""
+        return None if self._stalled else self.stall_after_s
+
+    def _stall_event(self) -> list[mc.MAVLinkMessage]:
+        self.stall()
+        return []
+
     def _drive_until(self, limit: float) -> list[mc.MAVLinkMessage]:
         out: list[mc.MAVLinkMessage] = []
         while True:
             out += self._sync_mission()
+            if self._stalled:
+                break
             if self._dwell_until is not None:
                 if self._dwell_until > limit:
                     break
@@ -397,7 +439,7 @@ class SimTractor:
 
     def _target(self) -> tuple[float, float] | None:
         """Where the vehicle drives to now (lat, lon), or None when it stands still."""
-        if self._failed or not self._armed or self._dwell_until is not None:
+        if self._failed or self._stalled or not self._armed or self._dwell_until is not None:
             return None
         if self._mode == Mode.RTL and not self._rtl_done:
             return self.home_lat, self.home_lon

@@ -424,3 +424,62 @@ def test_the_ground_station_failsafe_holds_where_the_heartbeats_stopped(
     assert heard_at + 5.0 <= tractor.sim_time
     with pytest.raises(ValueError, match="gcs_failsafe_s"):
         RoverParams(gcs_failsafe_s=0.0)
+
+
+@pytest.mark.parametrize("how", ["stall_after_s", "stall()"])
+def test_a_stalled_vehicle_stands_still_armed_in_auto_and_keeps_reporting(
+    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire, how: str
+) -> None:
+    tractor = SimTractor(
+        vehicle, home_lonlat, stall_after_s=30.0 if how == "stall_after_s" else None
+    )
+    upload(tractor, wire, mission)
+    arm_and_start(tractor, wire)
+    wire.down(tractor.advance(30.0))
+    if how == "stall()":
+        tractor.stall()
+    wire.down(tractor.advance(1e-9 if how == "stall()" else 0.0))
+    assert tractor.stalled and not tractor.failed
+    _, _, moved = GEOD.inv(home_lonlat[0], home_lonlat[1], tractor.lon, tractor.lat)
+    assert moved == pytest.approx(30.0 * 10 / 3.6, rel=1e-6)  # stopped where it stalled
+    lat, lon, seq = tractor.lat, tractor.lon, tractor.current_seq
+    events: list[mc.MAVLinkMessage] = []
+    for _ in range(100):  # 1000 s: long enough for the whole mission
+        events += wire.down(tractor.advance(10.0))
+        events += wire.down(tractor.heartbeat(tractor.sim_time))
+        events += wire.down(tractor.telemetry(tractor.sim_time))
+    assert not only(events, "MISSION_ITEM_REACHED")
+    assert (tractor.lat, tractor.lon, tractor.current_seq) == (lat, lon, seq)
+    assert tractor.mission_state is MissionState.RUNNING
+    beats = only(events, "HEARTBEAT")
+    assert len(beats) == 100
+    assert all(hb.custom_mode == Mode.AUTO for hb in beats)
+    assert all(hb.base_mode & mc.MAV_MODE_FLAG_SAFETY_ARMED for hb in beats)
+    currents = only(events, "MISSION_CURRENT")
+    assert {(m.seq, m.mission_state) for m in currents} == {(seq, mc.MISSION_STATE_ACTIVE)}
+    positions = only(events, "GLOBAL_POSITION_INT")
+    assert len(positions) == 100
+    assert {(p.lat, p.lon, p.vx, p.vy) for p in positions} == {
+        (round(lat * 1e7), round(lon * 1e7), 0, 0)
+    }
+    # The autopilot still answers: it can be told to hold and to go home (where it stays).
+    hold = send(tractor, wire, wire.command_long(mc.MAV_CMD_DO_SET_MODE, CUSTOM, Mode.HOLD))
+    assert ack_of(hold, mc.MAV_CMD_DO_SET_MODE) == mc.MAV_RESULT_ACCEPTED
+    assert tractor.mode == Mode.HOLD
+
+
+def test_a_stall_comes_in_time_order_with_the_ground_station_failsafe(
+    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire
+) -> None:
+    tractor = SimTractor(
+        vehicle, home_lonlat, params=RoverParams(gcs_failsafe_s=50.0), stall_after_s=20.0
+    )
+    upload(tractor, wire, mission)
+    arm_and_start(tractor, wire)
+    send(tractor, wire, mc.peer_heartbeat(mc.MAV_TYPE_GCS))
+    wire.down(tractor.advance(500.0))  # stalls at 20 s, fails safe to HOLD at 50 s
+    assert tractor.stalled and tractor.mode == Mode.HOLD
+    _, _, moved = GEOD.inv(home_lonlat[0], home_lonlat[1], tractor.lon, tractor.lat)
+    assert moved == pytest.approx(20.0 * 10 / 3.6, rel=1e-6)
+    with pytest.raises(ValueError, match="stall_after_s"):
+        SimTractor(vehicle, home_lonlat, stall_after_s=-1.0)
