@@ -304,15 +304,25 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from dispatcher.tools.demo import DEFAULT_SCENARIO, run_demo, summary
+    from dispatcher.tools.demo import DEFAULT_SCENARIO, demo_faults, run_demo, summary
 
     args.scenario = args.scenario or DEFAULT_SCENARIO
-    dispatch = plan_scenario(args)
+    scenario = load_scenario_args(args)
+    faults = demo_faults(  # checked before planning: a bad option costs no solver time
+        [v.id for v in scenario.vehicles],
+        kill=args.kill,
+        stall=args.stall,
+        loss=args.loss,
+        duplicate=args.duplicate,
+        delay_ms=args.delay,
+        radio_seed=args.radio_seed,
+    )
+    dispatch = plan_scenario(args, scenario)
     print_plan_table(dispatch)
-    code, daemon = run_demo(Path(args.scenario), dispatch, args.speedup, args.log_dir)
-    print(summary(daemon))
-    print(f"log: {daemon.log_path}")
-    return code
+    result = run_demo(Path(args.scenario), dispatch, args.speedup, args.log_dir, faults=faults)
+    print(summary(result.daemon, result))
+    print(f"log: {result.daemon.log_path}")
+    return result.code
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -436,6 +446,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
     p.add_argument("--time-limit", type=float, help="solver seconds")
     p.add_argument("--seed", type=int)
+    g = p.add_argument_group("fault injection (docs/demo.md)")
+    g.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="SIGKILL that tractor's simulator when the fleet has done FRACTION (0..1) of its "
+        "planned work (repeatable)",
+    )
+    g.add_argument(
+        "--stall",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="at FRACTION of the work that tractor stops moving but keeps reporting, armed in "
+        "AUTO (repeatable)",
+    )
+    g.add_argument(
+        "--loss",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio loses this share of frames",
+    )
+    g.add_argument(
+        "--duplicate",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio sends this share of frames twice",
+    )
+    g.add_argument(
+        "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
+    )
+    g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
     p.set_defaults(handler=cmd_demo, fields=None)
 
     from dispatcher.tools.bridge import add_bridge_arguments

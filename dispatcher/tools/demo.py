@@ -3,27 +3,36 @@
 Plans the scenario, starts the dispatcher (Zenoh peer listening on loopback), starts one
 simulated tractor process per machine connected to it, shows live progress, and exits 0
 when every field is done. Child processes are always stopped, also on failure or Ctrl-C.
+
+Fault injection (:class:`DemoFaults`): a tractor's simulator killed (SIGKILL) or its
+tractor stalled (SIGUSR1) once the fleet has done a share of its planned work, and every
+radio impaired. A simulator that exits early is reported, once, and the run goes on: the
+dispatcher sees that tractor lost and the run ends as the dispatcher decides.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
+from typing import IO, Literal
 
+from dispatcher.config.errors import ConfigError
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
 from dispatcher.daemon.state import FleetState
 from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
+from sim_vehicles.impairment import Impairment
 
 log = logging.getLogger(__name__)
 
@@ -50,18 +59,28 @@ def auto_speedup(dispatch: DispatchPlan, target_wall_s: float = TARGET_WALL_S) -
 
 @dataclass
 class Supervisor:
-    """Child processes started together and always stopped together."""
+    """Child processes started together and always stopped together, each by a name (its
+    output goes to ``<log_dir>/<name>.log``)."""
 
     procs: list[subprocess.Popen[bytes]]
+    names: list[str] = field(default_factory=list)
+    _reported: set[str] = field(default_factory=set)
 
     @classmethod
-    def start(cls, commands: Sequence[Sequence[str]], log_dir: Path) -> Supervisor:
-        procs = []
+    def start(
+        cls,
+        commands: Sequence[Sequence[str]],
+        log_dir: Path,
+        names: Sequence[str] | None = None,
+    ) -> Supervisor:
+        """Start ``commands``, named ``names`` (default: each command's last word)."""
+        names = list(names) if names is not None else [Path(cmd[-1]).name for cmd in commands]
+        procs: list[subprocess.Popen[bytes]] = []
         log_dir.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         try:
-            for cmd in commands:
-                out = open(log_dir / f"{Path(cmd[-1]).name}.log", "ab")  # noqa: SIM115
+            for name, cmd in zip(names, commands, strict=True):
+                out = open(log_dir / f"{name}.log", "ab")  # noqa: SIM115
                 procs.append(
                     subprocess.Popen(
                         list(cmd),
@@ -75,10 +94,28 @@ class Supervisor:
         except BaseException:
             cls(procs).stop()
             raise
-        return cls(procs)
+        return cls(procs, names)
 
     def failed(self) -> list[int]:
         return [p.returncode for p in self.procs if p.poll() not in (None, 0)]
+
+    def send_signal(self, name: str, sig: int) -> bool:
+        """Send ``sig`` to the process ``name``; False if it has already exited."""
+        proc = self.procs[self.names.index(name)]
+        if proc.poll() is not None:
+            return False
+        proc.send_signal(sig)
+        return True
+
+    def newly_exited(self) -> list[tuple[str, int]]:
+        """Processes that exited since the last call: (name, return code), each once."""
+        out = []
+        for name, proc in zip(self.names, self.procs, strict=True):
+            code = proc.poll()
+            if code is not None and name not in self._reported:
+                self._reported.add(name)
+                out.append((name, code))
+        return out
 
     def stop(self, timeout_s: float = 5.0) -> None:
         for p in self.procs:
@@ -93,12 +130,19 @@ class Supervisor:
                 p.wait()
 
 
-def sim_command(scenario: Path, vehicle: str, endpoint: str, speedup: float) -> list[str]:
-    return [
+def sim_command(
+    scenario: Path,
+    vehicle: str,
+    endpoint: str,
+    speedup: float,
+    radio: Impairment | None = None,
+    radio_seed: int = 1,
+) -> list[str]:
+    """``python -m sim_vehicles`` for one tractor (with every fault-injection option)."""
+    cmd = [
         sys.executable,
         "-m",
-        "dispatcher.cli",
-        "sim",
+        "sim_vehicles",
         str(scenario),
         "--connect",
         endpoint,
@@ -107,16 +151,179 @@ def sim_command(scenario: Path, vehicle: str, endpoint: str, speedup: float) -> 
         "--vehicle",
         vehicle,
     ]
+    if radio is not None and radio.active:
+        cmd += [
+            "--loss",
+            f"{radio.loss:g}",
+            "--duplicate",
+            f"{radio.duplicate:g}",
+            "--delay",
+            f"{radio.delay_s * 1000.0:g}",
+            "--radio-seed",
+            str(radio_seed),
+        ]
+    return cmd
+
+
+FaultAction = Literal["kill", "stall"]
+FAULT_SIGNALS: dict[FaultAction, int] = {"kill": signal.SIGKILL, "stall": signal.SIGUSR1}
+_DONE_WORDS: dict[FaultAction, str] = {"kill": "killed", "stall": "stalled"}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """``action`` on ``vehicle``'s simulator once the fleet has done ``at_share`` (0..1) of
+    its planned work: "kill" is SIGKILL to the process, "stall" SIGUSR1 (the tractor
+    stands still, armed in AUTO, and keeps reporting)."""
+
+    action: FaultAction
+    vehicle: str
+    at_share: float
+
+    def __str__(self) -> str:
+        return f"{self.vehicle} {_DONE_WORDS[self.action]} at {100 * self.at_share:g} % of the work"
+
+
+@dataclass(frozen=True)
+class DemoFaults:
+    """What the demo injects: faults at shares of the work, and an impaired radio for
+    every tractor, both ways (random numbers seeded with ``radio_seed``)."""
+
+    faults: tuple[Fault, ...] = ()
+    radio: Impairment = Impairment()
+    radio_seed: int = 1
+
+    def describe(self) -> list[str]:
+        """One line per planned fault, and the radio's if it is impaired."""
+        lines = [f"planned: {f}" for f in self.faults]
+        if self.radio.active:
+            lines.append(f"radio: {self.radio} (every tractor, both ways)")
+        return lines
+
+
+def parse_fault(action: FaultAction, text: str, vehicles: Sequence[str]) -> Fault:
+    """``VEHICLE@FRACTION`` (``--kill``/``--stall``) as a :class:`Fault`; ConfigError names
+    the flag and the value."""
+    flag = f"--{action}"
+    vid, sep, share = text.rpartition("@")
+    if not sep or not vid:
+        raise ConfigError(f"{flag} wants VEHICLE@FRACTION (e.g. v2@0.3), got {text!r}")
+    try:
+        at_share = float(share)
+    except ValueError:
+        at_share = float("nan")
+    if not 0.0 <= at_share <= 1.0:
+        raise ConfigError(f"{flag} {text}: the fraction of the work must be 0 to 1, got {share!r}")
+    if vid not in vehicles:
+        raise ConfigError(
+            f"{flag} {text}: no vehicle {vid!r} in this run (vehicles: {', '.join(vehicles)})"
+        )
+    return Fault(action, vid, at_share)
+
+
+def demo_faults(
+    vehicles: Sequence[str],
+    kill: Sequence[str] = (),
+    stall: Sequence[str] = (),
+    loss: float = 0.0,
+    duplicate: float = 0.0,
+    delay_ms: float = 0.0,
+    radio_seed: int = 1,
+) -> DemoFaults:
+    """The demo's fault options checked against the run's ``vehicles``; ConfigError names
+    the flag and the value at fault."""
+    faults = [parse_fault("kill", text, vehicles) for text in kill]
+    faults += [parse_fault("stall", text, vehicles) for text in stall]
+    for flag, value in (("--loss", loss), ("--duplicate", duplicate)):
+        if not 0.0 <= value < 1.0:
+            raise ConfigError(f"{flag} {value:g}: a probability must be at least 0 and below 1")
+    if not 0.0 <= delay_ms <= 10_000.0:
+        raise ConfigError(f"--delay {delay_ms:g}: the delay must be 0 to 10000 ms")
+    radio = Impairment(loss=loss, duplicate=duplicate, delay_s=delay_ms / 1000.0)
+    return DemoFaults(tuple(sorted(faults, key=lambda f: f.at_share)), radio, radio_seed)
+
+
+def fleet_share_done(state: FleetState) -> float:
+    """The fleet's share of its planned work done, weighted by planned time: the planned
+    time to each vehicle's last item reached over the planned time of every mission."""
+    total = sum(v.planned_s[-1] for v in state.vehicles.values() if v.planned_s)
+    if total <= 0.0:
+        return 1.0
+    done = sum(v.planned_s[v.reached] for v in state.vehicles.values() if v.planned_s)
+    return min(done / total, 1.0)
+
+
+def describe_exit(code: int) -> str:
+    """A process's return code in words: "exit code 1", "killed by SIGKILL"."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class FaultInjector:
+    """Fires the faults as the work gets done and reports simulators that exit early, once
+    each; what it did is kept in ``events`` (for the summary) and passed to ``notify``."""
+
+    def __init__(
+        self,
+        faults: DemoFaults,
+        children: Supervisor,
+        notify: Callable[[str], None],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.pending = list(faults.faults)
+        self.children = children
+        self.notify = notify
+        self.clock = clock
+        self.started = clock()
+        self.events: list[str] = []
+        self.marks: dict[str, str] = {}  # vehicle id -> what happened to it, for the live view
+        self._injected: dict[str, FaultAction] = {}
+
+    def __call__(self, state: FleetState) -> None:
+        share = fleet_share_done(state)
+        for fault in [f for f in self.pending if f.at_share <= share]:
+            self.pending.remove(fault)
+            if self.children.send_signal(fault.vehicle, FAULT_SIGNALS[fault.action]):
+                self._injected[fault.vehicle] = fault.action
+                self.marks[fault.vehicle] = _DONE_WORDS[fault.action]
+                self._note(f"{fault} ({100 * share:.0f} % done, {self._elapsed()})")
+            else:
+                self._note(f"{fault}: not done, its simulator had already exited")
+        for vid, code in self.children.newly_exited():
+            why = ", injected" if self._injected.get(vid) == "kill" else ""
+            self.marks[vid] = "killed" if why else "simulator exited"
+            self._note(
+                f"{vid}'s simulator exited ({describe_exit(code)}{why}) at "
+                f"{100 * share:.0f} % done, {self._elapsed()}; the run goes on without it"
+            )
+
+    def _elapsed(self) -> str:
+        return f"{self.clock() - self.started:.1f} s into the run"
+
+    def _note(self, text: str) -> None:
+        self.events.append(text)
+        self.notify(text)
 
 
 class ProgressPrinter:
     """Live progress per tractor: current field, share of its mission done, ETA (sim)."""
 
-    def __init__(self, speedup: float, period_s: float = 3.0, stream=None) -> None:  # type: ignore[no-untyped-def]
+    def __init__(
+        self, speedup: float, period_s: float = 3.0, stream: IO[str] | None = None
+    ) -> None:
         self.speedup = speedup
         self.period_s = period_s
         self.stream = stream or sys.stdout
+        self.marks: dict[str, str] = {}  # vehicle id -> a fault it has (see FaultInjector)
         self._last = 0.0
+
+    def note(self, text: str) -> None:
+        """A line of news (a fault injected, a simulator gone), at once."""
+        print(f"! {text}", file=self.stream, flush=True)
 
     def __call__(self, state: FleetState) -> None:
         now = time.monotonic()
@@ -127,9 +334,10 @@ class ProgressPrinter:
         parts = []
         for v in state.vehicles.values():
             field = v.current_field or "-"
+            mark = f" [{self.marks[v.id]}]" if v.id in self.marks else ""
             parts.append(
                 f"{v.id} {v.phase.value:<9} {field:<4} {100 * v.share_done:5.1f}% "
-                f"eta {v.eta_s / 3600:5.2f} h"
+                f"eta {v.eta_s / 3600:5.2f} h{mark}"
             )
         print(
             f"[{done}/{len(state.fields)} fields] " + " | ".join(parts),
@@ -138,14 +346,32 @@ class ProgressPrinter:
         )
 
 
+@dataclass
+class DemoResult:
+    """How the demo ended: the dispatcher's exit code, the finished dispatcher, and what
+    was injected or went wrong on the way (one line each, in order)."""
+
+    code: int
+    daemon: Dispatcher
+    events: list[str]
+    faults: DemoFaults
+
+
 def run_demo(
     scenario_path: Path,
     dispatch: DispatchPlan,
     speedup: float | None,
     log_dir: Path,
     heartbeat_timeout_s: float = 10.0,
-) -> tuple[int, Dispatcher]:
-    """Run the demo; returns the exit code and the finished dispatcher (for the summary)."""
+    faults: DemoFaults | None = None,
+) -> DemoResult:
+    """Run the demo with ``faults`` injected; a simulator that exits early is reported and
+    the run goes on (the dispatcher sees its tractor lost). Returns the dispatcher's exit
+    code with what happened, for the summary."""
+    faults = faults or DemoFaults()
+    for fault in faults.faults:
+        if fault.vehicle not in dispatch.missions:
+            raise ConfigError(f"--{fault.action} names {fault.vehicle!r}, which has no mission")
     speed = speedup or auto_speedup(dispatch)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     print(
@@ -154,38 +380,46 @@ def run_demo(
         f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}",
         flush=True,
     )
+    for line in faults.describe():
+        print(f"fault injection: {line}", flush=True)
     # The demo keeps its state beside its logs, and always starts a new run.
     store = Store.open(log_dir, dispatch.document.farm_id)
     store.abandon_unfinished()
     job = dispatch.job()
     store.begin_run(job, fingerprint="demo")
+    printer = ProgressPrinter(speed)
     config = DaemonConfig(
         job=job,
         store=store,
         zenoh=wire.dispatcher_options((endpoint,)),
         log_dir=log_dir,
         heartbeat_timeout_s=heartbeat_timeout_s,
-        on_progress=ProgressPrinter(speed),
+        on_progress=printer,
     )
     daemon = Dispatcher(config)
-    children: Supervisor | None = None
-    printer = config.on_progress
+    injector: FaultInjector | None = None
 
     def progress(state: FleetState) -> None:
-        if children is not None and children.failed():
-            print(f"a simulated tractor exited early; see {log_dir / 'sim'}", file=sys.stderr)
-            daemon.should_exit.set()
-        if printer is not None:
-            printer(state)
+        if injector is not None:
+            injector(state)
+        printer(state)
 
     config.on_progress = progress
     restore_signals = stop_on_signals(daemon.should_exit, "stopping the demo")
+    children: Supervisor | None = None
     try:
         daemon.startup()
+        vids = list(dispatch.missions)
         children = Supervisor.start(
-            [sim_command(scenario_path, vid, endpoint, speed) for vid in dispatch.missions],
+            [
+                sim_command(scenario_path, vid, endpoint, speed, faults.radio, faults.radio_seed)
+                for vid in vids
+            ],
             log_dir / "sim",
+            names=vids,
         )
+        injector = FaultInjector(faults, children, printer.note)
+        printer.marks = injector.marks
         code = daemon.main_loop()
     finally:
         if children is not None:
@@ -193,16 +427,22 @@ def run_demo(
         daemon.shutdown()
         store.close()
         restore_signals()
-    return code, daemon
+    events = list(injector.events) if injector is not None else []
+    if injector is not None:
+        events += [f"{f}: not reached" for f in injector.pending]
+    return DemoResult(code, daemon, events, faults)
 
 
-def summary(daemon: Dispatcher) -> str:
+def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
+    """The end of the run: per vehicle, fields done and not done; what was injected."""
     state = daemon.state
     lines = ["", "summary:"]
     for v in state.vehicles.values():
+        not_done = [f.id for f in state.fields.values() if f.vehicle == v.id and f.status != "done"]
         lines.append(
-            f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}, "
-            f"{'finished after ' if v.finished_s is not None else ''}"
+            f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}"
+            + (f", not done {' '.join(not_done)}" if not_done else "")
+            + f", {'finished after ' if v.finished_s is not None else ''}"
             f"{(v.finished_s if v.finished_s is not None else v.sim_time_s) / 3600:.2f} h "
             f"(planned {v.planned_s[-1] / 3600:.2f} h), upload retries {v.upload_retries}"
             + (f", {v.error}" if v.error else "")
@@ -214,4 +454,8 @@ def summary(daemon: Dispatcher) -> str:
             f"  every mission acknowledged {daemon.all_acknowledged - daemon.upload_started:.2f} s "
             "after the first upload began"
         )
+    if result is not None:
+        if result.faults.radio.active:
+            lines.append(f"  radio: {result.faults.radio} (every tractor, both ways)")
+        lines += [f"  {event}" for event in result.events]
     return "\n".join(lines)
