@@ -43,3 +43,52 @@ def test_a_run_through_a_lossy_radio_completes(procs: Processes, tmp_path: Path,
     assert sum("read back, item by item ours" in ln for ln in lines) >= 2, lines
     sim_out = next(Processes.output(p) for p in procs.procs if "sim_vehicles" in p.args)
     assert "an impaired radio" in sim_out
+
+
+def test_a_tractor_that_goes_quiet_is_held_and_goes_on_when_it_is_back(
+    procs: Processes, tmp_path: Path
+) -> None:
+    import os
+    import signal
+
+    from helpers.processes import status_reader
+
+    scenario = tmp_path / "quiet.toml"
+    text = (Path(__file__).parent / "data" / "restart.toml").read_text()
+    farm = Path(__file__).parent / "data" / "tiny-farm.geojson"
+    scenario.write_text(
+        text.replace('farm = "tiny-farm.geojson"', f'farm = "{farm}"')
+        + "\n[dispatcher]\nlost_after_s = 2.0\n"
+    )
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    v1 = procs.sim(scenario, port, 10, "v1")
+    procs.sim(scenario, port, 10, "v2")
+    with status_reader(port, "restart") as status:
+        seen: dict = {}
+
+        def under_way() -> bool:
+            seen.update(status().get("vehicles", {}))
+            return seen.get("v1", {}).get("share_done", 0.0) >= 0.3
+
+        wait_for("v1 at 30 %", under_way, 120.0, procs.report)
+        os.kill(v1.pid, signal.SIGSTOP)  # its radio goes quiet
+        wait_for(
+            "v1 lost",
+            lambda: status().get("vehicles", {}).get("v1", {}).get("phase") == "lost",
+            30.0,
+            procs.report,
+        )
+        os.kill(v1.pid, signal.SIGCONT)
+    wait_for("the run to end", lambda: serve.poll() is not None, 180.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any("v1: no message for 2 s" in ln for ln in lines), lines
+    assert any(ln.startswith("v1: back; going on at item") for ln in lines), lines
+    review = review_contents(log)
+    table = review_table(review)
+    done = sorted(f for v in review.vehicles for f in v.fields_done)
+    assert done == sorted(f.id for f in review.fields), table
+    v = review.vehicle("v1")
+    assert v.distance_m <= 1.03 * v.planned_distance_m, table  # nothing driven twice
