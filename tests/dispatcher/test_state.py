@@ -476,8 +476,10 @@ def test_a_vehicle_that_gets_nowhere_in_auto_is_lost_held_and_back_when_it_moves
 
 
 def test_the_dispatcher_table_of_a_scenario_sets_when_a_vehicle_is_lost(tmp_path):
-    text = (DATA / "tiny.toml").read_text().replace(
-        'farm = "tiny-farm.geojson"', f'farm = "{DATA / "tiny-farm.geojson"}"'
+    text = (
+        (DATA / "tiny.toml")
+        .read_text()
+        .replace('farm = "tiny-farm.geojson"', f'farm = "{DATA / "tiny-farm.geojson"}"')
     )
     path = tmp_path / "s.toml"
     path.write_text(text + "\n[dispatcher]\nlost_after_s = 8\nstall_after_s = 90.5\n")

@@ -1,0 +1,137 @@
+"""The rest of the day's work, planned again from what the fleet state knows.
+
+:func:`replan` reads the dispatcher's :class:`~dispatcher.daemon.state.FleetState` (which
+vehicles are still there, where each is and which item of its mission it drives to, which
+fields are done, how far each field in progress is) against the plan being carried out, and
+asks the planner (:func:`planner.replan.replan_farm`) for the rest: fields not started and
+the remaining segments of fields in progress, over the vehicles still alive, each from where
+it is. It returns the next :class:`~dispatcher.mission.plan.DispatchPlan`, missions and
+plan document included.
+
+A vehicle on a segment of a field (a swath or a headland edge, implement down) finishes it
+first: its position is taken at the segment's end and the time left to get there is its
+ready time; the segment counts as done. A vehicle gone (lost, failed) is not in the new
+plan; the segment it was on is not done (its rest is worked again by whoever takes the
+field).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Collection
+
+from dispatcher.config.errors import DispatcherError
+from dispatcher.config.scenario import Scenario
+from dispatcher.daemon.state import FleetState, Phase, VehicleState
+from dispatcher.mission.document import PlannedItem
+from dispatcher.mission.plan import DispatchPlan, dispatch_plan
+from planner.farm import Farm
+from planner.field_plan import Visit
+from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
+from planner.solve import AnyOf
+
+GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
+"""Phases of a vehicle that gets no work in a re-plan."""
+
+ON_SEGMENT = "swath_end"
+"""Driving to a segment's end (implement down) is being on that segment."""
+
+
+class ReplanError(DispatcherError):
+    """Nothing to re-plan with: no vehicle left, or no work left."""
+
+
+def replan(
+    scenario: Scenario,
+    current: DispatchPlan,
+    state: FleetState,
+    stop: AnyOf | None = None,
+    gone: Collection[str] = (),
+) -> DispatchPlan:
+    """The next plan: the remaining work over the vehicles still alive (module doc).
+    ``gone`` adds vehicles to leave out whatever their phase."""
+    farm = scenario.farm
+    visits = {v.field.id: v for m in current.plan.machines for v in m.visits}
+    alive = [v for v in state.vehicles.values() if v.phase not in GONE and v.id not in set(gone)]
+    if not alive:
+        raise ReplanError("no vehicle left to take the remaining work")
+    machines = {veh.id: veh.machine for veh in scenario.vehicles}
+    states: list[MachineState] = []
+    finishing: dict[str, int] = {}  # field -> segments done once its vehicle ends the one it is on
+    for v in alive:
+        position, ready_h, on = _where(v, farm, machines[v.id].work_speed_kmh)
+        if on is not None:
+            finishing[on[0]] = on[1] + 1
+        states.append(MachineState(machines[v.id], position, ready_h))
+    done = [f.id for f in state.fields.values() if f.status == "done"]
+    in_progress = []
+    for f in state.fields.values():
+        if f.status != "working" or f.id not in visits:
+            continue
+        segments = finishing.get(f.id, _segments_done(state.vehicles[f.vehicle], f.id))
+        in_progress.append(
+            FieldProgress(visits[f.id], f.vehicle, min(segments, len(visit_segments(visits[f.id]))))
+        )
+    solver = scenario.solver
+    plan = replan_farm(
+        farm,
+        states,
+        done=done,
+        in_progress=in_progress,
+        objective=current.plan.objective,
+        algorithm=solver.algorithm,
+        stop=stop,
+        seed=solver.seed,
+        previous=current.plan,
+    )
+    kept = {m.machine.id for m in plan.machines}
+    vehicles = tuple(veh for veh in scenario.vehicles if veh.id in kept)
+    return dispatch_plan(dataclasses.replace(scenario, vehicles=vehicles), plan)
+
+
+def _segments_done(v: VehicleState, field_id: str) -> int:
+    """Segments of ``field_id`` the vehicle finished: its last swath end reached, plus one."""
+    ends = [
+        item.swath_index
+        for item in v.items[1 : v.reached + 1]
+        if item.field_id == field_id and item.role == "swath_end" and item.swath_index is not None
+    ]
+    return max(ends) + 1 if ends else 0
+
+
+def _where(
+    v: VehicleState, farm: Farm, work_speed_kmh: float
+) -> tuple[tuple[float, float], float, tuple[str, int] | None]:
+    """Where a vehicle starts its new route (local metres), when (hours from now), and the
+    (field, segment) it finishes first when it is on one."""
+    lat = v.lat if v.lat is not None else v.items[0].lat
+    lon = v.lon if v.lon is not None else v.items[0].lon
+    here = farm.frame.to_local(lon, lat)
+    heading = _heading_to(v)
+    if heading is None or v.phase is Phase.DONE:
+        return (float(here[0]), float(here[1])), 0.0, None
+    end = heading
+    if end.field_id is None or end.swath_index is None:
+        return (float(here[0]), float(here[1])), 0.0, None
+    x, y = farm.frame.to_local(end.lon, end.lat)
+    metres = math.hypot(float(x) - float(here[0]), float(y) - float(here[1]))
+    return (float(x), float(y)), metres / (1000.0 * work_speed_kmh), (end.field_id, end.swath_index)
+
+
+def _heading_to(v: VehicleState) -> PlannedItem | None:
+    """The segment item the vehicle drives to now, if it is on a segment."""
+    seq = min(max(v.reached + 1, v.current, 1), len(v.items) - 1)
+    item = v.items[seq]
+    if item.role == ON_SEGMENT and item.field_id is not None and v.phase is Phase.RUNNING:
+        return item
+    return None
+
+
+def visit_of(plan: DispatchPlan, field_id: str) -> Visit:
+    """The visit of ``field_id`` in ``plan`` (KeyError when none)."""
+    for m in plan.plan.machines:
+        for v in m.visits:
+            if v.field.id == field_id:
+                return v
+    raise KeyError(field_id)

@@ -1,0 +1,89 @@
+"""Planning the rest of the day from the fleet state: a vehicle lost in the middle of a
+field, the others taking over from where they are (dispatcher/tools/replan.py)."""
+
+from pathlib import Path
+
+import pytest
+
+from dispatcher.config.scenario import load_scenario
+from dispatcher.daemon import events as ev
+from dispatcher.daemon.state import FleetState, Phase
+from dispatcher.mission.plan import DispatchPlan, dispatch_plan
+from dispatcher.tools.replan import ReplanError, replan, visit_of
+from planner.field_plan import plan_farm
+from planner.replan import visit_segments
+from planner.solve import stop_after
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def current() -> DispatchPlan:
+    scenario = load_scenario(DATA / "restart.toml")  # two machines of the same width
+    machines = [v.machine for v in scenario.vehicles]
+    plan = plan_farm(scenario.farm, machines, "makespan", "ighoa", stop_after(20), seed=1)
+    return dispatch_plan(scenario, plan)
+
+
+def swath_end(current: DispatchPlan, vid: str, field: str, index: int) -> int:
+    items = current.document.machine(vid).items
+    return next(
+        i.seq
+        for i in items
+        if i.field_id == field and i.role == "swath_end" and i.swath_index == index
+    )
+
+
+def started(state: FleetState, vid: str) -> None:
+    for event in (
+        ev.VehicleSeen(vid),
+        ev.UploadStarted(vid, 1),
+        ev.UploadAcked(vid),
+        ev.StartRequested(vid, 1),
+        ev.MissionStarted(vid, 1),
+    ):
+        state.apply(event, 0.0)
+
+
+def test_the_rest_of_a_lost_vehicles_field_goes_to_the_other_from_where_it_stopped(current):
+    scenario = current.scenario
+    state = FleetState(current.document)
+    lost, other = ("v2", "v1")
+    lost_field = current.document.machine(lost).fields[0]
+    other_field = current.document.machine(other).fields[0]
+    for vid in (lost, other):
+        started(state, vid)
+    state.apply(ev.ItemReached(lost, swath_end(current, lost, lost_field, 2), 100.0), 1.0)
+    state.apply(ev.VehicleLost(lost, "heartbeats stopped"), 2.0)
+    # The other one is driving its second swath of its first field.
+    reached = swath_end(current, other, other_field, 0)
+    state.apply(ev.ItemReached(other, reached, 100.0), 1.0)
+    v = state.vehicles[other]
+    v.current = swath_end(current, other, other_field, 1)
+    v.lat, v.lon = v.items[reached].lat, v.items[reached].lon
+    assert state.fields[lost_field].status == "working" and state.vehicles[lost].phase is Phase.LOST
+
+    nxt = replan(scenario, current, state, stop=stop_after(30))
+    assert [m.id for m in nxt.document.machines] == [other]
+    assert nxt.plan_id != current.plan_id
+    new_fields = nxt.document.machine(other).fields
+    assert sorted(new_fields) == sorted(current.document.fields)  # nothing was done yet
+    # The lost vehicle's field: exactly its segments not done (three were), each once.
+    lost_visit = visit_of(nxt, lost_field)
+    total = len(visit_segments(visit_of(current, lost_field)))
+    assert sorted(lost_visit.original_segments) == list(range(3, total))
+    # The other's own field: on from the swath it drives (it finishes it first).
+    own_visit = visit_of(nxt, other_field)
+    assert own_visit.original_segments[0] == 2
+    assert sorted(own_visit.original_segments) == list(
+        range(2, len(visit_segments(visit_of(current, other_field))))
+    )
+    assert nxt.plan.machines[0].ready_h > 0.0
+
+
+def test_a_replan_with_no_vehicle_left_says_so(current):
+    state = FleetState(current.document)
+    for vid in state.vehicles:
+        state.apply(ev.VehicleLost(vid, "gone"), 0.0)
+    with pytest.raises(ReplanError, match="no vehicle left"):
+        replan(current.scenario, current, state, stop=stop_after(5))
