@@ -27,7 +27,7 @@ from typing import IO, Literal
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
-from dispatcher.daemon.state import FleetState
+from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.signals import stop_on_signals
@@ -39,6 +39,10 @@ log = logging.getLogger(__name__)
 # The demo farm ships with agrifleet (config/ in a checkout).
 DEFAULT_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
+FAULT_CHECK_PERIOD_S = 0.1
+"""How often (wall seconds) the share of the work is looked at when faults are planned (the
+dispatcher's status period, which calls the progress callback, is cut to this: its default,
+1 s, is 200 simulated seconds at 200x)."""
 
 
 def free_port(preferred: int = 7447) -> int:
@@ -95,9 +99,6 @@ class Supervisor:
             cls(procs).stop()
             raise
         return cls(procs, names)
-
-    def failed(self) -> list[int]:
-        return [p.returncode for p in self.procs if p.poll() not in (None, 0)]
 
     def send_signal(self, name: str, sig: int) -> bool:
         """Send ``sig`` to the process ``name``; False if it has already exited."""
@@ -285,7 +286,14 @@ class FaultInjector:
 
     def __call__(self, state: FleetState) -> None:
         share = fleet_share_done(state)
-        for fault in [f for f in self.pending if f.at_share <= share]:
+        # Not before the dispatcher has heard the vehicle: its simulator has set up its
+        # signal handlers by then (SIGUSR1 would end a process that has none yet).
+        due = [
+            f
+            for f in self.pending
+            if f.at_share <= share and state.vehicles[f.vehicle].phase is not Phase.WAITING
+        ]
+        for fault in due:
             self.pending.remove(fault)
             if self.children.send_signal(fault.vehicle, FAULT_SIGNALS[fault.action]):
                 self._injected[fault.vehicle] = fault.action
@@ -394,8 +402,12 @@ def run_demo(
         zenoh=wire.dispatcher_options((endpoint,)),
         log_dir=log_dir,
         heartbeat_timeout_s=heartbeat_timeout_s,
+        stall_after_s=dispatch.scenario.watch.stall_after_s,
+        lost_grace_s=dispatch.scenario.watch.lost_grace_s,
         on_progress=printer,
     )
+    if faults.faults:
+        config.status_period_s = min(config.status_period_s, FAULT_CHECK_PERIOD_S)
     daemon = Dispatcher(config)
     injector: FaultInjector | None = None
 
