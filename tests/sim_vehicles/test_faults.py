@@ -5,14 +5,19 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from dispatcher.config.scenario import Vehicle
 from dispatcher.link import mavlink as mc
+from dispatcher.link import wire
 from sim_vehicles.__main__ import EXIT_BAD_INPUT, main, parse_fail_after
 from sim_vehicles.runner import serve_vehicles, stall_on_signal
 from sim_vehicles.tractor import SimTractor
@@ -102,3 +107,47 @@ def test_bad_fault_arguments_exit_2_naming_the_flag(
 ) -> None:
     assert main([str(SCENARIO), *args]) == EXIT_BAD_INPUT
     assert message in caplog.text
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_sigusr1_stalls_a_simulator_process_which_keeps_reporting() -> None:
+    """The signal the demo sends for ``--stall``: the process lives on, heartbeats go on."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    beats = threading.Semaphore(0)
+    codec = mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID)
+
+    def on_frame(sample: zenoh.Sample) -> None:
+        msg = codec.decode_one(sample.payload.to_bytes())
+        if msg is not None and msg.get_type() == "HEARTBEAT":
+            beats.release()
+
+    with zenoh.open(wire.ZenohOptions(mode="peer", listen=(endpoint,)).config()) as session:
+        frames = session.declare_subscriber(wire.vehicle_from("tiny", "v1"), on_frame)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim_vehicles", str(SCENARIO), "--vehicle", "v1"]
+            + ["--connect", endpoint, "--speedup", "20"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        try:
+            assert beats.acquire(timeout=20), "no heartbeat from the simulator"
+            proc.send_signal(signal.SIGUSR1)
+            for _ in range(2):  # heartbeats go on after the stall
+                assert beats.acquire(timeout=5), "heartbeats stopped after SIGUSR1"
+            assert proc.poll() is None
+            proc.send_signal(signal.SIGTERM)
+            output, _ = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+            frames.undeclare()
+    assert proc.returncode == 0, output
+    assert "stalled at t=" in output
