@@ -216,6 +216,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
     from dispatcher.daemon.store import Store, StoreError, default_data_dir
+    from dispatcher.tools.replan import replanner_for
 
     scenario = load_scenario_args(args)
     data_dir = args.data_dir or default_data_dir(scenario.farm_id)
@@ -235,6 +236,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 )
             store.resume_run(run)
             job = run.job
+            replanner = None  # the planner's view of a resumed run is not kept (yet)
             print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
         else:
             dispatch = plan_scenario(args, scenario)
@@ -242,6 +244,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             job = dispatch.job()
             run_id = store.begin_run(job, fingerprint)
             print(f"run {run_id} kept in {store.path}")
+            replanner = replanner_for(scenario, dispatch)
         daemon = Dispatcher(
             DaemonConfig(
                 job=job,
@@ -252,6 +255,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 lost_grace_s=scenario.watch.lost_grace_s,
                 store=store,
                 resume=run,
+                replanner=replanner,
             )
         )
         code = daemon.run()

@@ -142,6 +142,23 @@ class Rebooted(Event):
     kind: ClassVar[str] = "rebooted"
 
 
+FLEET = "*"
+"""The ``vehicle`` of an event about the whole fleet."""
+
+
+@dataclass(frozen=True)
+class PlanReplaced(Event):
+    """The rest of the work planned again (``reason``: who was lost): ``document`` is the
+    new plan document's JSON form; its machines are the vehicles that go on, each with the
+    mission it drives from now on (a driving one: its old mission up to where it is, then
+    its new route). ``vehicle`` is :data:`FLEET`."""
+
+    kind: ClassVar[str] = "plan_replaced"
+    plan_id: str
+    reason: str
+    document: dict[str, Any]
+
+
 EVENTS: dict[str, type[Event]] = {
     cls.kind: cls
     for cls in (
@@ -160,6 +177,7 @@ EVENTS: dict[str, type[Event]] = {
         BackInAuto,
         ItemReached,
         Rebooted,
+        PlanReplaced,
     )
 }
 

@@ -11,6 +11,7 @@ and a decoded JSON view; positions as foxglove.LocationFix; plan and status JSON
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import queue
@@ -40,6 +41,7 @@ from dispatcher.link.mission_protocol import (
     hold_commands,
     mission_differences,
     park_commands,
+    set_current_command,
     start_mission_commands,
 )
 from dispatcher.link.signals import stop_on_signals
@@ -76,6 +78,9 @@ class DaemonConfig:
     on_progress: Callable[[FleetState], None] | None = None  # called at status_period_s
     verify_missions: bool = True  # read each mission back before it is started
     store: Store | None = None  # where events are kept (begun or resumed on ``job``)
+    # Plans the rest of the work from a copy of the fleet state, when a vehicle is lost:
+    # the next job (dispatcher.tools.replan); None: a lost vehicle's work waits for it.
+    replanner: Callable[[FleetState], DispatchJob] | None = None
     resume: StoredRun | None = None  # the stored run this one continues
 
 
@@ -124,6 +129,7 @@ class _Link:
     start_item: int = 1  # where the mission starts (or resumes after a reboot)
     since: float = 0.0  # when the current exchange began (for the autopilot's texts)
     ready_since: float | None = None  # resuming: when it was first heard booted
+    switch_from: int | None = None  # re-planned while driving: the first item of its new route
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
@@ -152,6 +158,11 @@ class Dispatcher:
         self.senders: dict[str, _VehicleSender] = {}
         self.upload_started: float | None = None
         self.all_acknowledged: float | None = None
+        self._replan_reason = ""  # a re-plan is wanted (why)
+        self._replan_wanted_at = 0.0
+        self._replan: threading.Thread | None = None
+        self._replanned: tuple[DispatchJob, str, float] | Exception | None = None
+        self.replans: list[tuple[str, float]] = []  # (reason, seconds from loss to new plan)
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self) -> int:
@@ -367,6 +378,7 @@ class Dispatcher:
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
                 self._apply(ev.VehicleLost(vid, "never came alive"), now)
+        self._replan_step(now)
         if now - self._last_status >= self.config.status_period_s:
             self._publish_status(now)
 
@@ -381,6 +393,11 @@ class Dispatcher:
                 if v.mission_total is not None or now - link.ready_since > RESUME_ASK_S:
                     self._resume(v, link, now)
             return
+        if v.switch and v.phase is Phase.RUNNING:
+            self._advance_switch(v, link, now)
+            return
+        if v.retired:
+            return  # its work went to the others: it stays where it is
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
         elif (
@@ -570,6 +587,102 @@ class Dispatcher:
             self._log("warning", f"{v.id}: stopped; going on at item {link.start_item}")
             self._start(v, link, now)
 
+    def _replan_step(self, now: float) -> None:
+        """Start a re-plan when one is wanted (in a thread, on a copy of the state), and
+        take its result on when it is there."""
+        replanner = self.config.replanner
+        if replanner is None:
+            return
+        if self._replan is None and self._replan_reason:
+            reason, self._replan_reason = self._replan_reason, ""
+            snapshot = copy.deepcopy(self.state)
+            started = self._replan_wanted_at
+
+            def work() -> None:
+                try:
+                    self._replanned = (replanner(snapshot), reason, started)
+                except Exception as exc:  # noqa: BLE001 - reported in the main loop
+                    self._replanned = exc
+
+            self._log("warning", f"re-planning the rest of the work: {reason}")
+            self._replan = threading.Thread(target=work, name="replan", daemon=True)
+            self._replan.start()
+            return
+        if self._replan is not None and not self._replan.is_alive():
+            self._replan = None
+            result, self._replanned = self._replanned, None
+            if isinstance(result, Exception) or result is None:
+                self._log("error", f"re-planning failed: {result}")
+                return
+            job, reason, since = result
+            self._adopt(job, reason, now)
+            self.replans.append((reason, now - since))
+
+    def _adopt(self, job: DispatchJob, reason: str, now: float) -> None:
+        """Carry on with the next job: the plan replaced (an event), recorded and
+        published; each vehicle given its new mission (module doc of tools/replan)."""
+        old_items = {vid: v.items for vid, v in self.state.vehicles.items()}
+        self._apply(ev.PlanReplaced(ev.FLEET, job.plan_id, reason, job.document.to_dict()), now)
+        self.job = job
+        if self.store is not None:
+            self.store.replace_missions(job)
+        if self.recorder is not None:
+            self.recorder.record_plan(job.document.to_dict(), dict(job.geojson), time.time_ns())
+        self.publishers["plan"].put(job.document.to_json())
+        gone = [vid for vid, v in self.state.vehicles.items() if v.retired]
+        self._log(
+            "warning",
+            f"plan {job.plan_id}: the rest of the work over "
+            f"{', '.join(m.id for m in job.document.machines)}"
+            + (f"; {', '.join(gone)} left out" if gone else ""),
+        )
+        for m in job.document.machines:
+            v = self.state.vehicles[m.id]
+            link = self.links[m.id] = _Link()
+            if v.switch:  # driving: its new mission is uploaded under it
+                same = 0
+                for a, b in zip(old_items[m.id], m.items, strict=False):
+                    if (a.command, a.x, a.y) != (b.command, b.x, b.y):
+                        break
+                    same += 1
+                link.switch_from = same
+                self._log("info", f"{m.id}: new route from item {same}; uploading under way")
+                self._upload_switch(v, link, now)
+
+    def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:
+        link.since = now
+        link.upload = MissionUpload(self.job.missions[v.id].to_mavlink(v.system_id), v.system_id)
+        self._send(v.id, link.upload.start(now))
+
+    def _advance_switch(self, v: VehicleState, link: _Link, now: float) -> None:
+        """A driving vehicle re-planned: upload, read back, then make sure it drives the
+        new route (set the current item when it went past the end of its old part)."""
+        if link.upload is None or link.upload.outcome is Outcome.RUNNING:
+            return
+        if link.upload.outcome is Outcome.FAILED:
+            self._log("warning", f"{v.id}: new mission not uploaded ({link.upload.reason}); again")
+            self._upload_switch(v, link, now)
+            return
+        if link.download is None:
+            link.download = MissionDownload(v.system_id)
+            self._send(v.id, link.download.start(now))
+            return
+        if link.download.outcome is Outcome.RUNNING:
+            return
+        read, link.download = link.download, None
+        ours = self.job.missions[v.id].to_mavlink(v.system_id)
+        if read.outcome is Outcome.FAILED or mission_differences(read.items, ours):
+            self._upload_switch(v, link, now)
+            return
+        self._apply(ev.UploadAcked(v.id), now)
+        first = link.switch_from or 1
+        if v.current > first:  # it went on with the old mission meanwhile
+            self._log("warning", f"{v.id}: went past the old part; back to item {first}")
+            link.start = CommandSequence([set_current_command(first)], v.system_id)
+            self._send(v.id, link.start.start(now))
+        else:
+            self._log("info", f"{v.id}: new mission on board while driving")
+
     def _hold(self, v: VehicleState, link: _Link, now: float) -> None:
         """Tell a lost vehicle to stop where it is (HOLD), once; it may not hear it."""
         for exchange in (link.upload, link.download, link.start):
@@ -614,9 +727,23 @@ class Dispatcher:
     def _apply(self, event: ev.Event, now: float) -> None:
         """Every change of the fleet's state goes through here: applied, then recorded
         (review replays the recorded events with the same ``FleetState.apply``)."""
+        was = (
+            self.state.vehicles[event.vehicle].phase
+            if event.vehicle in self.state.vehicles
+            else None
+        )
         self.state.apply(event, now)
         if self.store is not None:
             self.store.append(event, time.time())
+        if (
+            isinstance(event, ev.VehicleLost | ev.VehicleStalled)
+            and self.config.replanner is not None
+            and was not in (None, Phase.DONE, Phase.FAILED, Phase.LOST)
+            and not self.state.all_fields_done()
+        ):
+            v = self.state.vehicles[event.vehicle]
+            self._replan_reason = f"{event.vehicle} lost ({v.error})"
+            self._replan_wanted_at = now
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
 

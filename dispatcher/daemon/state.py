@@ -143,6 +143,8 @@ class VehicleState:
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
     stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
+    retired: bool = False  # left out of the plan after a re-plan (it was lost)
+    switch: bool = False  # driving; its new mission (same start) is to be uploaded
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
@@ -222,6 +224,9 @@ class FleetState:
     # --- knowledge: events ----------------------------------------------------------------
     def apply(self, event: ev.Event, now: float) -> None:
         """Change the state by one event; ``now`` is the wall (or log) time it happened."""
+        if isinstance(event, ev.PlanReplaced):
+            self._replace_plan(PlanDocument.from_json(event.document))
+            return
         v = self.vehicles[event.vehicle]
         match event:
             case ev.VehicleSeen():
@@ -241,6 +246,7 @@ class FleetState:
                 v.resuming = False
             case ev.UploadAcked():
                 v.acked = True
+                v.switch = False
             case ev.UploadFailed(reason=reason, final=final):
                 v.acked = False
                 if final:
@@ -274,6 +280,37 @@ class FleetState:
                     v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
                 ):
                     v.needs_restart = True
+
+    def _replace_plan(self, doc: PlanDocument) -> None:
+        """The rest of the work planned again (events.PlanReplaced). A vehicle driving its
+        mission keeps its progress (its new mission starts with the old one up to where it
+        is) and is to receive the new one (``switch``); one not driving starts the new one
+        from its first item; one not in the plan (lost) gets no more work."""
+        self.plan_id = doc.plan_id
+        planned = {m.id: m for m in doc.machines}
+        for v in self.vehicles.values():
+            m = planned.get(v.id)
+            if m is None:
+                v.retired = True
+                continue
+            keeps = v.phase is Phase.RUNNING and _same_prefix(v.items, m.items, v.reached)
+            v.items = m.items
+            v.planned_s = m.planned_times() or []
+            v.acked = False
+            v.retired = False
+            if keeps:
+                v.switch = True
+            else:
+                v.switch = False
+                v.reached = v.current = 0
+                v.finished_s = None
+                if v.phase in (Phase.DONE, Phase.ALIVE, Phase.UPLOADING, Phase.STARTING):
+                    v.phase = Phase.ALIVE
+                v.upload_attempts = 0
+            for fid in m.fields:
+                f = self.fields.setdefault(fid, FieldState(fid, m.id))
+                if f.status != "done":
+                    f.vehicle = m.id
 
     def _lost(self, v: VehicleState, why: str, now: float) -> None:
         if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
@@ -343,6 +380,8 @@ class FleetState:
         if item.field_id is None or item.field_id not in self.fields:
             return
         f = self.fields[item.field_id]
+        if f.vehicle != v.id:  # given to another vehicle by a re-plan
+            return
         if item.role == "transit" and f.status == "pending":
             # At the field's entry. ArduPilot does not report DO_SET_SERVO/RELAY as
             # reached, so this is the start unless the implement-down item says better.
@@ -452,6 +491,7 @@ class FleetState:
         ``lost_grace_s`` (a short loss of link is not the end of a vehicle)."""
         return all(
             v.phase in (Phase.DONE, Phase.FAILED)
+            or v.retired
             or (v.phase is Phase.LOST and v.lost_at is not None and now - v.lost_at >= lost_grace_s)
             or (v.off_auto_since is not None and now - v.off_auto_since >= lost_grace_s)
             for v in self.vehicles.values()
@@ -508,3 +548,13 @@ def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
     """Distance between two (lat, lon) close to each other (equirectangular, metres)."""
     k = math.cos(math.radians((a[0] + b[0]) / 2))
     return 111_195.0 * math.hypot(b[0] - a[0], (b[1] - a[1]) * k)
+
+
+def _same_prefix(old: tuple[PlannedItem, ...], new: tuple[PlannedItem, ...], upto: int) -> bool:
+    """Whether ``new`` starts with ``old``'s items 0..``upto`` (a mission carried on)."""
+    if len(new) <= upto or len(old) <= upto:
+        return False
+    return all(
+        (a.command, a.x, a.y) == (b.command, b.x, b.y)
+        for a, b in zip(old[: upto + 1], new[: upto + 1], strict=True)
+    )

@@ -282,6 +282,18 @@ class Store:
         self.run_id = run_id
         return run_id
 
+    def replace_missions(self, job: DispatchJob) -> None:
+        """The missions of a re-planned job (its document travels in the plan_replaced
+        event; the run's first document stays as it was)."""
+        if self.run_id is None:
+            raise StoreError("no run begun or resumed")
+        self.commit()
+        with self._transaction():
+            self.conn.executemany(
+                "INSERT OR REPLACE INTO missions VALUES (?, ?, ?)",
+                [(self.run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions],
+            )
+
     def resume_run(self, run: StoredRun) -> None:
         """Append to ``run`` from now on."""
         self.run_id = run.id
@@ -330,7 +342,7 @@ class Store:
             return
         if state is not None:
             now = time.time()
-            for vid in sorted(self._touched):
+            for vid in sorted(self._touched & set(state.vehicles)):
                 v = state.vehicles[vid]
                 self.conn.execute(
                     "INSERT OR REPLACE INTO vehicles VALUES (?, ?, ?, ?, ?, ?, ?, ?)",

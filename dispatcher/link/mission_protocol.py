@@ -449,6 +449,11 @@ def gcs_heartbeat() -> mc.MAVLinkMessage:
     return mc.peer_heartbeat(mc.MAV_TYPE_GCS)
 
 
+def set_current_command(item: int) -> Command:
+    """Drive to ``item`` next (MAV_CMD_DO_SET_MISSION_CURRENT, without resetting)."""
+    return Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (float(item), 0.0))
+
+
 def hold_commands() -> list[Command]:
     """Stop where it is: HOLD (armed; a tractor that was lost keeps its state)."""
     return [_set_mode(ROVER_MODE_HOLD)]

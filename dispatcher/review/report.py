@@ -775,7 +775,7 @@ def _review_vehicle(
     frames_from = [(ns, m) for ns, m in traffic.from_vehicle if ns >= since_ns]
     frames_to = [(ns, m) for ns, m in traffic.to_vehicle if ns >= since_ns]
     upload_start = next(
-        (ns for ns, m in reversed(frames_to) if m.get("mavpackettype") == "MISSION_COUNT"),
+        (ns for ns, m in frames_to if m.get("mavpackettype") == "MISSION_COUNT"),
         since_ns,
     )
     # From the upload on, plus where the vehicle stood when it began (its last position).
@@ -1141,10 +1141,25 @@ def review_contents(log: LogContents) -> Review:
     while first > 0 and plans[first - 1].plan_id == plans[first].plan_id:
         first -= 1
     plan = plans[first] if plans else None
-    since_ns = plan.log_ns if plan is not None and first > 0 else 0
-    if len(plan_ids) > 1 and plan is not None:
+    # The plan the run began with: back over the re-plans of the run (plan_replaced
+    # events) and over repeats. Its vehicles' traffic and events count from there; each
+    # vehicle is set against the last plan (a driving vehicle's last mission starts with
+    # its old one).
+    replans = _replans(log)
+    replan_ids = {pid for _, pid, _ in replans}
+    base = first
+    while base > 0 and (
+        plans[base].plan_id in replan_ids or plans[base - 1].plan_id == plans[base].plan_id
+    ):
+        base -= 1
+    since_ns = plans[base].log_ns if plans and base > 0 else 0
+    for ns, pid, reason in replans:
+        if plans and ns >= plans[base].log_ns:
+            warnings.append(f"re-planned {_ago(ns, start_ns)}: {reason}; plan {pid}")
+    later = [pid for pid in plan_ids if pid not in replan_ids]
+    if len(later) > 1 and plan is not None:
         warnings.append(
-            f"the log holds {len(plan_ids)} plans ({', '.join(plan_ids)}); "
+            f"the log holds {len(later)} plans ({', '.join(later)}); "
             f"this review follows the last one, {plan.plan_id}"
         )
     farm_id = log.metadata.get("farm_id", "")
@@ -1185,11 +1200,14 @@ def review_contents(log: LogContents) -> Review:
         results[machine.id] = result
         vehicles.append(result.review)
         warnings += result.warnings
-    strangers = sorted(set(traffic) - {m.id for m in plan.machines})
+    left_out = {m.id for m in plans[base].machines} - {m.id for m in plan.machines}
+    for vid in sorted(left_out):
+        warnings.append(f"{vid}: lost; its work was re-planned over the others (not reviewed)")
+    strangers = sorted(set(traffic) - {m.id for m in plan.machines} - left_out)
     if strangers:
         warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
 
-    replayed = _replay_events(log, plan)
+    replayed = _replay_events(log, plans[base])
     if replayed is not None:
         # The dispatcher's own account, replayed with its FleetState.apply: review and the
         # live status agree on when each field was started and finished.
@@ -1215,6 +1233,20 @@ def review_contents(log: LogContents) -> Review:
         planned_makespan_h=plan.makespan_h,
         warnings=tuple(warnings),
     )
+
+
+def _replans(log: LogContents) -> list[tuple[int, str, str]]:
+    """The run's re-plans: (log ns, new plan id, reason) of its plan_replaced events."""
+    out = []
+    for rec in log.on(EVENTS_TOPIC):
+        doc = rec.decode_json()
+        if isinstance(doc, dict) and doc.get("kind") == ev.PlanReplaced.kind:
+            out.append((rec.log_time_ns, str(doc.get("plan_id")), str(doc.get("reason"))))
+    return out
+
+
+def _ago(ns: int, start_ns: int | None) -> str:
+    return f"{(ns - start_ns) / 1e9:.0f} s into the log" if start_ns is not None else "later"
 
 
 def _replay_events(log: LogContents, plan: _Plan) -> FleetState | None:

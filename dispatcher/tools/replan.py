@@ -19,17 +19,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import FleetState, Phase, VehicleState
+from dispatcher.mission.build import Mission, Trace
 from dispatcher.mission.document import PlannedItem
+from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from planner.farm import Farm
 from planner.field_plan import Visit
 from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
-from planner.solve import AnyOf
+from planner.solve import AnyOf, stop_after
 
 GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
 """Phases of a vehicle that gets no work in a re-plan."""
@@ -135,3 +137,87 @@ def visit_of(plan: DispatchPlan, field_id: str) -> Visit:
             if v.field.id == field_id:
                 return v
     raise KeyError(field_id)
+
+
+def handover(current: DispatchJob, state: FleetState, nxt: DispatchPlan) -> DispatchJob:
+    """The job that takes the fleet from ``current`` to the next plan without stopping it.
+
+    A vehicle driving its mission keeps what it has done and what it is doing: its new
+    mission is its old one up to the item it drives to (the end of the segment it is on, or
+    the next item of its transit), then the implement raised (when it was on a segment),
+    then its new route (without the new mission's home item). Uploaded while it drives, the
+    items it is on are the same, so it carries on; once past them it drives the new route.
+    A vehicle not driving (in the garage, done, not started) gets the new mission whole.
+    The plan document says the same (items, roles, fields), with a new plan id."""
+    machines = []
+    missions: dict[str, Mission] = {}
+    new_doc = nxt.document
+    for planned in new_doc.machines:
+        v = state.vehicles[planned.id]
+        new_mission = nxt.missions[planned.id]
+        cut = _cut(v)
+        if cut is None:
+            machines.append(planned)
+            missions[planned.id] = new_mission
+            continue
+        old = current.missions[planned.id]
+        items = list(old.items[: cut + 1])
+        traces = list(old.traces[: cut + 1])
+        items_doc = list(v.items[: cut + 1])
+        if v.items[cut].role == ON_SEGMENT:  # the implement up before going on
+            raise_at = next(
+                k
+                for k in range(cut + 1, len(old.items))
+                if old.traces[k].role in ("implement_raise", "implement_up")
+            )
+            raise_item = v.items[raise_at]
+            items.append(old.items[raise_at])
+            traces.append(Trace(raise_item.field_id, raise_item.swath_index, "implement_raise"))
+            items_doc.append(dataclasses.replace(raise_item, role="implement_raise"))
+        for item, trace, planned_item in zip(
+            new_mission.items[1:], new_mission.traces[1:], planned.items[1:], strict=True
+        ):
+            items.append(item)
+            traces.append(trace)
+            items_doc.append(planned_item)
+        items = [dataclasses.replace(it, seq=k) for k, it in enumerate(items)]
+        items_doc = [dataclasses.replace(it, seq=k) for k, it in enumerate(items_doc)]
+        missions[planned.id] = Mission(planned.id, tuple(items), tuple(traces))
+        done_here = [f for f in v.fields_done if f not in planned.fields]
+        machines.append(
+            dataclasses.replace(
+                planned, items=tuple(items_doc), fields=tuple(done_here) + planned.fields
+            )
+        )
+    document = dataclasses.replace(new_doc, machines=tuple(machines), plan_id="").with_id()
+    return DispatchJob(document, missions, dict(nxt.job().geojson))
+
+
+def _cut(v: VehicleState) -> int | None:
+    """Where a driving vehicle's old mission ends in its new one: the item it drives to
+    when that ends the segment it is on, else the last item it reached. None: it is not
+    driving a mission (it gets the new one whole)."""
+    if v.phase is not Phase.RUNNING or v.reached == 0:
+        return None
+    heading = _heading_to(v)
+    return heading.seq if heading is not None else v.reached
+
+
+def replanner_for(
+    scenario: Scenario, dispatch: DispatchPlan, seconds: float = 1.5
+) -> Callable[[FleetState], DispatchJob]:
+    """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
+    each call plans from the state it is given against the plan carried out so far, and
+    returns the job to carry on with; the solver stops after ``seconds``."""
+    current, job = dispatch, dispatch.job()
+
+    def plan_rest(state: FleetState) -> DispatchJob:
+        nonlocal current, job
+        nxt = replan(
+            scenario, current, state, stop=stop_after(scenario.solver.generations, seconds)
+        )
+        job = handover(job, state, nxt)
+        current = nxt
+        return job
+
+    return plan_rest

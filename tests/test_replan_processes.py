@@ -1,0 +1,51 @@
+"""A tractor dies: the dispatcher plans the rest of the work over the others and the farm
+is finished. Real processes on loopback (`agrifleet serve`, one simulator per tractor)."""
+
+from __future__ import annotations
+
+import os
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from helpers.processes import Processes, free_port, log_of, status_reader, wait_for
+
+from dispatcher.recording.mcap_file import LOG_TOPIC, read_logs
+from dispatcher.review.report import review_contents, review_table
+
+SCENARIO = Path(__file__).parent / "data" / "restart.toml"  # two tractors of one width
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Processes]:
+    group = Processes(tmp_path)
+    yield group
+    group.stop_all()
+
+
+def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path: Path) -> None:
+    port = free_port()
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs", "--time-limit", "1")
+    procs.sim(SCENARIO, port, 10, "v1")
+    v2 = procs.sim(SCENARIO, port, 10, "v2")
+    with status_reader(port, "restart") as status:
+        seen: dict = {}
+
+        def v2_under_way() -> bool:
+            seen.update(status().get("vehicles", {}))
+            return seen.get("v2", {}).get("share_done", 0.0) >= 0.3
+
+        wait_for("v2 at 30 %", v2_under_way, 120.0, procs.report)
+    os.kill(v2.pid, signal.SIGKILL)
+    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any("re-planning the rest of the work: v2 lost" in ln for ln in lines), lines
+    assert any("the rest of the work over v1; v2 left out" in ln for ln in lines), lines
+    review = review_contents(log)
+    status_doc = log.on("agrifleet/restart/dispatcher/status")[-1].decode_json()
+    assert {f["status"] for f in status_doc["fields"].values()} == {"done"}, status_doc
+    table = review_table(review)
+    assert all(f.done for f in review.fields), table
