@@ -49,3 +49,35 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     assert {f["status"] for f in status_doc["fields"].values()} == {"done"}, status_doc
     table = review_table(review)
     assert all(f.done for f in review.fields), table
+
+
+def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
+    procs: Processes, tmp_path: Path
+) -> None:
+    scenario = tmp_path / "stall.toml"
+    farm = SCENARIO.parent / "tiny-farm.geojson"
+    scenario.write_text(
+        SCENARIO.read_text().replace('farm = "tiny-farm.geojson"', f'farm = "{farm}"')
+        + "\n[dispatcher]\nstall_after_s = 30\n"
+    )
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    procs.sim(scenario, port, 10, "v1")
+    v2 = procs.sim(scenario, port, 10, "v2")
+    with status_reader(port, "restart") as status:
+        seen: dict = {}
+
+        def v2_under_way() -> bool:
+            seen.update(status().get("vehicles", {}))
+            return seen.get("v2", {}).get("share_done", 0.0) >= 0.3
+
+        wait_for("v2 at 30 %", v2_under_way, 120.0, procs.report)
+        os.kill(v2.pid, signal.SIGUSR1)  # it stops moving; its radio and autopilot go on
+    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any(ln.startswith("v2: stalled") and "HOLD" in ln for ln in lines), lines
+    assert any("re-planning the rest of the work: v2 lost (stalled" in ln for ln in lines), lines
+    review = review_contents(log)
+    assert all(f.done for f in review.fields), review_table(review)

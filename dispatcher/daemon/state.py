@@ -304,8 +304,14 @@ class FleetState:
                 v.switch = False
                 v.reached = v.current = 0
                 v.finished_s = None
-                if v.phase in (Phase.DONE, Phase.ALIVE, Phase.UPLOADING, Phase.STARTING):
-                    v.phase = Phase.ALIVE
+                if v.phase in (
+                    Phase.DONE,
+                    Phase.ALIVE,
+                    Phase.UPLOADING,
+                    Phase.STARTING,
+                    Phase.RUNNING,
+                ):
+                    v.phase = Phase.ALIVE  # the new mission is uploaded and started
                 v.upload_attempts = 0
             for fid in m.fields:
                 f = self.fields.setdefault(fid, FieldState(fid, m.id))
