@@ -217,7 +217,7 @@ def _fields_done(output: str) -> tuple[int, int]:
 def test_a_killed_simulator_does_not_stop_the_demo(tmp_path: Path) -> None:
     """v2's simulator is killed at 30 % of the work: the demo goes on, v1 does all its
     fields, the summary names v2 killed and lost with its fields not done, and the exit code
-    is the dispatcher's (3 while a field is not done)."""
+    is the dispatcher's (3 while a field is not done; 0 once re-planning does them)."""
     log_dir = tmp_path / "logs"
     proc = subprocess.Popen(
         [
@@ -260,9 +260,10 @@ def test_a_killed_simulator_does_not_stop_the_demo(tmp_path: Path) -> None:
     (v1,) = [ln.strip() for ln in summary.splitlines() if ln.strip().startswith("v1:")]
     assert v1.startswith("v1: done, fields ") and "not done" not in v1, summary
     (v2,) = [ln.strip() for ln in summary.splitlines() if ln.strip().startswith("v2:")]
-    assert v2.startswith("v2: lost, ") and ", not done " in v2, summary
+    assert v2.startswith("v2: lost, "), summary
     done, total = _fields_done(output)
-    assert done < total, summary  # v2 was killed before it had done its share
+    if done < total:  # until re-planning gives v2's rest to v1
+        assert ", not done " in v2, summary
     assert proc.returncode == (0 if done == total else 3), output[-3000:]
     assert "log: " in output
     (endpoint,) = re.findall(r"simulating at \d+x on (tcp/\S+)", output)
