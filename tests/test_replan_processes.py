@@ -81,3 +81,32 @@ def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     assert any("re-planning the rest of the work: v2 lost (stalled" in ln for ln in lines), lines
     review = review_contents(log)
     assert all(f.done for f in review.fields), review_table(review)
+
+
+def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
+    procs: Processes, tmp_path: Path
+) -> None:
+    scenario = SCENARIO.parent / "restart3.toml"
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    procs.sim(scenario, port, 10, "v1")
+    v2 = procs.sim(scenario, port, 10, "v2")
+    v3 = procs.sim(scenario, port, 10, "v3")
+    with status_reader(port, "restart3") as status:
+        seen: dict = {}
+
+        def under_way() -> bool:
+            seen.update(status().get("vehicles", {}))
+            return min(seen.get(v, {}).get("share_done", 0.0) for v in ("v2", "v3")) >= 0.3
+
+        wait_for("v2 and v3 at 30 %", under_way, 120.0, procs.report)
+    os.kill(v2.pid, signal.SIGKILL)
+    os.kill(v3.pid, signal.SIGKILL)  # the second loss comes while the first is re-planned
+    wait_for("the run to end", lambda: serve.poll() is not None, 300.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    review = review_contents(log)
+    table = review_table(review)
+    assert all(f.done for f in review.fields), table
+    assert [v.id for v in review.vehicles] == ["v1"], table
+    assert any("v3: lost; its work was re-planned" in w for w in review.warnings), table

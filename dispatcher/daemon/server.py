@@ -621,7 +621,6 @@ class Dispatcher:
     def _adopt(self, job: DispatchJob, reason: str, now: float) -> None:
         """Carry on with the next job: the plan replaced (an event), recorded and
         published; each vehicle given its new mission (module doc of tools/replan)."""
-        old_items = {vid: v.items for vid, v in self.state.vehicles.items()}
         self._apply(ev.PlanReplaced(ev.FLEET, job.plan_id, reason, job.document.to_dict()), now)
         self.job = job
         if self.store is not None:
@@ -640,13 +639,10 @@ class Dispatcher:
             v = self.state.vehicles[m.id]
             link = self.links[m.id] = _Link()
             if v.switch:  # driving: its new mission is uploaded under it
-                same = 0
-                for a, b in zip(old_items[m.id], m.items, strict=False):
-                    if (a.command, a.x, a.y) != (b.command, b.x, b.y):
-                        break
-                    same += 1
-                link.switch_from = same
-                self._log("info", f"{m.id}: new route from item {same}; uploading under way")
+                link.switch_from = v.route_from
+                self._log(
+                    "info", f"{m.id}: new route from item {v.route_from}; uploading under way"
+                )
                 self._upload_switch(v, link, now)
 
     def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:

@@ -145,6 +145,7 @@ class VehicleState:
     stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
     retired: bool = False  # left out of the plan after a re-plan (it was lost)
     switch: bool = False  # driving; its new mission (same start) is to be uploaded
+    route_from: int = 1  # the first item of its current route (after a re-plan: the new part)
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
@@ -293,7 +294,9 @@ class FleetState:
             if m is None:
                 v.retired = True
                 continue
-            keeps = v.phase is Phase.RUNNING and _same_prefix(v.items, m.items, v.reached)
+            common = _common_prefix(v.items, m.items)
+            keeps = v.phase is Phase.RUNNING and common > v.reached
+            v.route_from = common if keeps else 1
             v.items = m.items
             v.planned_s = m.planned_times() or []
             v.acked = False
@@ -556,11 +559,11 @@ def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
     return 111_195.0 * math.hypot(b[0] - a[0], (b[1] - a[1]) * k)
 
 
-def _same_prefix(old: tuple[PlannedItem, ...], new: tuple[PlannedItem, ...], upto: int) -> bool:
-    """Whether ``new`` starts with ``old``'s items 0..``upto`` (a mission carried on)."""
-    if len(new) <= upto or len(old) <= upto:
-        return False
-    return all(
-        (a.command, a.x, a.y) == (b.command, b.x, b.y)
-        for a, b in zip(old[: upto + 1], new[: upto + 1], strict=True)
-    )
+def _common_prefix(old: tuple[PlannedItem, ...], new: tuple[PlannedItem, ...]) -> int:
+    """How many first items ``new`` shares with ``old`` (a mission carried on)."""
+    same = 0
+    for a, b in zip(old, new, strict=False):
+        if (a.command, a.x, a.y, a.role) != (b.command, b.x, b.y, b.role):
+            break
+        same += 1
+    return same

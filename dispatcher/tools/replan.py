@@ -93,10 +93,11 @@ def replan(
 
 
 def _segments_done(v: VehicleState, field_id: str) -> int:
-    """Segments of ``field_id`` the vehicle finished: its last swath end reached, plus one."""
+    """Segments of ``field_id`` (as its current route's visit counts them) the vehicle
+    finished: its last swath end reached on that route, plus one."""
     ends = [
         item.swath_index
-        for item in v.items[1 : v.reached + 1]
+        for item in v.items[v.route_from : v.reached + 1]
         if item.field_id == field_id and item.role == "swath_end" and item.swath_index is not None
     ]
     return max(ends) + 1 if ends else 0
@@ -118,7 +119,9 @@ def _where(
         return (float(here[0]), float(here[1])), 0.0, None
     x, y = farm.frame.to_local(end.lon, end.lat)
     metres = math.hypot(float(x) - float(here[0]), float(y) - float(here[1]))
-    return (float(x), float(y)), metres / (1000.0 * work_speed_kmh), (end.field_id, end.swath_index)
+    # A segment of the route before the last re-plan was counted done by it already.
+    on = (end.field_id, end.swath_index) if end.seq >= v.route_from else None
+    return (float(x), float(y)), metres / (1000.0 * work_speed_kmh), on
 
 
 def _heading_to(v: VehicleState) -> PlannedItem | None:
