@@ -360,7 +360,7 @@ class Dispatcher:
                 self._log("warning", f"{vid}: no message for {self.config.heartbeat_timeout_s:g} s")
                 self._apply(ev.VehicleLost(vid, "heartbeats stopped"), now)
                 self._hold(v, link, now)  # in case it still hears us
-            idle = self.state.stalled_for(v, self.config.stall_after_s)
+            idle = self.state.stalled_for(v, self.config.stall_after_s, now)
             if idle is not None:
                 self._apply(ev.VehicleStalled(vid, round(idle, 1)), now)
                 self._log("warning", f"{vid}: {v.error}; told to HOLD")

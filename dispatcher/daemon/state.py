@@ -47,6 +47,8 @@ and reorders frames is only a little behind)."""
 PROBLEM_SEVERITY = mc.MAV_SEVERITY_WARNING
 """STATUSTEXT at this severity or worse (PreArm/Arm refusals are CRITICAL) is kept as the
 autopilot's word on a problem."""
+STALL_MIN_WALL_S = 5.0
+"""Wall seconds a vehicle must also get nowhere for before it counts as stalled."""
 STALL_MOVE_M = 3.0
 """Moving this far counts as getting somewhere (a stalled vehicle's position jitters)."""
 CURRENT_SETTLE_S = 2.0
@@ -142,6 +144,7 @@ class VehicleState:
     started_at: float | None = None  # wall time of the last MissionStarted
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
+    progress_wall: float | None = None  # and the wall time then
     stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
     retired: bool = False  # left out of the plan after a re-plan (it was lost)
     switch: bool = False  # driving; its new mission (same start) is to be uploaded
@@ -261,7 +264,7 @@ class FleetState:
                 v.resuming = False
                 v.error = ""
                 v.started_at, v.active_seen = now, False
-                v.progress_s = v.sim_time_s
+                v.progress_s, v.progress_wall = v.sim_time_s, now
             case ev.Resumed():
                 self._resumed(v)
             case ev.StartFailed(reason=reason):
@@ -272,7 +275,7 @@ class FleetState:
             case ev.BackInAuto():
                 v.error = ""
             case ev.ItemReached(seq=seq, clock_s=clock_s):
-                self._item_reached(v, seq, clock_s)
+                self._item_reached(v, seq, clock_s, now)
             case ev.Rebooted():
                 v.reboots += 1
                 v.system_status = None  # booting: not ready until a heartbeat says so
@@ -329,12 +332,15 @@ class FleetState:
         v.lost_at = now
         v.error = why
 
-    def stalled_for(self, v: VehicleState, limit_s: float) -> float | None:
+    def stalled_for(self, v: VehicleState, limit_s: float, now: float) -> float | None:
         """How long (its own seconds) a vehicle driving its mission has got nowhere, when
-        that is longer than ``limit_s``; else None."""
+        that is longer than ``limit_s`` and than STALL_MIN_WALL_S of wall time (a simulator
+        at a high speedup passes a minute between two reports); else None."""
         if v.phase is not Phase.RUNNING or not v.driving or v.progress_s is None:
             return None
         idle = v.sim_time_s - v.progress_s
+        if v.progress_wall is None or now - v.progress_wall < STALL_MIN_WALL_S:
+            return None
         return idle if idle > limit_s else None
 
     def _resumed(self, v: VehicleState) -> None:
@@ -365,14 +371,15 @@ class FleetState:
         v.phase_before_lost = None
         v.error = ""
         v.stalled = False
-        v.progress_s = v.sim_time_s
+        v.progress_s, v.progress_wall = v.sim_time_s, now
 
-    def _item_reached(self, v: VehicleState, seq: int, clock_s: float) -> None:
+    def _item_reached(self, v: VehicleState, seq: int, clock_s: float, now: float) -> None:
         if not 0 <= seq < len(v.items):
             return
         if v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST) and not v.resuming:
             return
         v.progress_s = max(v.progress_s or 0.0, clock_s)
+        v.progress_wall = now
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
             self._item_done(v, s, clock_s, reported=s == seq)
         v.reached = max(v.reached, seq)
@@ -442,6 +449,7 @@ class FleetState:
                 if v.stalled:
                     out.append(ev.VehicleSeen(vid))  # it moves again
                 v.progress_at, v.progress_s = (v.lat, v.lon), v.sim_time_s
+                v.progress_wall = now
             if v.phase is Phase.DONE and v.finished_at_next_fix:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s

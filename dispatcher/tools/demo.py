@@ -32,6 +32,7 @@ from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
+from dispatcher.tools.replan import replanner_for
 from sim_vehicles.impairment import Impairment
 
 log = logging.getLogger(__name__)
@@ -391,7 +392,7 @@ def run_demo(
     for line in faults.describe():
         print(f"fault injection: {line}", flush=True)
     # The demo keeps its state beside its logs, and always starts a new run.
-    store = Store.open(log_dir, dispatch.document.farm_id)
+    store = Store.open(log_dir / "state" / dispatch.document.farm_id, dispatch.document.farm_id)
     store.abandon_unfinished()
     job = dispatch.job()
     store.begin_run(job, fingerprint="demo")
@@ -405,6 +406,7 @@ def run_demo(
         stall_after_s=dispatch.scenario.watch.stall_after_s,
         lost_grace_s=dispatch.scenario.watch.lost_grace_s,
         on_progress=printer,
+        replanner=replanner_for(dispatch.scenario, dispatch),
     )
     if faults.faults:
         config.status_period_s = min(config.status_period_s, FAULT_CHECK_PERIOD_S)

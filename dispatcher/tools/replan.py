@@ -158,7 +158,7 @@ def handover(current: DispatchJob, state: FleetState, nxt: DispatchPlan) -> Disp
     for planned in new_doc.machines:
         v = state.vehicles[planned.id]
         new_mission = nxt.missions[planned.id]
-        cut = _cut(v)
+        cut = _cut(v) if planned.id in current.missions else None
         if cut is None:
             machines.append(planned)
             missions[planned.id] = new_mission

@@ -466,12 +466,15 @@ def test_a_vehicle_that_gets_nowhere_in_auto_is_lost_held_and_back_when_it_moves
     assert v.phase is Phase.RUNNING  # 50 s of its time: not yet
     feed(daemon.state, "v1", position(115_000, 440001000, 873000001), 0.6)
     daemon._tick(0.7)
+    assert v.phase is Phase.RUNNING  # 65 s of its time, but 0.5 s of ours: a fast simulator
+    feed(daemon.state, "v1", position(116_000, 440001000, 873000001), 5.6)
+    daemon._tick(5.7)
     assert v.phase is Phase.LOST and v.stalled and v.error.startswith("stalled")
     hold = [m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG"]
     assert (hold[-1].command, hold[-1].param2) == (mc.MAV_CMD_DO_SET_MODE, 4)  # HOLD
-    feed(daemon.state, "v1", driving_heartbeat(11), 0.8)
+    feed(daemon.state, "v1", driving_heartbeat(11), 5.8)
     assert v.phase is Phase.LOST  # heard, but still nowhere
-    feed(daemon.state, "v1", position(120_000, 440002000, 873000001), 0.9)  # it moves
+    feed(daemon.state, "v1", position(120_000, 440002000, 873000001), 5.9)  # it moves
     assert v.phase is Phase.RUNNING and not v.stalled
 
 
