@@ -6,9 +6,11 @@ paper's figures and to the best-known solutions; ``upload`` — time from "plan 
 "every mission acknowledged" for 6 vehicles with ~300 items each on loopback;
 ``telemetry`` — 100 simulated vehicles sending telemetry at 10 Hz for 60 s into one
 dispatcher: share of messages in the MCAP, dispatcher CPU; ``store`` — what a commit of
-the dispatcher's SQLite store costs with synchronous FULL and NORMAL; ``sitl`` — a 4-field farm
-driven by ArduPilot Rover in SITL through the bridge: planned vs driven, cross-track error,
-implement down outside a field, turns without a loop.
+the dispatcher's SQLite store costs with synchronous FULL and NORMAL; ``soak`` — 30
+tractors on 200 fields for 10 minutes with random kills and stalls and 20 % loss,
+re-planned; ``sitl`` — a 4-field farm driven by ArduPilot Rover in SITL through the
+bridge: planned vs driven, cross-track error, implement down outside a field, turns
+without a loop.
 
 The report is printed and appended to benchmarks/RESULTS.md with date, machine and command.
 """
@@ -104,6 +106,12 @@ def bench_store() -> str:
     return run()
 
 
+def bench_soak() -> str:
+    from benchmarks.soak_bench import bench_soak as run
+
+    return run()
+
+
 def bench_sitl() -> str:
     from benchmarks.sitl_bench import bench_sitl as run
 
@@ -116,6 +124,7 @@ SECTIONS = {
     "telemetry": bench_telemetry,
     "store": bench_store,
     "sitl": bench_sitl,
+    "soak": bench_soak,
 }
 
 

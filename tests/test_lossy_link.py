@@ -45,7 +45,7 @@ def test_a_run_through_a_lossy_radio_completes(procs: Processes, tmp_path: Path,
     assert "an impaired radio" in sim_out
 
 
-def test_a_tractor_that_goes_quiet_is_held_and_goes_on_when_it_is_back(
+def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_back(
     procs: Processes, tmp_path: Path
 ) -> None:
     import os
@@ -85,10 +85,8 @@ def test_a_tractor_that_goes_quiet_is_held_and_goes_on_when_it_is_back(
     log = read_logs([log_of(Processes.output(serve))])
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     assert any("v1: no message for 2 s" in ln for ln in lines), lines
-    assert any(ln.startswith("v1: back; going on at item") for ln in lines), lines
+    # Its work went to v2 at once; back, it was held and given work again by a re-plan.
+    assert any("re-planning the rest of the work: v1 lost" in ln for ln in lines), lines
+    assert any("re-planning the rest of the work: v1 back" in ln for ln in lines), lines
     review = review_contents(log)
-    table = review_table(review)
-    done = sorted(f for v in review.vehicles for f in v.fields_done)
-    assert done == sorted(f.id for f in review.fields), table
-    v = review.vehicle("v1")
-    assert v.distance_m <= 1.03 * v.planned_distance_m, table  # nothing driven twice
+    assert all(f.done for f in review.fields), review_table(review)

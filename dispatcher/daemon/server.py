@@ -130,6 +130,7 @@ class _Link:
     since: float = 0.0  # when the current exchange began (for the autopilot's texts)
     ready_since: float | None = None  # resuming: when it was first heard booted
     switch_from: int | None = None  # re-planned while driving: the first item of its new route
+    rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
@@ -162,7 +163,10 @@ class Dispatcher:
         self._replan_wanted_at = 0.0
         self._replan: threading.Thread | None = None
         self._replanned: tuple[DispatchJob, str, float] | Exception | None = None
-        self.replans: list[tuple[str, float]] = []  # (reason, seconds from loss to new plan)
+        # Per re-plan: reason, seconds from the loss to the new plan, and to every changed
+        # mission acknowledged (None until then).
+        self.replans: list[list[Any]] = []
+        self._awaiting_acks: tuple[int, set[str], float] | None = None
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self) -> int:
@@ -397,7 +401,21 @@ class Dispatcher:
             self._advance_switch(v, link, now)
             return
         if v.retired:
-            return  # its work went to the others: it stays where it is
+            # Its work went to the others: it stays where it is, and rejoins at a re-plan
+            # asked for when it is heard again.
+            if (
+                v.phase is not Phase.LOST
+                and not link.rejoin_asked
+                and not self._replan_reason
+                and self._replan is None
+            ):
+                link.rejoin_asked = True
+                self._replan_reason = f"{vid} back"
+                self._replan_wanted_at = now
+                if link.hold is None or link.hold.outcome is not Outcome.RUNNING:
+                    link.hold = CommandSequence(hold_commands(), v.system_id)
+                    self._send(vid, link.hold.start(now))
+            return
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
         elif (
@@ -405,6 +423,8 @@ class Dispatcher:
             and link.hold.outcome is not Outcome.RUNNING
             and v.phase is Phase.RUNNING
             and v.ready
+            and self._replan is None  # a re-plan under way may have given its work away
+            and not self._replan_reason
         ):
             # Back after we told it to HOLD when it was lost: on with its mission.
             link.hold = None
@@ -615,8 +635,10 @@ class Dispatcher:
                 self._log("error", f"re-planning failed: {result}")
                 return
             job, reason, since = result
+            self.replans.append([reason, now - since, None])
             self._adopt(job, reason, now)
-            self.replans.append((reason, now - since))
+            waiting = {m.id for m in job.document.machines}
+            self._awaiting_acks = (len(self.replans) - 1, waiting, since)
 
     def _adopt(self, job: DispatchJob, reason: str, now: float) -> None:
         """Carry on with the next job: the plan replaced (an event), recorded and
@@ -629,6 +651,13 @@ class Dispatcher:
             self.recorder.record_plan(job.document.to_dict(), dict(job.geojson), time.time_ns())
         self.publishers["plan"].put(job.document.to_json())
         gone = [vid for vid, v in self.state.vehicles.items() if v.retired]
+        for vid in gone:
+            v = self.state.vehicles[vid]
+            if v.phase is not Phase.LOST:  # back while the re-plan ran: it must not go on
+                self.links[vid] = _Link()
+                self._hold(v, self.links[vid], now)
+                self._replan_reason = self._replan_reason or f"{vid} back"
+                self._replan_wanted_at = now
         self._log(
             "warning",
             f"plan {job.plan_id}: the rest of the work over "
@@ -731,6 +760,12 @@ class Dispatcher:
         self.state.apply(event, now)
         if self.store is not None:
             self.store.append(event, time.time())
+        if isinstance(event, ev.UploadAcked) and self._awaiting_acks is not None:
+            index, waiting, since = self._awaiting_acks
+            waiting.discard(event.vehicle)
+            if not waiting:
+                self.replans[index][2] = now - since
+                self._awaiting_acks = None
         if (
             isinstance(event, ev.VehicleLost | ev.VehicleStalled)
             and self.config.replanner is not None

@@ -71,9 +71,18 @@ def replan(
     for f in state.fields.values():
         if f.status != "working" or f.id not in visits:
             continue
-        segments = finishing.get(f.id, _segments_done(state.vehicles[f.vehicle], f.id))
+        owner = state.vehicles[f.vehicle]
+        segments = finishing.get(f.id, _segments_done(owner, f.id))
+        # Kept with its vehicle only while that vehicle is in it; a field that vehicle was
+        # given but has not reached yet may go to whoever is best placed.
+        free = owner.current_field != f.id or owner.phase in GONE or owner.retired
         in_progress.append(
-            FieldProgress(visits[f.id], f.vehicle, min(segments, len(visit_segments(visits[f.id]))))
+            FieldProgress(
+                visits[f.id],
+                f.vehicle,
+                min(segments, len(visit_segments(visits[f.id]))),
+                split_ok=free,
+            )
         )
     solver = scenario.solver
     plan = replan_farm(
@@ -112,7 +121,7 @@ def _where(
     lon = v.lon if v.lon is not None else v.items[0].lon
     here = farm.frame.to_local(lon, lat)
     heading = _heading_to(v)
-    if heading is None or v.phase is Phase.DONE:
+    if heading is None or v.phase is Phase.DONE or v.retired:
         return (float(here[0]), float(here[1])), 0.0, None
     end = heading
     if end.field_id is None or end.swath_index is None:
@@ -200,7 +209,7 @@ def _cut(v: VehicleState) -> int | None:
     """Where a driving vehicle's old mission ends in its new one: the item it drives to
     when that ends the segment it is on, else the last item it reached. None: it is not
     driving a mission (it gets the new one whole)."""
-    if v.phase is not Phase.RUNNING or v.reached == 0:
+    if v.phase is not Phase.RUNNING or v.reached == 0 or v.retired:
         return None
     heading = _heading_to(v)
     return heading.seq if heading is not None else v.reached
