@@ -31,7 +31,9 @@ def procs(tmp_path: Path) -> Iterator[Processes]:
 def test_a_run_through_a_lossy_radio_completes(procs: Processes, tmp_path: Path, seed: int):
     port = free_port()
     serve = procs.serve(SCENARIO, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(SCENARIO, port, 40, "v1", "v2", extra=(*RADIO, "--radio-seed", str(seed)))
+    # v2's radio is the bad one (its mission is the shorter: the test stays short).
+    procs.sim(SCENARIO, port, 40, "v1")
+    procs.sim(SCENARIO, port, 40, "v2", extra=(*RADIO, "--radio-seed", str(seed)))
     wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
     assert serve.returncode == 0, procs.report()
     log = read_logs([log_of(Processes.output(serve))])
@@ -41,8 +43,7 @@ def test_a_run_through_a_lossy_radio_completes(procs: Processes, tmp_path: Path,
     assert done == sorted(f.id for f in review.fields), table
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     assert sum("read back, item by item ours" in ln for ln in lines) >= 2, lines
-    sim_out = next(Processes.output(p) for p in procs.procs if "sim_vehicles" in p.args)
-    assert "an impaired radio" in sim_out
+    assert any("an impaired radio" in Processes.output(p) for p in procs.procs)
 
 
 def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_back(
@@ -62,8 +63,8 @@ def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_b
     )
     port = free_port()
     serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
-    v1 = procs.sim(scenario, port, 10, "v1")
-    procs.sim(scenario, port, 10, "v2")
+    v1 = procs.sim(scenario, port, 20, "v1")
+    procs.sim(scenario, port, 20, "v2")
     with status_reader(port, "restart") as status:
         seen: dict = {}
 

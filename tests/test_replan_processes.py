@@ -27,8 +27,8 @@ def procs(tmp_path: Path) -> Iterator[Processes]:
 def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path: Path) -> None:
     port = free_port()
     serve = procs.serve(SCENARIO, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(SCENARIO, port, 10, "v1")
-    v2 = procs.sim(SCENARIO, port, 10, "v2")
+    procs.sim(SCENARIO, port, 20, "v1")
+    v2 = procs.sim(SCENARIO, port, 20, "v2")
     with status_reader(port, "restart") as status:
         seen: dict = {}
 
@@ -62,8 +62,8 @@ def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     )
     port = free_port()
     serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(scenario, port, 10, "v1")
-    v2 = procs.sim(scenario, port, 10, "v2")
+    procs.sim(scenario, port, 20, "v1")
+    v2 = procs.sim(scenario, port, 20, "v2")
     with status_reader(port, "restart") as status:
         seen: dict = {}
 
@@ -89,9 +89,9 @@ def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
     scenario = SCENARIO.parent / "restart3.toml"
     port = free_port()
     serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(scenario, port, 10, "v1")
-    v2 = procs.sim(scenario, port, 10, "v2")
-    v3 = procs.sim(scenario, port, 10, "v3")
+    procs.sim(scenario, port, 20, "v1")
+    v2 = procs.sim(scenario, port, 20, "v2")
+    v3 = procs.sim(scenario, port, 20, "v3")
     with status_reader(port, "restart3") as status:
         seen: dict = {}
 

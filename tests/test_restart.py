@@ -33,7 +33,7 @@ from dispatcher.review.report import Review, review_contents, review_table
 
 SCENARIO = Path(__file__).parent / "data" / "restart.toml"
 FARM = "restart"
-SPEEDUP = 10.0
+SPEEDUP = 20.0
 FAILSAFE = ("--gcs-failsafe", f"{1.5 * SPEEDUP:g}")  # 1.5 wall seconds without the dispatcher
 RUN_TIMEOUT_S = 150.0
 
