@@ -95,19 +95,52 @@ class _Exchange:
         self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
 
 
-class MissionUpload(_Exchange):
-    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+class _Transfer(_Exchange):
+    """A mission upload or download: one step at a time, the last message resent at each
+    timeout; it fails only after its retries *and* TRANSFER_STALL_S without progress."""
 
-    def __init__(self, items: Sequence[mc.MAVLinkMessage], target_system: int, **kw: float) -> None:
+    def __init__(self, target_system: int, **kw: float) -> None:
         kw.setdefault("max_retries", TRANSFER_RETRIES)
         super().__init__(target_system, **kw)  # type: ignore[arg-type]
-        self.items = list(items)
-        self.last_refusal = ""
-        self._highest = -1  # the highest item asked for
         self._progress_at = 0.0
         self._last: mc.MAVLinkMessage | None = None
         self._deadline = 0.0
         self._retries_left = self.max_retries
+
+    def _progress(self, now: float) -> None:
+        """A step went through: its retries start again."""
+        self._retries_left = self.max_retries
+        self._progress_at = now
+
+    def _due(self, now: float) -> bool:
+        """A resend is due now."""
+        return self.outcome is Outcome.RUNNING and self._last is not None and now >= self._deadline
+
+    def _given_up(self, now: float) -> bool:
+        return self._retries_left <= 0 and now - self._progress_at >= TRANSFER_STALL_S
+
+    def _send(
+        self, msg: mc.MAVLinkMessage, now: float, again: bool = False
+    ) -> list[mc.MAVLinkMessage]:
+        """Send ``msg`` (``again``: a resend, one retry spent) and time its answer."""
+        if again:
+            self._retries_left -= 1
+            self.stats.retries += 1
+        self._resent = again
+        self._last = msg
+        self._sent_at = now
+        self._deadline = now + self.timeout_s
+        return [msg]
+
+
+class MissionUpload(_Transfer):
+    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+
+    def __init__(self, items: Sequence[mc.MAVLinkMessage], target_system: int, **kw: float) -> None:
+        super().__init__(target_system, **kw)
+        self.items = list(items)
+        self.last_refusal = ""
+        self._highest = -1  # the highest item asked for
         self._sent_seqs: set[int] = set()
 
     @property
@@ -115,7 +148,7 @@ class MissionUpload(_Exchange):
         return len(self._sent_seqs) / max(len(self.items), 1)
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
-        self._progress_at = now
+        self._progress(now)
         return self._send(self._count(), now)
 
     def _count(self) -> mc.MAVLinkMessage:
@@ -148,8 +181,7 @@ class MissionUpload(_Exchange):
             self._highest = max(self._highest, seq)
             self._answered(now)
             self._sent_seqs.add(seq)
-            self._retries_left = self.max_retries
-            self._progress_at = now
+            self._progress(now)
             return self._send(self.items[seq], now)
         if kind == "MISSION_ACK":
             result = int(msg.type)
@@ -168,16 +200,14 @@ class MissionUpload(_Exchange):
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
-        if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
+        if not self._due(now) or self._last is None:
             return []
-        if self._retries_left <= 0 and now - self._progress_at >= TRANSFER_STALL_S:
+        if self._given_up(now):
             if self.last_refusal:
                 return self._fail(f"vehicle refused the mission: {self.last_refusal}")
             return self._fail(
                 f"no answer to {self._last.get_type()} after {self.max_retries} retries"
             )
-        self._retries_left -= 1
-        self.stats.retries += 1
         log.debug("resending %s to system %d", self._last.get_type(), self.target_system)
         out = self._send(self._last, now, again=True)
         if self._last.get_type() != "MISSION_COUNT" and int(self._last.seq) + 1 < len(self.items):
@@ -189,33 +219,19 @@ class MissionUpload(_Exchange):
             self._sent_seqs.add(int(self._last.seq) + 1)
         return out
 
-    def _send(
-        self, msg: mc.MAVLinkMessage, now: float, again: bool = False
-    ) -> list[mc.MAVLinkMessage]:
-        self._resent = again
-        self._last = msg
-        self._sent_at = now
-        self._deadline = now + self.timeout_s
-        return [msg]
 
-
-class MissionDownload(_Exchange):
+class MissionDownload(_Transfer):
     """Read a vehicle's mission back: MISSION_REQUEST_LIST, its MISSION_COUNT, then each
     item with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends it. ``items`` holds
     the MISSION_ITEM_INT messages once the outcome is DONE."""
 
     def __init__(self, target_system: int, **kw: float) -> None:
-        kw.setdefault("max_retries", TRANSFER_RETRIES)
-        super().__init__(target_system, **kw)  # type: ignore[arg-type]
+        super().__init__(target_system, **kw)
         self.count: int | None = None
         self.items: list[mc.MAVLinkMessage] = []
-        self._progress_at = 0.0
-        self._last: mc.MAVLinkMessage | None = None
-        self._deadline = 0.0
-        self._retries_left = self.max_retries
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
-        self._progress_at = now
+        self._progress(now)
         ask = mc.message(
             "MISSION_REQUEST_LIST",
             target_system=self.target_system,
@@ -233,8 +249,7 @@ class MissionDownload(_Exchange):
         if kind == "MISSION_COUNT" and self.count is None:
             self._answered(now)
             self.count = int(msg.count)
-            self._retries_left = self.max_retries
-            self._progress_at = now
+            self._progress(now)
             return self._next(now)
         if kind == "MISSION_ITEM_INT" and self.count is not None:
             if int(msg.seq) != len(self.items):
@@ -242,21 +257,18 @@ class MissionDownload(_Exchange):
                 return []
             self._answered(now)
             self.items.append(msg)
-            self._retries_left = self.max_retries
-            self._progress_at = now
+            self._progress(now)
             return self._next(now)
         self.stats.stray += 1  # a second count, an ACK (an error: asked again at the timeout)
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
-        if self.outcome is not Outcome.RUNNING or self._last is None or now < self._deadline:
+        if not self._due(now) or self._last is None:
             return []
-        if self._retries_left <= 0 and now - self._progress_at >= TRANSFER_STALL_S:
+        if self._given_up(now):
             return self._fail(
                 f"no answer to {self._last.get_type()} after {self.max_retries} retries"
             )
-        self._retries_left -= 1
-        self.stats.retries += 1
         return self._send(self._last, now, again=True)
 
     def _next(self, now: float) -> list[mc.MAVLinkMessage]:
@@ -279,15 +291,6 @@ class MissionDownload(_Exchange):
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
         return self._send(request, now)
-
-    def _send(
-        self, msg: mc.MAVLinkMessage, now: float, again: bool = False
-    ) -> list[mc.MAVLinkMessage]:
-        self._resent = again
-        self._last = msg
-        self._sent_at = now
-        self._deadline = now + self.timeout_s
-        return [msg]
 
 
 def mission_differences(
