@@ -52,7 +52,7 @@ def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_b
     import os
     import signal
 
-    from helpers.processes import status_reader
+    from helpers.processes import status_reader, wait_for_share
 
     scenario = tmp_path / "quiet.toml"
     text = (Path(__file__).parent / "data" / "restart.toml").read_text()
@@ -66,13 +66,7 @@ def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_b
     v1 = procs.sim(scenario, port, 20, "v1")
     procs.sim(scenario, port, 20, "v2")
     with status_reader(port, "restart") as status:
-        seen: dict = {}
-
-        def under_way() -> bool:
-            seen.update(status().get("vehicles", {}))
-            return seen.get("v1", {}).get("share_done", 0.0) >= 0.3
-
-        wait_for("v1 at 30 %", under_way, 120.0, procs.report)
+        wait_for_share(status, ("v1",), 0.3, 120.0, procs.report)
         os.kill(v1.pid, signal.SIGSTOP)  # its radio goes quiet
         wait_for(
             "v1 lost",

@@ -9,7 +9,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from helpers.processes import Processes, free_port, log_of, status_reader, wait_for
+from helpers.processes import (
+    Processes,
+    free_port,
+    log_of,
+    status_reader,
+    wait_for,
+    wait_for_share,
+)
 
 from dispatcher.recording.mcap_file import LOG_TOPIC, read_logs
 from dispatcher.review.report import review_contents, review_table
@@ -30,13 +37,7 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     procs.sim(SCENARIO, port, 20, "v1")
     v2 = procs.sim(SCENARIO, port, 20, "v2")
     with status_reader(port, "restart") as status:
-        seen: dict = {}
-
-        def v2_under_way() -> bool:
-            seen.update(status().get("vehicles", {}))
-            return seen.get("v2", {}).get("share_done", 0.0) >= 0.3
-
-        wait_for("v2 at 30 %", v2_under_way, 120.0, procs.report)
+        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
     os.kill(v2.pid, signal.SIGKILL)
     wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
     assert serve.returncode == 0, procs.report()
@@ -65,13 +66,7 @@ def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     procs.sim(scenario, port, 20, "v1")
     v2 = procs.sim(scenario, port, 20, "v2")
     with status_reader(port, "restart") as status:
-        seen: dict = {}
-
-        def v2_under_way() -> bool:
-            seen.update(status().get("vehicles", {}))
-            return seen.get("v2", {}).get("share_done", 0.0) >= 0.3
-
-        wait_for("v2 at 30 %", v2_under_way, 120.0, procs.report)
+        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
         os.kill(v2.pid, signal.SIGUSR1)  # it stops moving; its radio and autopilot go on
     wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
     assert serve.returncode == 0, procs.report()
@@ -93,13 +88,7 @@ def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
     v2 = procs.sim(scenario, port, 20, "v2")
     v3 = procs.sim(scenario, port, 20, "v3")
     with status_reader(port, "restart3") as status:
-        seen: dict = {}
-
-        def under_way() -> bool:
-            seen.update(status().get("vehicles", {}))
-            return min(seen.get(v, {}).get("share_done", 0.0) for v in ("v2", "v3")) >= 0.3
-
-        wait_for("v2 and v3 at 30 %", under_way, 120.0, procs.report)
+        wait_for_share(status, ("v2", "v3"), 0.3, 120.0, procs.report)
     os.kill(v2.pid, signal.SIGKILL)
     os.kill(v3.pid, signal.SIGKILL)  # the second loss comes while the first is re-planned
     wait_for("the run to end", lambda: serve.poll() is not None, 300.0, procs.report)

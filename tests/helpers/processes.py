@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -151,3 +151,21 @@ def status_reader(port: int, farm: str) -> Iterator[Callable[[], dict]]:
             return {}
 
         yield ask
+
+
+def wait_for_share(
+    status: Callable[[], dict],
+    vehicles: Sequence[str],
+    share: float,
+    timeout_s: float,
+    explain: Callable[[], str] | None = None,
+) -> None:
+    """Wait until every one of ``vehicles`` has done ``share`` of its mission (the
+    dispatcher's status, ``status_reader``)."""
+    seen: dict = {}
+
+    def there() -> bool:
+        seen.update(status().get("vehicles", {}))
+        return all(seen.get(v, {}).get("share_done", 0.0) >= share for v in vehicles)
+
+    wait_for(f"{', '.join(vehicles)} at {100 * share:g} %", there, timeout_s, explain)
