@@ -31,6 +31,7 @@ Outline (details in ``docs/coverage.md``):
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 from collections.abc import Sequence
@@ -50,6 +51,7 @@ from planner.turns import (
     ARC_STEP_DEG,
     ARC_STEP_M,
     MIN_GAP_M,
+    DubinsPath,
     dubins_paths,
     plan_turn,
     turn_excursion_m,
@@ -1257,20 +1259,46 @@ class _TurnsInside:
         edge = np.where(at_end, (edge + 1) % len(edges), edge)
         into = np.where(at_end | (into < MIN_GAP_M), 0.0, into)
         points = ring[edge] + (into / np.maximum(lengths[edge], 1e-12))[:, None] * edges[edge]
-        near = np.hypot(*(points - pos).T) <= 6.0 * r + 10.0
-        candidates = []
-        for point, tangent in zip(points[near], edges[edge][near], strict=True):
+        gaps = np.hypot(*(points - pos).T)
+        near = gaps <= 6.0 * r + 10.0
+        start = (float(pos[0]), float(pos[1]))
+        # Shortest drivable path first. A path is never shorter than the straight line to
+        # its end, so candidates are taken nearest first and a path found is tried as soon
+        # as no candidate left can beat it: the same choice as sorting every path, with far
+        # fewer paths computed.
+        found: list[tuple[float, int, DubinsPath, bool, FloatArray]] = []
+        for k in np.flatnonzero(near)[np.argsort(gaps[near], kind="stable")]:
+            while found and found[0][0] < gaps[k]:
+                fitting = self._first_fitting(found, start, ring)
+                if fitting is not None:
+                    return fitting
+            point, tangent = points[k], edges[edge[k]]
             forward = math.atan2(tangent[1], tangent[0])
             target = (float(point[0]), float(point[1]))
-            for reverse, h in ((False, forward), (True, forward + math.pi)):
-                for path in dubins_paths((float(pos[0]), float(pos[1])), head, target, h, r)[:2]:
-                    candidates.append((path.length_m, path, reverse, point))
-        candidates.sort(key=lambda c: c[0])
-        start = (float(pos[0]), float(pos[1]))
-        for _, path, reverse, point in candidates:
-            if self._fits(start, path.points, path.end):
-                rotated = _start_ring_near(ring[::-1] if reverse else ring, point)
-                return rotated, path.points
+            paths = [
+                (reverse, path)
+                for reverse, h in ((False, forward), (True, forward + math.pi))
+                for path in dubins_paths(start, head, target, h, r)[:2]
+            ]
+            for n, (reverse, path) in enumerate(paths):
+                # ties go to the candidate earlier along the ring, as a stable sort would
+                heapq.heappush(found, (path.length_m, 4 * int(k) + n, path, reverse, point))
+        while found:
+            fitting = self._first_fitting(found, start, ring)
+            if fitting is not None:
+                return fitting
+        return None
+
+    def _first_fitting(
+        self,
+        found: list[tuple[float, int, DubinsPath, bool, FloatArray]],
+        start: XY,
+        ring: FloatArray,
+    ) -> tuple[FloatArray, tuple[XY, ...]] | None:
+        """Pop the shortest path found; the ring started there and the path when it fits."""
+        _, _, path, reverse, point = heapq.heappop(found)
+        if self._fits(start, path.points, path.end):
+            return _start_ring_near(ring[::-1] if reverse else ring, point), path.points
         return None
 
 

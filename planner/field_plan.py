@@ -24,8 +24,8 @@ otherwise the paper's t_T per turn (formula (6)).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,6 +108,12 @@ class FarmPlan:
     machines: tuple[MachinePlan, ...]
     objective: Objective
     solver: Result
+    # What the plan was made from, kept so that a re-plan need not compute it again: every
+    # field's coverage per machine (as cover_farm keys it) and the transit network.
+    coverage: Mapping[tuple[str, str], FieldCoverage] = field(
+        default_factory=dict, repr=False, compare=False
+    )
+    network: TransitNetwork | None = field(default=None, repr=False, compare=False)
 
     @property
     def distance_m(self) -> float:
@@ -126,14 +132,23 @@ class FarmPlan:
         return max(m.time_h for m in self.machines)
 
 
-def cover_farm(farm: Farm, machines: Sequence[Machine]) -> dict[tuple[str, str], FieldCoverage]:
+def cover_farm(
+    farm: Farm,
+    machines: Sequence[Machine],
+    known: Mapping[tuple[str, str], FieldCoverage] | None = None,
+) -> dict[tuple[str, str], FieldCoverage]:
     """Coverage of every field for every machine, keyed (machine id, field id); computed
-    once per distinct working width and turning radius."""
+    once per distinct working width and turning radius, and not at all when ``known``
+    (an earlier result for the same farm) has it."""
     by_width: dict[tuple[float, float], dict[str, FieldCoverage]] = {}
     out: dict[tuple[str, str], FieldCoverage] = {}
+    known = known or {}
     for machine in machines:
         width = machine.working_width_m
         key = (width, machine.min_turn_radius_m)
+        if all((machine.id, f.id) in known for f in farm.fields):
+            out.update({(machine.id, f.id): known[(machine.id, f.id)] for f in farm.fields})
+            continue
         if key not in by_width:
             by_width[key] = {}
             for f in farm.fields:
@@ -253,7 +268,14 @@ def plan_farm(
         corners, road = best_corners(farm.garage, covs, network)
         visits, back = lay_out(farm.garage, fields, covs, corners, network)
         plans.append(machine_figures(machine, visits, road, return_path=back))
-    return FarmPlan(farm=farm, machines=tuple(plans), objective=obj, solver=result)
+    return FarmPlan(
+        farm=farm,
+        machines=tuple(plans),
+        objective=obj,
+        solver=result,
+        coverage=coverage,
+        network=network,
+    )
 
 
 def lay_out(

@@ -211,8 +211,11 @@ def replan_farm(
     if not todo:
         raise ProblemError("no tasks: every field is done")
     fleet = [s.machine for s in machines]
-    network = TransitNetwork(farm)
-    coverage = cover_farm(dataclasses.replace(farm, fields=tuple(todo)), fleet)
+    same_farm = previous is not None and previous.farm is farm
+    known = previous.coverage if previous is not None and same_farm else None
+    network = previous.network if previous is not None and same_farm else None
+    network = network or TransitNetwork(farm)
+    coverage = cover_farm(dataclasses.replace(farm, fields=tuple(todo)), fleet, known)
 
     m, n = len(fleet), len(todo)
     covs: list[list[FieldCoverage]] = [[coverage[(mc.id, f.id)] for f in todo] for mc in fleet]
@@ -315,7 +318,14 @@ def replan_farm(
         plans.append(
             machine_figures(state.machine, visits, road, return_path=back, ready_h=state.ready_h)
         )
-    return FarmPlan(farm=farm, machines=tuple(plans), objective=result.objective, solver=result)
+    return FarmPlan(
+        farm=farm,
+        machines=tuple(plans),
+        objective=result.objective,
+        solver=result,
+        coverage={**(known or {}), **coverage},
+        network=network,
+    )
 
 
 def _field_at(farm: Farm, point: XY) -> str | None:

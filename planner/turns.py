@@ -195,8 +195,8 @@ def dubins_paths(
     r = float(radius_m)
     if not (math.isfinite(r) and r > 0.0):
         raise GeometryError(f"turn radius must be a positive number of metres, got {radius_m!r}")
-    p0 = np.asarray(start, dtype=np.float64)
-    p1 = np.asarray(end, dtype=np.float64)
+    p0 = (float(start[0]), float(start[1]))
+    p1 = (float(end[0]), float(end[1]))
     out: list[DubinsPath] = []
     for word in ("LSL", "RSR", "LSR", "RSL", "LRL", "RLR"):
         for pieces in _word(word, p0, start_heading, p1, end_heading, r):
@@ -209,13 +209,13 @@ def dubins_paths(
     return out
 
 
-def _centre(p: FloatArray, heading: float, turn: int, r: float) -> FloatArray:
-    return p + turn * r * np.array([-math.sin(heading), math.cos(heading)])
+def _centre(p: XY, heading: float, turn: int, r: float) -> XY:
+    return (p[0] - turn * r * math.sin(heading), p[1] + turn * r * math.cos(heading))
 
 
-def _on_circle(c: FloatArray, heading: float, turn: int, r: float) -> FloatArray:
+def _on_circle(c: XY, heading: float, turn: int, r: float) -> XY:
     """The point of the circle around ``c`` where a machine turning ``turn`` heads so."""
-    return c - turn * r * np.array([-math.sin(heading), math.cos(heading)])
+    return (c[0] + turn * r * math.sin(heading), c[1] - turn * r * math.cos(heading))
 
 
 def _sweep(turn: int, heading_from: float, heading_to: float) -> float:
@@ -223,46 +223,45 @@ def _sweep(turn: int, heading_from: float, heading_to: float) -> float:
     return 0.0 if sweep > 2.0 * math.pi - 1e-9 else sweep
 
 
-def _word(
-    word: str, p0: FloatArray, h0: float, p1: FloatArray, h1: float, r: float
-) -> list[list[_Arc | _Line]]:
+def _word(word: str, p0: XY, h0: float, p1: XY, h1: float, r: float) -> list[list[_Arc | _Line]]:
     """The pieces of ``word`` between the two poses (none when it does not exist; two
-    variants for CCC words)."""
+    variants for CCC words). Plain floats: called some 10^5 times when a farm is covered."""
     t0 = 1 if word[0] == "L" else -1
     t1 = 1 if word[2] == "L" else -1
     c0, c1 = _centre(p0, h0, t0, r), _centre(p1, h1, t1, r)
-    v = c1 - c0
-    dist = math.hypot(v[0], v[1])
+    vx, vy = c1[0] - c0[0], c1[1] - c0[1]
+    dist = math.hypot(vx, vy)
     if word[1] == "S":
         if t0 == t1:
-            psi = h0 if dist < 1e-12 else math.atan2(v[1], v[0])  # one circle: one arc
+            psi = h0 if dist < 1e-12 else math.atan2(vy, vx)  # one circle: one arc
         else:
             if dist < 2.0 * r:
                 return []
-            psi = math.atan2(v[1], v[0]) + t0 * math.asin(min(1.0, 2.0 * r / dist))
+            psi = math.atan2(vy, vx) + t0 * math.asin(min(1.0, 2.0 * r / dist))
         a, b = _on_circle(c0, psi, t0, r), _on_circle(c1, psi, t1, r)
         return [
             [
-                _Arc((c0[0], c0[1]), t0, h0, _sweep(t0, h0, psi)),
-                _Line((a[0], a[1]), (b[0], b[1])),
-                _Arc((c1[0], c1[1]), t1, psi, _sweep(t1, psi, h1)),
+                _Arc(c0, t0, h0, _sweep(t0, h0, psi)),
+                _Line(a, b),
+                _Arc(c1, t1, psi, _sweep(t1, psi, h1)),
             ]
         ]
     if dist > 4.0 * r or dist < 1e-12:
         return []
     half = math.sqrt(max(4.0 * r * r - dist * dist / 4.0, 0.0))
-    across = np.array([-v[1], v[0]]) / dist
+    ax, ay = -vy / dist, vx / dist
     variants: list[list[_Arc | _Line]] = []
     for sign in (1.0, -1.0):
-        cm = (c0 + c1) / 2.0 + sign * half * across
-        ta, tb = (c0 + cm) / 2.0, (cm + c1) / 2.0
+        cm = ((c0[0] + c1[0]) / 2.0 + sign * half * ax, (c0[1] + c1[1]) / 2.0 + sign * half * ay)
+        ta = ((c0[0] + cm[0]) / 2.0, (c0[1] + cm[1]) / 2.0)
+        tb = ((cm[0] + c1[0]) / 2.0, (cm[1] + c1[1]) / 2.0)
         ha = math.atan2(ta[1] - c0[1], ta[0] - c0[0]) + t0 * math.pi / 2
         hb = math.atan2(tb[1] - c1[1], tb[0] - c1[0]) + t1 * math.pi / 2
         variants.append(
             [
-                _Arc((c0[0], c0[1]), t0, h0, _sweep(t0, h0, ha)),
-                _Arc((cm[0], cm[1]), -t0, ha, _sweep(-t0, ha, hb)),
-                _Arc((c1[0], c1[1]), t1, hb, _sweep(t1, hb, h1)),
+                _Arc(c0, t0, h0, _sweep(t0, h0, ha)),
+                _Arc(cm, -t0, ha, _sweep(-t0, ha, hb)),
+                _Arc(c1, t1, hb, _sweep(t1, hb, h1)),
             ]
         )
     return variants
