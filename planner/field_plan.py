@@ -56,7 +56,8 @@ class Visit:
     approach: tuple[XY, ...] = ()
     # A re-plan's visit of the rest of a field in progress (planner.replan): the share of
     # the field's work left, and for each of this visit's segments (swaths, then headland
-    # ring edges, as laid out for a mission) its index among the planned visit's segments.
+    # ring edges, as laid out for a mission) its index among the segments of the field's
+    # first planned visit (through every re-plan since), so a segment keeps its number.
     work_share: float = 1.0
     original_segments: tuple[int, ...] = ()
 

@@ -15,7 +15,8 @@ other end, everything driven backwards), so the corner choice of :func:`best_cor
 enters it from its nearer end. Its area, turns and work hours are scaled to what is left;
 each remaining segment is a :class:`Swath` (ring edges too), so the mission of the visit
 drives exactly the segments not yet done, each once, and
-:attr:`Visit.original_segments` maps them back to the planned visit's segments.
+:attr:`Visit.original_segments` maps them back to the segments of the field's first
+planned visit (composed across re-plans: a segment keeps its number).
 
 A field in progress stays with the machine working it, first in its route
 (``pinned_machine``), unless ``split_ok``; then it is an ordinary task that starts where
@@ -76,16 +77,27 @@ class FieldProgress:
     many of the visit's segments (``Visit.swaths``, then the edges of ``Visit.headland``'s
     rings) are done. Count the segment the machine is on as done when it will finish it
     first (its position at the segment's end, the time left in its ``ready_h``).
-    ``split_ok``: the rest may go to another machine when that is better."""
+    ``split_ok``: the rest may go to another machine when that is better. ``left``, when
+    given, names the visit's segments still to do instead (any of them, in any order: work
+    done out of the visit's order, or by several machines), and ``segments_done`` is not
+    used."""
 
     visit: Visit
     machine_id: str
-    segments_done: int
+    segments_done: int = 0
     split_ok: bool = False
+    left: tuple[int, ...] | None = None
 
     @property
     def field_id(self) -> str:
         return self.visit.field.id
+
+    @property
+    def remaining(self) -> list[int]:
+        """The visit's segments still to do, in the visit's order."""
+        if self.left is not None:
+            return sorted(set(self.left))
+        return list(range(self.segments_done, len(visit_segments(self.visit))))
 
 
 def visit_segments(visit: Visit) -> list[tuple[XY, XY]]:
@@ -96,17 +108,23 @@ def visit_segments(visit: Visit) -> list[tuple[XY, XY]]:
     return segments
 
 
-def remaining_coverage(visit: Visit, done: int) -> tuple[FieldCoverage, float, list[list[int]]]:
-    """The rest of ``visit`` after ``done`` segments, as a coverage (corners 0, 2 forward,
-    1, 3 backward), the share of the work left (by working length), and per corner the
-    planned visit's index of each remaining segment."""
+def remaining_coverage(
+    visit: Visit, done: int | Sequence[int]
+) -> tuple[FieldCoverage, float, list[list[int]]]:
+    """The rest of ``visit`` after ``done`` segments, or its segments ``done`` names as
+    left to do (indices in the visit's order), as a coverage (corners 0, 2 forward, 1, 3
+    backward), the share of the work left (by working length), and per corner the planned
+    visit's index of each remaining segment. Between two remaining segments that are not
+    neighbours in the visit the machine moves across the field, implement up."""
     cov, corner = visit.coverage, visit.corner
     swaths = visit.swaths
     segments = visit_segments(visit)
     total = len(segments)
-    if not 0 <= done < total:
+    ahead = list(range(done, total)) if isinstance(done, int) else sorted(set(done))
+    if not ahead or ahead[0] < 0 or ahead[-1] >= total:
+        told = f"{done} segments done" if isinstance(done, int) else f"segments left {ahead}"
         raise ProblemError(
-            f"field {visit.field.id!r}: {done} segments done of {total}; "
+            f"field {visit.field.id!r}: {told} of {total}; "
             "a finished field belongs with the fields done"
         )
     # One record per segment: the swath (ring edges as swaths of cell -1 - ring), the
@@ -131,7 +149,7 @@ def remaining_coverage(visit: Visit, done: int) -> tuple[FieldCoverage, float, l
             link_via.append(())
             transit.append(e == 0 and not onto)
     work = [s.length_m for s in parts]
-    share = sum(work[done:]) / max(sum(work), 1e-9)
+    share = sum(work[k] for k in ahead) / max(sum(work), 1e-9)
 
     def laid(order: list[int]) -> tuple[tuple[Swath, ...], list[Path], list[Path], float]:
         forward = order == sorted(order)
@@ -139,17 +157,19 @@ def remaining_coverage(visit: Visit, done: int) -> tuple[FieldCoverage, float, l
         turn_moves, link_moves, inside = [], [], 0.0
         for a, b in itertools.pairwise(order):
             later = max(a, b)  # the move between two segments is kept with the later one
+            planned = abs(a - b) == 1  # neighbours: the visit's own move between them
             turn = turn_via[later] if forward else tuple(reversed(turn_via[later]))
             link = link_via[later] if forward else tuple(reversed(link_via[later]))
+            if not planned:
+                turn, link = (), ()
             turn_moves.append(turn)
             link_moves.append(link)
-            if transit[later]:
+            if transit[later] or not planned:
                 begin = path[len(turn_moves) - 1].end
                 end = path[len(turn_moves)].start
                 inside += LineString([begin, *link, end]).length
         return path, turn_moves, link_moves, inside
 
-    ahead = list(range(done, total))
     orders = [ahead, ahead[::-1], ahead, ahead[::-1]]
     laid_out = [laid(o) for o in orders]
     rest = [parts[k] for k in ahead]
@@ -203,7 +223,7 @@ def replan_farm(
         farm.field(entry.field_id)
         if entry.field_id in done_ids or entry.field_id in progress:
             raise ProblemError(f"field {entry.field_id!r} is given as done or in progress twice")
-        if entry.segments_done >= len(visit_segments(entry.visit)):
+        if not entry.remaining:
             done_ids.add(entry.field_id)
             continue
         progress[entry.field_id] = entry
@@ -242,7 +262,7 @@ def replan_farm(
                 p.machine_id,
             )
             continue
-        rest, shares[j], orders[j] = remaining_coverage(p.visit, p.segments_done)
+        rest, shares[j], orders[j] = remaining_coverage(p.visit, p.remaining)
         rest_of[j] = rest
         anchors[j] = rest.entry(0)
         for i in range(m):
@@ -309,7 +329,7 @@ def replan_farm(
             dataclasses.replace(
                 v,
                 work_share=float(shares[j]),
-                original_segments=tuple(orders[j][v.corner]),
+                original_segments=_composed(progress[todo[j].id].visit, orders[j][v.corner]),
             )
             if route_covs[k] is rest_of.get(j)
             else v
@@ -326,6 +346,14 @@ def replan_farm(
         coverage={**(known or {}), **coverage},
         network=network,
     )
+
+
+def _composed(visit: Visit, order: Sequence[int]) -> tuple[int, ...]:
+    """Segment numbers of the field's first layout for a rest visit laid out in ``order``
+    (indices among ``visit``'s segments): through ``visit``'s own map when it is itself
+    the rest of an earlier visit."""
+    first = visit.original_segments
+    return tuple(first[k] for k in order) if first else tuple(order)
 
 
 def _field_at(farm: Farm, point: XY) -> str | None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from helpers.processes import Processes, free_port, log_of, wait_for
+from helpers.review import assert_each_segment_worked_once
 
 from dispatcher.recording.mcap_file import LOG_TOPIC, read_logs
 from dispatcher.review.report import review_contents, review_table
@@ -41,6 +42,7 @@ def test_a_run_through_a_lossy_radio_completes(procs: Processes, tmp_path: Path,
     table = review_table(review)
     done = sorted(f for v in review.vehicles for f in v.fields_done)
     assert done == sorted(f.id for f in review.fields), table
+    assert_each_segment_worked_once(review)
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     assert sum("read back, item by item ours" in ln for ln in lines) >= 2, lines
     assert any("an impaired radio" in Processes.output(p) for p in procs.procs)
@@ -85,3 +87,4 @@ def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_b
     assert any("re-planning the rest of the work: v1 back" in ln for ln in lines), lines
     review = review_contents(log)
     assert all(f.done for f in review.fields), review_table(review)
+    assert_each_segment_worked_once(review)

@@ -17,6 +17,7 @@ from helpers.processes import (
     wait_for,
     wait_for_share,
 )
+from helpers.review import assert_each_segment_worked_once
 
 from dispatcher.recording.mcap_file import LOG_TOPIC, read_logs
 from dispatcher.review.report import review_contents, review_table
@@ -50,6 +51,14 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     assert {f["status"] for f in status_doc["fields"].values()} == {"done"}, status_doc
     table = review_table(review)
     assert all(f.done for f in review.fields), table
+    assert_each_segment_worked_once(review)
+    assert [x.vehicle for x in review.losses] == ["v2"], table
+    assert review.losses[0].lat is not None, review.losses
+    assert review.vehicle("v2").left_out and not review.vehicle("v1").left_out, table
+    # what v2 still had to do went to v1, and the review says so
+    taken = [(f, a, b) for rp in review.replans for f, a, b in rp.taken_over]
+    assert taken and all((a, b) == ("v2", "v1") for _, a, b in taken), review.replans
+    assert {f for f, _, _ in taken} <= set(review.vehicle("v1").fields_done), table
 
 
 def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
@@ -76,6 +85,8 @@ def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     assert any("re-planning the rest of the work: v2 lost (stalled" in ln for ln in lines), lines
     review = review_contents(log)
     assert all(f.done for f in review.fields), review_table(review)
+    assert_each_segment_worked_once(review)
+    assert [(x.vehicle, x.why.startswith("stalled")) for x in review.losses] == [("v2", True)]
 
 
 def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
@@ -97,5 +108,6 @@ def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
     review = review_contents(log)
     table = review_table(review)
     assert all(f.done for f in review.fields), table
-    assert [v.id for v in review.vehicles] == ["v1"], table
+    assert [v.id for v in review.vehicles if not v.left_out] == ["v1"], table
+    assert_each_segment_worked_once(review)
     assert any("v3: lost; its work was re-planned" in w for w in review.warnings), table

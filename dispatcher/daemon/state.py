@@ -90,14 +90,7 @@ class RunClock:
             and self.now is not None
             and raw_s < self._raw_last - CLOCK_RESTART_S
         ):
-            rate = 1.0
-            if (
-                self._first is not None
-                and self._last_wall > self._first[1]
-                and self.now > self._first[0]
-            ):
-                rate = (self.now - self._first[0]) / (self._last_wall - self._first[1])
-            self._offset = self.now - raw_s + max(wall_s - self._last_wall, 0.0) * rate
+            self._offset = self.now - raw_s + max(wall_s - self._last_wall, 0.0) * self.rate
             rebooted = True
         self._raw_last = raw_s
         t = raw_s + self._offset
@@ -106,6 +99,19 @@ class RunClock:
             self._first = (t, wall_s)
         self._last_wall = wall_s
         return t, rebooted
+
+    @property
+    def rate(self) -> float:
+        """How fast the vehicle's clock runs against the receive clock (its speedup; 1 for
+        a real vehicle), since it was first heard; 1 until a second has passed."""
+        if (
+            self._first is not None
+            and self.now is not None
+            and self._last_wall > self._first[1] + 1.0
+            and self.now > self._first[0]
+        ):
+            return (self.now - self._first[0]) / (self._last_wall - self._first[1])
+        return 1.0
 
 
 @dataclass
@@ -207,6 +213,19 @@ class FieldState:
     started_s: float | None = None
     finished_s: float | None = None
     swaths_done: int = 0
+    # Segments (swaths and headland ring edges) of the field's layout, and how many times
+    # each was worked (its end reached, implement down, by any vehicle): a segment worked
+    # twice or never shows here, through any number of re-plans (PlannedItem.segment).
+    segments: int = 0
+    passes: dict[int, int] = field(default_factory=dict)
+
+    @property
+    def worked_twice(self) -> list[int]:
+        return sorted(k for k, n in self.passes.items() if n > 1)
+
+    @property
+    def never_worked(self) -> list[int]:
+        return [k for k in range(self.segments) if k not in self.passes]
 
 
 class FleetState:
@@ -223,6 +242,7 @@ class FleetState:
             )
             for fid in m.fields:
                 self.fields[fid] = FieldState(fid, m.id)
+        self._count_segments(document)
         self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
 
     # --- knowledge: events ----------------------------------------------------------------
@@ -298,7 +318,12 @@ class FleetState:
                 v.retired = True
                 continue
             common = _common_prefix(v.items, m.items)
-            keeps = v.phase is Phase.RUNNING and common > v.reached
+            # Driving its mission, which the new one begins with: it carries on. When it
+            # went past that part meanwhile, the items it reached beyond are the new
+            # route's now: it is sent back to the route's first item (the daemon).
+            keeps = v.phase is Phase.RUNNING and common > 1
+            if keeps and v.reached >= common:
+                v.reached = common - 1
             v.route_from = common if keeps else 1
             v.items = m.items
             v.planned_s = m.planned_times() or []
@@ -323,6 +348,20 @@ class FleetState:
                 f = self.fields.setdefault(fid, FieldState(fid, m.id))
                 if f.status != "done":
                     f.vehicle = m.id
+        self._count_segments(doc)
+
+    def _count_segments(self, doc: PlanDocument) -> None:
+        """Each field's number of segments, from the plan that lays it out; a field already
+        worked keeps the count of the layout it is worked in."""
+        ends: dict[str, set[int]] = {}
+        for m in doc.machines:
+            for item in m.items:
+                if item.role == "swath_end" and item.field_id and item.segment is not None:
+                    ends.setdefault(item.field_id, set()).add(item.segment)
+        for fid, segments in ends.items():
+            f = self.fields.get(fid)
+            if f is not None and not f.passes:
+                f.segments = max(segments) + 1
 
     def _lost(self, v: VehicleState, why: str, now: float) -> None:
         if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
@@ -396,6 +435,8 @@ class FleetState:
         if item.field_id is None or item.field_id not in self.fields:
             return
         f = self.fields[item.field_id]
+        if item.role == "swath_end" and item.segment is not None:
+            f.passes[item.segment] = f.passes.get(item.segment, 0) + 1
         if f.vehicle != v.id:  # given to another vehicle by a re-plan
             return
         if item.role == "transit" and f.status == "pending":
@@ -555,6 +596,8 @@ class FleetState:
                     "started_s": f.started_s,
                     "finished_s": f.finished_s,
                     "swaths_done": f.swaths_done,
+                    "segments": f.segments,
+                    "worked_twice": f.worked_twice,
                 }
                 for f in self.fields.values()
             },

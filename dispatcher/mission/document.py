@@ -43,6 +43,7 @@ ITEM_FIELDS: Final = (
     "command",
     "param1",
     "param2",
+    "segment",
 )
 
 
@@ -67,6 +68,10 @@ class PlannedItem:
     command: int
     param1: float = 0.0
     param2: float = 0.0
+    # The segment of the field (swath, or headland ring edge) this item serves, numbered as
+    # in the field's first planned layout: the same segment keeps its number through
+    # re-plans, where ``swath_index`` counts within one visit.
+    segment: int | None = None
 
     @property
     def lat(self) -> float:
@@ -272,6 +277,7 @@ class PlanDocument:
                             command=int(values["command"]),
                             param1=float(values.get("param1", 0.0) or 0.0),
                             param2=float(values.get("param2", 0.0) or 0.0),
+                            segment=_segment(values),
                         )
                     )
                 except (TypeError, ValueError) as exc:
@@ -374,3 +380,9 @@ def _pair(value: object) -> bool:
     return (
         isinstance(value, list | tuple) and len(value) >= 2 and all(_finite(v) for v in value[:2])
     )
+
+
+def _segment(values: dict[str, Any]) -> int | None:
+    """An item's segment; documents written before there was one: its swath index."""
+    segment = values.get("segment", values["swath_index"])
+    return segment if isinstance(segment, int) and not isinstance(segment, bool) else None

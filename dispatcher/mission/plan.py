@@ -15,7 +15,14 @@ from pathlib import Path
 from typing import Any
 
 from dispatcher.config.scenario import Scenario, Vehicle
-from dispatcher.mission.build import FieldVisit, LatLon, Mission, MissionSpec, build_mission
+from dispatcher.mission.build import (
+    FieldVisit,
+    LatLon,
+    Mission,
+    MissionSpec,
+    Trace,
+    build_mission,
+)
 from dispatcher.mission.document import (
     PlanDocument,
     PlannedField,
@@ -157,6 +164,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
                         command=item.command,
                         param1=item.param1,
                         param2=item.param2,
+                        segment=_segment(route, tr),
                     )
                     for item, tr in zip(mission.items, mission.traces, strict=True)
                 ),
@@ -187,6 +195,17 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
             "makespan_h": round(plan.makespan_h, 5),
         },
     )
+
+
+def _segment(route: MachinePlan, trace: Trace) -> int | None:
+    """The segment an item serves, numbered as in its field's first layout (a re-plan's
+    rest of a field maps its own numbers back, ``Visit.original_segments``)."""
+    if trace.field_id is None or trace.swath_index is None:
+        return None
+    for visit in route.visits:
+        if visit.field.id == trace.field_id and visit.original_segments:
+            return visit.original_segments[trace.swath_index]
+    return trace.swath_index
 
 
 def _round7(value: float) -> float:

@@ -153,7 +153,9 @@ def _xy(frame: LocalFrame, lats: Sequence[float], lons: Sequence[float]) -> np.n
 
 
 def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str, str]) -> None:
-    """Field outlines with their ids, tinted by the vehicle that finished them."""
+    """Field outlines with their ids, tinted by the vehicle that finished them; a field
+    that changed hands in a re-plan says from whom to whom."""
+    moved = {fid: (a, b) for rp in review.replans for fid, a, b in rp.taken_over}
     for f in review.fields:
         if len(f.polygon) < 3:
             continue
@@ -173,8 +175,9 @@ def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str,
                 zorder=1,
             )
         c = Polygon(xy).representative_point()
+        label = f"{f.id}\n{moved[f.id][0]}→{moved[f.id][1]}" if f.id in moved else f.id
         ax.annotate(
-            f.id,
+            label,
             (c.x, c.y),
             ha="center",
             va="center",
@@ -220,6 +223,29 @@ def _draw_map(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str, st
     _draw_fields(ax, review, frame, colours)
     for v in review.vehicles:
         _draw_vehicle(ax, v, frame, colours[v.id])
+    for loss in review.losses:
+        if loss.lat is None or loss.lon is None:
+            continue
+        lx, ly = frame.to_local(loss.lon, loss.lat)
+        ax.plot(
+            [lx],
+            [ly],
+            marker="X",
+            markersize=13,
+            markerfacecolor=colours.get(loss.vehicle, "grey"),
+            markeredgecolor="black",
+            zorder=12,
+        )
+        ax.annotate(
+            f"{loss.vehicle} lost",
+            (lx, ly),
+            xytext=(8, 6),
+            textcoords="offset points",
+            fontsize=8,
+            fontweight="bold",
+            zorder=12,
+            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
+        )
     if review.garage is not None:
         gx, gy = frame.to_local(review.garage[1], review.garage[0])
         ax.plot([gx], [gy], marker="s", markersize=10, color="black", zorder=10)
@@ -248,6 +274,18 @@ def _draw_map(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str, st
         Patch(facecolor="grey", alpha=0.25, edgecolor=FIELD_EDGE, label="field done (tint)"),
         Line2D([], [], color="black", marker="s", ls="", label="garage"),
     ]
+    if review.losses:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="grey",
+                marker="X",
+                markeredgecolor="black",
+                ls="",
+                label="lost (its fields re-planned: field label from→to)",
+            )
+        )
     if not all(f.done for f in review.fields):
         handles.append(
             Patch(facecolor=FIELD_FACE, edgecolor=FIELD_EDGE, hatch="///", label="field not done")

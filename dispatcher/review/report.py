@@ -18,6 +18,7 @@ missions together, so these per-vehicle clocks line up as one fleet timeline.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import json
 import logging
 import math
@@ -156,6 +157,8 @@ class VehicleReview:
     reboots: tuple[float, ...] = ()  # seconds since set off when the autopilot rebooted
     autopilot_problems: tuple[str, ...] = ()  # its STATUSTEXT at WARNING or worse, once each
     quality: TrackQuality | None = None  # cross-track error, implement down outside, loops
+    # Lost and re-planned around: reviewed against the last mission it was given.
+    left_out: bool = False
 
     @property
     def started(self) -> bool:
@@ -179,6 +182,34 @@ class FieldReview:
     finished_clock_s: float | None
     planned_started_s: float | None
     planned_finished_s: float | None
+    # The field's segments (swaths and headland ring edges, numbered as first laid out)
+    # and, from the dispatcher's recorded events, those worked more than once or not at all.
+    segments: int = 0
+    worked_twice: tuple[int, ...] = ()
+    never_worked: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Loss:
+    """A vehicle the dispatcher gave up on: when (seconds into the log), why, and where it
+    was last heard of (lat, lon; None when it never said)."""
+
+    vehicle: str
+    at_s: float
+    why: str
+    lat: float | None
+    lon: float | None
+
+
+@dataclass(frozen=True)
+class Replan:
+    """The rest of the work planned again: when (seconds into the log), why, the new plan,
+    and the fields that changed hands, as (field, from vehicle, to vehicle)."""
+
+    at_s: float
+    plan_id: str
+    reason: str
+    taken_over: tuple[tuple[str, str, str], ...]
 
 
 @dataclass(frozen=True)
@@ -198,6 +229,8 @@ class Review:
     fields: tuple[FieldReview, ...]
     planned_makespan_h: float | None
     warnings: tuple[str, ...]
+    replans: tuple[Replan, ...] = ()
+    losses: tuple[Loss, ...] = ()
 
     @property
     def makespan_h(self) -> float:
@@ -206,8 +239,9 @@ class Review:
 
     @property
     def makespan_final(self) -> bool:
-        """Every vehicle with work planned finished its mission."""
-        return all(v.mission_complete for v in self.vehicles if v.fields_planned)
+        """Every vehicle with work planned finished its mission (vehicles lost and
+        re-planned around aside)."""
+        return all(v.mission_complete for v in self.vehicles if v.fields_planned and not v.left_out)
 
     @property
     def fields_done(self) -> int:
@@ -759,6 +793,7 @@ class _VehicleResult:
     start_clock: float | None
     planned_s: list[float] | None  # planned seconds from setting off to each item
     warnings: list[str]
+    items: tuple[PlannedItem, ...] = ()  # the mission it was reviewed against
 
 
 def _review_vehicle(
@@ -1033,7 +1068,7 @@ def _review_vehicle(
         autopilot_problems=tuple(problems),
         quality=quality,
     )
-    return _VehicleResult(review, field_times, start, planned_s, warnings)
+    return _VehicleResult(review, field_times, start, planned_s, warnings, items)
 
 
 class _Pace:
@@ -1146,16 +1181,27 @@ def review_contents(log: LogContents) -> Review:
     # vehicle is set against the last plan (a driving vehicle's last mission starts with
     # its old one).
     replans = _replans(log)
-    replan_ids = {pid for _, pid, _ in replans}
+    replan_ids = {pid for _, pid, _, _ in replans}
     base = first
     while base > 0 and (
         plans[base].plan_id in replan_ids or plans[base - 1].plan_id == plans[base].plan_id
     ):
         base -= 1
     since_ns = plans[base].log_ns if plans and base > 0 else 0
-    for ns, pid, reason in replans:
-        if plans and ns >= plans[base].log_ns:
-            warnings.append(f"re-planned {_ago(ns, start_ns)}: {reason}; plan {pid}")
+    replan_reviews = (
+        _replan_reviews(plans[base], [r for r in replans if r[0] >= plans[base].log_ns], start_ns)
+        if plans
+        else []
+    )
+    for rp in replan_reviews:
+        moved = "; ".join(
+            f"{to} takes {', '.join(f for f, _, t in rp.taken_over if t == to)}"
+            for to in dict.fromkeys(t for _, _, t in rp.taken_over)
+        )
+        warnings.append(
+            f"re-planned {rp.at_s:.0f} s into the log: {rp.reason}; plan {rp.plan_id}"
+            + (f"; {moved}" if moved else "")
+        )
     later = [pid for pid in plan_ids if pid not in replan_ids]
     if len(later) > 1 and plan is not None:
         warnings.append(
@@ -1200,9 +1246,26 @@ def review_contents(log: LogContents) -> Review:
         results[machine.id] = result
         vehicles.append(result.review)
         warnings += result.warnings
-    left_out = {m.id for m in plans[base].machines} - {m.id for m in plan.machines}
+    left_out = {m.id for p in plans[base:] for m in p.machines} - {m.id for m in plan.machines}
     for vid in sorted(left_out):
-        warnings.append(f"{vid}: lost; its work was re-planned over the others (not reviewed)")
+        # Reviewed against the last mission it was given, up to where it was lost.
+        last = next(m for p in reversed(plans[base:]) for m in p.machines if m.id == vid)
+        vstatus = status.get(vid) if status else None
+        result = _review_vehicle(
+            vid,
+            last,
+            traffic.get(vid, _Traffic([], [], [])),
+            vstatus if isinstance(vstatus, dict) else None,
+            since_ns,
+            end_ns,
+            {fid: f.polygon for fid, f in plan.fields.items()},
+        )
+        result.review = dataclasses.replace(result.review, left_out=True)
+        results[vid] = result
+        vehicles.append(result.review)
+        warnings += result.warnings
+        warnings.append(f"{vid}: lost; its work was re-planned over the others")
+    losses = _losses(log, traffic, since_ns, start_ns)
     strangers = sorted(set(traffic) - {m.id for m in plan.machines} - left_out)
     if strangers:
         warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
@@ -1214,10 +1277,21 @@ def review_contents(log: LogContents) -> Review:
         for fid, f in replayed.fields.items():
             if f.vehicle in results:
                 results[f.vehicle].field_times[fid] = _FieldTimes(f.started_s, f.finished_s)
-    fields = _field_reviews(plan, results)
+    fields = _field_reviews(plan, results, replayed)
     not_done = [f"{f.id} ({f.vehicle or 'nobody'})" for f in fields if not f.done]
     if not_done:
         warnings.append(f"fields not done: {', '.join(not_done)}")
+    for fr in fields:
+        if fr.worked_twice:
+            warnings.append(
+                f"field {fr.id}: segment(s) {', '.join(map(str, fr.worked_twice))} "
+                f"of {fr.segments} worked more than once"
+            )
+        if fr.done and fr.never_worked:
+            warnings.append(
+                f"field {fr.id}: done, but segment(s) {', '.join(map(str, fr.never_worked))} "
+                f"of {fr.segments} never worked"
+            )
     return Review(
         source=log.source,
         farm_id=farm_id or plan.farm_id,
@@ -1232,17 +1306,94 @@ def review_contents(log: LogContents) -> Review:
         fields=tuple(fields),
         planned_makespan_h=plan.makespan_h,
         warnings=tuple(warnings),
+        replans=tuple(replan_reviews),
+        losses=tuple(losses),
     )
 
 
-def _replans(log: LogContents) -> list[tuple[int, str, str]]:
-    """The run's re-plans: (log ns, new plan id, reason) of its plan_replaced events."""
+def _replans(log: LogContents) -> list[tuple[int, str, str, Any]]:
+    """The run's re-plans: (log ns, new plan id, reason, plan document) of its
+    plan_replaced events."""
     out = []
     for rec in log.on(EVENTS_TOPIC):
         doc = rec.decode_json()
         if isinstance(doc, dict) and doc.get("kind") == ev.PlanReplaced.kind:
-            out.append((rec.log_time_ns, str(doc.get("plan_id")), str(doc.get("reason"))))
+            out.append(
+                (
+                    rec.log_time_ns,
+                    str(doc.get("plan_id")),
+                    str(doc.get("reason")),
+                    doc.get("document"),
+                )
+            )
     return out
+
+
+def _replan_reviews(
+    base: _Plan, replans: Sequence[tuple[int, str, str, Any]], start_ns: int | None
+) -> list[Replan]:
+    """Each re-plan with the fields that changed hands in it (a field is held by the
+    vehicle whose route lists it; the first plan's routes to begin with)."""
+    owner = {fid: m.id for m in base.machines for fid in m.fields}
+    out = []
+    for ns, pid, reason, doc in replans:
+        moved = []
+        try:
+            machines = PlanDocument.from_json(doc).machines if doc is not None else ()
+        except PlanDocumentError as exc:
+            logger.warning("the document of re-plan %s cannot be read: %s", pid, exc)
+            machines = ()
+        for m in machines:
+            for fid in m.fields:
+                before = owner.get(fid)
+                if before is not None and before != m.id:
+                    moved.append((fid, before, m.id))
+                owner[fid] = m.id
+        at_s = (ns - start_ns) / 1e9 if start_ns is not None else 0.0
+        out.append(Replan(at_s, pid, reason, tuple(moved)))
+    return out
+
+
+def _losses(
+    log: LogContents, traffic: Mapping[str, _Traffic], since_ns: int, start_ns: int | None
+) -> list[Loss]:
+    """Vehicles the dispatcher gave up on (lost or stalled), each where it was last heard
+    of before then."""
+    out = []
+    for rec in log.on(EVENTS_TOPIC):
+        if rec.log_time_ns < since_ns:
+            continue
+        doc = rec.decode_json()
+        if not isinstance(doc, dict) or not isinstance(doc.get("vehicle"), str):
+            continue
+        if doc.get("kind") == ev.VehicleLost.kind:
+            why = str(doc.get("why", ""))
+        elif doc.get("kind") == ev.VehicleStalled.kind:
+            why = f"stalled for {_num(doc.get('seconds')) or 0.0:.0f} s"
+        else:
+            continue
+        vid = doc["vehicle"]
+        lat, lon = _last_position(traffic.get(vid), rec.log_time_ns)
+        at_s = (rec.log_time_ns - start_ns) / 1e9 if start_ns is not None else 0.0
+        out.append(Loss(vid, at_s, why, lat, lon))
+    return out
+
+
+def _last_position(traffic: _Traffic | None, ns: int) -> tuple[float | None, float | None]:
+    """Where a vehicle said it was last at or before log time ``ns``."""
+    if traffic is None:
+        return None, None
+    for t, m in reversed(traffic.from_vehicle):
+        if t <= ns and m.get("mavpackettype") == "GLOBAL_POSITION_INT":
+            lat, lon = _num(m.get("lat")), _num(m.get("lon"))
+            if lat is not None and lon is not None and _valid_position(lat / 1e7, lon / 1e7):
+                return lat / 1e7, lon / 1e7
+    for t, fix in reversed(traffic.fixes):
+        if t <= ns:
+            lat, lon = _num(fix.get("latitude")), _num(fix.get("longitude"))
+            if lat is not None and lon is not None and _valid_position(lat, lon):
+                return lat, lon
+    return None, None
 
 
 def _ago(ns: int, start_ns: int | None) -> str:
@@ -1269,22 +1420,27 @@ def _replay_events(log: LogContents, plan: _Plan) -> FleetState | None:
     return state if seen else None
 
 
-def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[FieldReview]:
-    owner: dict[str, PlannedMachine] = {}
+def _field_reviews(
+    plan: _Plan, results: Mapping[str, _VehicleResult], replayed: FleetState | None
+) -> list[FieldReview]:
+    """Each field: who worked it (the vehicle that finished it, or holds it now, as the
+    recorded events tell; else the plan's), when, against the plan; its segments."""
+    owner: dict[str, str] = {}
     for m in plan.machines:
         for item in m.items:
             if item.field_id is not None:
-                owner.setdefault(item.field_id, m)
+                owner.setdefault(item.field_id, m.id)
         for fid in m.fields:
-            owner.setdefault(fid, m)
+            owner.setdefault(fid, m.id)
+    if replayed is not None:
+        owner.update({fid: f.vehicle for fid, f in replayed.fields.items()})
     planned: dict[str, tuple[float, float | None]] = {}
-    for m in plan.machines:
-        result = results.get(m.id)
-        pt = result.planned_s if result is not None else None
+    for vid, result in results.items():
+        pt = result.planned_s
         if pt is None:
             continue
-        for item in m.items:
-            if item.field_id is None:
+        for item in result.items:
+            if item.field_id is None or owner.get(item.field_id) != vid:
                 continue
             if item.role == "implement_down":
                 planned[item.field_id] = (pt[item.seq], None)
@@ -1294,10 +1450,11 @@ def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[F
     out = []
     for fid in ids:
         info = plan.fields.get(fid)
-        machine = owner.get(fid)
-        result = results.get(machine.id) if machine is not None else None
-        times = result.field_times.get(fid) if result is not None else None
-        start = result.start_clock if result is not None else None
+        holder = owner.get(fid)
+        held = results.get(holder) if holder is not None else None
+        state = replayed.fields.get(fid) if replayed is not None else None
+        times = held.field_times.get(fid) if held is not None else None
+        start = held.start_clock if held is not None else None
         started = times.started if times is not None else None
         finished = times.finished if times is not None else None
         polygon = info.polygon if info is not None else ()
@@ -1308,7 +1465,7 @@ def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[F
                 name=info.name if info is not None else fid,
                 area_m2=info.area_m2 if info is not None else 0.0,
                 polygon=polygon,
-                vehicle=machine.id if machine is not None else None,
+                vehicle=holder,
                 done=finished is not None,
                 started_s=_minus(started, start),
                 finished_s=_minus(finished, start),
@@ -1316,6 +1473,9 @@ def _field_reviews(plan: _Plan, results: Mapping[str, _VehicleResult]) -> list[F
                 finished_clock_s=finished,
                 planned_started_s=p_start,
                 planned_finished_s=p_end,
+                segments=state.segments if state is not None else 0,
+                worked_twice=tuple(state.worked_twice) if state is not None else (),
+                never_worked=tuple(state.never_worked) if state is not None else (),
             )
         )
     return out
@@ -1378,6 +1538,7 @@ def review_json(review: Review) -> dict[str, Any]:
                 "items_reached": v.items_reached,
                 "items_total": v.items_total,
                 "mission_complete": v.mission_complete,
+                "left_out": v.left_out,
                 "distance_m": r(v.distance_m, 1),
                 "planned_distance_m": r(v.planned_distance_m, 1),
                 "work_m": r(v.work_m, 1),
@@ -1441,6 +1602,9 @@ def review_json(review: Review) -> dict[str, Any]:
             "planned_finished": r(f.planned_finished_s, 1),
             "name": f.name,
             "area_m2": f.area_m2,
+            "segments": f.segments,
+            "worked_twice": list(f.worked_twice),
+            "never_worked": list(f.never_worked),
         }
         for f in review.fields
     }
@@ -1468,6 +1632,25 @@ def review_json(review: Review) -> dict[str, Any]:
         },
         "vehicles": vehicles,
         "fields": fields,
+        "replans": [
+            {
+                "at_s": round(rp.at_s, 1),
+                "plan_id": rp.plan_id,
+                "reason": rp.reason,
+                "taken_over": [{"field": f, "from": a, "to": b} for f, a, b in rp.taken_over],
+            }
+            for rp in review.replans
+        ],
+        "losses": [
+            {
+                "vehicle": x.vehicle,
+                "at_s": round(x.at_s, 1),
+                "why": x.why,
+                "lat": x.lat,
+                "lon": x.lon,
+            }
+            for x in review.losses
+        ],
         "warnings": list(review.warnings),
     }
 

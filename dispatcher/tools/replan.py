@@ -8,24 +8,26 @@ the remaining segments of fields in progress, over the vehicles still alive, eac
 it is. It returns the next :class:`~dispatcher.mission.plan.DispatchPlan`, missions and
 plan document included.
 
-A vehicle on a segment of a field (a swath or a headland edge, implement down) finishes it
-first: its position is taken at the segment's end and the time left to get there is its
-ready time; the segment counts as done. A vehicle gone (lost, failed) is not in the new
-plan; the segment it was on is not done (its rest is worked again by whoever takes the
-field).
+A driving vehicle keeps its old mission for a while: up to the first item, from the one it
+drives to, where a route may end (a segment's end or start, a road point, the garage) and
+that it reaches no sooner than ``lead_s`` wall seconds from now at its pace (its clock's
+speedup times the planned item times): a re-plan, upload and read-back fit in that, so the
+vehicle does not go past the point where its new route begins. Its position is taken
+there, the time to get there is its ready time, and the segments it works on the way count
+as done. A vehicle gone (lost, failed) is not in the new plan; the segment it was on is not
+done (its rest is worked again by whoever takes the field).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping, Sequence
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import FleetState, Phase, VehicleState
-from dispatcher.mission.build import Mission, Trace
-from dispatcher.mission.document import PlannedItem
+from dispatcher.mission.build import Mission, Role, Trace
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from planner.farm import Farm
@@ -39,6 +41,18 @@ GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
 ON_SEGMENT = "swath_end"
 """Driving to a segment's end (implement down) is being on that segment."""
 
+ROUTE_ENDS = frozenset({"swath_end", "swath_start", "road", "transit", "return"})
+"""Roles of the items where a driving vehicle's old mission may end and its new route
+begin (not in the middle of a turn or an in-field detour)."""
+
+LEAD_S = 4.0
+"""Wall seconds from the fleet state a re-plan reads to the new missions on board, besides
+the solver's time: a driving vehicle keeps at least this much of its old mission (module
+doc)."""
+
+IMPLEMENT_DOWN = frozenset({"implement_down", "implement_lower"})
+IMPLEMENT_UP = frozenset({"implement_raise", "implement_up"})
+
 
 class ReplanError(DispatcherError):
     """Nothing to re-plan with: no vehicle left, or no work left."""
@@ -50,9 +64,14 @@ def replan(
     state: FleetState,
     stop: AnyOf | None = None,
     gone: Collection[str] = (),
+    lead_s: float = LEAD_S,
+    base: Mapping[str, Visit] | None = None,
 ) -> DispatchPlan:
     """The next plan: the remaining work over the vehicles still alive (module doc).
-    ``gone`` adds vehicles to leave out whatever their phase."""
+    ``gone`` adds vehicles to leave out whatever their phase; ``lead_s`` as in the module
+    doc (:func:`handover` must be given the same); ``base``: each field's first planned
+    visit, whose segments ``PlannedItem.segment`` numbers (default: ``current``'s visits,
+    right for the first re-plan)."""
     farm = scenario.farm
     visits = {v.field.id: v for m in current.plan.machines for v in m.visits}
     alive = [v for v in state.vehicles.values() if v.phase not in GONE and v.id not in set(gone)]
@@ -60,28 +79,42 @@ def replan(
         raise ReplanError("no vehicle left to take the remaining work")
     machines = {veh.id: veh.machine for veh in scenario.vehicles}
     states: list[MachineState] = []
-    finishing: dict[str, int] = {}  # field -> segments done once its vehicle ends the one it is on
+    upto: dict[str, int] = {}  # vehicle -> the last item of its old mission it drives
     for v in alive:
-        position, ready_h, on = _where(v, farm, machines[v.id].work_speed_kmh)
-        if on is not None:
-            finishing[on[0]] = on[1] + 1
+        cut = _cut(v, lead_s)
+        upto[v.id] = cut if cut is not None else v.reached
+        position, ready_h = _where(v, farm, machines[v.id].work_speed_kmh, cut)
         states.append(MachineState(machines[v.id], position, ready_h))
     done = [f.id for f in state.fields.values() if f.status == "done"]
+    # Segments (numbered as in each field's first layout) that alive vehicles work before
+    # their new routes begin; with those worked already, the rest of each field is known.
+    claimed: dict[str, set[int]] = {}
+    cut_in: dict[str, str] = {}  # field -> the alive vehicle whose new route begins in it
+    for v in alive:
+        for item in v.items[v.reached + 1 : upto[v.id] + 1]:
+            if item.role == ON_SEGMENT and item.field_id and item.segment is not None:
+                claimed.setdefault(item.field_id, set()).add(item.segment)
+        if upto[v.id] > v.reached and v.items[upto[v.id]].field_id is not None:
+            cut_in[str(v.items[upto[v.id]].field_id)] = v.id
     in_progress = []
     for f in state.fields.values():
-        if f.status != "working" or f.id not in visits:
+        first = (base or visits).get(f.id)
+        if f.status == "done" or first is None:
             continue
-        owner = state.vehicles[f.vehicle]
-        segments = finishing.get(f.id, _segments_done(owner, f.id))
-        # Kept with its vehicle only while that vehicle is in it; a field that vehicle was
-        # given but has not reached yet may go to whoever is best placed.
-        free = owner.current_field != f.id or owner.phase in GONE or owner.retired
+        taken = set(f.passes) | claimed.get(f.id, set())
+        if not taken:
+            continue  # not started: planned whole
+        total = len(visit_segments(first))
+        left = tuple(k for k in range(total) if k not in taken)
+        worker = cut_in.get(f.id)
         in_progress.append(
             FieldProgress(
-                visits[f.id],
-                f.vehicle,
-                min(segments, len(visit_segments(visits[f.id]))),
-                split_ok=free,
+                first,
+                worker or f.vehicle,
+                # Kept with the vehicle whose route begins in it; otherwise the rest may go
+                # to whoever is best placed.
+                split_ok=worker is None,
+                left=left,
             )
         )
     solver = scenario.solver
@@ -101,45 +134,31 @@ def replan(
     return dispatch_plan(dataclasses.replace(scenario, vehicles=vehicles), plan)
 
 
-def _segments_done(v: VehicleState, field_id: str) -> int:
-    """Segments of ``field_id`` (as its current route's visit counts them) the vehicle
-    finished: its last swath end reached on that route, plus one."""
-    ends = [
-        item.swath_index
-        for item in v.items[v.route_from : v.reached + 1]
-        if item.field_id == field_id and item.role == "swath_end" and item.swath_index is not None
-    ]
-    return max(ends) + 1 if ends else 0
-
-
 def _where(
-    v: VehicleState, farm: Farm, work_speed_kmh: float
-) -> tuple[tuple[float, float], float, tuple[str, int] | None]:
-    """Where a vehicle starts its new route (local metres), when (hours from now), and the
-    (field, segment) it finishes first when it is on one."""
+    v: VehicleState, farm: Farm, work_speed_kmh: float, cut: int | None
+) -> tuple[tuple[float, float], float]:
+    """Where a vehicle starts its new route (local metres) and when (hours from now): at
+    item ``cut`` of its old mission when it drives on to there, else where it is."""
     lat = v.lat if v.lat is not None else v.items[0].lat
     lon = v.lon if v.lon is not None else v.items[0].lon
-    here = farm.frame.to_local(lon, lat)
-    heading = _heading_to(v)
-    if heading is None or v.phase is Phase.DONE or v.retired:
-        return (float(here[0]), float(here[1])), 0.0, None
-    end = heading
-    if end.field_id is None or end.swath_index is None:
-        return (float(here[0]), float(here[1])), 0.0, None
-    x, y = farm.frame.to_local(end.lon, end.lat)
-    metres = math.hypot(float(x) - float(here[0]), float(y) - float(here[1]))
-    # A segment of the route before the last re-plan was counted done by it already.
-    on = (end.field_id, end.swath_index) if end.seq >= v.route_from else None
-    return (float(x), float(y)), metres / (1000.0 * work_speed_kmh), on
+    x0, y0 = (float(c) for c in farm.frame.to_local(lon, lat))
+    if cut is None:
+        return (x0, y0), 0.0
+    heading = _heading(v)
+    end = v.items[cut]
+    hx, hy = (float(c) for c in farm.frame.to_local(v.items[heading].lon, v.items[heading].lat))
+    x, y = (float(c) for c in farm.frame.to_local(end.lon, end.lat))
+    seconds = math.hypot(hx - x0, hy - y0) / (work_speed_kmh / 3.6)
+    if v.planned_s and len(v.planned_s) == len(v.items):
+        seconds += max(v.planned_s[cut] - v.planned_s[heading], 0.0)
+    elif cut != heading:
+        seconds += math.hypot(x - hx, y - hy) / (work_speed_kmh / 3.6)
+    return (x, y), seconds / 3600.0
 
 
-def _heading_to(v: VehicleState) -> PlannedItem | None:
-    """The segment item the vehicle drives to now, if it is on a segment."""
-    seq = min(max(v.reached + 1, v.current, 1), len(v.items) - 1)
-    item = v.items[seq]
-    if item.role == ON_SEGMENT and item.field_id is not None and v.phase is Phase.RUNNING:
-        return item
-    return None
+def _heading(v: VehicleState) -> int:
+    """The item the vehicle drives to now."""
+    return min(max(v.reached + 1, v.current, 1), len(v.items) - 1)
 
 
 def visit_of(plan: DispatchPlan, field_id: str) -> Visit:
@@ -151,23 +170,26 @@ def visit_of(plan: DispatchPlan, field_id: str) -> Visit:
     raise KeyError(field_id)
 
 
-def handover(current: DispatchJob, state: FleetState, nxt: DispatchPlan) -> DispatchJob:
+def handover(
+    current: DispatchJob, state: FleetState, nxt: DispatchPlan, lead_s: float = LEAD_S
+) -> DispatchJob:
     """The job that takes the fleet from ``current`` to the next plan without stopping it.
 
     A vehicle driving its mission keeps what it has done and what it is doing: its new
-    mission is its old one up to the item it drives to (the end of the segment it is on, or
-    the next item of its transit), then the implement raised (when it was on a segment),
-    then its new route (without the new mission's home item). Uploaded while it drives, the
+    mission is its old one up to where its new route begins (module doc), then the
+    implement raised (when it is down there), then its new route (without the new
+    mission's home item). Uploaded while it drives, the
     items it is on are the same, so it carries on; once past them it drives the new route.
     A vehicle not driving (in the garage, done, not started) gets the new mission whole.
     The plan document says the same (items, roles, fields), with a new plan id."""
     machines = []
     missions: dict[str, Mission] = {}
     new_doc = nxt.document
+    still_to_do = {fid for m in new_doc.machines for fid in m.fields}
     for planned in new_doc.machines:
         v = state.vehicles[planned.id]
         new_mission = nxt.missions[planned.id]
-        cut = _cut(v) if planned.id in current.missions else None
+        cut = _cut(v, lead_s) if planned.id in current.missions else None
         if cut is None:
             machines.append(planned)
             missions[planned.id] = new_mission
@@ -176,16 +198,18 @@ def handover(current: DispatchJob, state: FleetState, nxt: DispatchPlan) -> Disp
         items = list(old.items[: cut + 1])
         traces = list(old.traces[: cut + 1])
         items_doc = list(v.items[: cut + 1])
-        if v.items[cut].role == ON_SEGMENT:  # the implement up before going on
+        if _implement_down(old.traces[: cut + 1]):  # the implement up before going on
             raise_at = next(
-                k
-                for k in range(cut + 1, len(old.items))
-                if old.traces[k].role in ("implement_raise", "implement_up")
+                k for k in range(cut + 1, len(old.items)) if old.traces[k].role in IMPLEMENT_UP
             )
             raise_item = v.items[raise_at]
+            # The field's last work when no route goes back to it: it is done there.
+            role: Role = (
+                "implement_up" if raise_item.field_id not in still_to_do else "implement_raise"
+            )
             items.append(old.items[raise_at])
-            traces.append(Trace(raise_item.field_id, raise_item.swath_index, "implement_raise"))
-            items_doc.append(dataclasses.replace(raise_item, role="implement_raise"))
+            traces.append(Trace(raise_item.field_id, raise_item.swath_index, role))
+            items_doc.append(dataclasses.replace(raise_item, role=role))
         for item, trace, planned_item in zip(
             new_mission.items[1:], new_mission.traces[1:], planned.items[1:], strict=True
         ):
@@ -205,14 +229,32 @@ def handover(current: DispatchJob, state: FleetState, nxt: DispatchPlan) -> Disp
     return DispatchJob(document, missions, dict(nxt.job().geojson))
 
 
-def _cut(v: VehicleState) -> int | None:
-    """Where a driving vehicle's old mission ends in its new one: the item it drives to
-    when that ends the segment it is on, else the last item it reached. None: it is not
-    driving a mission (it gets the new one whole)."""
+def _cut(v: VehicleState, lead_s: float) -> int | None:
+    """Where a driving vehicle's old mission ends in its new one (module doc): the first
+    item from the one it drives to where a route may end and that it reaches no sooner than
+    ``lead_s`` wall seconds from now; the mission's last item when none is that far. None:
+    it is not driving a mission (it gets the new one whole)."""
     if v.phase is not Phase.RUNNING or v.reached == 0 or v.retired:
         return None
-    heading = _heading_to(v)
-    return heading.seq if heading is not None else v.reached
+    heading = _heading(v)
+    planned = v.planned_s if len(v.planned_s) == len(v.items) else None
+    ahead = lead_s * v.clock.rate  # in the vehicle's seconds
+    for k in range(heading, len(v.items)):
+        if v.items[k].role not in ROUTE_ENDS:
+            continue
+        if planned is None or planned[k] - planned[v.reached] >= ahead:
+            return k
+    return len(v.items) - 1
+
+
+def _implement_down(traces: Sequence[Trace]) -> bool:
+    """Whether the implement is down after these items (the last implement item says)."""
+    for trace in reversed(traces):
+        if trace.role in IMPLEMENT_DOWN:
+            return True
+        if trace.role in IMPLEMENT_UP:
+            return False
+    return False
 
 
 def replanner_for(
@@ -220,15 +262,19 @@ def replanner_for(
 ) -> Callable[[FleetState], DispatchJob]:
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
-    returns the job to carry on with; the solver stops after ``seconds``."""
+    returns the job to carry on with; the solver stops after ``seconds``, and driving
+    vehicles keep ``seconds + LEAD_S`` of their old missions."""
     current, job = dispatch, dispatch.job()
+    lead_s = seconds + LEAD_S
+    base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
 
     def plan_rest(state: FleetState) -> DispatchJob:
         nonlocal current, job
-        nxt = replan(
-            scenario, current, state, stop=stop_after(scenario.solver.generations, seconds)
-        )
-        job = handover(job, state, nxt)
+        stop = stop_after(scenario.solver.generations, seconds)
+        nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base)
+        for m in nxt.plan.machines:  # a field planned whole again is numbered anew
+            base.update({v.field.id: v for v in m.visits if not v.original_segments})
+        job = handover(job, state, nxt, lead_s)
         current = nxt
         return job
 

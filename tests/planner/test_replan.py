@@ -1,6 +1,8 @@
 """Re-planning the rest of a day: machines where they are, fields done and half done."""
 
+import itertools
 import logging
+import math
 
 import pytest
 
@@ -156,3 +158,26 @@ def test_bad_progress_is_named():
         replan_farm(farm, states, [visit.field.id], [FieldProgress(visit, "a", done)])
     with pytest.raises(ProblemError, match="every field is done"):
         replan_farm(farm, states, [f.id for f in farm.fields])
+
+
+@pytest.mark.parametrize("corner", range(4))
+def test_the_rest_may_be_any_segments_left_with_moves_across_the_gaps(corner: int) -> None:
+    """Segments left out of the visit's order (a vehicle died before the part a re-plan
+    counted on it): exactly those, each once, and no planned turn across a gap."""
+    machine = WIDE
+    farm = row_farm(1)
+    cov = cover_farm(farm, [machine])[(machine.id, "f0")]
+    visit = Visit(farm.fields[0], cov, corner)
+    old = visit_segments(visit)
+    left = [1, 2, 3, 7, 8, len(old) - 1]
+    rest, share, orders = remaining_coverage(visit, left)
+    work = [math.dist(a, b) for a, b in old]
+    assert share == pytest.approx(sum(work[k] for k in left) / sum(work))
+    for c in range(4):
+        new = visit_segments(Visit(farm.fields[0], rest, c))
+        assert sorted(orders[c]) == left
+        assert all(same_segment(s, old[k]) for s, k in zip(new, orders[c], strict=True))
+        gaps = [k for k, (a, b) in enumerate(itertools.pairwise(orders[c])) if abs(a - b) != 1]
+        assert gaps and all(rest.turn(c)[k] == () for k in gaps)
+    with pytest.raises(ProblemError, match="segments left"):
+        remaining_coverage(visit, [])
