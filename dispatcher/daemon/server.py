@@ -636,13 +636,15 @@ class Dispatcher:
                 return
             job, reason, since = result
             self.replans.append([reason, now - since, None])
-            self._adopt(job, reason, now)
-            waiting = {m.id for m in job.document.machines}
-            self._awaiting_acks = (len(self.replans) - 1, waiting, since)
+            changed = self._adopt(job, reason, now)
+            self._awaiting_acks = (len(self.replans) - 1, changed, since)
+            if not changed:
+                self.replans[-1][2] = now - since
 
-    def _adopt(self, job: DispatchJob, reason: str, now: float) -> None:
+    def _adopt(self, job: DispatchJob, reason: str, now: float) -> set[str]:
         """Carry on with the next job: the plan replaced (an event), recorded and
-        published; each vehicle given its new mission (module doc of tools/replan)."""
+        published; each vehicle whose mission changed given its new one (module doc of
+        tools/replan). Returns those vehicles."""
         self._apply(ev.PlanReplaced(ev.FLEET, job.plan_id, reason, job.document.to_dict()), now)
         self.job = job
         if self.store is not None:
@@ -664,8 +666,12 @@ class Dispatcher:
             f"{', '.join(m.id for m in job.document.machines)}"
             + (f"; {', '.join(gone)} left out" if gone else ""),
         )
+        changed = set()
         for m in job.document.machines:
             v = self.state.vehicles[m.id]
+            if v.phase is Phase.RUNNING and not v.switch:
+                continue  # driving a mission that did not change: it goes on as it is
+            changed.add(m.id)
             link = self.links[m.id] = _Link()
             if v.switch:  # driving: its new mission is uploaded under it
                 link.switch_from = v.route_from
@@ -673,6 +679,10 @@ class Dispatcher:
                     "info", f"{m.id}: new route from item {v.route_from}; uploading under way"
                 )
                 self._upload_switch(v, link, now)
+        kept = [m.id for m in job.document.machines if m.id not in changed]
+        if kept:
+            self._log("info", f"missions unchanged, not uploaded: {', '.join(kept)}")
+        return changed
 
     def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:
         link.since = now

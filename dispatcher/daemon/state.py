@@ -22,7 +22,7 @@ from typing import Any
 from dispatcher.daemon import events as ev
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import ROVER_MODE_AUTO
-from dispatcher.mission.document import PlanDocument, PlannedItem
+from dispatcher.mission.document import PlanDocument, PlannedItem, PlannedMachine
 
 
 class Phase(enum.StrEnum):
@@ -308,8 +308,9 @@ class FleetState:
     def _replace_plan(self, doc: PlanDocument) -> None:
         """The rest of the work planned again (events.PlanReplaced). A vehicle driving its
         mission keeps its progress (its new mission starts with the old one up to where it
-        is) and is to receive the new one (``switch``); one not driving starts the new one
-        from its first item; one not in the plan (lost) gets no more work."""
+        is) and is to receive the new one (``switch``), unless its mission is unchanged;
+        one not driving starts the new one from its first item; one not in the plan (lost)
+        gets no more work."""
         self.plan_id = doc.plan_id
         planned = {m.id: m for m in doc.machines}
         for v in self.vehicles.values():
@@ -317,6 +318,9 @@ class FleetState:
             if m is None:
                 v.retired = True
                 continue
+            if v.phase is Phase.RUNNING and m.items == v.items and not v.retired:
+                self._own_fields(m)
+                continue  # its mission goes on as it is: nothing to upload
             common = _common_prefix(v.items, m.items)
             # Driving its mission, which the new one begins with: it carries on. When it
             # went past that part meanwhile, the items it reached beyond are the new
@@ -344,11 +348,14 @@ class FleetState:
                 ):
                     v.phase = Phase.ALIVE  # the new mission is uploaded and started
                 v.upload_attempts = 0
-            for fid in m.fields:
-                f = self.fields.setdefault(fid, FieldState(fid, m.id))
-                if f.status != "done":
-                    f.vehicle = m.id
+            self._own_fields(m)
         self._count_segments(doc)
+
+    def _own_fields(self, m: PlannedMachine) -> None:
+        for fid in m.fields:
+            f = self.fields.setdefault(fid, FieldState(fid, m.id))
+            if f.status != "done":
+                f.vehicle = m.id
 
     def _count_segments(self, doc: PlanDocument) -> None:
         """Each field's number of segments, from the plan that lays it out; a field already

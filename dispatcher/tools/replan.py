@@ -28,6 +28,7 @@ from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import FleetState, Phase, VehicleState
 from dispatcher.mission.build import Mission, Role, Trace
+from dispatcher.mission.document import PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from planner.farm import Farm
@@ -178,10 +179,12 @@ def handover(
     A vehicle driving its mission keeps what it has done and what it is doing: its new
     mission is its old one up to where its new route begins (module doc), then the
     implement raised (when it is down there), then its new route (without the new
-    mission's home item). Uploaded while it drives, the
-    items it is on are the same, so it carries on; once past them it drives the new route.
-    A vehicle not driving (in the garage, done, not started) gets the new mission whole.
-    The plan document says the same (items, roles, fields), with a new plan id."""
+    mission's home item). Uploaded while it drives, the items it is on are the same, so it
+    carries on; once past them it drives the new route. When its new route works the same
+    segments of the same fields in the same order as the rest of its old mission, it keeps
+    its old mission as it is (nothing to upload). A vehicle not driving (in the garage,
+    done, not started) gets the new mission whole. The plan document says the same (items,
+    roles, fields), with a new plan id."""
     machines = []
     missions: dict[str, Mission] = {}
     new_doc = nxt.document
@@ -195,6 +198,10 @@ def handover(
             missions[planned.id] = new_mission
             continue
         old = current.missions[planned.id]
+        if _work(v.items[cut + 1 :]) == _work(planned.items[1:]):
+            machines.append(dataclasses.replace(planned, items=v.items, fields=_fields(v.items)))
+            missions[planned.id] = old
+            continue
         items = list(old.items[: cut + 1])
         traces = list(old.traces[: cut + 1])
         items_doc = list(v.items[: cut + 1])
@@ -245,6 +252,16 @@ def _cut(v: VehicleState, lead_s: float) -> int | None:
         if planned is None or planned[k] - planned[v.reached] >= ahead:
             return k
     return len(v.items) - 1
+
+
+def _work(items: Sequence[PlannedItem]) -> list[tuple[str | None, int | None]]:
+    """The segments these items work, in order, as (field, segment)."""
+    return [(item.field_id, item.segment) for item in items if item.role == ON_SEGMENT]
+
+
+def _fields(items: Sequence[PlannedItem]) -> tuple[str, ...]:
+    """The fields these items work, in order."""
+    return tuple(dict.fromkeys(str(i.field_id) for i in items if i.role == ON_SEGMENT))
 
 
 def _implement_down(traces: Sequence[Trace]) -> bool:
