@@ -23,7 +23,8 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from helpers.processes import Processes, free_port, status_reader, wait_for
+from helpers.processes import Processes, free_port, status_reader, wait_for, wait_for_share
+from helpers.review import assert_each_segment_worked_once
 
 from dispatcher.daemon.store import DB_NAME
 from dispatcher.link import mavlink as mc
@@ -240,3 +241,29 @@ def test_a_tractor_that_finished_while_the_dispatcher_was_down_is_not_started_ag
     lines = log_lines(tmp_path)
     assert any("v2: finished its mission while the dispatcher was down" in ln for ln in lines)
     assert not any(ln.startswith("v2: uploading") for ln in lines[1:] if "again" in ln)
+
+
+def test_restarted_and_then_a_tractor_dies_its_work_is_re_planned(
+    procs: Processes, tmp_path: Path
+) -> None:
+    """A resumed run re-plans as a fresh one does: the fields' first layouts are laid out
+    again from the stored plan, and every segment is still worked once."""
+    port = free_port()
+    first = serve(procs, port, tmp_path)
+    procs.sim(SCENARIO, port, SPEEDUP, "v1", extra=FAILSAFE)
+    v2 = procs.sim(SCENARIO, port, SPEEDUP, "v2", extra=FAILSAFE)
+    with status_reader(port, FARM) as status:
+        wait_for_share(status, ("v1", "v2"), 0.2, RUN_TIMEOUT_S, procs.report)
+    killed(first)
+
+    second = serve(procs, port, tmp_path)
+    with status_reader(port, FARM) as status:
+        wait_for_share(status, ("v2",), 0.4, RUN_TIMEOUT_S, procs.report)
+    os.kill(v2.pid, signal.SIGKILL)
+    assert finished(second, procs) == 0, procs.report()
+    lines = log_lines(tmp_path)
+    assert any("re-planning the rest of the work: v2 lost" in ln for ln in lines), lines
+    review = review_run(tmp_path)
+    table = review_table(review)
+    assert all(f.done for f in review.fields), table
+    assert_each_segment_worked_once(review)

@@ -216,7 +216,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
     from dispatcher.daemon.store import Store, StoreError, default_data_dir
-    from dispatcher.tools.replan import replanner_for
+    from dispatcher.tools.replan import replanner_for, replanner_resumed
 
     scenario = load_scenario_args(args)
     data_dir = args.data_dir or default_data_dir(scenario.farm_id)
@@ -236,7 +236,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 )
             store.resume_run(run)
             job = run.job
-            replanner = None  # the planner's view of a resumed run is not kept (yet)
+            replanner = replanner_resumed(scenario, job)
             print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
         else:
             dispatch = plan_scenario(args, scenario)

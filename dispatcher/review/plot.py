@@ -415,10 +415,13 @@ def _draw_row(
     hours_per_char: float,
     span_h: float,
 ) -> None:
-    # The plan's time for each field: a thin outlined strip under the bar.
+    # The plan's time for each field: a thin outlined strip under the bar (the plan of the
+    # vehicle that has the field, after any re-plan).
     for fid in v.fields_planned:
         f = fields.get(fid)
         if f is None or f.planned_started_s is None or f.planned_finished_s is None:
+            continue
+        if f.vehicle is not None and f.vehicle != v.id:
             continue
         a, b = f.planned_started_s / 3600, f.planned_finished_s / 3600
         ax.broken_barh(

@@ -28,11 +28,11 @@ from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import FleetState, Phase, VehicleState
 from dispatcher.mission.build import Mission, Role, Trace
-from dispatcher.mission.document import PlannedItem
+from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from planner.farm import Farm
-from planner.field_plan import Visit
+from planner.field_plan import Visit, cover_farm
 from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
 from planner.solve import AnyOf, stop_after
 
@@ -61,7 +61,7 @@ class ReplanError(DispatcherError):
 
 def replan(
     scenario: Scenario,
-    current: DispatchPlan,
+    current: DispatchPlan | None,
     state: FleetState,
     stop: AnyOf | None = None,
     gone: Collection[str] = (),
@@ -72,9 +72,10 @@ def replan(
     ``gone`` adds vehicles to leave out whatever their phase; ``lead_s`` as in the module
     doc (:func:`handover` must be given the same); ``base``: each field's first planned
     visit, whose segments ``PlannedItem.segment`` numbers (default: ``current``'s visits,
-    right for the first re-plan)."""
+    right for the first re-plan). Without ``current`` (a run resumed after a restart, whose
+    planner's view is not kept) there is no warm start, and ``base`` is needed."""
     farm = scenario.farm
-    visits = {v.field.id: v for m in current.plan.machines for v in m.visits}
+    visits = {v.field.id: v for m in current.plan.machines for v in m.visits} if current else {}
     alive = [v for v in state.vehicles.values() if v.phase not in GONE and v.id not in set(gone)]
     if not alive:
         raise ReplanError("no vehicle left to take the remaining work")
@@ -124,11 +125,11 @@ def replan(
         states,
         done=done,
         in_progress=in_progress,
-        objective=current.plan.objective,
+        objective=current.plan.objective if current else scenario.solver.objective,
         algorithm=solver.algorithm,
         stop=stop,
         seed=solver.seed,
-        previous=current.plan,
+        previous=current.plan if current else None,
     )
     kept = {m.machine.id for m in plan.machines}
     vehicles = tuple(veh for veh in scenario.vehicles if veh.id in kept)
@@ -281,12 +282,47 @@ def replanner_for(
     each call plans from the state it is given against the plan carried out so far, and
     returns the job to carry on with; the solver stops after ``seconds``, and driving
     vehicles keep ``seconds + LEAD_S`` of their old missions."""
-    current, job = dispatch, dispatch.job()
-    lead_s = seconds + LEAD_S
     base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
+    return _replanner(scenario, dispatch, dispatch.job(), base, seconds)
+
+
+def replanner_resumed(
+    scenario: Scenario, job: DispatchJob, seconds: float = 1.5
+) -> Callable[[FleetState], DispatchJob]:
+    """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the run's
+    first plan document, the missions as last uploaded). The fields' first layouts are laid
+    out again from that document (coverage is deterministic; each visit's corner is
+    recorded), at the first re-plan."""
+    return _replanner(scenario, None, job, None, seconds)
+
+
+def first_visits(scenario: Scenario, document: PlanDocument) -> dict[str, Visit]:
+    """Each field's visit as ``document`` (a run's first plan) laid it out."""
+    machines = {veh.id: veh.machine for veh in scenario.vehicles}
+    fleet = [machines[m.id] for m in document.machines if m.id in machines]
+    coverage = cover_farm(scenario.farm, fleet)
+    out = {}
+    for m in document.machines:
+        for pv in m.visits:
+            field = scenario.farm.field(pv.field)
+            out[pv.field] = Visit(field, coverage[(m.id, pv.field)], pv.corner)
+    return out
+
+
+def _replanner(
+    scenario: Scenario,
+    dispatch: DispatchPlan | None,
+    job: DispatchJob,
+    base: dict[str, Visit] | None,
+    seconds: float,
+) -> Callable[[FleetState], DispatchJob]:
+    current = dispatch
+    lead_s = seconds + LEAD_S
 
     def plan_rest(state: FleetState) -> DispatchJob:
-        nonlocal current, job
+        nonlocal current, job, base
+        if base is None:
+            base = first_visits(scenario, job.document)
         stop = stop_after(scenario.solver.generations, seconds)
         nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base)
         for m in nxt.plan.machines:  # a field planned whole again is numbered anew

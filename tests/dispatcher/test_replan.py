@@ -9,7 +9,7 @@ from dispatcher.config.scenario import load_scenario
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
-from dispatcher.tools.replan import ReplanError, replan, visit_of
+from dispatcher.tools.replan import ReplanError, first_visits, replan, visit_of
 from planner.field_plan import plan_farm
 from planner.replan import visit_segments
 from planner.solve import stop_after
@@ -87,3 +87,27 @@ def test_a_replan_with_no_vehicle_left_says_so(current):
         state.apply(ev.VehicleLost(vid, "gone"), 0.0)
     with pytest.raises(ReplanError, match="no vehicle left"):
         replan(current.scenario, current, state, stop=stop_after(5))
+
+
+def test_a_resumed_run_lays_out_each_fields_first_visit_again_from_the_document(current):
+    """The planner's view of a run is not stored; the fields' first layouts, which number
+    the segments, come back exactly from the plan document."""
+    again = first_visits(current.scenario, current.document)
+    for m in current.plan.machines:
+        for visit in m.visits:
+            assert visit_segments(again[visit.field.id]) == visit_segments(visit)
+
+
+def test_a_replan_without_the_planners_view_plans_the_rest_from_the_first_layouts(current):
+    scenario = current.scenario
+    state = FleetState(current.document)
+    lost, other = ("v2", "v1")
+    lost_field = current.document.machine(lost).fields[0]
+    for vid in (lost, other):
+        started(state, vid)
+    state.apply(ev.ItemReached(lost, swath_end(current, lost, lost_field, 2), 100.0), 1.0)
+    state.apply(ev.VehicleLost(lost, "heartbeats stopped"), 2.0)
+    base = first_visits(scenario, current.document)
+    nxt = replan(scenario, None, state, stop=stop_after(30), base=base)
+    total = len(visit_segments(visit_of(current, lost_field)))
+    assert sorted(visit_of(nxt, lost_field).original_segments) == list(range(3, total))

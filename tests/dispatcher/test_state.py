@@ -1,5 +1,6 @@
 """The dispatcher's state through losses of link: vehicles resume where they were."""
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -494,3 +495,29 @@ def test_the_dispatcher_table_of_a_scenario_sets_when_a_vehicle_is_lost(tmp_path
     path.write_text(text + "\n[dispatcher]\nlost_after_s = -1\n")
     with pytest.raises(ConfigError, match="dispatcher.lost_after_s must be a positive"):
         load_scenario(path)
+
+
+def test_a_vehicle_that_went_past_its_kept_part_carries_on_and_is_not_restarted(dispatch):
+    """A re-plan keeps the first items of a driving vehicle's mission; when it has gone
+    beyond them by the time the new plan comes, it is still driving: it switches to the new
+    mission (from the kept part's end), never starts it again from item 1."""
+    state = FleetState(dispatch.document)
+    vid = dispatch.document.machines[0].id
+    for event in running_events(vid, 30):
+        state.apply(event, 1.0)
+    v = state.vehicles[vid]
+    old = v.items
+    cut = 20
+    new_items = tuple(
+        dataclasses.replace(i, seq=k, x=i.x + 10) if k > cut else i for k, i in enumerate(old)
+    )
+    machine = dataclasses.replace(dispatch.document.machines[0], items=new_items)
+    doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "test", doc.to_dict()), 2.0)
+    assert v.phase is Phase.RUNNING and v.switch
+    assert v.route_from == cut + 1 and v.reached == cut
+    # the same mission again: it goes on as it is, nothing to upload
+    v.switch, v.acked = False, True
+    doc2 = dataclasses.replace(doc, plan_id="").with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, doc2.plan_id, "again", doc2.to_dict()), 3.0)
+    assert not v.switch and v.acked and v.route_from == cut + 1
