@@ -11,10 +11,16 @@ Optional: roads, ``LineString`` or ``MultiLineString`` features with ``propertie
 :data:`MAX_GATE_DISTANCE_M` from its field). :mod:`planner.roads` routes the transit between
 fields on them. Everything is projected once into a local metric frame (:mod:`planner.geo`)
 and checked; errors name the file and feature.
+
+Refused before anything is projected: a feature of another kind than :data:`KINDS`, a value
+of the wrong type anywhere (a number where a feature, geometry, ring or position belongs),
+a field or road farther than :data:`MAX_GARAGE_DISTANCE_M` from the garage (saying when its
+longitude and latitude look swapped), a farm nearer a pole than :data:`MAX_ABS_LATITUDE`.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import logging
 import math
@@ -31,7 +37,14 @@ from planner.errors import GeometryError
 from planner.geo import LocalFrame, check_wgs84
 
 MAX_GARAGE_DISTANCE_M = 50_000.0
+"""Every corner of a field's outline and every point of a road lies within this of the garage."""
 MAX_GATE_DISTANCE_M = 50.0  # a gate lies on its field's boundary or this close to it
+MAX_ABS_LATITUDE = 75.0
+"""No farmland lies nearer a pole (the northernmost fields, in Norway and Finland, are below
+71 N): a farm beyond it has [latitude, longitude] where GeoJSON wants [longitude, latitude]."""
+KINDS = ("field", "garage", "road", "gate")
+"""The feature kinds (``properties.kind``) a farm file may hold; any other is refused."""
+EARTH_RADIUS_M = 6_371_000.0
 
 log = logging.getLogger(__name__)
 
@@ -119,9 +132,36 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
     seen: set[str] = set()
     for k, feature in enumerate(features):
         where = f"{source}: feature #{k}"
-        props = (feature or {}).get("properties") or {}
-        geom = (feature or {}).get("geometry") or {}
+        if not isinstance(feature, dict):
+            raise GeometryError(
+                f"{where}: a feature must be a GeoJSON object, not {_shown(feature)}"
+            )
+        if feature.get("type") != "Feature":
+            raise GeometryError(
+                f"{where}: 'type' must be \"Feature\", not {_shown(feature.get('type'))}"
+            )
+        props = feature.get("properties")
+        if props is None:
+            props = {}
+        if not isinstance(props, dict):
+            raise GeometryError(f"{where}: 'properties' must be an object, not {_shown(props)}")
+        geom = feature.get("geometry")
+        if geom is None:
+            geom = {}
+        if not isinstance(geom, dict):
+            raise GeometryError(f"{where}: 'geometry' must be an object, not {_shown(geom)}")
         kind = props.get("kind")
+        if kind not in KINDS:
+            ident = props.get("id")
+            named = f"{where} (id {ident!r})" if ident is not None else f"{where} (no id)"
+            what = "no properties.kind" if kind is None else f"unknown kind {_shown(kind)}"
+            close = (
+                difflib.get_close_matches(kind, KINDS, n=1, cutoff=0.6)
+                if isinstance(kind, str)
+                else []
+            )
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise GeometryError(f"{named}: {what}{hint}; the known kinds are {', '.join(KINDS)}")
         if kind == "garage":
             if geom.get("type") != "Point":
                 raise GeometryError(f"{where}: the garage must be a Point")
@@ -136,15 +176,18 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
                 raise GeometryError(f"{where}: duplicate field id")
             seen.add(field_id)
             if geom.get("type") != "Polygon":
-                raise GeometryError(f"{where}: geometry must be a Polygon, not {geom.get('type')}")
+                raise GeometryError(
+                    f"{where}: geometry must be a Polygon, not {_shown(geom.get('type'))}"
+                )
             rings = geom.get("coordinates")
             if not isinstance(rings, list) or not rings:
-                raise GeometryError(f"{where}: a Polygon needs at least one ring")
-            checked = [[_lonlat(p, where) for p in ring] for ring in rings]
-            raw_fields.append((field_id, props, checked))
+                raise GeometryError(
+                    f"{where}: a Polygon's coordinates must be a list of rings, not {_shown(rings)}"
+                )
+            raw_fields.append((field_id, props, [_ring(r, n, where) for n, r in enumerate(rings)]))
         elif kind == "road":
             raw_roads += _road_parts(k, props, geom, where)
-        elif kind == "gate":
+        else:  # a gate
             field_id = props.get("field")
             if not isinstance(field_id, str) or not field_id:
                 raise GeometryError(
@@ -161,6 +204,7 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
     if not raw_fields:
         raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
 
+    _check_extent(source, garages[0], raw_fields, raw_roads)
     lons = [p[0] for _, _, rings in raw_fields for p in rings[0]]
     lats = [p[1] for _, _, rings in raw_fields for p in rings[0]]
     frame = LocalFrame.around((min(lons) + max(lons)) / 2, (min(lats) + max(lats)) / 2)
@@ -202,6 +246,10 @@ def _road_parts(
 ) -> list[tuple[str, str, list[tuple[float, float]]]]:
     """The checked lon/lat polylines of one road feature (one per part)."""
     road_id = props.get("id")
+    if road_id is not None and (isinstance(road_id, bool) or not isinstance(road_id, str | int)):
+        raise GeometryError(
+            f"{where} (road): properties.id must be a string, not {_shown(road_id)}"
+        )
     road_id = str(road_id) if road_id is not None else f"road#{k}"
     where = f"{where} (road {road_id!r})"
     kind = geom.get("type")
@@ -253,16 +301,137 @@ def _gate(
     return Gate(field_id=field_id, xy=(x, y), lonlat=lonlat)
 
 
+def _shown(value: Any) -> str:
+    """A JSON value as the file wrote it, shortened, for messages."""
+    text = json.dumps(value) if value is not None else "null"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _lonlat(value: Any, where: str) -> tuple[float, float]:
     if (
         not isinstance(value, list | tuple)
         or len(value) < 2
-        or not all(isinstance(v, int | float) for v in value[:2])
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value[:2])
     ):
-        raise GeometryError(f"{where}: a position must be [longitude, latitude], got {value!r}")
+        raise GeometryError(
+            f"{where}: a position must be [longitude, latitude], not {_shown(value)}"
+        )
     lon, lat = float(value[0]), float(value[1])
     check_wgs84(lon, lat, where)
     return lon, lat
+
+
+def _ring(value: Any, n: int, where: str) -> list[tuple[float, float]]:
+    """One ring of a Polygon (``n`` = 0: the outline, then the holes), checked."""
+    what = "outline" if n == 0 else f"hole {n}"
+    if not isinstance(value, list):
+        raise GeometryError(
+            f"{where}: ring {n} ({what}) must be a list of [longitude, latitude] positions, "
+            f"not {_shown(value)}"
+        )
+    points = [_lonlat(p, f"{where}, ring {n} ({what}) position {k}") for k, p in enumerate(value)]
+    if len(set(points)) < 3:
+        raise GeometryError(
+            f"{where}: ring {n} ({what}) has {len(set(points))} distinct positions; "
+            "a ring needs at least 3 corners"
+        )
+    return points
+
+
+def _distance_m(lon1: Any, lat1: Any, lon2: Any, lat2: Any) -> Any:
+    """Great-circle distance in metres (haversine on a sphere; numbers or numpy arrays)."""
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    a = (
+        np.sin((p2 - p1) / 2) ** 2
+        + np.cos(p1) * np.cos(p2) * np.sin(np.radians(np.subtract(lon2, lon1)) / 2) ** 2
+    )
+    return 2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(a, 0.0, 1.0)))
+
+
+def _km(metres: float) -> str:
+    if metres >= 100_000:
+        return f"{metres / 1000:,.0f} km".replace(",", " ")
+    return f"{metres / 1000:.1f} km".replace(".0 km", " km")
+
+
+def _check_extent(
+    source: str,
+    garage: tuple[float, float],
+    raw_fields: list[tuple[str, dict[str, Any], list[list[tuple[float, float]]]]],
+    raw_roads: list[tuple[str, str, list[tuple[float, float]]]],
+) -> None:
+    """Refuse a farm spread wider than :data:`MAX_GARAGE_DISTANCE_M` or nearer a pole than
+    :data:`MAX_ABS_LATITUDE`, naming the garage, field or road at fault and saying when its
+    longitude and latitude look swapped. Done on the lon/lat, before any projection: a
+    field thousands of kilometres away would make the planner's local frame meaningless.
+
+    The farm is where most of its features are: the field (or garage) with the most others
+    within the limit. A garage away from it is at fault; otherwise every field and road
+    must lie within the limit of the garage.
+    """
+    limit = MAX_GARAGE_DISTANCE_M
+    centres = np.array(
+        [np.mean(rings[0], axis=0) for _, _, rings in raw_fields] + [garage], dtype=np.float64
+    )
+    lon, lat = centres[:, 0], centres[:, 1]
+    apart = _distance_m(lon[:, None], lat[:, None], lon[None, :], lat[None, :])
+    near = (apart <= limit).sum(axis=1)
+    farm = int(np.argmax(near))  # ties: the first field
+    glon, glat = garage
+    if apart[farm, -1] > limit:
+        nearest = float(apart[:-1, -1].min())
+        swapped = float(_distance_m(glat, glon, lon[farm], lat[farm]))
+        hint = (
+            f"with longitude and latitude swapped it would be {_km(swapped)} from them: "
+            "either the garage or the fields have [latitude, longitude] where GeoJSON wants "
+            "[longitude, latitude]"
+            if swapped <= limit
+            else "are its longitude and latitude swapped? GeoJSON wants [longitude, latitude]"
+        )
+        raise GeometryError(
+            f"{source}: the garage is {_km(nearest)} from the nearest field "
+            f"(limit {_km(limit)}); {hint}"
+        )
+    for field_id, _, rings in raw_fields:
+        _check_near(f"{source}: field {field_id!r}", "corner", rings[0], garage)
+    for _, where, points in raw_roads:
+        _check_near(where, "point", points, garage)
+    for k, (field_id, _, _) in enumerate(raw_fields):
+        if abs(lat[k]) > MAX_ABS_LATITUDE:
+            raise GeometryError(
+                f"{source}: field {field_id!r} lies at latitude {lat[k]:.2f}, nearer the pole "
+                f"than any farmland (limit {MAX_ABS_LATITUDE:g} degrees north or south); are "
+                "longitude and latitude swapped? GeoJSON wants [longitude, latitude]"
+            )
+
+
+def _check_near(
+    where: str, what: str, points: list[tuple[float, float]], garage: tuple[float, float]
+) -> None:
+    """Refuse a field or road (``where``) with a point (``what``) farther than the limit
+    from the garage, naming the farthest; say so when the points look swapped."""
+    limit = MAX_GARAGE_DISTANCE_M
+    lon, lat = np.array(points, dtype=np.float64).T
+    glon, glat = garage
+    off = _distance_m(lon, lat, glon, glat)
+    worst = int(np.argmax(off))
+    if off[worst] <= limit:
+        return
+    swapped = (
+        float(np.max(_distance_m(lat, lon, glon, glat)))
+        if np.all(np.abs(lon) <= 90.0)
+        else math.inf
+    )
+    hint = (
+        f"; its longitudes and latitudes look swapped: as [latitude, longitude] it would lie "
+        f"within {_km(swapped)} of the garage (GeoJSON wants [longitude, latitude])"
+        if swapped <= limit
+        else f"; every field and road of a farm must lie within {_km(limit)} of its garage"
+    )
+    raise GeometryError(
+        f"{where}: its {what} {worst} [{lon[worst]:.5f}, {lat[worst]:.5f}] is "
+        f"{_km(float(off[worst]))} from the garage (limit {_km(limit)}){hint}"
+    )
 
 
 def _field(
@@ -290,7 +459,9 @@ def _field(
             "is its boundary self-intersecting?"
         )
     angle = props.get("work_angle_deg")
-    if angle is not None and (not isinstance(angle, int | float) or not math.isfinite(angle)):
+    if angle is not None and (
+        isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(angle)
+    ):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
     passes = props.get("headland_passes")
     if passes is not None and (

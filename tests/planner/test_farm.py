@@ -1,0 +1,294 @@
+"""Farm files: every bad file refused with a GeometryError naming the file and the feature.
+
+Unknown feature kinds, a number or string where a feature, geometry, ring or position
+belongs, coordinates that look swapped, and a farm spread wider than
+:data:`planner.farm.MAX_GARAGE_DISTANCE_M`.
+"""
+
+import contextlib
+import copy
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from planner.errors import GeometryError
+from planner.farm import KINDS, MAX_ABS_LATITUDE, load_farm
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+LON0, LAT0 = 10.0, 50.0  # central Germany: swapped, [50, 10] is in the Horn of Africa
+
+
+def rect(lon0: float, lat0: float, w_m: float = 120.0, h_m: float = 80.0) -> list[list[float]]:
+    dlon = w_m / (111320 * math.cos(math.radians(lat0)))
+    dlat = h_m / 110540
+    return [
+        [lon0, lat0],
+        [lon0 + dlon, lat0],
+        [lon0 + dlon, lat0 + dlat],
+        [lon0, lat0 + dlat],
+        [lon0, lat0],
+    ]
+
+
+def feature(kind: Any, geometry: Any, **props: Any) -> dict[str, Any]:
+    return {"type": "Feature", "properties": {"kind": kind, **props}, "geometry": geometry}
+
+
+def field(fid: str, ring: list[list[float]]) -> dict[str, Any]:
+    return feature("field", {"type": "Polygon", "coordinates": [ring]}, id=fid)
+
+
+def point(kind: str, lon: float, lat: float, **props: Any) -> dict[str, Any]:
+    return feature(kind, {"type": "Point", "coordinates": [lon, lat]}, **props)
+
+
+def farm_doc(lon0: float = LON0, lat0: float = LAT0) -> dict[str, Any]:
+    """Two fields, a garage, a road and a gate: every kind of feature."""
+    east = lon0 + 200 / (111320 * math.cos(math.radians(lat0)))
+    north = lat0 + 100 / 110540
+    return {
+        "type": "FeatureCollection",
+        "features": [
+            field("F1", rect(lon0, lat0)),
+            field("F2", rect(east, lat0)),
+            point("garage", lon0 - 0.0005, lat0 - 0.0005),
+            feature(
+                "road",
+                {"type": "LineString", "coordinates": [[lon0 - 0.001, north], [east, north]]},
+                id="lane",
+            ),
+            point("gate", lon0 + 0.0005, lat0 + 80 / 110540, field="F1"),
+        ],
+    }
+
+
+def write(tmp_path: Path, doc: Any) -> Path:
+    path = tmp_path / "farm.geojson"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def refused(tmp_path: Path, doc: Any) -> str:
+    path = write(tmp_path, doc)
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: "), message  # names the file
+    return message
+
+
+def test_the_good_farm_loads(tmp_path):
+    farm = load_farm(write(tmp_path, farm_doc()))
+    assert [f.id for f in farm.fields] == ["F1", "F2"]
+    assert len(farm.roads) == 1 and len(farm.gates) == 1
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        DATA / "tiny-farm.geojson",
+        DATA / "sitl-farm.geojson",
+        DATA.parents[1] / "config" / "changji.geojson",
+        DATA.parents[1] / "benchmarks" / "sitl-farm4.geojson",
+    ],
+    ids=lambda p: p.name,
+)
+def test_shipped_farms_load(path):
+    assert load_farm(path).fields
+
+
+# --- kinds -------------------------------------------------------------------------------
+
+
+def test_a_misspelled_kind_is_refused_naming_the_feature_and_the_known_kinds(tmp_path):
+    doc = farm_doc()
+    doc["features"][1]["properties"]["kind"] = "feild"
+    message = refused(tmp_path, doc)
+    assert "feature #1 (id 'F2'): unknown kind \"feild\" (did you mean 'field'?)" in message
+    assert f"the known kinds are {', '.join(KINDS)}" in message
+
+
+def test_a_feature_without_kind_is_refused(tmp_path):
+    doc = farm_doc()
+    del doc["features"][2]["properties"]["kind"]
+    message = refused(tmp_path, doc)
+    assert "feature #2 (no id): no properties.kind" in message
+    assert "field, garage, road, gate" in message
+
+
+def test_a_kind_that_is_not_a_string_is_refused(tmp_path):
+    doc = farm_doc()
+    doc["features"][0]["properties"]["kind"] = 3
+    assert "feature #0 (id 'F1'): unknown kind 3;" in refused(tmp_path, doc)
+
+
+# --- a number or string where a feature, geometry, ring or position belongs ---------------
+
+
+def set_at(doc: dict[str, Any], path: tuple[Any, ...], value: Any) -> dict[str, Any]:
+    doc = copy.deepcopy(doc)
+    node: Any = doc
+    for step in path[:-1]:
+        node = node[step]
+    node[path[-1]] = value
+    return doc
+
+
+MISPLACED = {
+    "number for a feature": (("features", 1), 7, "feature #1: a feature must be a GeoJSON object"),
+    "string for a feature": (("features", 0), "F1", "feature #0: a feature must be a GeoJSON"),
+    "string for properties": (
+        ("features", 1, "properties"),
+        "field",
+        "feature #1: 'properties' must be an object, not \"field\"",
+    ),
+    "number for a geometry": (
+        ("features", 0, "geometry"),
+        5,
+        "feature #0: 'geometry' must be an object, not 5",
+    ),
+    "number for a field's rings": (
+        ("features", 1, "geometry", "coordinates"),
+        12,
+        "field 'F2': a Polygon's coordinates must be a list of rings, not 12",
+    ),
+    "string for a ring": (
+        ("features", 1, "geometry", "coordinates", 0),
+        "10,50 10,51",
+        "field 'F2': ring 0 (outline) must be a list of [longitude, latitude] positions",
+    ),
+    "number for a position": (
+        ("features", 0, "geometry", "coordinates", 0, 2),
+        10.5,
+        "field 'F1', ring 0 (outline) position 2: a position must be [longitude, latitude], "
+        "not 10.5",
+    ),
+    "strings in a position": (
+        ("features", 0, "geometry", "coordinates", 0, 1),
+        ["10.1", "50.0"],
+        "field 'F1', ring 0 (outline) position 1: a position must be [longitude, latitude]",
+    ),
+    "bools in a position": (
+        ("features", 0, "geometry", "coordinates", 0, 1),
+        [True, False],
+        "position 1: a position must be [longitude, latitude], not [true, false]",
+    ),
+    "string for the garage's position": (
+        ("features", 2, "geometry", "coordinates"),
+        "10.0 50.0",
+        'feature #2 (garage): a position must be [longitude, latitude], not "10.0 50.0"',
+    ),
+    "number for a road": (
+        ("features", 3, "geometry", "coordinates"),
+        3,
+        "feature #3 (road 'lane'): a road needs at least 2 points",
+    ),
+    "null for a gate's position": (
+        ("features", 4, "geometry", "coordinates"),
+        None,
+        "feature #4 (gate of 'F1'): a position must be [longitude, latitude], not null",
+    ),
+    "a ring of two points": (
+        ("features", 1, "geometry", "coordinates", 0),
+        [[10.0, 50.0], [10.001, 50.0]],
+        "field 'F2': ring 0 (outline) has 2 distinct positions; a ring needs at least 3",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MISPLACED))
+def test_a_value_of_the_wrong_type_is_named_never_a_traceback(tmp_path, case):
+    path, value, needle = MISPLACED[case]
+    assert needle in refused(tmp_path, set_at(farm_doc(), path, value))
+
+
+def nodes(value: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    """The paths of every value in a JSON document."""
+    out = [path] if path else []
+    if isinstance(value, dict):
+        for key, child in value.items():
+            out += nodes(child, (*path, key))
+    elif isinstance(value, list):
+        for k, child in enumerate(value):
+            out += nodes(child, (*path, k))
+    return out
+
+
+def test_any_value_replaced_by_any_other_type_is_a_geometry_error_or_loads(tmp_path):
+    doc = farm_doc()
+    for path in nodes(doc):
+        for value in (7, "x", None, True, [], {}):
+            bad = set_at(doc, path, value)
+            # Anything but a GeometryError (a TypeError, a KeyError, ...) fails the test.
+            with contextlib.suppress(GeometryError):
+                load_farm(write(tmp_path, bad))
+
+
+# --- swapped coordinates, a farm spread too wide -----------------------------------------
+
+
+def swapped(ring: list[list[float]]) -> list[list[float]]:
+    return [[lat, lon] for lon, lat in ring]
+
+
+def test_one_field_with_a_latitude_beyond_90_is_named(tmp_path):
+    doc = farm_doc(120.0, 30.0)  # a farm near 30 N 120 E: a swapped field has latitude 120
+    load_farm(write(tmp_path, doc))
+    ring = doc["features"][1]["geometry"]["coordinates"][0]
+    doc["features"][1]["geometry"]["coordinates"][0] = swapped(ring)
+    message = refused(tmp_path, doc)
+    assert "field 'F2', ring 0 (outline) position 0: latitude 120.0" in message
+    assert "swapped" in message
+
+
+def test_one_field_swapped_near_the_rest_of_the_farm_is_named(tmp_path):
+    doc = farm_doc()
+    ring = doc["features"][1]["geometry"]["coordinates"][0]
+    doc["features"][1]["geometry"]["coordinates"][0] = swapped(ring)
+    message = refused(tmp_path, doc)
+    assert "field 'F2': its corner " in message and " km from the garage (limit 50 km)" in message
+    assert "its longitudes and latitudes look swapped" in message
+
+
+def test_a_field_farther_than_the_limit_from_the_garage_is_named_with_its_distance(tmp_path):
+    doc = farm_doc()
+    east = LON0 + 60_000 / (111320 * math.cos(math.radians(LAT0)))  # 60 km east
+    doc["features"].append(field("far", rect(east, LAT0)))
+    message = refused(tmp_path, doc)
+    assert "field 'far': its corner 1 [10.84019, 50.00000] is 60.1 km from the garage" in message
+    assert "(limit 50 km)" in message
+    assert "swapped" not in message
+
+
+def test_a_road_far_from_the_farm_is_named(tmp_path):
+    doc = farm_doc()
+    doc["features"][3]["geometry"]["coordinates"][1] = [LAT0, LON0]  # one point swapped
+    message = refused(tmp_path, doc)
+    assert "feature #3 (road 'lane'): its point 1 [50.00000, 10.00000] is " in message
+    assert "every field and road of a farm must lie within 50 km of its garage" in message
+
+
+def test_a_swapped_garage_is_named(tmp_path):
+    doc = farm_doc()
+    doc["features"][2]["geometry"]["coordinates"] = [LAT0, LON0]
+    message = refused(tmp_path, doc)
+    assert "the garage is " in message and "from the nearest field (limit 50 km)" in message
+    assert "swapped" in message
+
+
+def test_a_farm_swapped_in_every_feature_is_refused_at_the_pole(tmp_path):
+    farm = json.loads((DATA / "tiny-farm.geojson").read_text())  # 44.0 N 87.3 E
+
+    def swap(value: Any) -> Any:
+        if isinstance(value, list) and len(value) == 2 and all(isinstance(v, float) for v in value):
+            return [value[1], value[0]]
+        return [swap(v) for v in value] if isinstance(value, list) else value
+
+    for f in farm["features"]:
+        f["geometry"]["coordinates"] = swap(f["geometry"]["coordinates"])
+    message = refused(tmp_path, farm)
+    assert "field 'A' lies at latitude 87.30" in message
+    assert f"limit {MAX_ABS_LATITUDE:g} degrees" in message and "swapped" in message
