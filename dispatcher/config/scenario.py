@@ -1,15 +1,20 @@
 """A scenario: which farm, which fleet, how to solve. Loaded from TOML and checked.
 
 Keys are documented in config/README.md. Paths inside a scenario are relative to the
-scenario file. Every error names the file and the key (or machine) at fault.
+scenario file. Every error names the file and the key (or machine) at fault: an unknown key
+(with the nearest known one), a value of the wrong type (a bool is not a number; an integer
+is a number), a number outside :data:`LIMITS`.
 """
 
 from __future__ import annotations
 
+import difflib
 import logging
+import math
 import re
 import tomllib
-from dataclasses import dataclass, fields, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +41,138 @@ MACHINE_PARAMS = (
 # Optional machine keys and their defaults: 0 m turning radius = the paper's turn model,
 # a hop between swath ends costing turn_time_h.
 OPTIONAL_MACHINE_PARAMS = {"min_turn_radius_m": 0.0}
+
+
+@dataclass(frozen=True)
+class Limit:
+    """The values a number may take: ``low`` to ``high`` (both allowed), and why."""
+
+    low: float
+    high: float
+    unit: str  # "" for a count
+    why_low: str
+    why_high: str
+
+
+LIMITS: dict[str, Limit] = {
+    # [[machine]]: what a real tractor (or field robot) and its implement could be.
+    "working_width_m": Limit(
+        0.5,
+        60.0,
+        "m",
+        "the narrowest implement swaths are planned for",
+        "wider than any implement built: the widest sprayer booms are about 55 m",
+    ),
+    "capacity_m2h": Limit(
+        100.0,
+        2_500_000.0,
+        "m²/h",
+        "a 0.5 m robot at 0.5 km/h works 250 m²/h",
+        "60 m of implement at 40 km/h would work 2 400 000 m²/h",
+    ),
+    "work_speed_kmh": Limit(
+        0.5, 40.0, "km/h", "slower than any field work", "the most a tractor could work at"
+    ),
+    "road_speed_kmh": Limit(
+        1.0,
+        70.0,
+        "km/h",
+        "slower than any machine drives between fields",
+        "the fastest road tractors are limited to 60-70 km/h",
+    ),
+    "turn_time_h": Limit(
+        0.0, 0.25, "h", "a time cannot be negative", "a U-turn takes seconds to minutes, not hours"
+    ),
+    "road_fuel_lh": Limit(
+        0.0,
+        200.0,
+        "L/h",
+        "fuel cannot be negative",
+        "more than the largest tractors burn at full load",
+    ),
+    "work_fuel_lh": Limit(
+        0.0,
+        200.0,
+        "L/h",
+        "fuel cannot be negative",
+        "more than the largest tractors burn at full load",
+    ),
+    "min_turn_radius_m": Limit(
+        0.0,
+        50.0,
+        "m",
+        "0 is the paper's hop between swath ends",
+        "even articulated tractors with trailed implements turn on less",
+    ),
+    "system_id": Limit(1, 254, "", "MAVLink system ids start at 1", "255 is the dispatcher"),
+    # [machine.implement]: what ArduPilot can drive.
+    "channel (servo)": Limit(
+        1, 32, "", "servo outputs are numbered from 1, SERVO1", "ArduPilot has 32 servo outputs"
+    ),
+    "channel (relay)": Limit(
+        0, 15, "", "relays are numbered from 0, RELAY1", "ArduPilot has 16 relays"
+    ),
+    "pwm_down": Limit(800, 2200, "µs", "the shortest servo pulse", "the longest servo pulse"),
+    "pwm_up": Limit(800, 2200, "µs", "the shortest servo pulse", "the longest servo pulse"),
+    # [solver]
+    "time_limit_s": Limit(
+        0.1,
+        3600.0,
+        "s",
+        "too short for the solver to improve on its first routes",
+        "an hour: a plan the dispatcher waits longer for is no use in the field",
+    ),
+    "generations": Limit(1, 1_000_000, "", "at least one generation", "beyond any useful run"),
+    # [dispatcher]
+    "lost_after_s": Limit(
+        1.0,
+        600.0,
+        "s",
+        "vehicles send a heartbeat once a second",
+        "ten minutes without a word from a vehicle at work",
+    ),
+    "stall_after_s": Limit(
+        5.0,
+        3600.0,
+        "s",
+        "a tractor may pause that long at a turn",
+        "an hour in AUTO without getting anywhere",
+    ),
+    "lost_grace_s": Limit(
+        1.0,
+        3600.0,
+        "s",
+        "vehicles send a heartbeat once a second",
+        "an hour for a lost vehicle to come back",
+    ),
+}
+"""Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
+
+TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "solver", "dispatcher")
+FLEET_KEYS = ("machine",)
+MACHINE_KEYS = ("id", "system_id", *MACHINE_PARAMS, *OPTIONAL_MACHINE_PARAMS, "implement")
+IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
+SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
+WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s")
+# Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
+_ELSEWHERE_AT_TOP = {
+    **dict.fromkeys(MACHINE_KEYS, "in a [[machine]] table"),
+    **dict.fromkeys(IMPLEMENT_KEYS, "in a [machine.implement] table"),
+    **dict.fromkeys(SOLVER_KEYS, "in the [solver] table"),
+    **dict.fromkeys(WATCH_KEYS, "in the [dispatcher] table"),
+}
+_ELSEWHERE_IN_SOLVER = {
+    **dict.fromkeys(TOP_KEYS, "at the top of the file, above [solver]"),
+    **dict.fromkeys(WATCH_KEYS, "in the [dispatcher] table"),
+}
+_ELSEWHERE_IN_DISPATCHER = {
+    **dict.fromkeys(TOP_KEYS, "at the top of the file, above [dispatcher]"),
+    **dict.fromkeys(SOLVER_KEYS, "in the [solver] table"),
+}
+_ELSEWHERE_IN_MACHINE = {
+    **dict.fromkeys(TOP_KEYS, "at the top of the file, above the first table"),
+    **dict.fromkeys(IMPLEMENT_KEYS, "in the machine's [machine.implement] table"),
+}
 
 
 @dataclass(frozen=True)
@@ -114,15 +251,20 @@ def load_scenario(path: str | Path) -> Scenario:
     path = Path(path)
     doc = _read_toml(path)
     src = str(path)
+    _check_keys(doc, TOP_KEYS, src, "the top level", _ELSEWHERE_AT_TOP)
     farm_id = doc.get("farm_id", path.stem)
     if not isinstance(farm_id, str) or not SAFE_ID.fullmatch(farm_id):
         raise ConfigError(
-            f"{src}: farm_id {farm_id!r} must be letters, digits, '_', '-' or '.' "
+            f"{src}: farm_id {_shown(farm_id)} must be letters, digits, '_', '-' or '.' "
             "(it is a Zenoh key segment)"
         )
     farm_key = doc.get("farm")
+    if farm_key is None:
+        raise ConfigError(f"{src}: missing key 'farm' (the farm GeoJSON file)")
     if not isinstance(farm_key, str):
-        raise ConfigError(f"{src}: key 'farm' must name the farm GeoJSON file")
+        raise ConfigError(
+            f"{src}: key 'farm' must name the farm GeoJSON file (a string), not {_shown(farm_key)}"
+        )
     try:
         farm = load_farm(path.parent / farm_key)
     except PlannerError as exc:
@@ -134,24 +276,42 @@ def load_scenario(path: str | Path) -> Scenario:
             raise ConfigError(
                 f"{src}: give either 'fleet' (a file) or [[machine]] tables, not both"
             )
-        fleet_path = path.parent / str(doc["fleet"])
+        if not isinstance(doc["fleet"], str):
+            raise ConfigError(
+                f"{src}: key 'fleet' must name a fleet file (a string), not {_shown(doc['fleet'])}"
+            )
+        fleet_path = path.parent / doc["fleet"]
         fleet_src = str(fleet_path)
-        machines = _read_toml(fleet_path).get("machine")
+        fleet_doc = _read_toml(fleet_path)
+        _check_keys(
+            fleet_doc,
+            FLEET_KEYS,
+            fleet_src,
+            "the top level of a fleet file",
+            {**_ELSEWHERE_AT_TOP, **dict.fromkeys(TOP_KEYS, "in the scenario file")},
+        )
+        machines = fleet_doc.get("machine")
     vehicles = _vehicles(machines, fleet_src)
+    if not vehicles:
+        raise ConfigError(f"{fleet_src}: the fleet is empty (no [[machine]] tables)")
     chosen = doc.get("machines")
     if chosen is not None:
         if not isinstance(chosen, list) or not all(isinstance(c, str) for c in chosen):
-            raise ConfigError(f"{src}: key 'machines' must be a list of machine ids")
+            raise ConfigError(
+                f"{src}: key 'machines' must be a list of machine ids, not {_shown(chosen)}"
+            )
+        if not chosen:
+            raise ConfigError(f"{src}: key 'machines' is empty: the fleet is empty")
         by_id = {v.id: v for v in vehicles}
-        for ident in chosen:
+        for k, ident in enumerate(chosen):
             if ident not in by_id:
                 raise ConfigError(
-                    f"{src}: key 'machines' references unknown machine {ident!r} "
-                    f"(the fleet has {', '.join(by_id)})"
+                    f"{src}: key 'machines' references unknown machine {ident!r}"
+                    f"{_suggest(ident, list(by_id))} (the fleet has {', '.join(by_id)})"
                 )
+            if ident in chosen[:k]:
+                raise ConfigError(f"{src}: key 'machines' names machine {ident!r} twice")
         vehicles = tuple(by_id[c] for c in chosen)
-    if not vehicles:
-        raise ConfigError(f"{src}: the fleet is empty")
     return Scenario(
         farm_id=farm_id,
         farm=farm,
@@ -167,8 +327,121 @@ def _read_toml(path: Path) -> dict[str, Any]:
         return tomllib.loads(path.read_text())
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: not UTF-8 text ({exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+
+
+# --- checks shared by every table -------------------------------------------------------
+
+
+def _shown(value: Any) -> str:
+    """A value as the TOML file wrote it (``true``, ``"text"``, ``1e+308``), for messages."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return "an array"
+    if value is None:
+        return "nothing"
+    return repr(value)
+
+
+def _suggest(key: str, known: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)`` for the known key nearest ``key`` (ignoring case), or ``""``."""
+    lower = {k.lower(): k for k in known}
+    close = difflib.get_close_matches(key.lower(), list(lower), n=1, cutoff=0.6)
+    return f" (did you mean {lower[close[0]]!r}?)" if close else ""
+
+
+def _check_keys(
+    raw: dict[str, Any],
+    known: Sequence[str],
+    where: str,
+    table: str,
+    elsewhere: dict[str, str] | None = None,
+) -> None:
+    """Refuse keys not in ``known``, each with the nearest known key, or, for a key that
+    belongs in another table (``elsewhere``: key -> where it goes), that table."""
+    unknown = [key for key in raw if key not in known]
+    if not unknown:
+        return
+    parts = []
+    for key in unknown:
+        hint = _suggest(key, known)
+        if not hint and elsewhere and key in elsewhere:
+            hint = f" (it belongs {elsewhere[key]})"
+        parts.append(key + hint)
+    raise ConfigError(
+        f"{where}: unknown key(s) in {table}: {', '.join(parts)}; known keys: {', '.join(known)}"
+    )
+
+
+def _figure(value: float) -> str:
+    return f"{value:,.0f}".replace(",", " ") if float(value).is_integer() else f"{value:g}"
+
+
+def _within(value: float, limit_key: str, label: str, where: str) -> None:
+    """Refuse ``value`` outside ``LIMITS[limit_key]``, naming ``label`` and the bound."""
+    limit = LIMITS[limit_key]
+    unit = f" {limit.unit}" if limit.unit else ""
+    if value < limit.low:
+        if limit.low > 0 and value <= 0:
+            raise ConfigError(
+                f"{where}: {label} must be a positive number; it is {_shown(value)} "
+                f"(at least {_figure(limit.low)}{unit}: {limit.why_low})"
+            )
+        if limit.low == 0:
+            raise ConfigError(
+                f"{where}: {label} must not be negative; it is {_shown(value)} ({limit.why_low})"
+            )
+        raise ConfigError(
+            f"{where}: {label} = {_shown(value)} is below {_figure(limit.low)}{unit} "
+            f"({limit.why_low})"
+        )
+    if value > limit.high:
+        raise ConfigError(
+            f"{where}: {label} = {_shown(value)} is above {_figure(limit.high)}{unit} "
+            f"({limit.why_high})"
+        )
+
+
+def _number(raw: dict[str, Any], key: str, where: str, label: str | None = None) -> float:
+    """``raw[key]`` as a float within its limits: an integer or a float, never a bool."""
+    label = label or key
+    value = raw[key]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: key '{label}' must be a number, not {_shown(value)}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{where}: {label} = {_shown(value)} is not a finite number")
+    _within(value, key, label, where)
+    return float(value)
+
+
+def _integer(
+    raw: dict[str, Any], key: str, where: str, label: str | None = None, limit: str | None = None
+) -> int:
+    """``raw[key]`` as an integer (not a float, not a bool) within its limits, if it has any."""
+    label = label or key
+    value = raw[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: key '{label}' must be a whole number, not {_shown(value)}")
+    if limit or key in LIMITS:
+        _within(value, limit or key, label, where)
+    return value
+
+
+def _table(raw: Any, where: str, table: str) -> dict[str, Any]:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: {table} must be a table, not {_shown(raw)}")
+    return raw
+
+
+# --- the tables -------------------------------------------------------------------------
 
 
 def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
@@ -179,8 +452,11 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
     out: list[Vehicle] = []
     system_ids: dict[int, str] = {}
     for k, entry in enumerate(machines):
-        ident = entry.get("id") if isinstance(entry, dict) else None
-        where = f"{src}: machine {ident!r}" if ident else f"{src}: [[machine]] #{k + 1}"
+        entry = _table(entry, src, f"[[machine]] #{k + 1}")
+        ident = entry.get("id")
+        named = isinstance(ident, str) and ident
+        where = f"{src}: machine {ident!r}" if named else f"{src}: [[machine]] #{k + 1}"
+        _check_keys(entry, MACHINE_KEYS, where, "[[machine]]", _ELSEWHERE_IN_MACHINE)
         if not isinstance(ident, str) or not SAFE_ID.fullmatch(ident):
             raise ConfigError(
                 f"{where}: key 'id' must be letters, digits, '_', '-' or '.' "
@@ -190,23 +466,17 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
         if missing:
             raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
         keys = [*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)]
-        for key in keys:
-            if not isinstance(entry[key], int | float) or isinstance(entry[key], bool):
-                raise ConfigError(f"{where}: key '{key}' must be a number")
+        params = {key: _number(entry, key, where) for key in keys}
         if "min_turn_radius_m" not in entry:
             logger.warning(
                 "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
                 where,
             )
         try:
-            machine = Machine(ident, **{key: float(entry[key]) for key in keys})
+            machine = Machine(ident, **params)
         except PlannerError as exc:
             raise ConfigError(f"{src}: {exc}") from exc
-        sysid = entry["system_id"]
-        if not isinstance(sysid, int) or not 1 <= sysid <= 254:
-            raise ConfigError(
-                f"{where}: key 'system_id' must be an integer 1..254 (255 is the dispatcher)"
-            )
+        sysid = _integer(entry, "system_id", where)
         if sysid in system_ids:
             raise ConfigError(
                 f"{where}: system_id {sysid} is already used by {system_ids[sysid]!r}"
@@ -219,54 +489,68 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
 
 
 def _implement(raw: Any, where: str) -> Implement:
-    if not isinstance(raw, dict):
+    if raw is None:
         raise ConfigError(f"{where}: missing table [machine.implement] (kind, channel)")
-    kind = raw.get("kind")
+    raw = _table(raw, where, "[machine.implement]")
+    _check_keys(
+        raw,
+        IMPLEMENT_KEYS,
+        where,
+        "[machine.implement]",
+        dict.fromkeys(MACHINE_KEYS, "in [[machine]], above its [machine.implement] table"),
+    )
+    if "kind" not in raw:
+        raise ConfigError(f'{where}: missing key implement.kind ("servo" or "relay")')
+    kind = raw["kind"]
     if kind not in ("servo", "relay"):
-        raise ConfigError(f"{where}: implement.kind must be 'servo' or 'relay', not {kind!r}")
-    channel = raw.get("channel")
-    if not isinstance(channel, int) or isinstance(channel, bool):
-        raise ConfigError(f"{where}: implement.channel must be an integer")
-    extra = {k: raw[k] for k in ("pwm_down", "pwm_up") if k in raw}
-    for key, value in extra.items():
-        if not isinstance(value, int) or not 800 <= value <= 2200:
-            raise ConfigError(f"{where}: implement.{key} must be a PWM value 800..2200")
+        raise ConfigError(f'{where}: implement.kind must be "servo" or "relay", not {_shown(kind)}')
+    if "channel" not in raw:
+        raise ConfigError(f"{where}: missing key implement.channel")
+    channel = _integer(raw, "channel", where, "implement.channel", f"channel ({kind})")
+    if kind == "relay":
+        pwm = [k for k in ("pwm_down", "pwm_up") if k in raw]
+        if pwm:
+            raise ConfigError(
+                f"{where}: implement.{pwm[0]}: a relay has no PWM values "
+                '(only kind = "servo" takes pwm_down and pwm_up)'
+            )
+    extra = {
+        k: _integer(raw, k, where, f"implement.{k}") for k in ("pwm_down", "pwm_up") if k in raw
+    }
     return Implement(kind=kind, channel=channel, **extra)
 
 
 def _solver(raw: Any, src: str) -> SolverSettings:
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{src}: [solver] must be a table")
-    unknown = set(raw) - {"algorithm", "objective", "time_limit_s", "generations", "seed"}
-    if unknown:
-        raise ConfigError(f"{src}: unknown key(s) in [solver]: {', '.join(sorted(unknown))}")
-    settings = SolverSettings(**raw)
+    raw = _table(raw, src, "[solver]")
+    _check_keys(raw, SOLVER_KEYS, src, "[solver]", _ELSEWHERE_IN_SOLVER)
+    values: dict[str, Any] = {}
+    for key in ("algorithm", "objective"):
+        if key in raw:
+            if not isinstance(raw[key], str):
+                raise ConfigError(
+                    f"{src}: key 'solver.{key}' must be a string, not {_shown(raw[key])}"
+                )
+            values[key] = raw[key]
+    settings = SolverSettings(**values)
     if settings.algorithm not in ALGORITHMS:
-        raise ConfigError(f"{src}: solver.algorithm must be one of {', '.join(ALGORITHMS)}")
+        raise ConfigError(
+            f"{src}: solver.algorithm must be one of {', '.join(ALGORITHMS)}, "
+            f"not {_shown(settings.algorithm)}"
+        )
     try:
         Objective.parse(settings.objective)
     except ValueError as exc:
         raise ConfigError(f"{src}: solver.objective: {exc}") from exc
-    if not (isinstance(settings.time_limit_s, int | float) and settings.time_limit_s > 0):
-        raise ConfigError(f"{src}: solver.time_limit_s must be a positive number of seconds")
-    if not (isinstance(settings.generations, int) and settings.generations >= 1):
-        raise ConfigError(f"{src}: solver.generations must be a whole number >= 1")
-    if not isinstance(settings.seed, int):
-        raise ConfigError(f"{src}: solver.seed must be an integer")
-    return settings
+    if "time_limit_s" in raw:
+        values["time_limit_s"] = _number(raw, "time_limit_s", src, "solver.time_limit_s")
+    if "generations" in raw:
+        values["generations"] = _integer(raw, "generations", src, "solver.generations")
+    if "seed" in raw:
+        values["seed"] = _integer(raw, "seed", src, "solver.seed")
+    return SolverSettings(**values)
 
 
 def _watch(raw: Any, src: str) -> WatchSettings:
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{src}: [dispatcher] must be a table")
-    names = {f.name for f in fields(WatchSettings)}
-    unknown = set(raw) - names
-    if unknown:
-        raise ConfigError(
-            f"{src}: unknown key(s) in [dispatcher]: {', '.join(sorted(unknown))} "
-            f"(known: {', '.join(sorted(names))})"
-        )
-    for key, value in raw.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
-            raise ConfigError(f"{src}: dispatcher.{key} must be a positive number of seconds")
-    return WatchSettings(**{k: float(v) for k, v in raw.items()})
+    raw = _table(raw, src, "[dispatcher]")
+    _check_keys(raw, WATCH_KEYS, src, "[dispatcher]", _ELSEWHERE_IN_DISPATCHER)
+    return WatchSettings(**{k: _number(raw, k, src, f"dispatcher.{k}") for k in raw})
