@@ -34,9 +34,11 @@ from __future__ import annotations
 import heapq
 import logging
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from numbers import Real
+from typing import TypeVar
 
 import numpy as np
 import shapely
@@ -46,7 +48,7 @@ from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
-from planner.errors import GeometryError
+from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
 from planner.turns import (
     ARC_STEP_DEG,
     ARC_STEP_M,
@@ -61,6 +63,7 @@ logger = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 XY = tuple[float, float]
+_T = TypeVar("_T")
 
 ANGLE_STEP_DEG = 1.0  # grid of the angle search, plus every long edge direction exactly
 EXACT_CANDIDATES = 32  # angles with the lowest estimated counts, decomposed exactly
@@ -75,6 +78,15 @@ SIMPLIFY_FRACTION = 0.25  # default outline simplification for the layout, in wo
 _EPS_M = 1e-6
 _GRID_M = 1e-4  # precision grid of the overlays that score angles
 _EDGE_CANDIDATES = 90  # longest edges whose directions join the angle search
+MAX_SWATHS = 10_000
+"""The most working widths a field may be across (at its narrowest, or across the swath
+direction it gives): a field wider is refused at once (:class:`GeometryError` naming it,
+its width across and the swath count), before any work. Far beyond any real field (3 km
+across at the narrowest implement a scenario accepts, 0.5 m, is 6,000 swaths), and about
+what one MAVLink mission can drive: at least four items a swath (its two ends, implement
+down and up), turn points besides, in at most 65,535 items."""
+_SCORE_CHUNK = 2048  # swaths scored per shapely call in the angle search (deadline checks)
+_GRAPH_CHUNK = 100_000  # node pairs per visibility call of the in-field graph
 
 # headland rings by pass, swath region, area the swath ends reach, angle, cells, frame origin
 _Layout = tuple[
@@ -245,6 +257,7 @@ def cover_field(
     headland_passes: int | None = None,
     simplify_m: float | None = None,
     turn_radius_m: float = 0.0,
+    deadline: Deadline = NO_DEADLINE,
 ) -> FieldCoverage:
     """Plan boustrophedon coverage of ``polygon`` (local metres) for one working width.
 
@@ -257,7 +270,10 @@ def cover_field(
     ``simplify_m`` (default a quarter of the working width) smooths a non-convex outline
     before the cells are laid out, so that GPS noise does not split the field into many
     cells; swath ends are always put on the real outline.
-    Raises :class:`GeometryError` naming ``field_id`` when the field cannot be covered.
+    Raises :class:`GeometryError` naming ``field_id`` when the field cannot be covered,
+    at once when it is more than :data:`MAX_SWATHS` working widths across; with a
+    ``deadline``, :class:`~planner.errors.TimeLimitError` naming it once that has passed
+    (looked at in every loop of the angle search, the layout and the turn planning).
     """
     radius = _checked_radius(turn_radius_m, field_id)
     field_poly = _checked_field(
@@ -269,25 +285,28 @@ def cover_field(
         field_id,
     )
     w = float(working_width_m)
+    across = _swaths_across(field_poly, w, angle_deg, field_id)
+    clock = _Clock(deadline, field_id, w, across)
     if headland_passes is None:  # as many as the turns need (none for hops)
         passes = headland_passes_for_turns(w, radius, w)
         rings_by_pass, region, lane, angle, cells, ref = _layout_fitting_turns(
-            field_poly, w, passes, radius, angle_deg, simplify_m, field_id
+            field_poly, w, passes, radius, angle_deg, simplify_m, field_id, clock
         )
     else:
         passes = headland_passes
         rings_by_pass, region, lane, angle, cells, ref = _layout(
-            field_poly, w, passes, angle_deg, simplify_m, field_id, radius
+            field_poly, w, passes, angle_deg, simplify_m, field_id, radius, clock
         )
 
-    skips = [_skips_rows(cell, radius) for cell in cells]
+    skips = [_skips_rows(cell, radius, clock) for cell in cells]
+    clock.check("ordering the swaths")
     paths = tuple(_drive(cells, corner, angle, ref, skips) for corner in range(4))
-    distance = _InFieldDistance(field_poly)
+    distance = _InFieldDistance(field_poly, clock)
     headland_paths: list[tuple[tuple[XY, ...], ...]] = []
     transits: list[float] = []
     links: list[tuple[tuple[XY, ...], ...]] = []
     turn_paths: list[tuple[tuple[XY, ...], ...]] = []
-    fits = _TurnsInside(field_poly, radius)
+    fits = _TurnsInside(field_poly, radius, clock)
     headland_moves: list[tuple[tuple[XY, ...], ...]] = []
     for corner_path in paths:
         routes = tuple(
@@ -310,6 +329,7 @@ def cover_field(
         headland_paths.append(rings)
         headland_moves.append(moves)
         transits.append(_transit_m(corner_path, rings, distance, turns, moves))
+        clock.check("planning the moves between swaths")
     if fits.hops:
         logger.warning(
             "field %r: %d of %d moves between swaths and onto the headland (all start"
@@ -378,19 +398,24 @@ def _layout(
     simplify_m: float | None,
     field_id: str,
     radius: float = 0.0,
+    clock: _Clock | None = None,
 ) -> _Layout:
     """Headland rings, swath region, the area swath ends reach, swath angle, cells and the
     reference point of the swath frame."""
-    rings_by_pass, region, lane = _headland_and_region(field_poly, w, passes, field_id, radius)
+    clock = clock or _Clock(NO_DEADLINE, field_id, w, 0)
+    rings_by_pass, region, lane = _headland_and_region(
+        field_poly, w, passes, field_id, radius, clock
+    )
     ref = np.array(region.centroid.coords[0])  # work near the origin for precision
     tolerance = SIMPLIFY_FRACTION * w if simplify_m is None else float(simplify_m)
     outline = _simplified(region, tolerance)
     edges = _edges(outline, ref)
     if angle_deg is None:
-        angle, cells = _search_angle(outline, ref, edges, w, field_id)
+        angle, cells = _search_angle(outline, ref, edges, w, field_id, clock)
     else:
         angle = _normalise_angle(angle_deg)
         cells = _sweep(edges, angle, field_id).cells(w)
+    clock.check("laying out the swaths")
     if cells:
         cells = _clip_lines(cells, _edges(region if lane is None else lane, ref), angle)
     if not cells:
@@ -408,6 +433,7 @@ def _layout_fitting_turns(
     angle_deg: float | None,
     simplify_m: float | None,
     field_id: str,
+    clock: _Clock | None = None,
 ) -> _Layout:
     """:func:`_layout` with as many headland passes as the turns need.
 
@@ -419,7 +445,9 @@ def _layout_fitting_turns(
     most = math.inf  # passes the field has room for, once some did not fit
     while True:
         try:
-            layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id, radius)
+            layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id, radius, clock)
+        except TimeLimitError:
+            raise
         except GeometryError:
             if passes == 0:
                 raise
@@ -453,6 +481,78 @@ def _checked_radius(turn_radius_m: float, field_id: str) -> float:
 
 
 # ----------------------------------------------------------------------------- checks
+
+
+class _Clock:
+    """One field's coverage against a :class:`~planner.errors.Deadline`: :meth:`check`
+    raises :class:`~planner.errors.TimeLimitError` naming the field, its working width,
+    its swaths across and what was being done once the deadline has passed."""
+
+    __slots__ = ("_at", "across", "deadline", "field_id", "w")
+
+    def __init__(self, deadline: Deadline, field_id: str, w: float, across: int) -> None:
+        self.deadline, self.field_id, self.w, self.across = deadline, field_id, w, across
+        self._at = deadline.at
+
+    def check(self, doing: str) -> None:
+        if self._at < math.inf and time.monotonic() >= self._at:
+            self.deadline.check(
+                f"field {self.field_id!r}: coverage at a working width of {self.w:g} m"
+                f" ({self.across:,} swaths across)",
+                doing,
+            )
+
+    def checked(self, value: _T, doing: str = "searching the swath angle") -> _T:
+        """``value``, after :meth:`check` (for comprehensions)."""
+        self.check(doing)
+        return value
+
+
+def _swaths_across(polygon: Polygon, w: float, angle_deg: float | None, field_id: str) -> int:
+    """Working widths across the field, ``ceil(width / w)``: across the swath direction
+    when it is given, else at the field's narrowest (the least any direction can take).
+    More than :data:`MAX_SWATHS` raises :class:`GeometryError` at once."""
+    hull = np.asarray(orient(polygon.convex_hull, sign=1.0).exterior.coords)[:-1]
+    if angle_deg is None:
+        across, how = _min_width_m(hull.tolist()), "across at its narrowest"
+    else:
+        t = math.radians(_normalise_angle(angle_deg))
+        v = -hull[:, 0] * math.sin(t) + hull[:, 1] * math.cos(t)
+        across, how = float(v.max() - v.min()), f"across its swath direction ({angle_deg:g} deg)"
+    swaths = max(1, math.ceil(across / w - 1e-9))
+    if swaths > MAX_SWATHS:
+        raise GeometryError(
+            f"field {field_id!r}: it is {across:,.1f} m {how}, {swaths:,} swaths at a working"
+            f" width of {w:g} m; coverage is planned for at most {MAX_SWATHS:,}"
+            " swaths across a field (planner.coverage.MAX_SWATHS): use a wider implement,"
+            " or split the field"
+        )
+    return swaths
+
+
+def _min_width_m(hull: list[list[float]]) -> float:
+    """The least width of a convex polygon (vertices counter-clockwise, not closed) over
+    every direction: rotating calipers, the least over its edges of the farthest vertex
+    from the edge's line."""
+    n = len(hull)
+    if n < 3:
+        return 0.0
+    best = math.inf
+    j = 1
+    for i in range(n):
+        (ax, ay), (bx, by) = hull[i], hull[(i + 1) % n]
+        ex, ey = bx - ax, by - ay
+        length = math.hypot(ex, ey)
+        if length == 0.0:
+            continue
+
+        def height(k: int, ax: float = ax, ay: float = ay, ex: float = ex, ey: float = ey) -> float:
+            return ex * (hull[k][1] - ay) - ey * (hull[k][0] - ax)
+
+        while height((j + 1) % n) > height(j):
+            j = (j + 1) % n
+        best = min(best, height(j) / length)
+    return best
 
 
 def _check_corner(corner: int) -> int:
@@ -550,7 +650,12 @@ def _polygons(geom: shapely.Geometry) -> list[Polygon]:
 
 
 def _headland_and_region(
-    field_poly: Polygon, w: float, passes: int, field_id: str, radius: float = 0.0
+    field_poly: Polygon,
+    w: float,
+    passes: int,
+    field_id: str,
+    radius: float = 0.0,
+    clock: _Clock | None = None,
 ) -> tuple[list[list[FloatArray]], MultiPolygon, MultiPolygon | None]:
     """Headland ring centre lines per pass (outer first), the region left for swaths and the
     area inside the innermost ring's centre line (``None`` without headland).
@@ -567,12 +672,16 @@ def _headland_and_region(
         )
     rings_by_pass: list[list[FloatArray]] = []
     for k in range(passes):
+        if clock is not None:
+            clock.check("laying out the headland")
         offset = _rounded(field_poly.buffer(-(k + 0.5) * w, join_style="mitre"), radius)
         rings: list[FloatArray] = []
         for part in (orient(p, sign=1.0) for p in _polygons(offset)):
             rings.append(np.asarray(part.exterior.coords))
             rings.extend(np.asarray(hole.coords) for hole in part.interiors)
         rings_by_pass.append(rings)
+    if clock is not None:
+        clock.check("laying out the headland")
     if radius > 0.0:
         # Planned turns: swaths end on the headland's inner edge and the machine turns on
         # the headland, which is worked last (as Fields2Cover's mainland and headland).
@@ -661,7 +770,12 @@ def _edges(region: MultiPolygon, ref: FloatArray) -> _Edges:
 
 
 def _search_angle(
-    region: MultiPolygon, ref: FloatArray, edges: _Edges, w: float, field_id: str
+    region: MultiPolygon,
+    ref: FloatArray,
+    edges: _Edges,
+    w: float,
+    field_id: str,
+    clock: _Clock | None = None,
 ) -> tuple[float, list[_Cell]]:
     """Swath direction with the fewest swaths, then the least uncovered area, then the
     shortest total swath length, then the smallest angle; and its cells.
@@ -670,6 +784,7 @@ def _search_angle(
     whole region (exact for a convex region); for other regions the lowest estimates are
     decomposed exactly. Angles tied on the fewest swaths are compared by covered area.
     """
+    clock = clock or _Clock(NO_DEADLINE, field_id, w, 0)
     length = np.hypot(edges.bx - edges.ax, edges.by - edges.ay)
     longest = np.argsort(-length, kind="stable")[:_EDGE_CANDIDATES]
     longest = longest[length[longest] >= min(w, float(length.max()))]
@@ -681,33 +796,41 @@ def _search_angle(
     candidates = np.unique(np.round(candidates, 9))
 
     if _is_convex(region):
-        estimate = _estimate_swaths(edges, candidates, w)
+        estimate = _estimate_swaths(edges, candidates, w, clock)
         pool = np.lexsort((candidates, estimate))
         pool = pool[estimate[pool] == estimate[pool[0]]][:COVERAGE_CANDIDATES]
     else:  # rank on a lightly simplified outline, then decompose the best exactly
         coarse = shapely.simplify(region, 0.05 * w, preserve_topology=True)
         coarse_polys = [orient(p, sign=1.0) for p in _polygons(coarse)]
         coarse_edges = _edges(MultiPolygon(coarse_polys), ref) if coarse_polys else edges
-        estimate = _estimate_swaths(coarse_edges, candidates, w)
+        estimate = _estimate_swaths(coarse_edges, candidates, w, clock)
         pool = np.lexsort((candidates, estimate))[:EXACT_CANDIDATES]
-        exact = np.array([_sweep(edges, float(candidates[i]), field_id).count(w) for i in pool])
+        exact = np.array(
+            [
+                clock.checked(_sweep(edges, float(candidates[i]), field_id).count(w), "angles")
+                for i in pool
+            ]
+        )
         fewest = exact[exact > 0].min() if np.any(exact > 0) else 0
         pool = pool[exact == fewest][:COVERAGE_CANDIDATES]
 
     finalists = [
-        (float(candidates[i]), _sweep(edges, float(candidates[i]), field_id)) for i in pool
+        (float(candidates[i]), clock.checked(_sweep(edges, float(candidates[i]), field_id)))
+        for i in pool
     ]
     if len(finalists) == 1:
         return finalists[0][0], finalists[0][1].cells(w)
     scored = []
     for angle, sweep in finalists:
         cells = sweep.cells(w)
-        scored.append((_score(cells, w, float(region.area)), angle, cells))
+        scored.append((_score(cells, w, float(region.area), clock), angle, cells))
     (_, _, _), angle, cells = min(scored, key=lambda item: (*item[0], item[1]))
     return angle, cells
 
 
-def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, float]:
+def _score(
+    cells: list[_Cell], w: float, area: float, clock: _Clock | None = None
+) -> tuple[float, float, float]:
     """(swath count, uncovered area, total swath length) of ``cells``, rounded for ties.
 
     Each strip is clipped to its own cell (cells tile the region), less the overlap of each
@@ -732,17 +855,29 @@ def _score(cells: list[_Cell], w: float, area: float) -> tuple[float, float, flo
         np.minimum(lines[last, 2], lines[before, 2]) > np.maximum(lines[last, 1], lines[before, 1])
     ) & (lines[before, 0] + w / 2 > lines[last, 0] - w / 2)
     strips = shapely.box(lines[:, 1], lines[:, 0] - w / 2, lines[:, 2], lines[:, 0] + w / 2)
+    clock = clock or _Clock(NO_DEADLINE, "", w, 0)
     try:  # fixed precision: strip borders can coincide with cell borders to 1e-15
-        covered = shapely.area(shapely.intersection(strips, outlines, grid_size=_GRID_M)).sum()
-        doubled = shapely.intersection(overlaps[real], outlines[last][real], grid_size=_GRID_M)
-        covered -= shapely.area(doubled).sum()
+        covered = 0.0
+        for k in range(0, len(strips), _SCORE_CHUNK):  # one chunk for a field of ≤ 2048 swaths
+            part = slice(k, k + _SCORE_CHUNK)
+            overlay = shapely.intersection(strips[part], outlines[part], grid_size=_GRID_M)
+            covered += shapely.area(overlay).sum()
+            clock.check("comparing swath angles")
+        pairs, pair_outlines = overlaps[real], outlines[last][real]
+        for k in range(0, max(len(pairs), 1), _SCORE_CHUNK):
+            part = slice(k, k + _SCORE_CHUNK)
+            doubled = shapely.intersection(pairs[part], pair_outlines[part], grid_size=_GRID_M)
+            covered -= shapely.area(doubled).sum()
+            clock.check("comparing swath angles")
     except shapely.errors.GEOSException as error:
         logger.debug("cannot score a swath angle: %s", error)
         covered = 0.0
     return (float(len(lines)), round(area - float(covered), 2), total)
 
 
-def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray[np.int64]:
+def _estimate_swaths(
+    edges: _Edges, angles_deg: FloatArray, w: float, clock: _Clock | None = None
+) -> NDArray[np.int64]:
     """Sweep-line segment count for every angle, with sweep lines shared by the whole region.
 
     Lines are spread as in a cell (:func:`swath_offsets`) between the lowest and the
@@ -768,6 +903,8 @@ def _estimate_swaths(edges: _Edges, angles_deg: FloatArray, w: float) -> NDArray
         a, b = va[sl][:, :, None], vb[sl][:, :, None]
         cross = ((a <= y) & (y < b)) | ((b <= y) & (y < a))
         counts[sl] = cross.sum(axis=(1, 2)) // 2
+        if clock is not None:
+            clock.check("searching the swath angle")
     return counts
 
 
@@ -1043,7 +1180,7 @@ def _cell_swaths(cell: _Cell, from_top: bool, reverse_first: bool, skip: bool) -
     return np.column_stack([np.where(forward, ul, ur), np.where(forward, ur, ul), v, idx])
 
 
-def _skips_rows(cell: _Cell, radius: float) -> bool:
+def _skips_rows(cell: _Cell, radius: float, clock: _Clock | None = None) -> bool:
     """Whether driving every other line out and the others back turns less than going
     from neighbour to neighbour, for a machine that turns on ``radius`` (never for hops).
 
@@ -1056,6 +1193,8 @@ def _skips_rows(cell: _Cell, radius: float) -> bool:
     def turning_m(rows: FloatArray) -> float:
         total = 0.0
         for a, b in zip(rows[:-1], rows[1:], strict=True):
+            if clock is not None:
+                clock.check("choosing the swath order for the turns")
             heading = (1.0 if a[1] > a[0] else -1.0, 0.0)
             try:
                 total += plan_turn((a[1], a[2]), heading, (b[0], b[2]), radius).length_m
@@ -1168,12 +1307,13 @@ class _TurnsInside:
     shortest first.
     """
 
-    def __init__(self, field_poly: Polygon, radius: float) -> None:
+    def __init__(self, field_poly: Polygon, radius: float, clock: _Clock | None = None) -> None:
         self._inside = field_poly.buffer(1e-3, join_style="mitre")
         shapely.prepare(self._inside)
         self.radius = radius
         self.planned = 0
         self.hops = 0
+        self._clock = clock or _Clock(NO_DEADLINE, "", 1.0, 0)
 
     def _fits(self, a: XY, via: tuple[XY, ...], b: XY) -> bool:
         return bool(self._inside.covers(LineString([a, *via, b])))
@@ -1187,6 +1327,7 @@ class _TurnsInside:
         )
 
     def _turn(self, before: Swath, after: Swath, link: tuple[XY, ...]) -> tuple[XY, ...]:
+        self._clock.check("planning the turns")
         heading = np.subtract(before.end, before.start)
         if (
             before.cell == after.cell
@@ -1268,6 +1409,7 @@ class _TurnsInside:
         # fewer paths computed.
         found: list[tuple[float, int, DubinsPath, bool, FloatArray]] = []
         for k in np.flatnonzero(near)[np.argsort(gaps[near], kind="stable")]:
+            self._clock.check("planning the way onto the headland")
             while found and found[0][0] < gaps[k]:
                 fitting = self._first_fitting(found, start, ring)
                 if fitting is not None:
@@ -1284,6 +1426,7 @@ class _TurnsInside:
                 # ties go to the candidate earlier along the ring, as a stable sort would
                 heapq.heappush(found, (path.length_m, 4 * int(k) + n, path, reverse, point))
         while found:
+            self._clock.check("planning the way onto the headland")
             fitting = self._first_fitting(found, start, ring)
             if fitting is not None:
                 return fitting
@@ -1310,7 +1453,8 @@ class _InFieldDistance:
     turning right, hole vertices turning right in the holes' clockwise order).
     """
 
-    def __init__(self, field_poly: Polygon) -> None:
+    def __init__(self, field_poly: Polygon, clock: _Clock | None = None) -> None:
+        self._clock = clock or _Clock(NO_DEADLINE, "", 1.0, 0)
         self._inside = field_poly.buffer(1e-3, join_style="mitre")
         shapely.prepare(self._inside)
         corners: list[FloatArray] = []
@@ -1332,8 +1476,10 @@ class _InFieldDistance:
         if self._graph is None:
             n = len(self._nodes)
             graph = np.full((n, n), np.inf)
-            i, j = np.triu_indices(n, k=1)
-            if len(i):
+            i_all, j_all = np.triu_indices(n, k=1)
+            for k in range(0, len(i_all), _GRAPH_CHUNK):
+                self._clock.check("finding the ways around holes and notches")
+                i, j = i_all[k : k + _GRAPH_CHUNK], j_all[k : k + _GRAPH_CHUNK]
                 ok = self._visible(self._nodes[i], self._nodes[j])
                 d = np.hypot(*(self._nodes[i] - self._nodes[j]).T)
                 graph[i[ok], j[ok]] = d[ok]
@@ -1348,6 +1494,7 @@ class _InFieldDistance:
         """Length of the shortest in-field path from ``a`` to ``b`` and the corners it
         turns at (empty when the straight line stays inside)."""
         if (a, b) not in self._known:
+            self._clock.check("finding the ways between swaths")
             self._known[a, b] = self._shortest(np.asarray(a), np.asarray(b))
         return self._known[a, b]
 
@@ -1366,6 +1513,7 @@ class _InFieldDistance:
         settled = np.zeros(len(nodes), dtype=bool)
         best, last = math.inf, -1
         while True:  # dense Dijkstra, stopped once no unsettled node can improve on best
+            self._clock.check("finding the ways between swaths")
             tentative = np.where(settled, np.inf, dist)
             i = int(np.argmin(tentative))
             if tentative[i] >= best:
