@@ -19,6 +19,12 @@ road metres are the transit lengths plus the in-field driving between cells; whe
 coverage plans drivable turns (:meth:`FieldCoverage.turn_length_m` > 0) a field's turns take
 their length at the working speed, at the road fuel rate (formula (5)'s charge for turns),
 otherwise the paper's t_T per turn (formula (6)).
+
+A time limit in the stop criterion (:class:`planner.solve.MaxRuntime`) holds for the whole
+of :func:`plan_farm`, from its call: coverage looks at it in its loops and raises
+:class:`~planner.errors.TimeLimitError` naming the field once it has passed (there is no
+plan without every field's coverage); the solver gets what is left and returns its best
+by then (:class:`planner.solve.UntilDeadline`).
 """
 
 from __future__ import annotations
@@ -32,11 +38,11 @@ from numpy.typing import NDArray
 
 from planner.cost import Objective
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
-from planner.errors import GeometryError
+from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
 from planner.farm import Farm, Field
 from planner.problem import Machine, Problem, Task
 from planner.roads import TransitNetwork
-from planner.solve import AnyOf, Result, solve
+from planner.solve import AnyOf, Criterion, Result, solve
 
 log = logging.getLogger(__name__)
 
@@ -137,10 +143,12 @@ def cover_farm(
     farm: Farm,
     machines: Sequence[Machine],
     known: Mapping[tuple[str, str], FieldCoverage] | None = None,
+    deadline: Deadline = NO_DEADLINE,
 ) -> dict[tuple[str, str], FieldCoverage]:
     """Coverage of every field for every machine, keyed (machine id, field id); computed
     once per distinct working width and turning radius, and not at all when ``known``
-    (an earlier result for the same farm) has it."""
+    (an earlier result for the same farm) has it. Raises
+    :class:`~planner.errors.TimeLimitError` naming the field once ``deadline`` passes."""
     by_width: dict[tuple[float, float], dict[str, FieldCoverage]] = {}
     out: dict[tuple[str, str], FieldCoverage] = {}
     known = known or {}
@@ -161,9 +169,10 @@ def cover_farm(
                         angle_deg=f.work_angle_deg,
                         headland_passes=f.headland_passes,
                         turn_radius_m=machine.min_turn_radius_m,
+                        deadline=deadline,
                     )
-                except GeometryError as exc:
-                    raise GeometryError(
+                except (GeometryError, TimeLimitError) as exc:
+                    raise type(exc)(
                         f"{farm.source}: machine {machine.id!r} ({width:g} m wide): {exc}"
                     ) from exc
         for f in farm.fields:
@@ -252,14 +261,31 @@ def plan_farm(
     machines: Sequence[Machine],
     objective: str | Objective = Objective.MAKESPAN,
     algorithm: str = "ighoa",
-    stop: AnyOf | None = None,
+    stop: AnyOf | Criterion | None = None,
     seed: int = 1,
 ) -> FarmPlan:
-    """Allocate, order and lay out the work of ``machines`` on ``farm``."""
+    """Allocate, order and lay out the work of ``machines`` on ``farm``.
+
+    A time limit in ``stop`` is the limit of the whole: coverage raises
+    :class:`~planner.errors.TimeLimitError` (naming the field) once it has passed, and
+    the solver stops by then at the latest (see the module's docstring)."""
     obj = Objective.parse(objective)
-    coverage = cover_farm(farm, machines)
+    if stop is not None and not isinstance(stop, AnyOf):
+        stop = AnyOf(stop)
+    deadline = Deadline(stop.time_limit_s if stop is not None else None)
+    coverage = cover_farm(farm, machines, deadline=deadline)
     network = TransitNetwork(farm)
     problem = farm_problem(farm, machines, coverage, network)
+    if stop is not None and deadline.limited:
+        left = deadline.left()
+        if left < 0.5 * (deadline.seconds or 0.0):
+            log.warning(
+                "coverage and transit took %.1f s of the %g s time limit; the solver has %.1f s",
+                (deadline.seconds or 0.0) - left,
+                deadline.seconds,
+                max(left, 0.0),
+            )
+        stop = stop.within(deadline)
     result = solve(problem, obj, algorithm, stop, seed=seed)
     plans = []
     for i, route in enumerate(result.routes):

@@ -11,15 +11,39 @@ exactly under every objective (sums and min-max alike):
 Candidate positions come from each task's ``k`` nearest tasks, so a pass costs
 O(n k m) rather than O(n^2). Moves are applied best-per-task, first-improvement over tasks,
 until a pass finds nothing; then the circle modification tidies each route again.
+
+Both kernels take a ``deadline`` (a :func:`time.monotonic` instant; infinite: none) and
+stop early once it has passed, leaving a valid chromosome: :func:`improve_allocation`
+keeps the moves made so far (looked at every :data:`CHECK_EVERY` tasks of a pass),
+:func:`optimal_split` keeps the old cut. A huge instance's search so ends within its time
+limit; without a deadline nothing changes.
 """
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
-from numba import njit
+from numba import njit, objmode
 
 from planner.cost import TIE_BREAK
 from planner.operators import improve_routes, leg
+
+CHECK_EVERY = 64  # tasks (moves tried, or cuts) between two looks at the clock
+
+
+@njit(cache=True)
+def now() -> float:
+    """:func:`time.monotonic`, from compiled code."""
+    with objmode(t="float64"):
+        t = time.monotonic()
+    return t
+
+
+@njit(cache=True)
+def past(deadline: float) -> bool:
+    """Whether ``deadline`` (a monotonic instant; infinite: none) has passed."""
+    return deadline < np.inf and now() >= deadline
 
 
 def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
@@ -68,11 +92,12 @@ def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
 
 @njit(cache=True)
 def improve_allocation(  # type: ignore[no-untyped-def]
-    perm, counts, objective, tables, neighbours, min_count, max_passes, pins
+    perm, counts, objective, tables, neighbours, min_count, max_passes, pins, deadline=np.inf
 ):
     """Relocate and exchange tasks between routes while it pays; then 2-opt each route.
     Works in place on the chromosome and returns the number of moves applied. A pinned
-    task (``pins``) is never moved, and nothing is put before it."""
+    task (``pins``) is never moved, and nothing is put before it. Once ``deadline`` (a
+    monotonic instant) has passed it stops, keeping the moves made, without the 2-opt."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
@@ -109,9 +134,13 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     trial_values = values.copy()
     trial_lengths = lengths.copy()
     moves = 0
+    late = False
     for _ in range(max_passes):
         improved = False
         for t in range(n):
+            if t % CHECK_EVERY == 0 and past(deadline):
+                late = True
+                break
             if pins[t] >= 0:
                 continue
             a = route_of[t]
@@ -250,7 +279,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
             current = _objective(objective, values, lengths)
             moves += 1
             improved = True
-        if not improved:
+        if late or not improved:
             break
     begin = 0
     for r in range(m):
@@ -258,18 +287,20 @@ def improve_allocation(  # type: ignore[no-untyped-def]
             perm[begin + k] = routes[r, k]
         counts[r] = sizes[r]
         begin += sizes[r]
-    improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
+    if not late:
+        improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves
 
 
 @njit(cache=True)
-def optimal_split(perm, counts, objective, tables, min_count, pins):  # type: ignore[no-untyped-def]
+def optimal_split(perm, counts, objective, tables, min_count, pins, deadline=np.inf):  # type: ignore[no-untyped-def]
     """Re-cut the task order into routes optimally for the objective (Prins's Split,
     with machine k taking the k-th stretch): dynamic programming over how many tasks the
     first k machines take, O(m n^2). Changes ``counts`` only; returns the new cost
     without the min-max tie-breaker. With pins, a machine's stretch starts with its pinned
-    task and holds no other; when the order allows no such cut, ``counts`` is kept and
-    the return is infinite."""
+    task and holds no other; when the order allows no such cut, or ``deadline`` (a
+    monotonic instant) passes before the cut is found, ``counts`` is kept and the return
+    is infinite."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     n = perm.shape[0]
     m = counts.shape[0]
@@ -305,6 +336,8 @@ def optimal_split(perm, counts, objective, tables, min_count, pins):  # type: ig
             rate = road_h[mk] * road_f[mk]
         # Machine k takes tasks i..j-1; every later machine still needs min_count tasks.
         for j in range(k * min_count, n - (m - k) * min_count + 1):
+            if j % CHECK_EVERY == 0 and past(deadline):
+                return inf
             for i in range(max(0, (k - 1) * min_count), j - min_count + 1):
                 before = best[k - 1, i]
                 if before == inf:

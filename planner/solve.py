@@ -10,11 +10,18 @@ individuals of the initial population, so :func:`solve` returns the best solutio
 far soon after (well under 100 ms on a farm's few dozen fields, once the kernels are
 compiled). A warm start (``initial_routes``, e.g. the remaining routes of the plan being
 carried out) enters the first population, so the result is never worse than it.
+
+A time limit (:class:`MaxRuntime`, or :class:`UntilDeadline`: the rest of a whole plan's
+limit, :func:`planner.field_plan.plan_farm`) is looked at in the same places as the flag,
+and inside the local search (its kernels take the moment as a deadline), so on a huge
+instance too the search returns soon after the limit with its best so far: the initial
+population's SA pre-planning gives way to random orders, a generation's polishing stops.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -34,6 +41,7 @@ from planner.cost import (
     figures,
     split_routes,
 )
+from planner.errors import Deadline
 from planner.local_search import improve_allocation, nearest_neighbours, optimal_split
 from planner.pins import repair_pins
 from planner.population import random_counts
@@ -88,6 +96,44 @@ class MaxRuntime:
     def progress(self) -> float:
         return min(self.elapsed() / self.seconds, 1.0)
 
+    def expired(self) -> bool:
+        """Whether the limit has passed (never before the clock is started)."""
+        return self.started is not None and self.elapsed() >= self.seconds
+
+    def deadline(self) -> float:
+        """The end of the limit on :func:`time.monotonic` (infinite before the start)."""
+        if self.started is None:
+            return math.inf
+        return time.monotonic() + self.seconds - self.elapsed()
+
+
+class UntilDeadline:
+    """Stop once ``deadline`` has passed: a moment fixed before the search starts (the end
+    of a whole plan's time limit, of which coverage has used a part); progress is the
+    share of the time left at the start that has gone."""
+
+    def __init__(self, deadline: Deadline) -> None:
+        self.deadline = deadline
+        self.started: float | None = None
+        self.budget = math.inf
+
+    def start(self) -> None:
+        self.started = time.monotonic()
+        self.budget = self.deadline.at - self.started
+
+    def __call__(self, best_cost: float) -> bool:
+        return self.deadline.expired()
+
+    def expired(self) -> bool:
+        return self.deadline.expired()
+
+    def progress(self) -> float:
+        if self.started is None or not math.isfinite(self.budget):
+            return 0.0
+        if self.budget <= 0.0:
+            return 1.0
+        return min((time.monotonic() - self.started) / self.budget, 1.0)
+
 
 class StopFlag:
     """Stop as soon as ``event`` is set, from any thread (the search returns its best so
@@ -112,7 +158,7 @@ class StopFlag:
         return 0.0
 
 
-Criterion = MaxGenerations | MaxRuntime | StopFlag
+Criterion = MaxGenerations | MaxRuntime | UntilDeadline | StopFlag
 
 
 class AnyOf:
@@ -139,9 +185,36 @@ class AnyOf:
         limits = [c.limit for c in self.criteria if isinstance(c, MaxGenerations)]
         return min(limits) if limits else 1_000_000
 
+    @property
+    def time_limit_s(self) -> float | None:
+        """The shortest :class:`MaxRuntime` limit among the criteria (``None``: none)."""
+        limits = [c.seconds for c in self.criteria if isinstance(c, MaxRuntime)]
+        return min(limits) if limits else None
+
     def interrupted(self) -> bool:
-        """Whether a :class:`StopFlag` among the criteria is set (looked at mid-generation)."""
-        return any(c.is_set() for c in self.criteria if isinstance(c, StopFlag))
+        """Whether a :class:`StopFlag` among the criteria is set or a time limit has
+        passed (looked at mid-generation)."""
+        for c in self.criteria:
+            if isinstance(c, StopFlag):
+                if c.is_set():
+                    return True
+            elif isinstance(c, MaxRuntime | UntilDeadline) and c.expired():
+                return True
+        return False
+
+    def deadline(self) -> float:
+        """The earliest end of a time limit among the criteria, on :func:`time.monotonic`
+        (infinite: none), for the compiled local search to look at."""
+        ends = [c.deadline() for c in self.criteria if isinstance(c, MaxRuntime)]
+        ends += [c.deadline.at for c in self.criteria if isinstance(c, UntilDeadline)]
+        return min(ends, default=math.inf)
+
+    def within(self, deadline: Deadline) -> AnyOf:
+        """These criteria and :class:`UntilDeadline` ``deadline`` (these alone when it
+        never passes)."""
+        if not deadline.limited:
+            return self
+        return AnyOf(*self.criteria, UntilDeadline(deadline))
 
 
 def stop_after(
@@ -404,9 +477,12 @@ def _polish(  # type: ignore[no-untyped-def]
             min_count,
         )
         if params.local_search == "extended":
+            deadline = stop.deadline()
             if idx == targets[0]:
-                optimal_split(perm, cnt, objective, tables, min_count, pins)
-            improve_allocation(perm, cnt, objective, tables, neighbours, min_count, 50, pins)
+                optimal_split(perm, cnt, objective, tables, min_count, pins, deadline)
+            improve_allocation(
+                perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline
+            )
             cost = evaluate(perm, cnt, objective, tables, route)
         if cost < costs[idx] - 1e-12:
             stats["polish_gains"] += 1
