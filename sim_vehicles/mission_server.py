@@ -69,6 +69,7 @@ MAX_ITEMS = 32766
 _GUIDED_WAYPOINT = 2  # MISSION_ITEM(_INT).current = 2: a guided-mode target, not the mission
 _CHANGE_ALTITUDE = 3  # current = 3: change altitude only
 _XY_NOT_LATLON = frozenset({mc.MAV_CMD_DO_DIGICAM_CONTROL, mc.MAV_CMD_DO_DIGICAM_CONFIGURE})
+_INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -395,6 +396,12 @@ def _from_float_item(msg: mc.MAVLinkMessage) -> StoredItem | int:
     """MISSION_ITEM as MISSION_ITEM_INT, or the MAV_MISSION_RESULT why it cannot be."""
     x, y = float(msg.x), float(msg.y)
     if msg.command in _XY_NOT_LATLON:
+        # ArduPilot casts to int32 (undefined for NaN, infinity and beyond its range): such
+        # a value is refused here, as a bad parameter, so that the stored item fits its frame.
+        if not _INT32_MIN <= x <= _INT32_MAX:
+            return int(mc.MAV_MISSION_INVALID_PARAM5_X)
+        if not _INT32_MIN <= y <= _INT32_MAX:
+            return int(mc.MAV_MISSION_INVALID_PARAM6_Y)
         ix, iy = int(x), int(y)
     else:
         if not -90.0 <= x <= 90.0:

@@ -9,6 +9,10 @@ vehicle pulls each item with MISSION_REQUEST_INT(seq) and ends with MISSION_ACK.
 the other way round: MISSION_REQUEST_LIST, the vehicle's MISSION_COUNT, then each item asked
 for with MISSION_REQUEST_INT, and our MISSION_ACK. Timeouts follow the protocol: 1.5 s
 without an answer resends the last message, at most 5 times.
+
+Only the addressed vehicle's frames count: a frame from another system or component (another
+vehicle or ground station on the same radio, a companion computer) takes no step, and one of
+the protocol is counted as stray. (A message built in memory, with no sender, is taken.)
 """
 
 from __future__ import annotations
@@ -79,6 +83,16 @@ class _Exchange:
         self._srtt: float | None = None  # smoothed round trip (s)
         self._sent_at = 0.0
         self._resent = False  # the last message went out more than once
+
+    def _foreign(self, msg: mc.MAVLinkMessage) -> bool:
+        """Whether ``msg`` was sent by another system or component than the one this
+        exchange is with (sender 0/0: a message not received in a frame, taken)."""
+        system, component = msg.get_srcSystem(), msg.get_srcComponent()
+        if system == 0 and component == 0:
+            return False
+        if system != self.target_system:
+            return True
+        return self.target_component != 0 and component != self.target_component
 
     def _fail(self, reason: str) -> list[mc.MAVLinkMessage]:
         self.outcome = Outcome.FAILED
@@ -166,6 +180,9 @@ class MissionUpload(_Transfer):
         kind = msg.get_type()
         if getattr(msg, "mission_type", 0) != mc.MAV_MISSION_TYPE_MISSION:
             return []
+        if self._foreign(msg):
+            self.stats.stray += kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
+            return []
         # On a lossy link frames come late, twice or from an earlier attempt: what fits no
         # step of this transfer is counted and ignored; only the timeouts end it.
         if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
@@ -220,6 +237,19 @@ class MissionUpload(_Transfer):
         return out
 
 
+_MISSION_FRAMES = frozenset(
+    {
+        "MISSION_COUNT",
+        "MISSION_ITEM_INT",
+        "MISSION_ITEM",
+        "MISSION_REQUEST_INT",
+        "MISSION_REQUEST",
+        "MISSION_ACK",
+    }
+)
+"""What a vehicle sends in the mission protocol (what else it sends is not stray)."""
+
+
 class MissionDownload(_Transfer):
     """Read a vehicle's mission back: MISSION_REQUEST_LIST, its MISSION_COUNT, then each
     item with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends it. ``items`` holds
@@ -246,6 +276,11 @@ class MissionDownload(_Transfer):
         if getattr(msg, "mission_type", 0) != mc.MAV_MISSION_TYPE_MISSION:
             return []
         kind = msg.get_type()
+        if kind not in _MISSION_FRAMES:
+            return []  # a HEARTBEAT, a position report: not of this protocol
+        if self._foreign(msg):
+            self.stats.stray += 1
+            return []
         if kind == "MISSION_COUNT" and self.count is None:
             self._answered(now)
             self.count = int(msg.count)
@@ -353,12 +388,16 @@ class CommandSequence(_Exchange):
         self._deadline = 0.0
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
+        if not self.commands:  # nothing to send: done
+            self.outcome = Outcome.DONE
+            return []
         return [self._current(now)]
 
     def on_message(self, msg: mc.MAVLinkMessage, now: float) -> list[mc.MAVLinkMessage]:
         if self.outcome is not Outcome.RUNNING or msg.get_type() != "COMMAND_ACK":
             return []
-        if int(msg.command) != self.commands[self._index].command:
+        if self._foreign(msg) or int(msg.command) != self.commands[self._index].command:
+            self.stats.stray += 1  # another's, or a late answer to an earlier command
             return []
         result = int(msg.result)
         if result == mc.MAV_RESULT_IN_PROGRESS:
