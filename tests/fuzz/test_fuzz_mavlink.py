@@ -5,8 +5,10 @@ never yields a message that was not sent, and a valid frame survives the garbage
 
 from __future__ import annotations
 
+import inspect
 import struct
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -102,8 +104,18 @@ def v1_heartbeat() -> bytes:
     return b"\xfe" + body + struct.pack("<H", _crc(body, 50))
 
 
+# MAVLink 2 signing (Codec(key=...)) arrives with its own change; until then the signed
+# cases are skipped and every codec below is an unsigned one.
+SIGNS = "key" in inspect.signature(mc.Codec).parameters
+
+
+def codecs() -> list[mc.Codec]:
+    """A ground station's codec, unsigned and (when there is signing) signing."""
+    return [mc.Codec(*GCS)] + ([mc.Codec(*GCS, key=KEY)] if SIGNS else [])
+
+
 UNSIGNED = frames(mc.Codec(*VEHICLE)) + [v1_heartbeat()]
-SIGNED = frames(mc.Codec(*VEHICLE, key=KEY, timestamp=1))
+SIGNED = frames(mc.Codec(*VEHICLE, key=KEY, timestamp=1)) if SIGNS else []
 
 
 def decode_in_pieces(codec: mc.Codec, data: bytes, cuts: list[int]) -> list[mc.MAVLinkMessage]:
@@ -155,7 +167,7 @@ def same_frame(msg: mc.MAVLinkMessage, originals: list[bytes]) -> bool:
 @example(data=b"\xfd" * 300, cuts=[1, 7])
 @example(data=b"\xfe\x09" + b"\x00" * 20 + b"\xfd\x00\x01", cuts=[])
 def test_random_bytes_never_raise(data, cuts):
-    for codec in (mc.Codec(*GCS), mc.Codec(*GCS, key=KEY)):
+    for codec in codecs():
         for msg in decode_in_pieces(codec, data, cuts):
             assert msg.get_type()  # a message of the dialect, with its fields parsed
         codec.decode_one(data)
@@ -195,8 +207,11 @@ def test_valid_frames_survive_the_garbage_around_them(picks, junk, cuts):
     assert all(any(g == w for g in it) for w in wanted), (got, wanted)
 
 
+@pytest.mark.skipif(not SIGNS, reason="dispatcher.link.mavlink.Codec does not sign yet")
 @FUZZ
-@given(picks=st.lists(st.integers(0, len(SIGNED) - 1), max_size=10), ops=edits, cuts=cut_points)
+@given(
+    picks=st.lists(st.integers(0, max(len(SIGNED) - 1, 0)), max_size=10), ops=edits, cuts=cut_points
+)
 def test_a_signing_codec_takes_only_intact_signed_frames_once(picks, ops, cuts):
     stream = b"".join(SIGNED[i] for i in picks) + b"".join(UNSIGNED)
     data = mutate(stream, ops)
@@ -212,7 +227,7 @@ def test_a_signing_codec_takes_only_intact_signed_frames_once(picks, ops, cuts):
 @FUZZ
 @given(data=st.binary(min_size=1, max_size=MAX_FRAME), flip=st.integers(0, 10_000))
 def test_decode_one_never_raises(data, flip):
-    for codec in (mc.Codec(*GCS), mc.Codec(*GCS, key=KEY)):
+    for codec in codecs():
         codec.decode_one(data)
         frame = bytearray(UNSIGNED[flip % len(UNSIGNED)])
         frame[flip % len(frame)] ^= data[0] or 1
@@ -257,7 +272,7 @@ def test_frames_with_a_right_crc_and_any_payload_never_raise(
     # The CRC passes, so the dialect's own field parsing runs on whatever the payload is:
     # short (MAVLink 2 trims trailing zeros), long, text that is no UTF-8, any message id.
     frame = v2_frame(msgid, payload, incompat, compat, head)
-    for codec in (mc.Codec(*GCS), mc.Codec(*GCS, key=KEY)):
+    for codec in codecs():
         got = decode_in_pieces(codec, frame + UNSIGNED[0], cuts)
         for msg in got:
             assert msg.get_type()
@@ -277,7 +292,7 @@ def test_mavlink1_frames_with_a_right_crc_never_raise(msgid, payload, head):
     extra = mc.mavlink2.mavlink_map[msgid].crc_extra
     body = bytes([len(payload), head[0], head[1], head[2], msgid]) + payload
     frame = b"\xfe" + body + struct.pack("<H", _crc(body, extra))
-    for codec in (mc.Codec(*GCS), mc.Codec(*GCS, key=KEY)):
+    for codec in codecs():
         for msg in codec.decode(frame):
             mc.as_dict(msg)
         codec.decode_one(frame)
