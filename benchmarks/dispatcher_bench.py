@@ -45,12 +45,27 @@ def free_port() -> int:
 
 
 def _scenario(folder: Path, farm: str, machines: int, width: float, limit_s: float) -> Path:
-    text = f'farm_id = "bench"\nfarm = "{farm}"\n'
+    """A scenario of ``machines`` tractors, each with its MAVLink signing key (as on a
+    farm: the simulators find them through the scenario's ``keys``)."""
+    from dispatcher.link.keys import write_keys
+
+    text = f'farm_id = "bench"\nfarm = "{farm}"\nkeys = "keys"\n'
     text += "".join(MACHINE.format(k=k + 1, sysid=k + 1, width=width) for k in range(machines))
     text += f"\n[solver]\ntime_limit_s = {limit_s}\ngenerations = 300\nseed = 1\n"
     path = folder / "scenario.toml"
     path.write_text(text)
+    write_keys(folder / "keys", [f"v{k + 1}" for k in range(machines)])
     return path
+
+
+def _keys(scenario: Path) -> dict[str, bytes]:
+    """The signing keys of a scenario of :func:`_scenario`, for the dispatcher."""
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.link.keys import read_keys
+
+    sc = load_scenario(scenario)
+    assert sc.keys_dir is not None
+    return read_keys(sc.keys_dir, [v.id for v in sc.vehicles])
 
 
 def _grid_farm(folder: Path, count: int) -> str:
@@ -169,6 +184,7 @@ def bench_upload(repeats: int = 3) -> str:
                     log_dir=folder / "logs",
                     exit_when_done=False,
                     on_progress=lambda state: None,
+                    keys=_keys(scenario),
                 )
             )
             watcher_done = threading.Event()
@@ -243,6 +259,7 @@ def bench_telemetry(vehicles: int = 100, hz: float = 10.0, seconds: float = 60.0
                 exit_when_done=False,
                 heartbeat_timeout_s=30.0,
                 on_progress=lambda state: None,
+                keys=_keys(scenario),
             )
         )
         daemon.startup()

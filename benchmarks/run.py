@@ -8,9 +8,10 @@ paper's figures and to the best-known solutions; ``upload`` — time from "plan 
 dispatcher: share of messages in the MCAP, dispatcher CPU; ``store`` — what a commit of
 the dispatcher's SQLite store costs with synchronous FULL and NORMAL; ``soak`` — 30
 tractors on 200 fields for 10 minutes with random kills and stalls and 20 % loss,
-re-planned; ``sitl`` — a 4-field farm driven by ArduPilot Rover in SITL through the
-bridge: planned vs driven, cross-track error, implement down outside a field, turns
-without a loop.
+re-planned; ``replan`` — the same fleet and farm for 4 minutes on clean radios: how
+fast a loss becomes new missions on board; ``sitl`` — a 4-field farm driven by ArduPilot
+Rover in SITL through the bridge: planned vs driven, cross-track error, implement down
+outside a field, turns without a loop.
 
 The report is printed and appended to benchmarks/RESULTS.md with date, machine and command.
 """
@@ -112,6 +113,12 @@ def bench_soak() -> str:
     return run()
 
 
+def bench_replan() -> str:
+    from benchmarks.soak_bench import bench_soak as run
+
+    return run(minutes=4.0, loss=0.0)
+
+
 def bench_sitl() -> str:
     from benchmarks.sitl_bench import bench_sitl as run
 
@@ -125,6 +132,7 @@ SECTIONS = {
     "store": bench_store,
     "sitl": bench_sitl,
     "soak": bench_soak,
+    "replan": bench_replan,
 }
 
 

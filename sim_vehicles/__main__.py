@@ -15,14 +15,15 @@ import zenoh
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
+from dispatcher.link.keys import add_signing_arguments, signing_keys
 from sim_vehicles.impairment import add_impairment_arguments, impairment_of
 
 EXIT_BAD_INPUT = 2
 EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m sim_vehicles", description=__doc__)
+def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__)
     p.add_argument("scenario", type=Path, help="scenario TOML (farm and fleet)")
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--vehicle", action="append", metavar="ID", help="machine id (repeatable)")
@@ -72,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(listen, as SITL), udpin:HOST:PORT or udpout:HOST:PORT",
     )
     p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle as JSON at exit")
+    add_signing_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     g = p.add_argument_group("zenoh (not with --mavlink)")
     g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
@@ -123,8 +125,8 @@ def check_mavlink_args(args: argparse.Namespace, ids: Sequence[str]) -> None:
         raise ValueError(f"--mavlink replaces Zenoh: drop {', '.join(zenoh_given)}")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles") -> int:
+    args = build_parser(prog).parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -173,6 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_mavlink_args(args, ids)
             if stall_after:
                 raise ValueError("--stall-after works on Zenoh only, not with --mavlink")
+        keys = signing_keys(args, scenario, ids)
     except (DispatcherError, ValueError, zenoh.ZError) as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT
@@ -187,6 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 fail_after_s=fail_after.get(ids[0]),
                 params=params,
                 stats_path=args.stats,
+                key=keys[ids[0]] if keys is not None else None,
             )
         except LinkDown as exc:
             log.error("%s", exc)
@@ -203,6 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         impairment=impairment,
         seed=args.radio_seed,
         stall_after=stall_after,
+        keys=keys,
     )
 
 

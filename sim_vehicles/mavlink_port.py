@@ -79,12 +79,15 @@ def run_mavlink(
     fail_after_s: float | None = None,
     params: RoverParams | None = None,
     stats_path: str | None = None,
+    key: bytes | None = None,
 ) -> int:
     """Simulate ``vehicle_id`` of ``scenario`` on the MAVLink socket ``url`` until ``stop``
     is set or SIGINT/SIGTERM; returns the exit code (0).
 
     ``fail_after_s``: the simulated second the vehicle breaks down at (it falls silent).
     ``stats_path``, if given, receives ``{vehicle_id: frames sent}`` as JSON at exit.
+    ``key``: the vehicle's MAVLink signing key, as an autopilot with signing set up has it
+    (signs what it sends, takes only what is signed with it).
     Raises :class:`~dispatcher.config.errors.ConfigError` for an unknown vehicle, ValueError for a
     bad URL or rate, :class:`~dispatcher.link.mavlink.LinkDown` if the socket cannot be
     opened (address in use ...).
@@ -101,7 +104,9 @@ def run_mavlink(
         unix_epoch_s=time.time(),
     )
     port = mc.open_mavlink(url, vehicle.system_id, tractor.component_id)
-    link = _PortLink(tractor, mc.Codec(vehicle.system_id, tractor.component_id), port)
+    link = _PortLink(tractor, mc.Codec(vehicle.system_id, tractor.component_id, key=key), port)
+    if key is not None:
+        port.verify_with(key)
     restore_signals = stop_on_signals(stop, "stopping the simulator")
     logger.info(
         "simulating %s (system %d) on MAVLink %s at %gx",

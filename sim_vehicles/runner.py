@@ -25,7 +25,7 @@ import queue
 import signal
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import FrameType
 from typing import Protocol, TypeAlias
@@ -73,6 +73,7 @@ class _Link:
     subscriber: zenoh.Subscriber[None]
     token: zenoh.LivelinessToken
     sent: int = 0  # frames published
+    refused: int = 0  # frames received not signed with its key (or replayed)
     outbound: DelayLine[bytes] | None = None  # an impaired radio, vehicle to ground
     inbound_line: DelayLine[bytes] | None = None  # and ground to vehicle
 
@@ -108,6 +109,7 @@ def run(
     seed: int = 1,
     stall_after: dict[str, float] | None = None,
     stall: threading.Event | None = None,
+    keys: Mapping[str, bytes] | None = None,
 ) -> int:
     """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
 
@@ -116,6 +118,8 @@ def run(
     Setting ``stall`` (or SIGUSR1 to the process) stalls every vehicle at once.
     ``impairment`` makes every vehicle's radio lose, duplicate and delay frames both ways
     (random numbers seeded with ``seed`` and the vehicle's place).
+    ``keys`` (vehicle id -> MAVLink signing key) signs what each vehicle sends and makes it
+    take only commands signed with its key (others are dropped, counted, logged).
     ``stats_path``, if given, receives a JSON object of frames sent per vehicle at exit.
     Returns the exit code (0). Raises :class:`ConfigError` for an unknown vehicle id.
     """
@@ -135,6 +139,14 @@ def run(
     restore_stall_signal = stall_on_signal(stall)
     inbox: queue.Queue[tuple[int, bytes]] = queue.Queue()
     farm = scenario.farm_id
+
+    def key_of(vid: str) -> bytes | None:
+        if keys is None:
+            return None
+        if vid not in keys:
+            raise ConfigError(f"no signing key for {vid!r}")
+        return keys[vid]
+
     links: list[_Link] = []
     boot_unix_s = time.time()
     try:
@@ -153,8 +165,12 @@ def run(
                         _Link(
                             vid=vehicle.id,
                             tractor=tractor,
-                            codec=mc.Codec(vehicle.system_id, tractor.component_id),
-                            inbound=mc.Codec(vehicle.system_id, tractor.component_id),
+                            codec=mc.Codec(
+                                vehicle.system_id, tractor.component_id, key=key_of(vehicle.id)
+                            ),
+                            inbound=mc.Codec(
+                                vehicle.system_id, tractor.component_id, key=key_of(vehicle.id)
+                            ),
                             publisher=session.declare_publisher(
                                 wire.vehicle_from(farm, vehicle.id),
                                 congestion_control=zenoh.CongestionControl.BLOCK,
@@ -288,9 +304,18 @@ def _zenoh_receiver(links: list[_Link], inbox: queue.Queue[tuple[int, bytes]]) -
             frames = [(k, f) for k, link in enumerate(links) for f in link.inbound_line.due(now)]  # type: ignore[union-attr]
         inbound: list[tuple[int, mc.MAVLinkMessage]] = []
         for index, frame in frames:
-            msg = links[index].inbound.decode_one(frame)
+            link = links[index]
+            msg = link.inbound.decode_one(frame)
             if msg is None:
-                logger.debug("%s: dropped a sample that is not a MAVLink frame", links[index].vid)
+                refused = link.inbound.signing_stats.dropped if link.inbound.signed else 0
+                if refused > link.refused:
+                    link.refused = refused
+                    if refused == 1 or refused % 100 == 0:
+                        logger.warning(
+                            "%s: dropped %d frame(s) not signed with its key", link.vid, refused
+                        )
+                else:
+                    logger.debug("%s: dropped a sample that is not a MAVLink frame", link.vid)
                 continue
             inbound.append((index, msg))
         return inbound

@@ -23,6 +23,7 @@ import zenoh
 from helpers import messages
 from helpers.mavlink_wire import Wire
 from helpers.messages import from_vehicle
+from helpers.processes import keys_for
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
@@ -220,7 +221,15 @@ class Children:
     def sim(self, mavlink_port: int, *extra: str) -> subprocess.Popen[str]:
         url = f"tcpin:127.0.0.1:{mavlink_port}"
         return self.start(
-            "sim_vehicles", str(SCENARIO), "--vehicle", "v1", "--mavlink", url, *extra
+            "sim_vehicles",
+            str(SCENARIO),
+            "--vehicle",
+            "v1",
+            "--mavlink",
+            url,
+            "--keys",
+            keys_for(SCENARIO),
+            *extra,
         )
 
     def bridge(self, mavlink_port: int, zenoh_port: int, *extra: str) -> subprocess.Popen[str]:
@@ -233,6 +242,8 @@ class Children:
             f"tcp:127.0.0.1:{mavlink_port}",
             "--connect",
             f"tcp/127.0.0.1:{zenoh_port}",
+            "--keys",
+            keys_for(SCENARIO),
             *extra,
             capture=True,
         )
@@ -277,6 +288,8 @@ def test_dispatcher_completes_the_plan_through_the_bridge(children: Children, tm
         "1",
         "--machines",
         "1",
+        "--keys",
+        keys_for(SCENARIO),
         capture=True,
     )
     children.sim(mport, "--speedup", "400")

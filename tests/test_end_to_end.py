@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from helpers.processes import keys_for
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
@@ -76,12 +77,15 @@ def serve(procs, port, log_dir, *extra):
         str(log_dir),
         "--time-limit",
         "1",
+        "--keys",
+        keys_for(SCENARIO),
         *extra,
     )
 
 
 def sim(procs, port, speedup, *vehicles):
     args = ["sim", str(SCENARIO), "--connect", f"tcp/127.0.0.1:{port}", "--speedup", str(speedup)]
+    args += ["--keys", keys_for(SCENARIO)]
     for v in vehicles:
         args += ["--vehicle", v]
     return procs.start(*args, quiet=True)
@@ -215,11 +219,15 @@ def test_router_with_dispatcher_and_vehicles_in_client_mode(procs, tmp_path):
         str(tmp_path),
         "--time-limit",
         "1",
+        "--keys",
+        keys_for(SCENARIO),
     )
     for vid in ("v1", "v2"):
         procs.start(
             "sim",
             str(SCENARIO),
+            "--keys",
+            keys_for(SCENARIO),
             "--mode",
             "client",
             "--connect",

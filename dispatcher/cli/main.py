@@ -18,6 +18,7 @@ from typing import Any
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
+from dispatcher.link.keys import add_signing_arguments
 from planner.errors import PlannerError
 
 log = logging.getLogger("agrifleet")
@@ -216,9 +217,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
     from dispatcher.daemon.store import Store, StoreError, default_data_dir
+    from dispatcher.link.keys import signing_keys
     from dispatcher.tools.replan import replanner_for, replanner_resumed
 
     scenario = load_scenario_args(args)
+    keys = signing_keys(args, scenario, [v.id for v in scenario.vehicles])
     data_dir = args.data_dir or default_data_dir(scenario.farm_id)
     fingerprint = inputs_fingerprint(scenario, args)
     store = Store.open(data_dir, scenario.farm_id, args.sync)
@@ -256,6 +259,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 store=store,
                 resume=run,
                 replanner=replanner,
+                keys=keys,
             )
         )
         code = daemon.run()
@@ -266,39 +270,33 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    """``agrifleet sim ...`` is ``python -m sim_vehicles ...``: one set of options."""
+    from sim_vehicles.__main__ import main as sim_main
+
+    return sim_main(args.rest, prog="agrifleet sim")
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from dispatcher.config.errors import ConfigError
     from dispatcher.config.scenario import load_scenario
-    from sim_vehicles.runner import run
+    from dispatcher.link.keys import key_path, write_keys
 
     scenario = load_scenario(args.scenario)
-    if args.machines:
-        scenario = scenario.with_machines(args.machines)
-    if args.all:
-        ids = [v.id for v in scenario.vehicles]
-    elif args.vehicle:
-        ids = [scenario.vehicle(v).id for v in args.vehicle]
-    else:
-        raise SystemExit("agrifleet sim: give --vehicle ID (repeatable) or --all")
-    if args.mavlink:
-        from sim_vehicles.mavlink_port import run_mavlink
-
-        if len(ids) != 1:
-            raise SystemExit("agrifleet sim: --mavlink serves exactly one --vehicle")
-        return run_mavlink(
-            scenario,
-            ids[0],
-            args.mavlink,
-            speedup=args.speedup,
-            telemetry_hz=args.telemetry_hz,
-            stats_path=args.stats,
+    folder = args.keys or scenario.keys_dir
+    if folder is None:
+        raise ConfigError(
+            f'{args.scenario}: where to? give --keys DIR, or keys = "DIR" in the scenario'
         )
-    return run(
-        scenario,
-        ids,
-        wire.zenoh_options(args, False),
-        speedup=args.speedup,
-        telemetry_hz=args.telemetry_hz,
-        stats_path=args.stats,
+    ids = [v.id for v in scenario.vehicles]
+    written = write_keys(folder, ids, replace=args.replace)
+    for vid in ids:
+        path = key_path(folder, vid)
+        print(f"{vid}: {path}{'' if path in written else ' (kept: it had one)'}")
+    print(
+        f"{len(written)} new key(s) in {folder}; give each vehicle its own (docs/bridge.md: "
+        "SETUP_SIGNING for ArduPilot) and keep the folder readable by the dispatcher only"
     )
+    return EXIT_OK
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
@@ -411,25 +409,29 @@ def build_parser() -> argparse.ArgumentParser:
         help="SQLite synchronous mode: full survives a power cut, normal only a crash of "
         "the dispatcher (docs/restart.md)",
     )
+    add_signing_arguments(p)
     wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_serve)
 
-    p = sub.add_parser("sim", help="simulated tractors speaking MAVLink over Zenoh")
-    p.add_argument("scenario", type=Path)
-    p.add_argument("--vehicle", action="append", help="machine id (repeatable)")
-    p.add_argument("--all", action="store_true", help="the whole fleet in one process")
-    p.add_argument("--machines", type=int, help="with --all: the first K machines")
-    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per second")
-    p.add_argument("--telemetry-hz", type=float, default=10.0)
-    p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle (JSON) at exit")
-    p.add_argument(
-        "--mavlink",
-        metavar="URL",
-        help="serve one vehicle on a MAVLink socket instead of Zenoh, as SITL does "
-        "(tcpin:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT)",
+    p = sub.add_parser(
+        "sim",
+        help="simulated tractors speaking MAVLink over Zenoh (`agrifleet sim --help`: the "
+        "options of python -m sim_vehicles)",
+        add_help=False,
     )
-    wire.add_zenoh_arguments(p)
+    p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     p.set_defaults(handler=cmd_sim)
+
+    p = sub.add_parser("keys", help="make the vehicles' MAVLink signing keys")
+    p.add_argument("scenario", type=Path, help="scenario TOML (its fleet)")
+    p.add_argument(
+        "--keys",
+        metavar="DIR",
+        help="where to write them, <vehicle id>.key each, mode 600 (default: the scenario's "
+        "'keys')",
+    )
+    p.add_argument("--replace", action="store_true", help="new keys for vehicles that have one too")
+    p.set_defaults(handler=cmd_keys)
 
     p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
     p.add_argument(

@@ -148,7 +148,7 @@ LIMITS: dict[str, Limit] = {
 }
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 
-TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "solver", "dispatcher")
+TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "keys", "solver", "dispatcher")
 FLEET_KEYS = ("machine",)
 MACHINE_KEYS = ("id", "system_id", *MACHINE_PARAMS, *OPTIONAL_MACHINE_PARAMS, "implement")
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
@@ -224,6 +224,9 @@ class Scenario:
     solver: SolverSettings
     source: str
     watch: WatchSettings = WatchSettings()
+    # The directory of the vehicles' MAVLink signing keys (dispatcher/link/keys.py), when
+    # the scenario names one (relative to the scenario file); ``--keys`` overrides it.
+    keys_dir: Path | None = None
 
     def vehicle(self, vehicle_id: str) -> Vehicle:
         for v in self.vehicles:
@@ -319,7 +322,19 @@ def load_scenario(path: str | Path) -> Scenario:
         solver=_solver(doc.get("solver", {}), src),
         source=src,
         watch=_watch(doc.get("dispatcher", {}), src),
+        keys_dir=_keys_dir(doc, path, src),
     )
+
+
+def _keys_dir(doc: dict[str, Any], path: Path, src: str) -> Path | None:
+    if "keys" not in doc:
+        return None
+    if not isinstance(doc["keys"], str) or not doc["keys"]:
+        raise ConfigError(
+            f"{src}: key 'keys' must name the signing key directory (a string), "
+            f"not {_shown(doc['keys'])}"
+        )
+    return path.parent / doc["keys"]
 
 
 def _read_toml(path: Path) -> dict[str, Any]:

@@ -17,7 +17,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -61,6 +61,10 @@ RESUME_ASK_S = 5.0
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
 
 
+SIGNING_RESERVE = 60 * 100_000
+"""Signing timestamps the store keeps ahead of the latest used (a minute, in 10 us)."""
+
+
 @dataclass
 class DaemonConfig:
     job: DispatchJob
@@ -82,6 +86,9 @@ class DaemonConfig:
     # the next job (dispatcher.tools.replan); None: a lost vehicle's work waits for it.
     replanner: Callable[[FleetState], DispatchJob] | None = None
     resume: StoredRun | None = None  # the stored run this one continues
+    # Each vehicle's MAVLink signing key (dispatcher/link/keys.py): frames to it are
+    # signed, frames from it taken only when signed with it. None: no signing.
+    keys: Mapping[str, bytes] | None = None
 
 
 class _VehicleSender:
@@ -143,7 +150,23 @@ class Dispatcher:
         self.farm = self.job.farm_id
         self.store = config.store
         self.state = config.resume.replay() if config.resume else FleetState(self.job.document)
+        # One codec per vehicle (its signing key, its streams' timestamps); an unsigned one
+        # reads what anything else sends, for the recording only.
         self.codec = mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID)
+        self._signed_until = self.store.signing_timestamp() if self.store is not None else 0
+        keys = config.keys or {}
+        self.codecs = {
+            vid: mc.Codec(
+                wire.DISPATCHER_SYSTEM_ID,
+                wire.DISPATCHER_COMPONENT_ID,
+                key=keys.get(vid),
+                timestamp=self._signed_until,
+            )
+            for vid in self.state.vehicles
+        }
+        missing = [vid for vid in self.state.vehicles if config.keys and vid not in keys]
+        if missing:
+            raise ValueError(f"no signing key for {', '.join(missing)}")
         self.should_exit = threading.Event()
         self.inbox: queue.Queue[tuple[str, str, bytes, int]] = queue.Queue()
         self.links = {vid: _Link() for vid in self.state.vehicles}
@@ -336,15 +359,49 @@ class Dispatcher:
         self._advance(vid, now)
 
     def _record_only(self, item: tuple[str, str, bytes, int]) -> mc.MAVLinkMessage | None:
+        """Record a frame; the message when it is one to act on (from one of our vehicles,
+        signed with its key when signing is on)."""
         kind, key, payload, t_ns = item
         if kind != "frame":
             return None
-        msg = self.codec.decode_one(payload)
+        vid = wire.vehicle_of(key)
+        codec = self.codecs.get(vid) if vid is not None else None
+        msg = codec.decode_one(payload) if codec is not None else None
+        if vid is not None and codec is not None and msg is None and codec.signed:
+            self._refused(vid, codec)
         if self.recorder is not None:
-            self.recorder.record_frame(key, payload, t_ns, mc.as_dict(msg) if msg else None)
+            # A refused frame is kept raw only: its decoded twin would read as the vehicle's.
+            shown = msg if codec is not None else self.codec.decode_one(payload)
+            self.recorder.record_frame(key, payload, t_ns, mc.as_dict(shown) if shown else None)
         return msg
 
+    def _keep_signing_timestamps(self) -> None:
+        """Signing timestamps never go back, across a restart too: the store keeps a mark
+        a minute ahead of the latest used, and a restarted dispatcher starts from it."""
+        if self.store is None:
+            return
+        latest = max((c.timestamp for c in self.codecs.values() if c.signed), default=0)
+        if latest and latest > self._signed_until - SIGNING_RESERVE // 2:
+            self._signed_until = latest + SIGNING_RESERVE
+            self.store.keep_signing_timestamp(self._signed_until)
+
+    def _refused(self, vid: str, codec: mc.Codec) -> None:
+        """A frame on a vehicle's key that is not signed with its key (or is a replay):
+        dropped; counted in the status, logged at the first and every hundredth."""
+        v = self.state.vehicles[vid]
+        stats = codec.signing_stats
+        if stats.dropped == v.frames_refused:
+            return  # garbage, not a signing matter
+        v.frames_refused = stats.dropped
+        if v.frames_refused == 1 or v.frames_refused % 100 == 0:
+            self._log(
+                "warning",
+                f"{vid}: dropped {v.frames_refused} frame(s) not signed with its key "
+                f"({stats.unsigned} unsigned, {stats.bad} with a wrong signature or replayed)",
+            )
+
     def _tick(self, now: float) -> None:
+        self._keep_signing_timestamps()
         if now >= self._next_heartbeat:
             self._next_heartbeat = now + GCS_HEARTBEAT_PERIOD_S
             beat = gcs_heartbeat()
@@ -741,8 +798,9 @@ class Dispatcher:
             self.store.commit(self.state)  # what a command depends on is kept first
         key = wire.vehicle_to(self.farm, vid)
         sender = self.senders.get(vid)
+        codec = self.codecs[vid]
         for msg in messages:
-            frame = self.codec.encode(msg)
+            frame = codec.encode(msg)
             if sender is not None:
                 sender.send(frame)
             else:  # not started (a test driving the daemon by hand): straight out

@@ -138,6 +138,7 @@ class VehicleState:
     lost_s: float = 0.0  # wall seconds without link, over the run
     upload_attempts: int = 0
     upload_retries: int = 0
+    frames_refused: int = 0  # frames on its key not signed with its key (or replayed)
     error: str = ""
     fields_done: list[str] = field(default_factory=list)
     system_status: int | None = None  # HEARTBEAT.system_status (MAV_STATE)
@@ -587,6 +588,7 @@ class FleetState:
                     "fields_done": v.fields_done,
                     "upload_attempts": v.upload_attempts,
                     "upload_retries": v.upload_retries,
+                    "frames_refused": v.frames_refused,
                     "lost_s": round(v.lost_s, 3),
                     "stopped_outside_auto": v.off_auto_since is not None,
                     "system_status": v.system_status,

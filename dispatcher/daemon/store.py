@@ -335,6 +335,20 @@ class Store:
     def pending(self) -> bool:
         return self._in_transaction
 
+    def signing_timestamp(self) -> int:
+        """The MAVLink signing timestamp to start from (0: none kept)."""
+        row = self.conn.execute("SELECT value FROM meta WHERE key = 'signing_timestamp'").fetchone()
+        return int(row[0]) if row is not None else 0
+
+    def keep_signing_timestamp(self, stamp: int) -> None:
+        """Keep ``stamp`` as the signing timestamp to start from after a restart (at once:
+        a frame may be signed beyond the last one kept only after this returns)."""
+        self.commit()
+        with self._transaction():
+            self.conn.execute(
+                "INSERT OR REPLACE INTO meta VALUES ('signing_timestamp', ?)", (str(stamp),)
+            )
+
     def commit(self, state: FleetState | None = None) -> None:
         """Commit the events appended since the last commit, with the current state of the
         vehicles they concern (and of those vehicles' fields) when ``state`` is given."""

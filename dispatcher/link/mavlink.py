@@ -16,9 +16,12 @@ drops, instead of printing and reconnecting by itself.
 from __future__ import annotations
 
 import functools
+import hashlib
+import hmac
 import logging
 import socket
 import struct
+import time
 from dataclasses import dataclass
 from typing import Any, TypeAlias
 
@@ -179,25 +182,139 @@ def mission_item_int(
     )
 
 
+SIGNING_KEY_BYTES = 32
+"""A MAVLink 2 signing secret key is 32 bytes."""
+
+_SIGNING_EPOCH_UNIX_S = 1_420_070_400  # 2015-01-01T00:00:00Z, the signing timestamps' zero
+
+
+def signing_timestamp(unix_s: float | None = None) -> int:
+    """The MAVLink 2 signing timestamp of ``unix_s`` (default: now): units of 10 us since
+    1 January 2015 UTC, as the signing specification counts them."""
+    t = time.time() if unix_s is None else unix_s
+    return max(0, int((t - _SIGNING_EPOCH_UNIX_S) * 100_000))
+
+
+class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
+    """pymavlink's parser with the signature checked before the timestamp is believed.
+
+    pymavlink's ``check_signature`` records a frame's timestamp as its stream's newest
+    before it checks the signature: one forged frame with a late timestamp would make every
+    genuine frame after it look like a replay. Here a frame counts only once its signature
+    is right: then its timestamp must be newer than its stream's last (a replay is not),
+    or, for a stream not seen before, at most a minute older than the clock (the
+    specification says than our own timestamp; ours may run ahead of the clock after a
+    restart, by the margin the dispatcher keeps, and would then refuse every sender met
+    anew)."""
+
+    def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        signing = self.signing
+        digest = hashlib.sha256(signing.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+        if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+            return False
+        low, high = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
+        stamp = low + (high << 32)
+        stream = (msgbuf[-13], src_system, src_component)
+        last = signing.stream_timestamps.get(stream)
+        if last is not None and stamp <= last:
+            return False
+        if last is None and stamp + _NEW_STREAM_SLACK < signing_timestamp():
+            return False
+        signing.stream_timestamps[stream] = stamp
+        signing.timestamp = max(signing.timestamp, stamp)
+        return True
+
+
+_NEW_STREAM_SLACK = 60 * 100_000  # one minute in signing timestamp units
+
+
+def _set_signing(mav: Any, key: bytes, link_id: int, timestamp: int | None) -> None:
+    if len(key) != SIGNING_KEY_BYTES:
+        raise ValueError(f"a signing key is {SIGNING_KEY_BYTES} bytes, got {len(key)}")
+    if not 0 <= link_id <= 255:
+        raise ValueError(f"a signing link id is 0..255, got {link_id}")
+    signing = mav.signing
+    signing.secret_key = bytes(key)
+    signing.link_id = link_id
+    signing.sign_outgoing = True
+    signing.timestamp = max(signing.timestamp, signing_timestamp(), timestamp or 0)
+    signing.allow_unsigned_callback = lambda _mav, _msg_id: False
+
+
+def _stats(mav: Any) -> SigningStats:
+    s = mav.signing
+    return SigningStats(
+        good=s.goodsig_count, bad=s.badsig_count, unsigned=s.reject_count - s.badsig_count
+    )
+
+
+@dataclass(frozen=True)
+class SigningStats:
+    """Frames a signing :class:`Codec` took (``good``) and dropped: ``bad`` (a wrong
+    signature, or a replay: a timestamp not newer than that stream's last) and
+    ``unsigned``."""
+
+    good: int = 0
+    bad: int = 0
+    unsigned: int = 0
+
+    @property
+    def dropped(self) -> int:
+        return self.bad + self.unsigned
+
+
 class Codec:
     """Packs messages into MAVLink 2 frames from one system/component, and parses frames.
 
     ``encode`` stamps each frame with the next sequence number (0..255, wrapping).
     ``decode`` treats successive calls as one byte stream: garbage is skipped (a frame
     must pass its CRC to count), and a frame cut off at the end of one call is completed
-    by the bytes of the next. Unsigned frames only are produced; signed ones are parsed
-    but their signature is not checked.
+    by the bytes of the next.
+
+    With a signing ``key`` (:meth:`sign`) every frame is signed (MAVLink 2 message
+    signing: link id, a timestamp that never goes back, SHA-256 of key and frame) and
+    only frames signed with the same key and a timestamp newer than the last of their
+    stream are taken; the others are dropped and counted (:attr:`signing_stats`).
+    Without one, frames go out unsigned and signed ones are parsed without checking.
     """
 
-    def __init__(self, system_id: int, component_id: int) -> None:
+    def __init__(
+        self,
+        system_id: int,
+        component_id: int,
+        key: bytes | None = None,
+        link_id: int = 0,
+        timestamp: int | None = None,
+    ) -> None:
         if not 1 <= system_id <= 255:
             raise ValueError(f"MAVLink system id must be 1..255, got {system_id}")
         if not 0 <= component_id <= 255:
             raise ValueError(f"MAVLink component id must be 0..255, got {component_id}")
         self.system_id = system_id
         self.component_id = component_id
-        self._mav = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        self._mav = _MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self._pending = bytearray()
+        if key is not None:
+            self.sign(key, link_id, timestamp)
+
+    def sign(self, key: bytes, link_id: int = 0, timestamp: int | None = None) -> None:
+        """Sign from now on with ``key`` on link ``link_id`` (0..255), the timestamps
+        starting at ``timestamp`` or now, whichever is later (never back: give the last one
+        used before a restart), and take only frames signed with ``key``."""
+        _set_signing(self._mav, key, link_id, timestamp)
+
+    @property
+    def signed(self) -> bool:
+        return self._mav.signing.secret_key is not None
+
+    @property
+    def timestamp(self) -> int:
+        """The signing timestamp the next frame will carry (to keep across a restart)."""
+        return int(self._mav.signing.timestamp)
+
+    @property
+    def signing_stats(self) -> SigningStats:
+        return _stats(self._mav)
 
     @property
     def next_seq(self) -> int:
@@ -209,6 +326,23 @@ class Codec:
         """One MAVLink 2 frame carrying ``msg``; advances the sequence number."""
         frame = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
+        return frame
+
+    def repack(self, msg: MAVLinkMessage) -> bytes:
+        """``msg`` as a MAVLink 2 frame from its own system, component and sequence number,
+        signed when this codec signs: a frame another sender sent unsigned (an autopilot
+        without signing, behind the bridge), passed on signed."""
+        mav = self._mav
+        own = (mav.srcSystem, mav.srcComponent, mav.seq)
+        mav.srcSystem, mav.srcComponent, mav.seq = (
+            msg.get_srcSystem(),
+            msg.get_srcComponent(),
+            msg.get_seq(),
+        )
+        try:
+            frame: bytes = msg.pack(mav)
+        finally:
+            mav.srcSystem, mav.srcComponent, mav.seq = own
         return frame
 
     def decode(self, data: bytes) -> list[MAVLinkMessage]:
@@ -331,6 +465,16 @@ class MavlinkConnection:
         self._port = port
         _reset_parser(port)
 
+    def verify_with(self, key: bytes) -> None:
+        """Take only frames signed with ``key`` from now on (others are skipped and
+        counted: :attr:`signing_stats`); frames written go out as given."""
+        _set_signing(self._port.mav, key, 0, None)
+        self._port.mav.signing.sign_outgoing = False
+
+    @property
+    def signing_stats(self) -> SigningStats:
+        return _stats(self._port.mav)
+
     def fileno(self) -> int | None:
         """The descriptor to wait on for input (it changes as a TCP server accepts a
         client), or None if the link has none (poll instead)."""
@@ -396,17 +540,25 @@ def open_mavlink(
     return MavlinkConnection(url, port)
 
 
-def mavlink2_frame(msg: MAVLinkMessage) -> bytes:
+def setup_signing(target_system: int, key: bytes, initial_timestamp: int) -> MAVLinkMessage:
+    """SETUP_SIGNING: give an autopilot its signing key (an all-zero key and timestamp
+    turn signing off)."""
+    msg: MAVLinkMessage = mavlink2.MAVLink_setup_signing_message(
+        target_system, MAV_COMP_ID_AUTOPILOT1, list(key), initial_timestamp
+    )
+    return msg
+
+
+def mavlink2_frame(msg: MAVLinkMessage, signer: Codec | None = None) -> bytes:
     """The frame ``msg`` arrived in, as MAVLink 2: its own bytes if it came as MAVLink 2
-    (signature and all), else packed again as MAVLink 2 with the same system, component and
-    sequence number (this rewrites ``msg``'s buffer)."""
+    and signed, or unsigned when there is no ``signer``; else packed again as MAVLink 2 with
+    the same system, component and sequence number, signed by ``signer`` when given (this
+    rewrites ``msg``'s buffer)."""
     raw = bytes(msg.get_msgbuf())
-    if raw[:1] == bytes([mavlink2.PROTOCOL_MARKER_V2]):
+    v2 = raw[:1] == bytes([mavlink2.PROTOCOL_MARKER_V2])
+    if v2 and (signer is None or raw[2] & mavlink2.MAVLINK_IFLAG_SIGNED):
         return raw
-    mav = mavlink2.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
-    mav.seq = msg.get_seq()
-    frame: bytes = msg.pack(mav)
-    return frame
+    return (signer or Codec(msg.get_srcSystem() or 1, msg.get_srcComponent())).repack(msg)
 
 
 @dataclass(frozen=True)
@@ -460,9 +612,7 @@ def _link_classes() -> _LinkClasses:
 def _reset_parser(port: Any) -> None:
     """Give a mavutil link a fresh MAVLink 2 ardupilotmega parser: mavutil otherwise parses
     with a process-wide dialect chosen from the environment."""
-    port.mav = mavlink2.MAVLink(
-        port, srcSystem=port.source_system, srcComponent=port.source_component
-    )
+    port.mav = _MAVLink(port, srcSystem=port.source_system, srcComponent=port.source_component)
     port.mav.robust_parsing = True
     port.first_byte = False  # no switching of protocol version on the first byte
     port.WIRE_PROTOCOL_VERSION = "2.0"

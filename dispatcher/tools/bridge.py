@@ -9,6 +9,11 @@ TCP or UDP, opened with pymavlink through :mod:`dispatcher.link.mavlink`) and Ze
   bounded rate per message type (:class:`AutopilotFilter`); a MAVLink 1 frame is packed
   again as MAVLink 2 with its system, component and sequence number, a MAVLink 2 frame
   goes as it came (signature included);
+* with the vehicle's signing key (dispatcher/link/keys.py), only samples signed with it
+  reach the autopilot (the others are dropped and counted: forged, or replayed), and what
+  the autopilot sends unsigned is signed on its way to Zenoh (an autopilot with signing set
+  up signs itself: its frames go as they are). ArduPilot set up with the same key
+  (docs/bridge.md) then takes commands from the dispatcher only, whatever reaches its radio;
 * the liveliness token ``vehicle_alive(farm, id)`` is held while the autopilot's HEARTBEAT
   is live: declared on the first one, undeclared after ``heartbeat_timeout_s`` without one,
   declared again when they come back.
@@ -45,6 +50,7 @@ from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import Scenario, Vehicle
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
+from dispatcher.link.keys import add_signing_arguments, signing_keys
 from dispatcher.link.signals import stop_on_signals
 
 log = logging.getLogger(__name__)
@@ -197,9 +203,13 @@ def run_bridge(
     heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S,
     reconnect_interval_s: float = RECONNECT_INTERVAL_S,
     companion_heartbeat: bool = True,
+    key: bytes | None = None,
+    setup_signing: bool = False,
 ) -> int:
     """Bridge the autopilot of ``vehicle_id`` at ``mavlink_url`` to Zenoh until ``stop`` is
-    set or SIGINT/SIGTERM; returns the exit code.
+    set or SIGINT/SIGTERM; returns the exit code. ``key``: the vehicle's signing key (None:
+    frames pass unchecked and unsigned); ``setup_signing``: give the autopilot that key
+    (SETUP_SIGNING) each time its link opens.
 
     Raises ConfigError for an unknown vehicle or a bad rate limit, ValueError for a bad
     URL. A link that cannot be opened is tried again every ``reconnect_interval_s``.
@@ -229,6 +239,8 @@ def run_bridge(
                 presence,
                 reconnect_interval_s,
                 companion_heartbeat,
+                key,
+                setup_signing,
             )
             code = bridge.run(session, stop)
     finally:
@@ -249,8 +261,18 @@ class _Bridge:
         presence: HeartbeatPresence,
         reconnect_interval_s: float,
         companion_heartbeat: bool,
+        key: bytes | None = None,
+        setup_signing: bool = False,
     ) -> None:
         self.farm = farm
+        self.setup_key = key if setup_signing else None
+        # With a key: checks what comes from Zenoh, signs what the autopilot leaves unsigned.
+        self.checker = mc.Codec(vehicle.system_id, mc.MAV_COMP_ID_ONBOARD_COMPUTER, key=key)
+        self.signer = (
+            mc.Codec(vehicle.system_id, mc.MAV_COMP_ID_AUTOPILOT1, key=key)
+            if key is not None
+            else None
+        )
         self.vehicle = vehicle
         self.url = url
         self.filter = autopilot_filter
@@ -353,11 +375,24 @@ class _Bridge:
             log.error("%s", exc)
             return False
         log.info("autopilot link %s open", self.url)
+        if self.setup_key is not None:
+            self._setup_signing(self.setup_key)
         self.stats["links_opened"] += 1
         self._quiet_failures = False
         self._last_rx = now
         self._next_companion_beat = now
         return True
+
+    def _setup_signing(self, key: bytes) -> None:
+        """Give the autopilot the vehicle's key (SETUP_SIGNING, on this wired link): it
+        signs from now on and, on every link but its first (USB), takes only signed
+        frames. ArduPilot refuses it while armed."""
+        assert self.link is not None
+        setup = mc.setup_signing(self.vehicle.system_id, key, mc.signing_timestamp())
+        self.link.write(
+            mc.Codec(self.vehicle.system_id, mc.MAV_COMP_ID_ONBOARD_COMPUTER).encode(setup)
+        )
+        log.warning("%s: signing key sent to the autopilot (SETUP_SIGNING)", self.vehicle.id)
 
     def _drop_link(self, why: object, now: float) -> None:
         log.warning("autopilot link %s lost (%s); reopening it", self.url, why)
@@ -375,6 +410,16 @@ class _Bridge:
                 frame = self.inbox.get_nowait()
             except queue.Empty:
                 return
+            if self.checker.signed and self.checker.decode_one(frame) is None:
+                self.stats["to_autopilot_refused"] += 1
+                refused = self.stats["to_autopilot_refused"]
+                if refused == 1 or refused % 100 == 0:
+                    log.warning(
+                        "%s: dropped %d frame(s) for the autopilot not signed with its key",
+                        self.vehicle.id,
+                        refused,
+                    )
+                continue
             if self.link is None:
                 self.stats["to_autopilot_dropped_no_link"] += 1
                 log.debug("no autopilot link: dropped a %d-byte frame", len(frame))
@@ -401,7 +446,7 @@ class _Bridge:
             if msg.get_type() == "HEARTBEAT" and self.filter.from_autopilot(msg):
                 self.presence.on_heartbeat(now)
             if self.filter.admit(msg, now):
-                self.publisher.put(mc.mavlink2_frame(msg))
+                self.publisher.put(mc.mavlink2_frame(msg, self.signer))
 
     def _hold_token(self, present: bool) -> None:
         if present and self.token is None and self.session is not None:
@@ -461,6 +506,13 @@ def add_bridge_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="do not send the bridge's own 1 Hz HEARTBEAT to the autopilot",
     )
+    add_signing_arguments(p)
+    p.add_argument(
+        "--setup-signing",
+        action="store_true",
+        help="give the autopilot the vehicle's signing key (SETUP_SIGNING) when its link "
+        "opens: provisioning over a wired link, disarmed (docs/bridge.md)",
+    )
 
 
 def parse_rates(items: Sequence[str]) -> dict[str, float]:
@@ -482,6 +534,9 @@ def bridge_command(args: argparse.Namespace, options: wire.ZenohOptions) -> int:
 
     try:
         scenario = load_scenario(args.scenario)
+        keys = signing_keys(args, scenario, [scenario.vehicle(args.vehicle).id])
+        if args.setup_signing and keys is None:
+            raise ValueError("--setup-signing needs the vehicle's key: drop --unsigned")
         rates = parse_rates(args.rate)
         mc.check_mavlink_url(args.mavlink)
         options.config()  # a bad --cfg fails here, with a message
@@ -495,6 +550,8 @@ def bridge_command(args: argparse.Namespace, options: wire.ZenohOptions) -> int:
         rate_limits=rates,
         heartbeat_timeout_s=args.heartbeat_timeout,
         companion_heartbeat=not args.no_companion_heartbeat,
+        key=keys[args.vehicle] if keys is not None else None,
+        setup_signing=args.setup_signing,
     )
 
 

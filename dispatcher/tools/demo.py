@@ -30,6 +30,7 @@ from dispatcher.daemon.server import DaemonConfig, Dispatcher
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.daemon.store import Store
 from dispatcher.link import wire
+from dispatcher.link.keys import read_keys, write_keys
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
 from dispatcher.tools.replan import replanner_for
@@ -139,8 +140,10 @@ def sim_command(
     speedup: float,
     radio: Impairment | None = None,
     radio_seed: int = 1,
+    keys_dir: Path | None = None,
 ) -> list[str]:
-    """``python -m sim_vehicles`` for one tractor (with every fault-injection option)."""
+    """``python -m sim_vehicles`` for one tractor (with every fault-injection option);
+    signed with the keys of ``keys_dir``, else unsigned."""
     cmd = [
         sys.executable,
         "-m",
@@ -152,6 +155,7 @@ def sim_command(
         f"{speedup:.3f}",
         "--vehicle",
         vehicle,
+        *(("--keys", str(keys_dir)) if keys_dir is not None else ("--unsigned",)),
     ]
     if radio is not None and radio.active:
         cmd += [
@@ -396,6 +400,10 @@ def run_demo(
     store.abandon_unfinished()
     job = dispatch.job()
     store.begin_run(job, fingerprint="demo")
+    # Throwaway signing keys, one per tractor, for this demo only (beside its logs).
+    keys_dir = log_dir / "keys" / dispatch.document.farm_id
+    write_keys(keys_dir, list(dispatch.missions), replace=True)
+    keys = read_keys(keys_dir, list(dispatch.missions))
     printer = ProgressPrinter(speed)
     config = DaemonConfig(
         job=job,
@@ -407,6 +415,7 @@ def run_demo(
         lost_grace_s=dispatch.scenario.watch.lost_grace_s,
         on_progress=printer,
         replanner=replanner_for(dispatch.scenario, dispatch),
+        keys=keys,
     )
     if faults.faults:
         config.status_period_s = min(config.status_period_s, FAULT_CHECK_PERIOD_S)
@@ -426,7 +435,9 @@ def run_demo(
         vids = list(dispatch.missions)
         children = Supervisor.start(
             [
-                sim_command(scenario_path, vid, endpoint, speed, faults.radio, faults.radio_seed)
+                sim_command(
+                    scenario_path, vid, endpoint, speed, faults.radio, faults.radio_seed, keys_dir
+                )
                 for vid in vids
             ],
             log_dir / "sim",

@@ -149,7 +149,7 @@ def test_serve_refuses_to_resume_a_run_of_other_inputs(
     store = Store.open(tmp_path, "tiny")
     store.begin_run(dispatch.job(), "made-from-something-else")
     store.close()
-    code = main(["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path)])
+    code = main(["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path), "--unsigned"])
     assert code == 2
     err = capsys.readouterr().err
     assert "unfinished run 1" in err and "--fresh" in err and str(tmp_path / DB_NAME) in err

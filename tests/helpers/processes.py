@@ -5,11 +5,13 @@ waiting on a condition, the dispatcher's status and its log path."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -46,6 +48,24 @@ def wait_for(
     raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}{why}")
 
 
+def keys_for(scenario: Path, folder: Path | None = None) -> str:
+    """MAVLink signing keys for the fleet of ``scenario`` in ``folder`` (default: one
+    folder for the whole test session), made as `agrifleet keys` makes them, once: every
+    process a test starts signs with them, as on a farm."""
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.link.keys import write_keys
+
+    if folder is None:
+        folder = _session_keys()
+    write_keys(folder, [v.id for v in load_scenario(scenario).vehicles])
+    return str(folder)
+
+
+@functools.cache
+def _session_keys() -> Path:
+    return Path(tempfile.mkdtemp(prefix="agrifleet-test-keys-")) / "keys"
+
+
 class Processes:
     """agrifleet processes a test starts (``python -m dispatcher.cli ...``); all stopped
     at the end."""
@@ -53,6 +73,10 @@ class Processes:
     def __init__(self, workdir: Path) -> None:
         self.workdir = workdir
         self.procs: list[subprocess.Popen[str]] = []
+
+    def keys(self, scenario: Path) -> str:
+        """The test's MAVLink signing keys for the fleet of ``scenario``."""
+        return keys_for(scenario, self.workdir / "keys")
 
     def start(self, name: str, *args: str, module: str = "dispatcher.cli") -> subprocess.Popen[str]:
         out = open(self.workdir / f"{name}-{len(self.procs)}.out", "w")  # noqa: SIM115
@@ -77,6 +101,8 @@ class Processes:
             f"tcp/127.0.0.1:{port}",
             "--log-dir",
             str(log_dir),
+            "--keys",
+            self.keys(scenario),
             *extra,
         )
 
@@ -91,6 +117,8 @@ class Processes:
             sitl.url,
             "--connect",
             f"tcp/127.0.0.1:{port}",
+            "--keys",
+            self.keys(scenario),
         )
 
     def sim(
@@ -98,6 +126,7 @@ class Processes:
     ) -> subprocess.Popen[str]:
         """Simulated tractors (``python -m sim_vehicles``) connected to the dispatcher."""
         args = [str(scenario), "--connect", f"tcp/127.0.0.1:{port}", "--speedup", f"{speedup:g}"]
+        args += ["--keys", self.keys(scenario)]
         for v in vehicles:
             args += ["--vehicle", v]
         return self.start("sim", *args, *extra, module="sim_vehicles")

@@ -130,7 +130,7 @@ def test_sigusr1_stalls_a_simulator_process_which_keeps_reporting() -> None:
         frames = session.declare_subscriber(wire.vehicle_from("tiny", "v1"), on_frame)
         proc = subprocess.Popen(
             [sys.executable, "-m", "sim_vehicles", str(SCENARIO), "--vehicle", "v1"]
-            + ["--connect", endpoint, "--speedup", "20"],
+            + ["--connect", endpoint, "--speedup", "20", "--unsigned"],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,

@@ -239,6 +239,7 @@ def test_command_line_process_stops_cleanly_on_sigterm() -> None:
                 endpoint,
                 "--speedup",
                 "20",
+                "--unsigned",
             ],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,

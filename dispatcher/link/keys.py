@@ -1,0 +1,132 @@
+"""MAVLink signing keys: one secret per vehicle, in a key directory outside the scenario.
+
+A key file is ``<dir>/<vehicle id>.key`` holding the 32-byte secret as 64 hexadecimal
+digits (and a newline). Key files must be readable by their owner only: a key that group or
+others can read is refused, as ssh refuses such a private key. :func:`write_keys` (the
+``agrifleet keys`` command) makes a new random key per vehicle, the directory mode 700
+and each file mode 600. docs/link.md says how signing works end to end, and docs/bridge.md
+how a real autopilot gets its key.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import secrets
+import stat
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from dispatcher.config.errors import ConfigError
+from dispatcher.link.mavlink import SIGNING_KEY_BYTES
+
+if TYPE_CHECKING:
+    from dispatcher.config.scenario import Scenario
+
+logger = logging.getLogger(__name__)
+
+KEY_SUFFIX = ".key"
+
+
+class SigningKeyError(ConfigError):
+    """A key file that is missing, unreadable, readable by others, or not a key."""
+
+
+def key_path(keys_dir: str | os.PathLike[str], vehicle_id: str) -> Path:
+    return Path(keys_dir) / f"{vehicle_id}{KEY_SUFFIX}"
+
+
+def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
+    """The signing key of ``vehicle_id``; :class:`SigningKeyError` names the file and what is
+    wrong with it."""
+    path = key_path(keys_dir, vehicle_id)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise SigningKeyError(
+            f"{path}: no signing key for vehicle {vehicle_id!r}; make keys with "
+            f"`agrifleet keys SCENARIO --keys {keys_dir}`"
+        ) from None
+    except OSError as exc:
+        raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise SigningKeyError(
+            f"{path}: the signing key of {vehicle_id!r} is open to group or others "
+            f"(mode {stat.S_IMODE(mode):03o}); make it the owner's only: chmod 600 {path}"
+        )
+    try:
+        text = path.read_text(encoding="ascii").strip()
+        key = bytes.fromhex(text)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise SigningKeyError(
+            f"{path}: not a signing key ({2 * SIGNING_KEY_BYTES} hexadecimal digits expected)"
+        ) from exc
+    if len(key) != SIGNING_KEY_BYTES:
+        raise SigningKeyError(
+            f"{path}: a signing key is {2 * SIGNING_KEY_BYTES} hexadecimal digits, "
+            f"found {len(text)}"
+        )
+    return key
+
+
+def read_keys(keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str]) -> dict[str, bytes]:
+    return {vid: read_key(keys_dir, vid) for vid in vehicle_ids}
+
+
+def write_keys(
+    keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str], replace: bool = False
+) -> list[Path]:
+    """A new random key for each vehicle that has none (or for every one, ``replace``);
+    the paths written. The directory is made mode 700, each file mode 600."""
+    folder = Path(keys_dir)
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    written = []
+    for vid in vehicle_ids:
+        path = key_path(folder, vid)
+        if path.exists() and not replace:
+            continue
+        tmp = path.with_suffix(".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w", encoding="ascii") as f:
+            f.write(secrets.token_bytes(SIGNING_KEY_BYTES).hex() + "\n")
+        os.chmod(tmp, 0o600)  # whatever the umask
+        os.replace(tmp, path)
+        written.append(path)
+    return written
+
+
+def add_signing_arguments(p: argparse.ArgumentParser) -> None:
+    """``--keys DIR`` and ``--unsigned``, the same for every command that speaks MAVLink."""
+    g = p.add_argument_group("MAVLink signing (docs/link.md)")
+    g.add_argument(
+        "--keys",
+        metavar="DIR",
+        help="the vehicles' signing keys, <vehicle id>.key each (default: the scenario's "
+        "'keys'; make them with `agrifleet keys SCENARIO --keys DIR`)",
+    )
+    g.add_argument(
+        "--unsigned",
+        action="store_true",
+        help="no MAVLink signing: anyone on the network can command the tractors "
+        "(for a test bench, never on a farm)",
+    )
+
+
+def signing_keys(
+    args: argparse.Namespace, scenario: Scenario, vehicle_ids: Iterable[str]
+) -> dict[str, bytes] | None:
+    """The keys of ``vehicle_ids`` as ``--keys``/``--unsigned`` and the scenario say: None
+    for ``--unsigned``; :class:`SigningKeyError` when no key directory is given."""
+    if getattr(args, "unsigned", False):
+        logger.warning("MAVLink signing is off (--unsigned): anyone on the network can command")
+        return None
+    folder = getattr(args, "keys", None) or scenario.keys_dir
+    if folder is None:
+        raise SigningKeyError(
+            f'{scenario.source}: no MAVLink signing keys: give --keys DIR or keys = "DIR" in '
+            "the scenario (make them with `agrifleet keys SCENARIO --keys DIR`), or --unsigned "
+            "to run without signing (anyone on the network could then command the tractors)"
+        )
+    return read_keys(folder, vehicle_ids)

@@ -1,0 +1,149 @@
+"""MAVLink 2 signing: keys, the codec's checks, what the bridge passes on."""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+from pathlib import Path
+
+import pytest
+
+from dispatcher.cli.main import main
+from dispatcher.config.scenario import load_scenario
+from dispatcher.link import mavlink as mc
+from dispatcher.link.keys import SigningKeyError, key_path, read_key, write_keys
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def heartbeat() -> mc.MAVLinkMessage:
+    return mc.peer_heartbeat(mc.MAV_TYPE_GROUND_ROVER)
+
+
+def test_a_signed_frame_is_taken_and_unsigned_wrong_or_replayed_ones_are_dropped() -> None:
+    key = os.urandom(32)
+    dispatcher = mc.Codec(255, 190, key=key)
+    vehicle = mc.Codec(11, 1, key=key)
+    frame = dispatcher.encode(heartbeat())
+    assert vehicle.decode_one(frame) is not None
+    assert vehicle.decode_one(frame) is None  # the same frame again: a replay
+    assert vehicle.decode_one(mc.Codec(255, 190).encode(heartbeat())) is None  # unsigned
+    assert vehicle.decode_one(mc.Codec(255, 190, key=os.urandom(32)).encode(heartbeat())) is None
+    assert vehicle.signing_stats == mc.SigningStats(good=1, bad=2, unsigned=1)
+    assert vehicle.decode_one(dispatcher.encode(heartbeat())) is not None  # and on it goes
+
+
+def test_a_forged_frame_from_the_future_does_not_lock_out_the_genuine_sender() -> None:
+    """pymavlink's own check believes a frame's timestamp before its signature: one forged
+    frame stamped far ahead would make every genuine frame after it look like a replay."""
+    key = os.urandom(32)
+    dispatcher, vehicle = mc.Codec(255, 190, key=key), mc.Codec(11, 1, key=key)
+    assert vehicle.decode_one(dispatcher.encode(heartbeat())) is not None
+    forger = mc.Codec(255, 190, key=os.urandom(32), timestamp=mc.signing_timestamp() + 10**12)
+    assert vehicle.decode_one(forger.encode(heartbeat())) is None
+    assert vehicle.decode_one(dispatcher.encode(heartbeat())) is not None
+
+
+def test_timestamps_never_go_back_across_a_restart() -> None:
+    key = os.urandom(32)
+    first = mc.Codec(255, 190, key=key)
+    for _ in range(3):
+        first.encode(heartbeat())
+    later = first.timestamp + 10**9  # kept ahead, as the store does
+    again = mc.Codec(255, 190, key=key, timestamp=later)
+    assert again.timestamp >= later > first.timestamp
+    vehicle = mc.Codec(11, 1, key=key)
+    assert vehicle.decode_one(again.encode(heartbeat())) is not None
+    assert vehicle.decode_one(first.encode(heartbeat())) is None  # the old one: a replay
+
+
+def test_an_unsigned_autopilot_frame_is_passed_on_signed_as_it_was() -> None:
+    key = os.urandom(32)
+    autopilot = mc.Codec(11, 1)
+    sent = autopilot.decode_one(autopilot.encode(heartbeat()))
+    assert sent is not None
+    frame = mc.mavlink2_frame(sent, mc.Codec(11, 1, key=key))
+    got = mc.Codec(255, 190, key=key).decode_one(frame)
+    assert got is not None
+    assert (got.get_srcSystem(), got.get_srcComponent(), got.get_seq()) == (11, 1, 0)
+    signed = mc.Codec(11, 1, key=key).encode(heartbeat())
+    signed_msg = mc.Codec(255, 190).decode_one(signed)
+    assert signed_msg is not None
+    assert mc.mavlink2_frame(signed_msg, mc.Codec(11, 1, key=key)) == signed  # as it came
+
+
+def test_setup_signing_carries_the_key_to_the_autopilot() -> None:
+    key = os.urandom(32)
+    codec = mc.Codec(11, 191)
+    msg = codec.decode_one(codec.encode(mc.setup_signing(11, key, 1234)))
+    assert msg is not None and msg.get_type() == "SETUP_SIGNING"
+    assert bytes(msg.secret_key) == key and msg.initial_timestamp == 1234
+
+
+def test_keys_are_made_private_and_kept(tmp_path: Path) -> None:
+    folder = tmp_path / "keys"
+    written = write_keys(folder, ["t1", "t2"])
+    assert written == [key_path(folder, "t1"), key_path(folder, "t2")]
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    for path in written:
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    first = read_key(folder, "t1")
+    assert len(first) == 32 and first != read_key(folder, "t2")
+    assert write_keys(folder, ["t1", "t3"]) == [key_path(folder, "t3")]  # t1 kept
+    assert read_key(folder, "t1") == first
+
+
+@pytest.mark.parametrize(
+    ("mode", "text", "message"),
+    [
+        (0o644, None, "open to group or others (mode 644); make it the owner's only: chmod 600"),
+        (0o600, "not hex at all", "not a signing key (64 hexadecimal digits expected)"),
+        (0o600, "ab" * 16, "a signing key is 64 hexadecimal digits, found 32"),
+    ],
+)
+def test_a_bad_key_file_is_refused_naming_it(
+    tmp_path: Path, mode: int, text: str | None, message: str
+) -> None:
+    write_keys(tmp_path, ["t1"])
+    path = key_path(tmp_path, "t1")
+    if text is not None:
+        path.write_text(text)
+    path.chmod(mode)
+    with pytest.raises(SigningKeyError, match=re.escape(message)) as err:
+        read_key(tmp_path, "t1")
+    assert str(path) in str(err.value)
+
+
+def test_a_missing_key_says_how_to_make_one(tmp_path: Path) -> None:
+    with pytest.raises(SigningKeyError, match="agrifleet keys SCENARIO --keys"):
+        read_key(tmp_path, "t9")
+
+
+def test_the_keys_command_makes_one_per_vehicle(tmp_path: Path, capsys) -> None:
+    assert main(["keys", str(DATA / "tiny.toml"), "--keys", str(tmp_path / "k")]) == 0
+    ids = [v.id for v in load_scenario(DATA / "tiny.toml").vehicles]
+    for vid in ids:
+        assert len(read_key(tmp_path / "k", vid)) == 32
+    assert f"{len(ids)} new key(s)" in capsys.readouterr().out
+    assert main(["keys", str(DATA / "tiny.toml"), "--keys", str(tmp_path / "k")]) == 0
+    assert "0 new key(s)" in capsys.readouterr().out
+
+
+def test_serve_without_keys_refuses_to_start_unsigned_by_accident(tmp_path: Path, capsys) -> None:
+    code = main(["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no MAVLink signing keys" in err and "--unsigned" in err and "tiny.toml" in err
+
+
+def test_a_restarted_dispatcher_ahead_of_the_clock_still_takes_a_vehicle_met_anew() -> None:
+    """After a restart the dispatcher's own timestamps start from the mark its store kept,
+    up to a minute ahead of the clock; a vehicle's stream, new to it, must still pass."""
+    key = os.urandom(32)
+    vehicle = mc.Codec(11, 1, key=key)
+    restarted = mc.Codec(255, 190, key=key, timestamp=mc.signing_timestamp() + 60 * 100_000)
+    assert restarted.decode_one(vehicle.encode(heartbeat())) is not None
+    old = mc.Codec(11, 1, key=key, timestamp=0)
+    old._mav.signing.timestamp = mc.signing_timestamp() - 3600 * 100_000  # an hour old
+    assert mc.Codec(255, 190, key=key).decode_one(old.encode(heartbeat())) is None
