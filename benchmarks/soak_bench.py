@@ -9,8 +9,8 @@ acknowledged (median, max; goal < 3 s), fields not done at the end (goal 0), seg
 (swaths, headland edges) worked twice or never (goal 0), as the fleet state counts them,
 dispatcher CPU and memory at the start and at the end. Faults come once every tractor
 has started (a fault during the first uploads only delays the start), 30-60 s apart,
-until half the wall time; the planned makespan is fitted to 40 % of the wall time (the
-first uploads through the lossy radios take minutes).
+until half the wall time; the planned makespan is fitted to ``fit`` of the wall time (40 %
+by default: the first uploads through lossy radios take minutes).
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ def bench_soak(
     per_process: int = 3,
     loss: float = 0.2,
     seed: int = 1,
+    fit: float = 0.4,
+    gap_s: tuple[float, float] = (30.0, 60.0),
 ) -> str:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
     from dispatcher.link import wire
@@ -58,7 +60,7 @@ def bench_soak(
         scenario_path.write_text(scenario_path.read_text() + SOAK_DISPATCHER)
         dispatch = _plan(scenario_path)
         wall_s = minutes * 60.0
-        speedup = max(1.0, dispatch.plan.makespan_h * 3600.0 / (0.4 * wall_s))
+        speedup = max(1.0, dispatch.plan.makespan_h * 3600.0 / (fit * wall_s))
         port = free_port()
         daemon = Dispatcher(
             DaemonConfig(
@@ -103,7 +105,7 @@ def bench_soak(
                 cpu0, rss0 = usage.ru_utime + usage.ru_stime, _rss_mb()
                 alive = list(range(len(procs)))
                 while time.monotonic() - started < 0.5 * wall_s and len(alive) > 2:
-                    time.sleep(rng.uniform(30.0, 60.0))
+                    time.sleep(rng.uniform(*gap_s))
                     if daemon.should_exit.is_set():
                         return
                     k = alive.pop(rng.randrange(len(alive)))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 
 from dispatcher.config.errors import DispatcherError
@@ -281,7 +282,8 @@ def replanner_for(
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
     returns the job to carry on with; the solver stops after ``seconds``, and driving
-    vehicles keep ``seconds + LEAD_S`` of their old missions."""
+    vehicles keep ``seconds + LEAD_S`` of their old missions, or ``LEAD_S`` plus twice what
+    the last re-plan took when that is more (a big farm on a busy gateway)."""
     base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
     return _replanner(scenario, dispatch, dispatch.job(), base, seconds)
 
@@ -317,18 +319,21 @@ def _replanner(
     seconds: float,
 ) -> Callable[[FleetState], DispatchJob]:
     current = dispatch
-    lead_s = seconds + LEAD_S
+    took_s = 0.0  # how long the last re-plan took (wall), the next lead allows twice that
 
     def plan_rest(state: FleetState) -> DispatchJob:
-        nonlocal current, job, base
+        nonlocal current, job, base, took_s
+        began = time.monotonic()
         if base is None:
             base = first_visits(scenario, job.document)
+        lead_s = max(seconds + LEAD_S, 2.0 * took_s + LEAD_S)
         stop = stop_after(scenario.solver.generations, seconds)
         nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base)
         for m in nxt.plan.machines:  # a field planned whole again is numbered anew
             base.update({v.field.id: v for v in m.visits if not v.original_segments})
         job = handover(job, state, nxt, lead_s)
         current = nxt
+        took_s = time.monotonic() - began
         return job
 
     return plan_rest
