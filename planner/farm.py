@@ -110,12 +110,19 @@ def load_farm(path: str | Path) -> Farm:
     """Read and check a farm GeoJSON file."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise GeometryError(f"{path}: cannot read the farm: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise GeometryError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
     except json.JSONDecodeError as exc:
         raise GeometryError(f"{path}: not JSON (line {exc.lineno}: {exc.msg})") from exc
-    return farm_from_geojson(doc, str(path))
+    except ValueError as exc:  # e.g. an integer of more digits than Python reads
+        raise GeometryError(f"{path}: not JSON we can read ({exc})") from exc
+    try:
+        return farm_from_geojson(doc, str(path))
+    except OverflowError as exc:  # an integer too large for a float, where a number belongs
+        raise GeometryError(f"{path}: a number too large to be a coordinate or angle") from exc
 
 
 def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:

@@ -346,6 +346,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML: not UTF-8 text ({exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    except ValueError as exc:  # e.g. an integer of more digits than Python reads
+        raise ConfigError(f"{path}: not TOML we can read ({exc})") from exc
 
 
 # --- checks shared by every table -------------------------------------------------------

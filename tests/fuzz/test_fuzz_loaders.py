@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -175,9 +176,8 @@ def dumps(doc: Any) -> str:
 
 HUGE = "1" + "0" * 5000  # an integer literal longer than Python's int() takes (4300 digits)
 
-# Crashes fuzzing found in the loaders, in files this change may not touch (reported):
-# strict xfails, so that a fix shows. The random searches below leave such inputs out,
-# unless FUZZ_UNFILTERED=1.
+# Crashes fuzzing found in the loaders (fixed): each input is refused with the loader's
+# error naming the file.
 FARM_CRASHES = [
     pytest.param(b"\xff\xfe{}", id="farm not UTF-8: UnicodeDecodeError"),
     pytest.param(
@@ -196,19 +196,12 @@ FARM_CRASHES = [
 
 
 @pytest.mark.parametrize("text", FARM_CRASHES)
-@pytest.mark.xfail(strict=True, reason="planner/farm.py lets this through (reported)")
-def test_known_farm_loader_crashes(text):
-    load_farm_text(text)
-
-
-def crashes_known(doc: Any) -> bool:
-    """Whether ``doc`` holds what FARM_CRASHES show: an integer too big for a float."""
-    if UNFILTERED:
-        return False
-    return any(
-        isinstance(v, int) and not isinstance(v, bool) and abs(v) > 2**1023
-        for v in (_get(doc, p) for p in paths_of(doc))
-    )
+def test_inputs_that_once_crashed_the_farm_loader_are_refused(text):
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "farm.geojson"
+        path.write_bytes(text if isinstance(text, bytes) else text.encode())
+        with pytest.raises(PlannerError, match=re.escape(str(path))):
+            load_farm(path)
 
 
 @FUZZ
@@ -216,19 +209,12 @@ def crashes_known(doc: Any) -> bool:
 @example(doc=base_farm())
 @example(doc={"type": "FeatureCollection", "features": [{"type": "Feature"}]})
 def test_the_farm_loader_raises_only_geometry_errors(doc):
-    if crashes_known(doc):
-        return
     load_farm_text(dumps(doc))
 
 
 @FUZZ
 @given(data=st.one_of(st.text(max_size=300).map(str.encode), st.binary(max_size=300)))
 def test_the_farm_loader_takes_any_bytes(data):
-    try:
-        data.decode()
-    except UnicodeDecodeError:
-        if not UNFILTERED:
-            return  # FARM_CRASHES
     load_farm_text(data)
 
 
@@ -440,8 +426,7 @@ SCENARIO_CRASHES = [
 
 
 @pytest.mark.parametrize("text", SCENARIO_CRASHES)
-@pytest.mark.xfail(strict=True, reason="dispatcher/config/scenario.py lets this through (reported)")
-def test_known_scenario_loader_crashes(text):
+def test_inputs_that_once_crashed_the_scenario_loader_are_refused(text):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "scenario.toml"
         path.write_text(text)
