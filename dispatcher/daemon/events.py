@@ -142,6 +142,16 @@ class Rebooted(Event):
     kind: ClassVar[str] = "rebooted"
 
 
+@dataclass(frozen=True)
+class RouteJoined(Event):
+    """A re-planned vehicle that drove past the part of its old mission its new one keeps
+    is sent to ``item`` of its new mission: the first not worked already (the swaths it did
+    meanwhile are not done again). Items before it count as reached."""
+
+    kind: ClassVar[str] = "route_joined"
+    item: int
+
+
 FLEET = "*"
 """The ``vehicle`` of an event about the whole fleet."""
 
@@ -168,6 +178,7 @@ EVENTS: dict[str, type[Event]] = {
         UploadStarted,
         UploadFailed,
         UploadAcked,
+        RouteJoined,
         Resumed,
         StartRequested,
         MissionStarted,

@@ -769,8 +769,14 @@ class Dispatcher:
         self._apply(ev.UploadAcked(v.id), now)
         first = link.switch_from or 1
         if v.current > first:  # it went on with the old mission meanwhile
-            self._log("warning", f"{v.id}: went past the old part; back to item {first}")
-            link.start = CommandSequence([set_current_command(first)], v.system_id)
+            join = self.state.join_item(v, first)
+            self._apply(ev.RouteJoined(v.id, join), now)
+            self._log(
+                "warning",
+                f"{v.id}: went past the part of its old mission the new one keeps; "
+                f"on at item {join} of its new route (item {first} begins it)",
+            )
+            link.start = CommandSequence([set_current_command(join)], v.system_id)
             self._send(v.id, link.start.start(now))
         else:
             self._log("info", f"{v.id}: new mission on board while driving")

@@ -155,6 +155,10 @@ class VehicleState:
     stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
     retired: bool = False  # left out of the plan after a re-plan (it was lost)
     switch: bool = False  # driving; its new mission (same start) is to be uploaded
+    # While switching: the mission still on board, and the last of its items reached beyond
+    # the part the new one keeps (a vehicle that drove past it).
+    old_items: tuple[PlannedItem, ...] | None = None
+    old_reached: int = 0
     route_from: int = 1  # the first item of its current route (after a re-plan: the new part)
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
@@ -272,6 +276,9 @@ class FleetState:
             case ev.UploadAcked():
                 v.acked = True
                 v.switch = False
+                v.old_items = None
+            case ev.RouteJoined(item=item):
+                v.reached = min(max(item - 1, 0), len(v.items) - 1)
             case ev.UploadFailed(reason=reason, final=final):
                 v.acked = False
                 if final:
@@ -327,6 +334,8 @@ class FleetState:
             # went past that part meanwhile, the items it reached beyond are the new
             # route's now: it is sent back to the route's first item (the daemon).
             keeps = v.phase is Phase.RUNNING and common > 1
+            if keeps and v.old_items is None:
+                v.old_items, v.old_reached = v.items, v.reached
             if keeps and v.reached >= common:
                 v.reached = common - 1
             v.route_from = common if keeps else 1
@@ -427,6 +436,13 @@ class FleetState:
             return
         v.progress_s = max(v.progress_s or 0.0, clock_s)
         v.progress_wall = now
+        old = v.old_items
+        if v.switch and old is not None and seq >= v.route_from:
+            # Past the kept part, on the mission still on board: its items, not the new.
+            for s in range(max(v.old_reached + 1, v.route_from), min(seq + 1, len(old))):
+                self._item_done(v, s, clock_s, reported=s == seq, item=old[s])
+            v.old_reached = max(v.old_reached, seq)
+            return
         for s in range(v.reached + 1, seq + 1):  # items skipped in between count as done
             self._item_done(v, s, clock_s, reported=s == seq)
         v.reached = max(v.reached, seq)
@@ -436,10 +452,18 @@ class FleetState:
             v.finished_s = clock_s
             v.finished_at_next_fix = True
 
-    def _item_done(self, v: VehicleState, seq: int, clock_s: float, reported: bool) -> None:
-        """Item ``seq`` is done; ``reported`` when the vehicle said so itself (its time is
-        then exact), not when it is inferred from a later item."""
-        item = v.items[seq]
+    def _item_done(
+        self,
+        v: VehicleState,
+        seq: int,
+        clock_s: float,
+        reported: bool,
+        item: PlannedItem | None = None,
+    ) -> None:
+        """Item ``seq`` (of ``v.items``, or ``item``) is done; ``reported`` when the
+        vehicle said so itself (its time is then exact), not when it is inferred from a
+        later item."""
+        item = item if item is not None else v.items[seq]
         if item.field_id is None or item.field_id not in self.fields:
             return
         f = self.fields[item.field_id]
@@ -552,6 +576,20 @@ class FleetState:
         return [ev.Rebooted(v.id)] if rebooted and not v.needs_restart else []
 
     # --- reading -------------------------------------------------------------------------
+    def join_item(self, v: VehicleState, first: int) -> int:
+        """Where a vehicle that drove past its kept part goes on in its new mission: after
+        the new route's first swaths as far as it worked them meanwhile (from ``first``)."""
+        join = first
+        for k in range(first, len(v.items)):
+            item = v.items[k]
+            if item.role != "swath_end" or item.field_id is None or item.segment is None:
+                continue
+            f = self.fields.get(item.field_id)
+            if f is None or not f.passes.get(item.segment):
+                break
+            join = k + 1
+        return min(join, len(v.items) - 1)
+
     def finished(self, now: float, lost_grace_s: float) -> bool:
         """Nothing more will happen: every vehicle done, failed, or lost for longer than
         ``lost_grace_s`` (a short loss of link is not the end of a vehicle)."""
