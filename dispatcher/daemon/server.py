@@ -190,6 +190,7 @@ class Dispatcher:
         # mission acknowledged (None until then).
         self.replans: list[list[Any]] = []
         self._awaiting_acks: tuple[int, set[str], float] | None = None
+        self._adopted_at = 0.0
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self) -> int:
@@ -505,6 +506,7 @@ class Dispatcher:
                         for lk in self.links.values()
                     ):
                         self.all_acknowledged = now
+                        self.state.upload_s = now - (self.upload_started or now)
                     if self.config.verify_missions:
                         # An ArduPilot upload is not atomic and the link may be lossy:
                         # read the mission back before it is driven (docs/restart.md).
@@ -694,6 +696,7 @@ class Dispatcher:
             job, reason, since = result
             self.replans.append([reason, now - since, None])
             changed = self._adopt(job, reason, now)
+            self._adopted_at = now
             self._awaiting_acks = (len(self.replans) - 1, changed, since)
             if not changed:
                 self.replans[-1][2] = now - since
@@ -836,6 +839,8 @@ class Dispatcher:
             self.store.append(event, time.time())
         if isinstance(event, ev.UploadAcked) and self._awaiting_acks is not None:
             index, waiting, since = self._awaiting_acks
+            if event.vehicle in waiting:
+                self.state.upload_s = max(self.state.upload_s, now - self._adopted_at)
             waiting.discard(event.vehicle)
             if not waiting:
                 self.replans[index][2] = now - since

@@ -249,6 +249,9 @@ class FleetState:
                 self.fields[fid] = FieldState(fid, m.id)
         self._count_segments(document)
         self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
+        # Wall seconds it takes to get missions on board (the first uploads, and the
+        # slowest vehicle of any re-plan since): how long a re-plan's kept part must last.
+        self.upload_s = 0.0
 
     # --- knowledge: events ----------------------------------------------------------------
     def apply(self, event: ev.Event, now: float) -> None:

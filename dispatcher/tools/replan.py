@@ -282,8 +282,9 @@ def replanner_for(
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
     returns the job to carry on with; the solver stops after ``seconds``, and driving
-    vehicles keep ``seconds + LEAD_S`` of their old missions, or ``LEAD_S`` plus twice what
-    the last re-plan took when that is more (a big farm on a busy gateway)."""
+    vehicles keep a lead of their old missions: ``LEAD_S``, plus ``seconds`` or twice what
+    the last re-plan took when that is more (a big farm on a busy gateway), plus one and a
+    half times what getting missions on board took last (``FleetState.upload_s``)."""
     base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
     return _replanner(scenario, dispatch, dispatch.job(), base, seconds)
 
@@ -326,7 +327,7 @@ def _replanner(
         began = time.monotonic()
         if base is None:
             base = first_visits(scenario, job.document)
-        lead_s = max(seconds + LEAD_S, 2.0 * took_s + LEAD_S)
+        lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
         stop = stop_after(scenario.solver.generations, seconds)
         nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base)
         for m in nxt.plan.machines:  # a field planned whole again is numbered anew
