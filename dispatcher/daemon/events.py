@@ -143,6 +143,14 @@ class Rebooted(Event):
 
 
 @dataclass(frozen=True)
+class SwitchUploaded(Event):
+    """A driving vehicle's new mission is on board (its upload acknowledged; it is read
+    back next): from now on its reports are about the new mission's items."""
+
+    kind: ClassVar[str] = "switch_uploaded"
+
+
+@dataclass(frozen=True)
 class RouteJoined(Event):
     """A re-planned vehicle that drove past the part of its old mission its new one keeps
     is sent to ``item`` of its new mission: the first not worked already (the swaths it did
@@ -178,6 +186,7 @@ EVENTS: dict[str, type[Event]] = {
         UploadStarted,
         UploadFailed,
         UploadAcked,
+        SwitchUploaded,
         RouteJoined,
         Resumed,
         StartRequested,

@@ -759,6 +759,8 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         if link.download is None:
+            if v.old_items is not None:
+                self._apply(ev.SwitchUploaded(v.id), now)
             link.download = MissionDownload(v.system_id)
             self._send(v.id, link.download.start(now))
             return

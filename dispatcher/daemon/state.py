@@ -155,8 +155,9 @@ class VehicleState:
     stalled: bool = False  # lost for getting nowhere in AUTO (until it moves)
     retired: bool = False  # left out of the plan after a re-plan (it was lost)
     switch: bool = False  # driving; its new mission (same start) is to be uploaded
-    # While switching: the mission still on board, and the last of its items reached beyond
-    # the part the new one keeps (a vehicle that drove past it).
+    # While switching, until the new mission is on board (SwitchUploaded): the mission
+    # still on board, and the last of its items reached beyond the part the new one keeps
+    # (a vehicle that drove past it).
     old_items: tuple[PlannedItem, ...] | None = None
     old_reached: int = 0
     route_from: int = 1  # the first item of its current route (after a re-plan: the new part)
@@ -279,6 +280,8 @@ class FleetState:
             case ev.UploadAcked():
                 v.acked = True
                 v.switch = False
+                v.old_items = None
+            case ev.SwitchUploaded():
                 v.old_items = None
             case ev.RouteJoined(item=item):
                 v.reached = min(max(item - 1, 0), len(v.items) - 1)
