@@ -201,11 +201,19 @@ class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
     pymavlink's ``check_signature`` records a frame's timestamp as its stream's newest
     before it checks the signature: one forged frame with a late timestamp would make every
     genuine frame after it look like a replay. Here a frame counts only once its signature
-    is right: then its timestamp must be newer than its stream's last (a replay is not),
-    or, for a stream not seen before, at most a minute older than the clock (the
-    specification says than our own timestamp; ours may run ahead of the clock after a
-    restart, by the margin the dispatcher keeps, and would then refuse every sender met
-    anew)."""
+    is right. Then its timestamp must not have been seen on its stream before (a replay)
+    and be newer than the stream's newest less :data:`REORDER_WINDOW` — the specification
+    wants it newer than the newest, but a radio or a network that delivers frames out of
+    order would then lose every frame overtaken by a later one; the timestamps of that
+    window are remembered, so a frame is still taken at most once (the sliding window of
+    IPsec's replay protection, RFC 4303). A stream not seen before must be at most a
+    minute older than the clock (the specification says than our own timestamp; ours may
+    run ahead of the clock after a restart, by the margin the dispatcher keeps, and would
+    then refuse every sender met anew)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._recent: dict[tuple[int, int, int], set[int]] = {}  # per stream, in the window
 
     def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         signing = self.signing
@@ -216,16 +224,25 @@ class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
         stamp = low + (high << 32)
         stream = (msgbuf[-13], src_system, src_component)
         last = signing.stream_timestamps.get(stream)
-        if last is not None and stamp <= last:
+        recent = self._recent.setdefault(stream, set())
+        if last is not None and (stamp <= last - REORDER_WINDOW or stamp in recent):
             return False
         if last is None and stamp + _NEW_STREAM_SLACK < signing_timestamp():
             return False
-        signing.stream_timestamps[stream] = stamp
+        newest = stamp if last is None else max(last, stamp)
+        recent.add(stamp)
+        if newest != last and len(recent) > 64:
+            recent.difference_update([s for s in recent if s <= newest - REORDER_WINDOW])
+        signing.stream_timestamps[stream] = newest
         signing.timestamp = max(signing.timestamp, stamp)
         return True
 
 
 _NEW_STREAM_SLACK = 60 * 100_000  # one minute in signing timestamp units
+
+REORDER_WINDOW = 2 * 100_000
+"""How far (10 us units: two seconds) a signed frame may arrive behind the newest of its
+stream and still be taken, once (:class:`_MAVLink`)."""
 
 
 def _set_signing(mav: Any, key: bytes, link_id: int, timestamp: int | None) -> None:
@@ -307,6 +324,13 @@ class Codec:
     def signed(self) -> bool:
         return self._mav.signing.secret_key is not None
 
+    def _follow_clock(self) -> None:
+        """Signing timestamps follow the clock (pymavlink only adds one per frame): a
+        receiver meeting this sender anew takes a stream at most a minute behind its clock."""
+        signing = self._mav.signing
+        if signing.sign_outgoing:
+            signing.timestamp = max(signing.timestamp, signing_timestamp())
+
     @property
     def timestamp(self) -> int:
         """The signing timestamp the next frame will carry (to keep across a restart)."""
@@ -324,6 +348,7 @@ class Codec:
 
     def encode(self, msg: MAVLinkMessage) -> bytes:
         """One MAVLink 2 frame carrying ``msg``; advances the sequence number."""
+        self._follow_clock()
         frame = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
         return frame
@@ -332,6 +357,7 @@ class Codec:
         """``msg`` as a MAVLink 2 frame from its own system, component and sequence number,
         signed when this codec signs: a frame another sender sent unsigned (an autopilot
         without signing, behind the bridge), passed on signed."""
+        self._follow_clock()
         mav = self._mav
         own = (mav.srcSystem, mav.srcComponent, mav.seq)
         mav.srcSystem, mav.srcComponent, mav.seq = (

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 import stat
+import time
 from pathlib import Path
 
 import pytest
@@ -137,13 +138,48 @@ def test_serve_without_keys_refuses_to_start_unsigned_by_accident(tmp_path: Path
     assert "no MAVLink signing keys" in err and "--unsigned" in err and "tiny.toml" in err
 
 
-def test_a_restarted_dispatcher_ahead_of_the_clock_still_takes_a_vehicle_met_anew() -> None:
+def test_a_restarted_dispatcher_ahead_of_the_clock_still_takes_a_vehicle_met_anew(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """After a restart the dispatcher's own timestamps start from the mark its store kept,
-    up to a minute ahead of the clock; a vehicle's stream, new to it, must still pass."""
+    up to a minute ahead of the clock; a vehicle's stream, new to it, must still pass (and
+    a frame recorded an hour ago must not)."""
     key = os.urandom(32)
     vehicle = mc.Codec(11, 1, key=key)
     restarted = mc.Codec(255, 190, key=key, timestamp=mc.signing_timestamp() + 60 * 100_000)
     assert restarted.decode_one(vehicle.encode(heartbeat())) is not None
-    old = mc.Codec(11, 1, key=key, timestamp=0)
-    old._mav.signing.timestamp = mc.signing_timestamp() - 3600 * 100_000  # an hour old
-    assert mc.Codec(255, 190, key=key).decode_one(old.encode(heartbeat())) is None
+    now = time.time()
+    monkeypatch.setattr(time, "time", lambda: now - 3600.0)
+    recorded = mc.Codec(11, 1, key=key).encode(heartbeat())
+    monkeypatch.setattr(time, "time", lambda: now)
+    assert mc.Codec(255, 190, key=key).decode_one(recorded) is None
+
+
+def test_a_long_running_sender_is_still_taken_by_a_receiver_that_meets_it_anew(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A restarted dispatcher meets a tractor that has been signing for hours: the
+    tractor's timestamps follow the clock, so its stream is not taken for an old one."""
+    key = os.urandom(32)
+    vehicle = mc.Codec(11, 1, key=key)
+    vehicle.encode(heartbeat())
+    later = time.time() + 3600.0
+    monkeypatch.setattr(time, "time", lambda: later)
+    frame = vehicle.encode(heartbeat())
+    assert mc.Codec(255, 190, key=key).decode_one(frame) is not None
+
+
+def test_frames_out_of_order_are_taken_once_each_and_replays_are_not() -> None:
+    """A radio that delivers frames out of order loses none of them to the replay check;
+    each is still taken at most once, and one older than the window is refused."""
+    key = os.urandom(32)
+    sender, receiver = mc.Codec(11, 1, key=key), mc.Codec(255, 190, key=key)
+    frames = [sender.encode(heartbeat()) for _ in range(5)]
+    for frame in (frames[0], frames[3], frames[1], frames[4], frames[2]):
+        assert receiver.decode_one(frame) is not None
+    assert all(receiver.decode_one(frame) is None for frame in frames)  # each once
+    old = mc.Codec(11, 1, key=key)
+    old_frame = old.encode(heartbeat())
+    ahead = mc.Codec(11, 1, key=key, timestamp=mc.signing_timestamp() + 3 * mc.REORDER_WINDOW)
+    assert receiver.decode_one(ahead.encode(heartbeat())) is not None
+    assert receiver.decode_one(old_frame) is None  # behind the window
