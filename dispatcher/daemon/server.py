@@ -25,7 +25,7 @@ from typing import Any
 import zenoh
 
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.state import ACTIVE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
+from dispatcher.daemon.state import ACTIVE, GONE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
 from dispatcher.daemon.store import Store, StoredRun
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
@@ -673,6 +673,8 @@ class Dispatcher:
         if replanner is None:
             return
         if self._replan is None and self._replan_reason:
+            if any(v.resuming and v.phase not in GONE for v in self.state.vehicles.values()):
+                return  # after a restart: not before every vehicle has said where it is
             reason, self._replan_reason = self._replan_reason, ""
             snapshot = copy.deepcopy(self.state)
             started = self._replan_wanted_at

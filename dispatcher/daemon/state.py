@@ -114,6 +114,10 @@ class RunClock:
         return 1.0
 
 
+GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
+"""Phases of a vehicle that gets no work in a re-plan (and is not waited for)."""
+
+
 @dataclass
 class VehicleState:
     id: str

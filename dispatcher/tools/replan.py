@@ -27,7 +27,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
-from dispatcher.daemon.state import FleetState, Phase, VehicleState
+from dispatcher.daemon.state import GONE, FleetState, Phase, VehicleState
 from dispatcher.mission.build import Mission, Role, Trace
 from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
@@ -36,9 +36,6 @@ from planner.farm import Farm
 from planner.field_plan import Visit, cover_farm
 from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
 from planner.solve import AnyOf, stop_after
-
-GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
-"""Phases of a vehicle that gets no work in a re-plan."""
 
 ON_SEGMENT = "swath_end"
 """Driving to a segment's end (implement down) is being on that segment."""

@@ -27,7 +27,7 @@ from planner.farm import load_farm
 
 UNFILTERED = os.environ.get("FUZZ_UNFILTERED") == "1"
 FUZZ = settings(
-    max_examples=250,
+    max_examples=150,
     deadline=None,
     derandomize=True,
     database=None,

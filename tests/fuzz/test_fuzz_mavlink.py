@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from dispatcher.link import mavlink as mc
 
 FUZZ = settings(
-    max_examples=250,
+    max_examples=150,
     deadline=None,
     derandomize=True,
     database=None,

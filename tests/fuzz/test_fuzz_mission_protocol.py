@@ -32,7 +32,7 @@ from dispatcher.link.mission_protocol import (
 from sim_vehicles.mission_server import MissionServer, StoredItem
 
 FUZZ = settings(
-    max_examples=250,
+    max_examples=150,
     deadline=None,
     derandomize=True,
     database=None,
