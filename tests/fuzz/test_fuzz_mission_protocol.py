@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from helpers.mavlink_wire import Wire
+from helpers.mavlink_wire import HOME, Wire
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
@@ -29,7 +29,7 @@ from dispatcher.link.mission_protocol import (
     Outcome,
     start_mission_commands,
 )
-from sim_vehicles.mission_server import MissionServer, StoredItem
+from sim_vehicles.mission_server import MissionServer
 
 FUZZ = settings(
     max_examples=150,
@@ -41,20 +41,6 @@ FUZZ = settings(
 
 VEHICLE = (21, mc.MAV_COMP_ID_AUTOPILOT1)
 GCS = (255, 190)
-HOME = StoredItem(
-    seq=0,
-    frame=mc.MAV_FRAME_GLOBAL,
-    command=mc.MAV_CMD_NAV_WAYPOINT,
-    current=0,
-    autocontinue=1,
-    param1=0.0,
-    param2=0.0,
-    param3=0.0,
-    param4=0.0,
-    x=440030000,
-    y=872995000,
-    z=0.0,
-)
 
 # ----------------------------------------------------------------------------- messages
 

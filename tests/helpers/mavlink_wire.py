@@ -12,6 +12,23 @@ from dataclasses import dataclass, field
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire as contract
+from sim_vehicles.mission_server import StoredItem
+
+HOME = StoredItem(
+    seq=0,
+    frame=mc.MAV_FRAME_GLOBAL,
+    command=mc.MAV_CMD_NAV_WAYPOINT,
+    current=0,
+    autocontinue=1,
+    param1=0.0,
+    param2=0.0,
+    param3=0.0,
+    param4=0.0,
+    x=440030000,
+    y=872995000,
+    z=0.0,
+)
+"""Item 0 of a simulated vehicle's mission, as ArduPilot reports its home."""
 
 
 @dataclass

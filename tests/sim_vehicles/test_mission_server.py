@@ -7,7 +7,7 @@ station sends, at which link time, and what the vehicle must answer.
 from __future__ import annotations
 
 import pytest
-from helpers.mavlink_wire import Wire, only, types
+from helpers.mavlink_wire import HOME, Wire, only, types
 
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.build import Mission
@@ -16,22 +16,6 @@ from sim_vehicles.mission_server import (
     UPLOAD_TIMEOUT_S,
     MissionServer,
     RequestMessage,
-    StoredItem,
-)
-
-HOME = StoredItem(
-    seq=0,
-    frame=mc.MAV_FRAME_GLOBAL,
-    command=mc.MAV_CMD_NAV_WAYPOINT,
-    current=0,
-    autocontinue=1,
-    param1=0.0,
-    param2=0.0,
-    param3=0.0,
-    param4=0.0,
-    x=440030000,
-    y=872995000,
-    z=0.0,
 )
 
 
