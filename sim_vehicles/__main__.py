@@ -75,17 +75,7 @@ def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParse
     p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle as JSON at exit")
     add_signing_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    g = p.add_argument_group("zenoh (not with --mavlink)")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
-    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    g.add_argument(
-        "--connect",
-        action="append",
-        metavar="ENDPOINT",
-        help=f"default {wire.DEFAULT_ENDPOINT} when neither --listen nor --connect",
-    )
-    g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
-    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+    wire.add_zenoh_arguments(p, title="zenoh (not with --mavlink)")
     return p
 
 
@@ -118,6 +108,7 @@ def check_mavlink_args(args: argparse.Namespace, ids: Sequence[str]) -> None:
             ("--connect", args.connect),
             ("--zenoh-config", args.zenoh_config),
             ("--cfg", args.cfg),
+            ("--tls", args.tls),
         )
         if value
     ]
@@ -145,17 +136,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
             if args.all
             else [scenario.vehicle(vid).id for vid in args.vehicle]
         )
-        listen = tuple(args.listen or ())
-        connect = tuple(args.connect or ())
-        if not listen and not connect and args.mode != "router":
-            connect = (wire.DEFAULT_ENDPOINT,)
-        options = wire.ZenohOptions(
-            mode=args.mode,
-            listen=listen,
-            connect=connect,
-            config_file=args.zenoh_config,
-            extra=tuple(args.cfg or ()),
-        )
+        options = wire.zenoh_options(args, False, identity=ids[0])
         options.config()  # a bad --cfg or --mode fails here, with a message
         params = RoverParams(
             mission_done=args.mission_done,

@@ -19,6 +19,7 @@ runs it on a plain MAVLink socket instead of Zenoh.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import queue
@@ -150,9 +151,14 @@ def run(
     links: list[_Link] = []
     boot_unix_s = time.time()
     try:
-        with zenoh.open(options.config()) as session:
+        with contextlib.ExitStack() as sessions:
+            shared = None if options.tls else sessions.enter_context(zenoh.open(options.config()))
             try:
                 for index, vehicle in enumerate(vehicles):
+                    # With TLS each vehicle is its own identity: a session (and certificate) each.
+                    session = shared or sessions.enter_context(
+                        zenoh.open(options.as_identity(vehicle.id).config())
+                    )
                     tractor = SimTractor(
                         vehicle,
                         scenario.farm.garage_lonlat,

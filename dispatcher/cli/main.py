@@ -217,11 +217,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
     from dispatcher.daemon.store import Store, StoreError, default_data_dir
+    from dispatcher.link.access import access_control, as_hub
     from dispatcher.link.keys import signing_keys
     from dispatcher.tools.replan import replanner_for, replanner_resumed
 
     scenario = load_scenario_args(args)
-    keys = signing_keys(args, scenario, [v.id for v in scenario.vehicles])
+    ids = [v.id for v in scenario.vehicles]
+    keys = signing_keys(args, scenario, ids)
+    zenoh = as_hub(wire.zenoh_options(args, True), access_control(scenario.farm_id, ids))
+    zenoh.config()  # a missing certificate or a plain endpoint with --tls: said before planning
     data_dir = args.data_dir or default_data_dir(scenario.farm_id)
     fingerprint = inputs_fingerprint(scenario, args)
     store = Store.open(data_dir, scenario.farm_id, args.sync)
@@ -251,7 +255,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         daemon = Dispatcher(
             DaemonConfig(
                 job=job,
-                zenoh=wire.zenoh_options(args, True),
+                zenoh=zenoh,
                 log_dir=args.log_dir,
                 heartbeat_timeout_s=scenario.watch.lost_after_s,
                 stall_after_s=scenario.watch.stall_after_s,
@@ -299,10 +303,40 @@ def cmd_keys(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_certs(args: argparse.Namespace) -> int:
+    from dispatcher.config.scenario import load_scenario
+    from dispatcher.link.access import (
+        ACL_FILE,
+        CA_FILE,
+        DEFAULT_HOSTS,
+        DISPATCHER,
+        OPERATOR,
+        ROUTER,
+        ZENOHD_FILE,
+        make_farm_pki,
+    )
+
+    scenario = load_scenario(args.scenario)
+    ids = [v.id for v in scenario.vehicles]
+    hosts = tuple(args.host or DEFAULT_HOSTS)
+    written = make_farm_pki(args.tls, scenario.farm_id, ids, hosts, replace=args.replace)
+    for path in written:
+        print(f"wrote {path}")
+    folder = Path(args.tls)
+    print(
+        f"farm {scenario.farm_id!r}: certificates for {DISPATCHER}, {ROUTER}, {OPERATOR} and "
+        f"{len(ids)} vehicle(s), valid for {', '.join(hosts)}; {len(written)} file(s) new.\n"
+        f"Give each machine {folder / CA_FILE} and its own <name>.pem and <name>.key only; "
+        f"keep ca.key off the farm network. {folder / ACL_FILE} is who may say what, "
+        f"{folder / ZENOHD_FILE} a zenohd router configuration (docs/security.md)."
+    )
+    return EXIT_OK
+
+
 def cmd_bridge(args: argparse.Namespace) -> int:
     from dispatcher.tools.bridge import bridge_command
 
-    return bridge_command(args, wire.zenoh_options(args, False))
+    return bridge_command(args, wire.zenoh_options(args, False, identity=args.vehicle))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -328,11 +362,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from dispatcher.tools.router import DEFAULT_ROUTER_ENDPOINT, run_router
+    from dispatcher.link.access import ROUTER, as_hub, read_acl
+    from dispatcher.tools.router import (
+        DEFAULT_ROUTER_ENDPOINT,
+        DEFAULT_TLS_ROUTER_ENDPOINT,
+        run_router,
+    )
 
     if not args.listen:
-        args.listen = [DEFAULT_ROUTER_ENDPOINT]
-    return run_router(wire.zenoh_options(args, False))
+        args.listen = [DEFAULT_TLS_ROUTER_ENDPOINT if args.tls else DEFAULT_ROUTER_ENDPOINT]
+    options = wire.zenoh_options(args, False, identity=ROUTER)
+    if args.tls:
+        options = as_hub(options, read_acl(args.tls))
+    return run_router(options)
 
 
 def cmd_review(args: argparse.Namespace) -> int:
@@ -432,6 +474,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--replace", action="store_true", help="new keys for vehicles that have one too")
     p.set_defaults(handler=cmd_keys)
+
+    p = sub.add_parser(
+        "certs",
+        help="make the farm's TLS certificates and Zenoh access-control list (docs/security.md)",
+    )
+    p.add_argument("scenario", type=Path, help="scenario TOML: the farm and its vehicles")
+    p.add_argument("--tls", metavar="DIR", required=True, help="folder to write them into")
+    p.add_argument(
+        "--host",
+        action="append",
+        metavar="NAME",
+        help="a name or address the dispatcher or router is reached at (repeat; default "
+        "localhost, 127.0.0.1 and ::1): connectors check the listener's certificate for it",
+    )
+    p.add_argument("--replace", action="store_true", help="new CA, certificates and keys for all")
+    p.set_defaults(handler=cmd_certs)
 
     p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
     p.add_argument(

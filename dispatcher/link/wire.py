@@ -16,15 +16,24 @@ else connecting to it, multicast scouting off.
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import zenoh
+
+from dispatcher.config.errors import ConfigError
+
+if TYPE_CHECKING:
+    from dispatcher.link.access import TlsIdentity
 
 DISPATCHER_SYSTEM_ID = 255
 DISPATCHER_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_TLS_ENDPOINT = "tls/127.0.0.1:7447"
 PREFIX = "agrifleet"
 
 
@@ -60,25 +69,48 @@ def vehicle_of(key: str) -> str | None:
 @dataclass(frozen=True)
 class ZenohOptions:
     """How a process joins the Zenoh network: the command line's ``--mode``,
-    ``--listen``, ``--connect``, ``--config`` and ``--cfg KEY:VALUE``."""
+    ``--listen``, ``--connect``, ``--config``, ``--cfg KEY:VALUE`` and ``--tls DIR``
+    (mutual TLS as ``tls``, the identity; the access-control list ``acl`` is applied by
+    whoever the others connect to: :mod:`dispatcher.link.access`)."""
 
     mode: str = "peer"
     listen: Sequence[str] = ()
     connect: Sequence[str] = ()
     config_file: str | None = None
     extra: Sequence[str] = field(default_factory=tuple)  # "key/path:json5 value"
+    tls: TlsIdentity | None = None
+    acl: dict[str, Any] | None = None
+
+    def as_identity(self, name: str) -> ZenohOptions:
+        """The same options for another identity of the same TLS folder (a simulator
+        process runs each of its vehicles in a session of its own)."""
+        if self.tls is None:
+            return self
+        return replace(self, tls=replace(self.tls, name=name))
 
     def config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         if self.mode not in ("peer", "client", "router"):
             raise ValueError(f"zenoh mode must be peer, client or router, not {self.mode!r}")
         conf.insert_json5("mode", json.dumps(self.mode))
-        # Loopback and configured endpoints only: never look for peers by multicast.
+        # Loopback and configured endpoints only: never look for peers by multicast, and
+        # never listen where nobody asked (a peer's default is every interface, port 0).
         conf.insert_json5("scouting/multicast/enabled", "false")
-        if self.listen:
+        if self.listen or not self.config_file:
             conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        if self.tls is not None:
+            plain = [e for e in (*self.listen, *self.connect) if not e.startswith("tls/")]
+            if plain:
+                raise ConfigError(
+                    f"with TLS every endpoint is tls/HOST:PORT; {', '.join(plain)} would let "
+                    "anyone in without a certificate"
+                )
+            for key, value in self.tls.check().settings():
+                conf.insert_json5(key, value)
+        if self.acl is not None:
+            conf.insert_json5("access_control", json.dumps(self.acl))
         for item in self.extra:
             key, sep, value = item.partition(":")
             if not sep:
@@ -98,30 +130,82 @@ def client_options(connect: Sequence[str] = (DEFAULT_ENDPOINT,), **kw: object) -
 # --- command-line flags of every command that opens a Zenoh session -----------------
 
 
-def zenoh_options(args: argparse.Namespace, default_listen: bool) -> ZenohOptions:
+def zenoh_options(
+    args: argparse.Namespace, default_listen: bool, identity: str | None = None
+) -> ZenohOptions:
     """The Zenoh options of a command from its ``add_zenoh_arguments`` flags; without
     ``--listen``/``--connect`` the dispatcher listens on, and everyone else connects to,
-    ``DEFAULT_ENDPOINT``."""
+    ``DEFAULT_ENDPOINT`` (``DEFAULT_TLS_ENDPOINT`` with ``--tls``). With ``--tls DIR`` the
+    process is ``identity`` of the farm's TLS folder (:mod:`dispatcher.link.access`)."""
+    tls = None
     listen = tuple(args.listen or ())
+    exposed = [e for e in listen if not e.startswith("tls/") and not is_loopback(e)]
+    if exposed and not getattr(args, "insecure_listen", False):
+        raise ConfigError(
+            f"--listen {exposed[0]} without TLS: anyone who reaches it could command the "
+            "tractors. Give --tls DIR (`agrifleet certs`, docs/security.md) and a tls/ "
+            "endpoint, listen on loopback only, or add --insecure-listen for a closed test bench"
+        )
+    if getattr(args, "tls", None):
+        from dispatcher.link.access import DISPATCHER, TlsIdentity
+
+        tls = TlsIdentity(Path(args.tls), identity or DISPATCHER)
     connect = tuple(args.connect or ())
     if not listen and not connect and args.mode != "router":
+        default = DEFAULT_TLS_ENDPOINT if tls else DEFAULT_ENDPOINT
         if default_listen:
-            listen = (DEFAULT_ENDPOINT,)
+            listen = (default,)
         else:
-            connect = (DEFAULT_ENDPOINT,)
+            connect = (default,)
     return ZenohOptions(
         mode=args.mode,
         listen=listen,
         connect=connect,
         config_file=args.zenoh_config,
         extra=tuple(args.cfg or ()),
+        tls=tls,
     )
 
 
-def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
-    g = p.add_argument_group("zenoh")
+def add_zenoh_arguments(
+    p: argparse.ArgumentParser, mode: str = "peer", title: str = "zenoh"
+) -> None:
+    g = p.add_argument_group(title)
     g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
-    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT")
+    g.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"e.g. {DEFAULT_ENDPOINT}, or tls/HOST:PORT with --tls",
+    )
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"default {DEFAULT_ENDPOINT} ({DEFAULT_TLS_ENDPOINT} with --tls) when neither "
+        "--listen nor --connect",
+    )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
     g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+    g.add_argument(
+        "--tls",
+        metavar="DIR",
+        help="the farm's certificates (`agrifleet certs`): mutual TLS, and the access-control "
+        "list where the others connect (docs/security.md)",
+    )
+    g.add_argument(
+        "--insecure-listen",
+        action="store_true",
+        help="allow listening beyond loopback without TLS (a closed test bench only)",
+    )
+
+
+def is_loopback(endpoint: str) -> bool:
+    """Whether ``proto/host:port`` is reachable from this machine only."""
+    address = endpoint.partition("/")[2].rsplit(":", 1)[0].strip("[]")
+    if address == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False

@@ -574,7 +574,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
     )
     try:
-        return bridge_command(args, wire.zenoh_options(args, False))
+        return bridge_command(args, wire.zenoh_options(args, False, identity=args.vehicle))
     except DispatcherError as exc:
         log.error("%s", exc)
         return EXIT_BAD_INPUT

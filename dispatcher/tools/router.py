@@ -3,7 +3,9 @@
 zenohd is not installable from the package registries here, so this is a Zenoh session in
 router mode, which routes between the clients and peers connected to it (and other
 routers it connects to). Dispatchers, vehicles and bridges then run in client mode with
-``--mode client --connect tcp/<router>:7447``.
+``--mode client --connect tls/<router>:7447 --tls DIR``; with ``--tls DIR`` the router is
+the farm's ``router`` identity and applies the access-control list ``agrifleet certs``
+wrote there (docs/security.md).
 """
 
 from __future__ import annotations
@@ -18,7 +20,9 @@ from dispatcher.link.wire import ZenohOptions
 
 log = logging.getLogger(__name__)
 
-DEFAULT_ROUTER_ENDPOINT = "tcp/0.0.0.0:7447"
+DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Without TLS a router listens on loopback only (``--insecure-listen`` to go wider)."""
+DEFAULT_TLS_ROUTER_ENDPOINT = "tls/0.0.0.0:7447"
 
 
 def run_router(options: ZenohOptions, stop: threading.Event | None = None) -> int:

@@ -122,10 +122,18 @@ class Processes:
         )
 
     def sim(
-        self, scenario: Path, port: int, speedup: float, *vehicles: str, extra: tuple[str, ...] = ()
+        self,
+        scenario: Path,
+        port: int,
+        speedup: float,
+        *vehicles: str,
+        extra: tuple[str, ...] = (),
+        scheme: str = "tcp",
     ) -> subprocess.Popen[str]:
-        """Simulated tractors (``python -m sim_vehicles``) connected to the dispatcher."""
-        args = [str(scenario), "--connect", f"tcp/127.0.0.1:{port}", "--speedup", f"{speedup:g}"]
+        """Simulated tractors (``python -m sim_vehicles``) connected to the dispatcher
+        (``scheme`` "tls" with ``--tls DIR`` in ``extra``)."""
+        args = [str(scenario), "--connect", f"{scheme}/127.0.0.1:{port}"]
+        args += ["--speedup", f"{speedup:g}"]
         args += ["--keys", self.keys(scenario)]
         for v in vehicles:
             args += ["--vehicle", v]

@@ -1,0 +1,372 @@
+"""Who may say what on the farm's Zenoh network: TLS identities and the access-control list.
+
+Every process proves who it is with a certificate of the farm's own certificate authority
+(mutual TLS: the listener checks the connector's certificate as well as the other way
+round), and the process everyone connects to (the dispatcher, or ``agrifleet router``) lets
+each identity publish only on its own keys:
+
+- ``dispatcher``: everything under ``agrifleet/<farm>/``; the only one that may publish on
+  a vehicle's ``…/mavlink/to``;
+- ``<vehicle id>``: its own ``…/mavlink/from`` and ``…/alive``, and hears only its own keys;
+- ``operator``: viewers and tools (status queries, the plan, watching); publishes nothing.
+
+A session without a certificate of the farm's authority cannot connect at all; an
+authenticated one that publishes on another's keys is dropped where it enters (the ACL's
+ingress rules), so it reaches neither the dispatcher nor a vehicle.
+
+A TLS folder (made by ``agrifleet certs``, :func:`make_farm_pki`) holds ``ca.pem``, and for
+each identity ``<name>.pem`` (certificate, common name = the identity) and ``<name>.key``
+(private key, mode 600). :func:`access_control` is the ACL block for a farm, the same
+whether the dispatcher or a router applies it; ``certs`` writes it as well, with a complete
+zenohd configuration, for those who run their own router. docs/security.md has the set-up.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import os
+import stat
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from dispatcher.config.errors import ConfigError
+from dispatcher.link import wire
+
+DISPATCHER = "dispatcher"
+ROUTER = "router"
+OPERATOR = "operator"
+CA_FILE = "ca.pem"
+ACL_FILE = "acl.json5"
+ZENOHD_FILE = "zenohd.json5"
+CERT_SUFFIX = ".pem"
+KEY_SUFFIX = ".key"
+DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
+CA_DAYS = 3650
+LEAF_DAYS = 825  # the longest a public CA may sign for; renew with `agrifleet certs --replace`
+
+ALL_MESSAGES = (
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+    "liveliness_query",
+    "declare_liveliness_subscriber",
+)
+WATCH_MESSAGES = (
+    "query",
+    "declare_subscriber",
+    "liveliness_query",
+    "declare_liveliness_subscriber",
+)
+INTEREST_MESSAGES = ("declare_subscriber", "declare_liveliness_subscriber")
+
+
+class AccessError(ConfigError):
+    """A TLS folder that is missing a file, or a private key open to others."""
+
+
+@dataclass(frozen=True)
+class TlsIdentity:
+    """One identity's files in a TLS folder."""
+
+    folder: Path
+    name: str
+
+    @property
+    def ca(self) -> Path:
+        return self.folder / CA_FILE
+
+    @property
+    def cert(self) -> Path:
+        return self.folder / f"{self.name}{CERT_SUFFIX}"
+
+    @property
+    def key(self) -> Path:
+        return self.folder / f"{self.name}{KEY_SUFFIX}"
+
+    def check(self) -> TlsIdentity:
+        """Self, once its three files are there and its key is its owner's only; else
+        :class:`AccessError` naming the file."""
+        for path in (self.ca, self.cert):
+            if not path.is_file():
+                raise AccessError(
+                    f"{path}: missing; make the farm's certificates with "
+                    f"`agrifleet certs SCENARIO --tls {self.folder}`"
+                )
+        check_private(self.key, f"the TLS key of {self.name!r}", f"--tls {self.folder}")
+        return self
+
+    def settings(self) -> list[tuple[str, str]]:
+        """The Zenoh configuration of mutual TLS with this identity (``insert_json5`` pairs),
+        for listening and connecting alike."""
+        tls = "transport/link/tls/"
+        ca, cert, key = (json.dumps(str(p.resolve())) for p in (self.ca, self.cert, self.key))
+        return [
+            (tls + "root_ca_certificate", ca),
+            (tls + "listen_certificate", cert),
+            (tls + "listen_private_key", key),
+            (tls + "connect_certificate", cert),
+            (tls + "connect_private_key", key),
+            (tls + "enable_mtls", "true"),
+            (tls + "verify_name_on_connect", "true"),
+        ]
+
+
+def check_private(path: Path, what: str, remedy: str) -> None:
+    """A private file must exist and be readable by its owner only (as ssh wants of a
+    private key); :class:`AccessError` names the file and the fix."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise AccessError(
+            f"{path}: no {what}; make it with `agrifleet certs SCENARIO {remedy}`"
+        ) from None
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise AccessError(
+            f"{path}: {what} is open to group or others (mode {stat.S_IMODE(mode):03o}); "
+            f"make it the owner's only: chmod 600 {path}"
+        )
+
+
+# --- the access-control list --------------------------------------------------------
+
+
+def _rule(rule_id: str, flow: str, messages: Sequence[str], keys: Sequence[str]) -> dict[str, Any]:
+    return {
+        "id": rule_id,
+        "permission": "allow",
+        "flows": [flow],
+        "messages": list(messages),
+        "key_exprs": list(keys),
+    }
+
+
+def access_control(farm: str, vehicle_ids: Iterable[str]) -> dict[str, Any]:
+    """The ``access_control`` block of the process everyone connects to: deny by default;
+    the dispatcher everything on the farm's keys; each vehicle its own keys only (it may
+    publish on ``from``/``alive`` and subscribe to ``to``, and hears nothing of others);
+    an operator may watch and query but not publish."""
+    farm_keys = f"{wire.PREFIX}/{farm}/**"
+    rules = [
+        _rule("dispatcher-in", "ingress", ALL_MESSAGES, [farm_keys]),
+        _rule("dispatcher-out", "egress", ALL_MESSAGES, [farm_keys]),
+        _rule("operator-in", "ingress", WATCH_MESSAGES, [farm_keys]),
+        _rule("operator-out", "egress", ALL_MESSAGES, [farm_keys]),
+        # A peer publishes only where it knows of a subscriber: a vehicle must learn that
+        # the dispatcher listens on ``vehicle/*/mavlink/from`` (who listens, never what).
+        _rule("interest-out", "egress", INTEREST_MESSAGES, [farm_keys]),
+    ]
+    subjects = [
+        {"id": DISPATCHER, "cert_common_names": [DISPATCHER]},
+        {"id": OPERATOR, "cert_common_names": [OPERATOR]},
+    ]
+    policies = [
+        {"id": DISPATCHER, "rules": ["dispatcher-in", "dispatcher-out"], "subjects": [DISPATCHER]},
+        {"id": OPERATOR, "rules": ["operator-in", "operator-out"], "subjects": [OPERATOR]},
+    ]
+    for vid in vehicle_ids:
+        own = f"{wire.PREFIX}/{farm}/vehicle/{vid}/**"
+        ids = [f"{vid}-says", f"{vid}-alive", f"{vid}-listens", f"{vid}-hears"]
+        rules += [
+            _rule(ids[0], "ingress", ("put",), [wire.vehicle_from(farm, vid)]),
+            _rule(ids[1], "ingress", ("liveliness_token",), [wire.vehicle_alive(farm, vid)]),
+            _rule(ids[2], "ingress", ("declare_subscriber",), [wire.vehicle_to(farm, vid)]),
+            _rule(ids[3], "egress", ALL_MESSAGES, [own]),
+        ]
+        subjects.append({"id": f"vehicle-{vid}", "cert_common_names": [vid]})
+        subject = f"vehicle-{vid}"
+        policies.append({"id": subject, "rules": [*ids, "interest-out"], "subjects": [subject]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def as_hub(options: wire.ZenohOptions, acl: dict[str, Any]) -> wire.ZenohOptions:
+    """``options`` applying ``acl`` when others connect to this process over TLS (the
+    dispatcher listening, or a router); unchanged otherwise."""
+    if options.tls is None or not options.listen:
+        return options
+    return replace(options, acl=acl)
+
+
+def zenohd_config(identity: TlsIdentity, acl: dict[str, Any], listen: Sequence[str]) -> dict:
+    """A complete configuration for a stock ``zenohd`` router as the farm's hub."""
+    conf: dict[str, Any] = {
+        "mode": "router",
+        "listen": {"endpoints": list(listen)},
+        "scouting": {"multicast": {"enabled": False}},
+        "access_control": acl,
+    }
+    for path, value in identity.settings():
+        node = conf
+        *parents, leaf = path.split("/")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = json.loads(value)
+    return conf
+
+
+# --- the farm's certificate authority ----------------------------------------------
+
+
+def make_farm_pki(
+    folder: str | os.PathLike[str],
+    farm: str,
+    vehicle_ids: Sequence[str],
+    hosts: Sequence[str] = DEFAULT_HOSTS,
+    replace: bool = False,
+    now: datetime.datetime | None = None,
+) -> list[Path]:
+    """A certificate authority for ``farm`` and a certificate for the dispatcher, a router,
+    an operator and each vehicle, in ``folder`` (mode 700; private keys mode 600), with the
+    farm's ACL and a zenohd configuration; the paths written. Existing files are kept
+    unless ``replace``. ``hosts`` are the names and addresses the listeners (dispatcher,
+    router) are reached at: a connector checks the listener's certificate against them."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    reserved = sorted({DISPATCHER, ROUTER, OPERATOR, "ca"} & set(vehicle_ids))
+    if reserved:
+        raise AccessError(
+            f"vehicle id {reserved[0]!r} is the name of another identity on the farm's network; "
+            "rename the vehicle"
+        )
+    out = Path(folder)
+    out.mkdir(mode=0o700, parents=True, exist_ok=True)
+    now = now or datetime.datetime.now(datetime.UTC)
+    written: list[Path] = []
+
+    def write(path: Path, data: bytes, private: bool) -> None:
+        tmp = path.with_name(path.name + ".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.chmod(tmp, 0o600 if private else 0o644)
+        os.replace(tmp, path)
+        written.append(path)
+
+    def key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
+        return key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        )
+
+    ca_cert_path, ca_key_path = out / CA_FILE, out / f"ca{KEY_SUFFIX}"
+    if ca_cert_path.exists() and ca_key_path.exists() and not replace:
+        check_private(ca_key_path, "the farm's CA key", f"--tls {out}")
+        ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
+        ca_cert = x509.load_pem_x509_certificate(ca_cert_path.read_bytes())
+        if not isinstance(ca_key, ec.EllipticCurvePrivateKey):
+            raise AccessError(f"{ca_key_path}: not an elliptic-curve key")
+    else:
+        ca_key = ec.generate_private_key(ec.SECP256R1())
+        ca_name = x509.Name(
+            [
+                x509.NameAttribute(NameOID.ORGANIZATION_NAME, f"agrifleet farm {farm}"),
+                x509.NameAttribute(NameOID.COMMON_NAME, f"{farm} farm CA"),
+            ]
+        )
+        ca_cert = (
+            x509.CertificateBuilder()
+            .subject_name(ca_name)
+            .issuer_name(ca_name)
+            .public_key(ca_key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=CA_DAYS))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(
+                x509.KeyUsage(
+                    digital_signature=True,
+                    content_commitment=False,
+                    key_encipherment=False,
+                    data_encipherment=False,
+                    key_agreement=False,
+                    key_cert_sign=True,
+                    crl_sign=True,
+                    encipher_only=False,
+                    decipher_only=False,
+                ),
+                critical=True,
+            )
+            .add_extension(
+                x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False
+            )
+            .sign(ca_key, hashes.SHA256())
+        )
+        write(ca_key_path, key_pem(ca_key), private=True)
+        write(ca_cert_path, ca_cert.public_bytes(serialization.Encoding.PEM), private=False)
+
+    alt_names: list[x509.GeneralName] = []
+    for host in hosts:
+        try:
+            alt_names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            alt_names.append(x509.DNSName(host))
+
+    for name in [DISPATCHER, ROUTER, OPERATOR, *vehicle_ids]:
+        identity = TlsIdentity(out, name)
+        if identity.cert.exists() and identity.key.exists() and not replace:
+            continue
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)]))
+            .issuer_name(ca_cert.subject)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=LEAF_DAYS))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(x509.SubjectAlternativeName(alt_names), critical=False)
+            .add_extension(
+                x509.ExtendedKeyUsage(
+                    [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+                ),
+                critical=False,
+            )
+            .add_extension(
+                x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()),
+                critical=False,
+            )
+            .sign(ca_key, hashes.SHA256())
+        )
+        write(identity.key, key_pem(key), private=True)
+        write(identity.cert, cert.public_bytes(serialization.Encoding.PEM), private=False)
+
+    acl = access_control(farm, vehicle_ids)
+    write(out / ACL_FILE, (json.dumps(acl, indent=2) + "\n").encode(), private=False)
+    zenohd = zenohd_config(TlsIdentity(out, ROUTER), acl, ["tls/0.0.0.0:7447"])
+    write(out / ZENOHD_FILE, (json.dumps(zenohd, indent=2) + "\n").encode(), private=False)
+    return written
+
+
+def read_acl(folder: str | os.PathLike[str]) -> dict[str, Any]:
+    """The ACL ``agrifleet certs`` wrote into a TLS folder (for a router, which knows no
+    scenario)."""
+    path = Path(folder) / ACL_FILE
+    try:
+        acl = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise AccessError(
+            f"{path}: missing; make it with `agrifleet certs SCENARIO --tls {folder}`"
+        ) from None
+    except (OSError, ValueError) as exc:
+        raise AccessError(f"{path}: not an access-control list: {exc}") from exc
+    if not isinstance(acl, dict) or acl.get("enabled") is not True:
+        raise AccessError(f"{path}: not an enabled access-control list")
+    return acl
