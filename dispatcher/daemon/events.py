@@ -160,6 +160,52 @@ class RouteJoined(Event):
     item: int
 
 
+@dataclass(frozen=True)
+class ProgressDoubted(Event):
+    """An alarm: the vehicle said it reached item ``seq`` (MISSION_ITEM_REACHED, or
+    MISSION_CURRENT past it) but its reported positions never came within reach of
+    ``item`` (the first item of the claim it did not pass, :mod:`dispatcher.daemon.plausibility`),
+    ``distance_m`` away at the closest. Nothing of the claim counts as done."""
+
+    kind: ClassVar[str] = "progress_doubted"
+    seq: int
+    item: int
+    distance_m: float
+    source: str  # the message that claimed it
+    field: str | None = None  # the field of the item claimed
+
+    def text(self) -> str:
+        where = f" (field {self.field})" if self.field else ""
+        return (
+            f"{self.vehicle}: {self.source} says item {self.seq}{where} reached, but its track "
+            f"never came within reach of item {self.item} ({self.distance_m:g} m at the "
+            "closest): not counted"
+        )
+
+
+@dataclass(frozen=True)
+class ForeignCommand(Event):
+    """An alarm: a frame on the vehicle's command key (``…/mavlink/to``) that the
+    dispatcher did not send: ``message`` (its type, or "undecodable"), from MAVLink system
+    ``system``, ``signed`` with the vehicle's key or not. The vehicle's mission is read back
+    and restored if it is not the plan's."""
+
+    kind: ClassVar[str] = "foreign_command"
+    message: str
+    system: int
+    signed: bool
+
+    def text(self) -> str:
+        how = "signed with its key: it has leaked" if self.signed else "not signed with its key"
+        return (
+            f"{self.vehicle}: a {self.message} from system {self.system} on its command key, "
+            f"not sent by the dispatcher ({how})"
+        )
+
+
+ALARMS = (ProgressDoubted, ForeignCommand)
+
+
 FLEET = "*"
 """The ``vehicle`` of an event about the whole fleet."""
 
@@ -197,6 +243,8 @@ EVENTS: dict[str, type[Event]] = {
         BackInAuto,
         ItemReached,
         Rebooted,
+        ProgressDoubted,
+        ForeignCommand,
         PlanReplaced,
     )
 }

@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import json
 import logging
+import math
 import queue
 import threading
 import time
@@ -55,6 +56,7 @@ EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lo
 EXIT_INTERRUPTED = 130
 LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
+FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
@@ -164,6 +166,13 @@ class Dispatcher:
             )
             for vid in self.state.vehicles
         }
+        # Whether a foreign frame on a vehicle's command key is signed with its key (a leak).
+        self.command_checks = {
+            vid: mc.Codec(wire.DISPATCHER_SYSTEM_ID, wire.DISPATCHER_COMPONENT_ID, key=key)
+            for vid, key in keys.items()
+        }
+        self.foreign_frames: dict[str, int] = {}  # frames on a vehicle's key not sent by us
+        self._foreign_alarmed: dict[str, float] = {}
         missing = [vid for vid in self.state.vehicles if config.keys and vid not in keys]
         if missing:
             raise ValueError(f"no signing key for {', '.join(missing)}")
@@ -217,6 +226,14 @@ class Dispatcher:
         self._entities.append(
             s.declare_subscriber(
                 f"{wire.PREFIX}/{self.farm}/vehicle/*/mavlink/from", self._on_frame
+            )
+        )
+        # Commands on a vehicle's key from anyone but us (our own are local): alarms.
+        self._entities.append(
+            s.declare_subscriber(
+                wire.vehicle_to(self.farm, "*"),
+                self._on_command,
+                allowed_origin=zenoh.Locality.REMOTE,
             )
         )
         self._entities.append(
@@ -319,6 +336,9 @@ class Dispatcher:
     def _on_frame(self, sample: zenoh.Sample) -> None:
         self.inbox.put(("frame", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
 
+    def _on_command(self, sample: zenoh.Sample) -> None:
+        self.inbox.put(("command", str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
+
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
         self.inbox.put((kind, str(sample.key_expr), b"", time.time_ns()))
@@ -330,6 +350,9 @@ class Dispatcher:
     def _handle(self, item: tuple[str, str, bytes, int], now: float) -> None:
         kind, key, payload, t_ns = item
         vid = wire.vehicle_of(key)
+        if kind == "command":
+            self._foreign_command(vid, key, payload, t_ns, now)
+            return
         if vid not in self.state.vehicles:
             self._record_only(item)
             return
@@ -375,6 +398,63 @@ class Dispatcher:
             shown = msg if codec is not None else self.codec.decode_one(payload)
             self.recorder.record_frame(key, payload, t_ns, mc.as_dict(shown) if shown else None)
         return msg
+
+    def _foreign_command(
+        self, vid: str | None, key: str, payload: bytes, t_ns: int, now: float
+    ) -> None:
+        """A frame on a vehicle's command key that this dispatcher did not send: recorded,
+        and an alarm (the first, then at most one a second per vehicle; all counted). The
+        vehicle's mission is then read back and restored if it is not ours."""
+        msg = self.codec.decode_one(payload)
+        if self.recorder is not None:
+            self.recorder.record_frame(key, payload, t_ns, mc.as_dict(msg) if msg else None)
+        if vid not in self.state.vehicles:
+            return
+        self.foreign_frames[vid] = self.foreign_frames.get(vid, 0) + 1
+        if now - self._foreign_alarmed.get(vid, -math.inf) < FOREIGN_ALARM_PERIOD_S:
+            return
+        self._foreign_alarmed[vid] = now
+        check = self.command_checks.get(vid)
+        signed = check is not None and check.decode_one(payload) is not None
+        what = msg.get_type() if msg is not None else "undecodable frame"
+        system = msg.get_srcSystem() if msg is not None else -1
+        self._apply(ev.ForeignCommand(vid, what, system, signed), now)
+        self._log("error", self.state.alarms[-1][2] + f" ({self.foreign_frames[vid]} so far)")
+
+    def _verify(self, v: VehicleState, link: _Link, now: float) -> None:
+        """After a command on its key that we did not send: read the vehicle's mission back
+        and, when it is not ours, upload ours again and go on where it was (or park it, if
+        it was done)."""
+        if link.download is None:
+            link.download = MissionDownload(v.system_id)
+            link.since = now
+            self._log("warning", f"{v.id}: reading its mission back (a foreign command)")
+            self._send(v.id, link.download.start(now))
+            return
+        if link.download.outcome is Outcome.RUNNING:
+            return
+        read, link.download = link.download, None
+        v.verify_mission = False
+        different = ""
+        if read.outcome is Outcome.FAILED:
+            different = f"its mission could not be read back ({read.reason})"
+        elif diffs := mission_differences(
+            read.items, self.job.missions[v.id].to_mavlink(v.system_id)
+        ):
+            different = f"holds another mission (differs at {', '.join(diffs)})"
+        if not different:
+            self._log("info", f"{v.id}: its mission read back intact after the foreign command")
+        elif v.phase is Phase.DONE:
+            self._log("error", f"{v.id}: {different}; parked again (HOLD, disarm)")
+            link.park = None
+        else:
+            link.start_item = v.resume_item
+            self._log(
+                "error",
+                f"{v.id}: {different}; uploading ours again, then going on at item "
+                f"{link.start_item}",
+            )
+            self._upload(v, link, now)
 
     def _keep_signing_timestamps(self) -> None:
         """Signing timestamps never go back, across a restart too: the store keeps a mark
@@ -473,6 +553,9 @@ class Dispatcher:
                 if link.hold is None or link.hold.outcome is not Outcome.RUNNING:
                     link.hold = CommandSequence(hold_commands(), v.system_id)
                     self._send(vid, link.hold.start(now))
+            return
+        if v.verify_mission and v.phase in (Phase.RUNNING, Phase.DONE) and not v.switch:
+            self._verify(v, link, now)
             return
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
@@ -824,6 +907,8 @@ class Dispatcher:
     def _publish_status(self, now: float) -> None:
         self._last_status = now
         doc = self.state.status_doc()
+        for vid, count in self.foreign_frames.items():
+            doc["vehicles"][vid]["foreign_commands"] = count
         self._status_json = json.dumps(doc)
         if self.recorder is not None:
             self.recorder.record_status(doc, time.time_ns())

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dispatcher.daemon import events as ev
+from dispatcher.daemon.plausibility import ProgressWitness
+from dispatcher.daemon.plausibility import metres as _metres
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import ROVER_MODE_AUTO
 from dispatcher.mission.document import PlanDocument, PlannedItem, PlannedMachine
@@ -168,6 +170,9 @@ class VehicleState:
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
+    witness: ProgressWitness = field(default_factory=ProgressWitness)  # its track vs claims
+    alarms: int = 0  # progress doubted, commands on its key the dispatcher did not send
+    verify_mission: bool = False  # a foreign command: read its mission back, restore it
 
     @property
     def ready(self) -> bool:
@@ -254,6 +259,8 @@ class FleetState:
                 self.fields[fid] = FieldState(fid, m.id)
         self._count_segments(document)
         self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
+        # Alarms, oldest first: (wall time, vehicle, what): progress doubted, foreign commands.
+        self.alarms: list[tuple[float, str, str]] = []
         # Wall seconds it takes to get missions on board (the first uploads, and the
         # slowest vehicle of any re-plan since): how long a re-plan's kept part must last.
         self.upload_s = 0.0
@@ -314,6 +321,11 @@ class FleetState:
                 v.error = ""
             case ev.ItemReached(seq=seq, clock_s=clock_s):
                 self._item_reached(v, seq, clock_s, now)
+            case ev.ProgressDoubted() | ev.ForeignCommand():
+                v.alarms += 1
+                self.alarms.append((now, v.id, event.text()))
+                if isinstance(event, ev.ForeignCommand):
+                    v.verify_mission = v.phase is not Phase.FAILED and not v.retired
             case ev.Rebooted():
                 v.reboots += 1
                 v.system_status = None  # booting: not ready until a heartbeat says so
@@ -537,6 +549,8 @@ class FleetState:
                 # The vehicle reports its position right after the last waypoint.
                 v.finished_s = v.sim_time_s
                 v.finished_at_next_fix = False
+            self._follow(v)
+            out += v.witness.observe(vid, msg.lat / 1e7, msg.lon / 1e7, now)
         elif kind == "SYSTEM_TIME":
             if msg.time_boot_ms > 0:
                 out += self._clock(v, msg.time_boot_ms / 1000.0, now)
@@ -553,8 +567,24 @@ class FleetState:
             text = mc.statustext(msg)
             v.texts.append((now, int(msg.severity), text))
         elif kind == "MISSION_ITEM_REACHED":
-            out.append(ev.ItemReached(vid, int(msg.seq), v.sim_time_s))
+            out += self._claim(v, int(msg.seq), False, "MISSION_ITEM_REACHED", now)
         return out
+
+    def _follow(self, v: VehicleState) -> None:
+        """Point the vehicle's witness at the mission on board (the old one while a new one
+        is on its way) and the last item taken as reached."""
+        if v.switch and v.old_items is not None:
+            v.witness.follow(v.old_items, max(v.reached, v.old_reached))
+        else:
+            v.witness.follow(v.items, v.reached)
+
+    def _claim(
+        self, v: VehicleState, seq: int, caught_up: bool, source: str, now: float
+    ) -> list[ev.Event]:
+        """The vehicle says it reached ``seq``: counted once its track bears it out
+        (:mod:`dispatcher.daemon.plausibility`)."""
+        self._follow(v)
+        return v.witness.claim(v.id, seq, v.sim_time_s, caught_up, source, now)
 
     def _progress_of_current(self, v: VehicleState, now: float) -> list[ev.Event]:
         """What MISSION_CURRENT says of a running mission that MISSION_ITEM_REACHED did not
@@ -576,7 +606,7 @@ class FleetState:
         last = len(v.items) - 1
         done = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
         if done > v.reached:
-            return [ev.ItemReached(v.id, done, v.sim_time_s, caught_up=True)]
+            return self._claim(v, done, True, "MISSION_CURRENT", now)
         return []
 
     def _clock(self, v: VehicleState, clock_s: float, now: float) -> list[ev.Event]:
@@ -637,6 +667,7 @@ class FleetState:
                     "upload_attempts": v.upload_attempts,
                     "upload_retries": v.upload_retries,
                     "frames_refused": v.frames_refused,
+                    "alarms": v.alarms,
                     "lost_s": round(v.lost_s, 3),
                     "stopped_outside_auto": v.off_auto_since is not None,
                     "system_status": v.system_status,
@@ -658,13 +689,8 @@ class FleetState:
                 }
                 for f in self.fields.values()
             },
+            "alarms": [text for _, _, text in self.alarms[-20:]],
         }
-
-
-def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
-    """Distance between two (lat, lon) close to each other (equirectangular, metres)."""
-    k = math.cos(math.radians((a[0] + b[0]) / 2))
-    return 111_195.0 * math.hypot(b[0] - a[0], (b[1] - a[1]) * k)
 
 
 def _common_prefix(old: tuple[PlannedItem, ...], new: tuple[PlannedItem, ...]) -> int:

@@ -159,6 +159,8 @@ class VehicleReview:
     quality: TrackQuality | None = None  # cross-track error, implement down outside, loops
     # Lost and re-planned around: reviewed against the last mission it was given.
     left_out: bool = False
+    frames_refused: int = 0  # frames on its key not signed with its key, or replayed (status)
+    foreign_commands: int = 0  # frames on its command key the dispatcher did not send
 
     @property
     def started(self) -> bool:
@@ -202,6 +204,18 @@ class Loss:
 
 
 @dataclass(frozen=True)
+class Alarm:
+    """Something the dispatcher did not trust (events.ALARMS): progress its track did not
+    bear out, a command on a vehicle's key it did not send; when (seconds into the log)."""
+
+    vehicle: str
+    at_s: float
+    kind: str
+    text: str
+    field: str | None = None  # progress doubted: the field it claimed
+
+
+@dataclass(frozen=True)
 class Replan:
     """The rest of the work planned again: when (seconds into the log), why, the new plan,
     and the fields that changed hands, as (field, from vehicle, to vehicle)."""
@@ -231,6 +245,7 @@ class Review:
     warnings: tuple[str, ...]
     replans: tuple[Replan, ...] = ()
     losses: tuple[Loss, ...] = ()
+    alarms: tuple[Alarm, ...] = ()
 
     @property
     def makespan_h(self) -> float:
@@ -1067,6 +1082,8 @@ def _review_vehicle(
         reboots=tuple(rel(t) for t in events.reboots),
         autopilot_problems=tuple(problems),
         quality=quality,
+        frames_refused=int(_number(st.get("frames_refused"))),
+        foreign_commands=int(_number(st.get("foreign_commands"))),
     )
     return _VehicleResult(review, field_times, start, planned_s, warnings, items)
 
@@ -1266,6 +1283,15 @@ def review_contents(log: LogContents) -> Review:
         warnings += result.warnings
         warnings.append(f"{vid}: lost; its work was re-planned over the others")
     losses = _losses(log, traffic, since_ns, start_ns)
+    alarms = _alarms(log, since_ns, start_ns)
+    if alarms:
+        warnings.append(f"{len(alarms)} alarm(s): see 'alarms'")
+    for vr in vehicles:
+        if vr.frames_refused or vr.foreign_commands:
+            warnings.append(
+                f"{vr.id}: {vr.frames_refused} frame(s) from it refused (not signed with its "
+                f"key), {vr.foreign_commands} on its command key not sent by the dispatcher"
+            )
     strangers = sorted(set(traffic) - {m.id for m in plan.machines} - left_out)
     if strangers:
         warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
@@ -1308,6 +1334,7 @@ def review_contents(log: LogContents) -> Review:
         warnings=tuple(warnings),
         replans=tuple(replan_reviews),
         losses=tuple(losses),
+        alarms=tuple(alarms),
     )
 
 
@@ -1376,6 +1403,24 @@ def _losses(
         lat, lon = _last_position(traffic.get(vid), rec.log_time_ns)
         at_s = (rec.log_time_ns - start_ns) / 1e9 if start_ns is not None else 0.0
         out.append(Loss(vid, at_s, why, lat, lon))
+    return out
+
+
+def _alarms(log: LogContents, since_ns: int, start_ns: int | None) -> list[Alarm]:
+    """The dispatcher's alarms, as its recorded events tell them."""
+    kinds = {cls.kind for cls in ev.ALARMS}
+    out = []
+    for rec in log.on(EVENTS_TOPIC):
+        doc = rec.decode_json()
+        if rec.log_time_ns < since_ns or not isinstance(doc, dict) or doc.get("kind") not in kinds:
+            continue
+        try:
+            event = ev.from_dict(doc)
+        except (TypeError, ValueError):
+            continue
+        at_s = (rec.log_time_ns - start_ns) / 1e9 if start_ns is not None else 0.0
+        text = event.text() if isinstance(event, ev.ALARMS) else event.kind
+        out.append(Alarm(event.vehicle, at_s, event.kind, text, getattr(event, "field", None)))
     return out
 
 
@@ -1558,6 +1603,8 @@ def review_json(review: Review) -> dict[str, Any]:
                 "upload_retries": v.upload_retries,
                 "upload_source": v.upload_source,
                 "lost_s": r(v.lost_s, 1),
+                "frames_refused": v.frames_refused,
+                "foreign_commands": v.foreign_commands,
                 "heartbeat_gaps_s": r(v.heartbeat_gaps_s, 1),
                 "start_clock_s": r(v.start_clock_s, 3),
                 "end_clock_s": r(v.end_clock_s, 3),
@@ -1650,6 +1697,10 @@ def review_json(review: Review) -> dict[str, Any]:
                 "lon": x.lon,
             }
             for x in review.losses
+        ],
+        "alarms": [
+            {"vehicle": a.vehicle, "at_s": round(a.at_s, 1), "kind": a.kind, "text": a.text}
+            for a in review.alarms
         ],
         "warnings": list(review.warnings),
     }
@@ -1796,6 +1847,13 @@ def review_table(review: Review) -> str:
         for v in review.vehicles:
             lines.append(f"  {v.id:<6} {_quality_line(v)}")
     lines.append("")
+    if review.alarms:
+        lines.append("alarms (what the dispatcher did not trust; nothing of it counted):")
+        lines += [f"  !! {a.at_s:7.1f} s  {a.text}" for a in review.alarms]
+        doubted = sorted({f"{a.field} ({a.vehicle})" for a in review.alarms if a.field})
+        if doubted:
+            lines.append(f"  fields whose progress was not plausible: {', '.join(doubted)}")
+        lines.append("")
     if review.warnings:
         lines.append("warnings:")
         lines += [f"  ! {w}" for w in review.warnings]

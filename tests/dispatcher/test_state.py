@@ -4,7 +4,7 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-from helpers.messages import command_ack, from_vehicle, position
+from helpers.messages import command_ack, from_vehicle, position, track
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
@@ -436,8 +436,12 @@ def test_progress_lost_on_the_link_is_read_from_mission_current(dispatch):
     stale = mission_current(11, last, last, mc.MISSION_STATE_COMPLETE)
     feed(state, "v1", stale, 10.5)
     assert v.reached == 0
+    for fix in track(v.items, 1, 8):
+        feed(state, "v1", fix, 12.0)
     feed(state, "v1", mission_current(11, 9, last, mc.MISSION_STATE_ACTIVE), 13.0)
     assert v.reached == 8  # the MISSION_ITEM_REACHED of items 1..8 were lost
+    for fix in track(v.items, 9, last):
+        feed(state, "v1", fix, 19.0)
     feed(state, "v1", mission_current(11, last, last, mc.MISSION_STATE_COMPLETE), 20.0)
     assert v.phase is Phase.DONE and sorted(v.fields_done) == sorted(
         dispatch.document.machine("v1").fields

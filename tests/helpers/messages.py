@@ -40,3 +40,13 @@ def position(t_ms: int, lat_e7: int = 0, lon_e7: int = 0) -> mc.MAVLinkMessage:
         vz=0,
         hdg=0,
     )
+
+
+def track(items, first: int, last: int, t0_ms: int = 1_000) -> list[mc.MAVLinkMessage]:
+    """GLOBAL_POSITION_INT at each positioned item of ``items[first..last]`` in turn, a
+    second apart: a vehicle's track that passes them (what makes its progress plausible)."""
+    return [
+        position(t0_ms + 1_000 * k, item.x, item.y)
+        for k, item in enumerate(items[first : last + 1])
+        if item.x or item.y
+    ]
