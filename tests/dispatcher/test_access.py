@@ -1,0 +1,156 @@
+"""The farm's certificates, access-control list and TLS options (dispatcher/link/access.py)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import stat
+from pathlib import Path
+
+import pytest
+import zenoh
+from cryptography import x509
+from cryptography.x509.oid import NameOID
+
+from dispatcher.cli.main import main
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
+from dispatcher.link import wire
+from dispatcher.link.access import (
+    ACL_FILE,
+    DISPATCHER,
+    ROUTER,
+    AccessError,
+    TlsIdentity,
+    access_control,
+    make_farm_pki,
+    read_acl,
+    zenohd_config,
+)
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+EXAMPLE = CONFIG / "zenoh" / "changji-router.json5"
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("pki") / "tls"
+    make_farm_pki(folder, "f", ["v1", "v2"], hosts=("localhost", "10.0.0.2"))
+    return folder
+
+
+def test_each_identity_has_a_certificate_of_the_farms_ca_and_a_private_key(pki: Path) -> None:
+    ca = x509.load_pem_x509_certificate((pki / "ca.pem").read_bytes())
+    for name in ("dispatcher", "router", "operator", "v1", "v2"):
+        cert = x509.load_pem_x509_certificate((pki / f"{name}.pem").read_bytes())
+        assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == name
+        assert cert.issuer == ca.subject
+        cert.verify_directly_issued_by(ca)
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert "localhost" in names.get_values_for_type(x509.DNSName)
+        assert [str(a) for a in names.get_values_for_type(x509.IPAddress)] == ["10.0.0.2"]
+        assert stat.S_IMODE((pki / f"{name}.key").stat().st_mode) == 0o600
+    assert stat.S_IMODE(pki.stat().st_mode) == 0o700
+    assert stat.S_IMODE((pki / "ca.key").stat().st_mode) == 0o600
+
+
+def test_existing_certificates_are_kept_and_a_new_vehicle_gets_one(pki: Path) -> None:
+    before = (pki / "v1.pem").read_bytes()
+    written = make_farm_pki(pki, "f", ["v1", "v2", "v3"])
+    assert pki / "v3.pem" in written and pki / "v1.pem" not in written
+    assert (pki / "v1.pem").read_bytes() == before
+    ca = x509.load_pem_x509_certificate((pki / "ca.pem").read_bytes())
+    x509.load_pem_x509_certificate((pki / "v3.pem").read_bytes()).verify_directly_issued_by(ca)
+
+
+def test_a_key_open_to_others_or_missing_is_refused_naming_the_file(pki: Path) -> None:
+    identity = TlsIdentity(pki, "v2").check()
+    identity.key.chmod(0o640)
+    try:
+        with pytest.raises(AccessError, match=r"v2\.key.*chmod 600"):
+            identity.check()
+    finally:
+        identity.key.chmod(0o600)
+    with pytest.raises(AccessError, match=r"nobody\.pem: missing.*agrifleet certs"):
+        TlsIdentity(pki, "nobody").check()
+
+
+def test_a_vehicle_named_as_another_identity_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(AccessError, match="'dispatcher'"):
+        make_farm_pki(tmp_path / "tls", "f", ["v1", DISPATCHER])
+
+
+def test_the_acl_lets_each_vehicle_publish_on_its_own_keys_only() -> None:
+    acl = access_control("f", ["v1", "v2"])
+    assert acl["enabled"] is True and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    policy = {p["id"]: p for p in acl["policies"]}["vehicle-v1"]
+    ingress = [rules[r] for r in policy["rules"] if rules[r]["flows"] == ["ingress"]]
+    keys = {k for r in ingress for k in r["key_exprs"]}
+    assert keys == {
+        wire.vehicle_from("f", "v1"),
+        wire.vehicle_alive("f", "v1"),
+        wire.vehicle_to("f", "v1"),
+    }
+    [to_rule] = [r for r in ingress if r["key_exprs"] == [wire.vehicle_to("f", "v1")]]
+    assert to_rule["messages"] == ["declare_subscriber"]  # it listens there, never says
+    operator = {p["id"]: p for p in acl["policies"]}["operator"]
+    operator_in = [rules[r] for r in operator["rules"] if rules[r]["flows"] == ["ingress"]]
+    assert all("put" not in r["messages"] for r in operator_in)
+
+
+def test_certs_writes_the_acl_a_router_reads(pki: Path) -> None:
+    assert read_acl(pki) == json.loads((pki / ACL_FILE).read_text())
+    assert read_acl(pki) == access_control("f", ["v1", "v2", "v3"])
+
+
+def test_the_shipped_router_example_is_what_certs_writes_for_the_demo_farm() -> None:
+    scenario = load_scenario(CONFIG / "changji.toml")
+    ids = [v.id for v in scenario.vehicles]
+    conf = zenohd_config(
+        TlsIdentity(Path("/etc/agrifleet/tls"), ROUTER),
+        access_control(scenario.farm_id, ids),
+        ["tls/0.0.0.0:7447"],
+    )
+    lines = [ln for ln in EXAMPLE.read_text().splitlines() if not ln.startswith("//")]
+    assert json.loads("\n".join(lines)) == conf
+    loaded = zenoh.Config.from_file(str(EXAMPLE))  # zenohd reads it: comments and all
+    assert json.loads(loaded.get_json("access_control/default_permission")) == "deny"
+
+
+def args(**kw: object) -> argparse.Namespace:
+    base = dict(mode="peer", listen=None, connect=None, zenoh_config=None, cfg=None, tls=None)
+    return argparse.Namespace(**{**base, **kw})
+
+
+def test_a_plain_listener_beyond_loopback_is_refused_unless_asked_for() -> None:
+    with pytest.raises(ConfigError, match="without TLS.*--insecure-listen"):
+        wire.zenoh_options(args(listen=["tcp/0.0.0.0:7447"]), True)
+    wire.zenoh_options(args(listen=["tcp/0.0.0.0:7447"], insecure_listen=True), True)
+    wire.zenoh_options(args(listen=["tcp/127.0.0.1:7447"]), True)
+    wire.zenoh_options(args(listen=["tcp/[::1]:7447"]), True)
+
+
+def test_with_tls_the_default_endpoint_is_tls_and_a_plain_one_is_refused(pki: Path) -> None:
+    options = wire.zenoh_options(args(tls=str(pki)), False, identity="v1")
+    assert options.connect == (wire.DEFAULT_TLS_ENDPOINT,) and options.tls is not None
+    assert options.tls.name == "v1"
+    assert options.as_identity("v2").tls.name == "v2"  # type: ignore[union-attr]
+    conf = options.config()
+    assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
+    plain = wire.zenoh_options(args(tls=str(pki), connect=["tcp/127.0.0.1:7447"]), False)
+    with pytest.raises(ConfigError, match="tcp/127.0.0.1:7447 would let anyone in"):
+        plain.config()
+
+
+def test_a_peer_listens_nowhere_unless_told() -> None:
+    conf = wire.ZenohOptions(connect=("tcp/127.0.0.1:7447",)).config()
+    assert json.loads(conf.get_json("listen/endpoints")) == []
+
+
+def test_agrifleet_certs_writes_the_folder(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    folder = tmp_path / "tls"
+    assert main(["certs", str(CONFIG / "changji.toml"), "--tls", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "keep ca.key off the farm network" in out
+    assert (folder / "t1.pem").is_file() and (folder / "zenohd.json5").is_file()
