@@ -8,7 +8,9 @@ Each Zenoh sample on a ``mavlink`` key carries exactly one MAVLink 2 frame as ra
     agrifleet/<farm>/dispatcher/plan                  current plan JSON (with its plan id)
     agrifleet/<farm>/dispatcher/status                queryable: JSON status of everything
 
-The dispatcher is MAVLink system 255; vehicles use their scenario ``system_id``.
+The dispatcher is MAVLink system 255; vehicles use their scenario ``system_id``. Only the
+dispatcher publishes on ``…/mavlink/to``: it listens there for samples from anyone else and
+raises an alarm (docs/security.md); with ``--tls`` an access-control list enforces it.
 Embedded default: peer mode, the dispatcher listening on tcp/127.0.0.1:7447, everyone
 else connecting to it, multicast scouting off.
 """
