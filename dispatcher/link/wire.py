@@ -36,6 +36,7 @@ DISPATCHER_SYSTEM_ID = 255
 DISPATCHER_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_TLS_ENDPOINT = "tls/127.0.0.1:7447"
+LOOPBACK_PEER_ENDPOINT = "tcp/127.0.0.1:0"
 PREFIX = "agrifleet"
 
 
@@ -96,10 +97,16 @@ class ZenohOptions:
             raise ValueError(f"zenoh mode must be peer, client or router, not {self.mode!r}")
         conf.insert_json5("mode", json.dumps(self.mode))
         # Loopback and configured endpoints only: never look for peers by multicast, and
-        # never listen where nobody asked (a peer's default is every interface, port 0).
+        # never listen beyond where asked. A peer's default is every interface (port 0):
+        # here, loopback only without TLS (the processes of one machine still reach each
+        # other directly) and nowhere with TLS (everything goes through the listener that
+        # applies the access-control list).
         conf.insert_json5("scouting/multicast/enabled", "false")
-        if self.listen or not self.config_file:
+        if self.listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        elif not self.config_file:
+            implicit = [LOOPBACK_PEER_ENDPOINT] if self.mode == "peer" and not self.tls else []
+            conf.insert_json5("listen/endpoints", json.dumps(implicit))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         if self.tls is not None:

@@ -143,8 +143,11 @@ def test_with_tls_the_default_endpoint_is_tls_and_a_plain_one_is_refused(pki: Pa
         plain.config()
 
 
-def test_a_peer_listens_nowhere_unless_told() -> None:
+def test_a_peer_listens_on_loopback_only_and_with_tls_nowhere_unless_told(pki: Path) -> None:
     conf = wire.ZenohOptions(connect=("tcp/127.0.0.1:7447",)).config()
+    assert json.loads(conf.get_json("listen/endpoints")) == [wire.LOOPBACK_PEER_ENDPOINT]
+    tls = TlsIdentity(pki, "v1")
+    conf = wire.ZenohOptions(connect=("tls/127.0.0.1:7447",), tls=tls).config()
     assert json.loads(conf.get_json("listen/endpoints")) == []
 
 
