@@ -151,6 +151,9 @@ def farm_from_geojson(
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: set[str] = set()
+    # A gate names its field as the file does (properties.id, an ISOXML PFD's id): which
+    # fields (parts of a MultiPolygon) that is, when the field id is another property.
+    aliases: dict[str, list[str]] = {}
     for k, feature in enumerate(features):
         where = f"{source}: feature #{k}"
         if not isinstance(feature, dict):
@@ -196,8 +199,15 @@ def farm_from_geojson(
                     f"{where}: a MultiPolygon's coordinates must be a list of polygons, "
                     f"not {_shown(parts)}"
                 )
+            part_ids = (
+                [field_id]
+                if len(parts) == 1
+                else [part_name(field_id, n) for n in range(len(parts))]
+            )
+            for alias in {field_id, _text(_prop(props, "id")) or field_id}:
+                aliases.setdefault(alias, []).extend(part_ids)
             for n, rings in enumerate(parts):
-                part_id = field_id if len(parts) == 1 else part_name(field_id, n)
+                part_id = part_ids[n]
                 here = f"{source}: field {part_id!r}"
                 if part_id in seen:
                     raise GeometryError(f"{here}: duplicate field id")
@@ -254,7 +264,10 @@ def farm_from_geojson(
         )
     by_id = {f.id: f for f in fields}
     roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
-    gates = tuple(_gate(frame, by_id, fid, where, lonlat) for fid, where, lonlat in raw_gates)
+    gates = tuple(
+        _gate(frame, by_id, aliases.get(fid, [fid]), where, lonlat)
+        for fid, where, lonlat in raw_gates
+    )
     for road in roads:
         for f in fields:
             if road.line.intersection(f.boundary).length > 1.0:
@@ -317,15 +330,18 @@ def _road(frame: LocalFrame, road_id: str, where: str, points: list[tuple[float,
 def _gate(
     frame: LocalFrame,
     fields: dict[str, Field],
-    field_id: str,
+    field_ids: list[str],
     where: str,
     lonlat: tuple[float, float],
 ) -> Gate:
-    field = fields.get(field_id)
-    if field is None:
-        known = ", ".join(sorted(fields))
-        raise GeometryError(f"{where}: no field {field_id!r} in this farm (fields: {known})")
+    """A gate of the field it names (of the nearest part of a split MultiPolygon)."""
     x, y = frame.to_local(*lonlat)
+    named = [fields[f] for f in field_ids if f in fields]
+    if not named:
+        known = ", ".join(sorted(fields))
+        raise GeometryError(f"{where}: no field {field_ids[0]!r} in this farm (fields: {known})")
+    field = min(named, key=lambda f: f.boundary.boundary.distance(Point(x, y)))
+    field_id = field.id
     off = field.boundary.boundary.distance(Point(x, y))
     if off > MAX_GATE_DISTANCE_M:
         raise GeometryError(
