@@ -117,6 +117,7 @@ def write_isoxml(features: list[dict[str, Any]], path: Path) -> Path:
 def convert(source: Path, fmt: str, out: Path) -> Path:
     """The farm GeoJSON ``source`` as ``fmt`` under ``out``: the path to read."""
     features = farm_features(source)
+    out.mkdir(parents=True, exist_ok=True)
     if fmt == "kml":
         write_gdal(features, out / "farm.kml", "LIBKML", layer="farm")
         return out / "farm.kml"
