@@ -1,7 +1,13 @@
-"""A farm as the operator draws it: fields, garage, roads and gates in WGS84 GeoJSON (RFC 7946).
+"""A farm as the operator draws it: fields, garage, roads and gates in WGS84 GeoJSON (RFC 7946),
+or any file :mod:`planner.farm_files` reads (KML, shapefile, GeoPackage, ISOXML, ...),
+which turns it into the same GeoJSON-shaped document checked here.
 
-Fields are ``Polygon`` features (holes allowed) with ``properties.kind = "field"`` and a
-string ``properties.id``; the garage is a ``Point`` with ``properties.kind = "garage"``.
+Fields are ``Polygon`` or ``MultiPolygon`` features (holes allowed; a MultiPolygon's parts
+become fields ``<id>.0``, ...) with ``properties.kind = "field"`` and an id (``properties.id``,
+or :data:`ID_FIELDS`, or ``FarmOptions.id_field``); the garage is a ``Point`` with
+``properties.kind = "garage"``, or comes from the scenario. A feature without a kind takes
+it from its geometry (polygon: field, line: road, point: gate if it names a field, else
+the garage).
 Optional field properties: ``name``, ``work_angle_deg`` (fixed swath direction, degrees
 counter-clockwise from east), ``headland_passes``.
 

@@ -14,6 +14,8 @@ from helpers.farm_formats import convert
 from shapely.geometry import Point, Polygon
 
 from dispatcher.cli.main import main
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
 from dispatcher.mission import export
 from dispatcher.mission.files import QGC_FENCE_POLYGON_VERSION, QGC_GEOFENCE_VERSION
 from dispatcher.mission.plan import write_plan_files
@@ -134,3 +136,33 @@ def test_agrifleet_plan_plans_the_same_from_every_format(tmp_path, fmt):
         converted = plan_json(tmp_path, farm)
     assert essentials(converted) == essentials(reference)
     assert converted["totals"] == reference["totals"]
+
+
+def test_the_scenario_gives_the_garage_and_the_id_field(tmp_path):
+    doc = json.loads((DATA / "tiny-farm.geojson").read_text())
+    garage = next(f for f in doc["features"] if f["properties"]["kind"] == "garage")
+    doc["features"] = [f for f in doc["features"] if f is not garage]
+    for f in doc["features"]:
+        if f["properties"]["kind"] == "field":
+            f["properties"]["PLOT"] = f["properties"].pop("id")
+        else:
+            f["properties"].pop("id", None)
+    (tmp_path / "farm.geojson").write_text(json.dumps(doc))
+    lon, lat = garage["geometry"]["coordinates"]
+    text = (
+        (DATA / "tiny.toml")
+        .read_text()
+        .replace(
+            'farm = "tiny-farm.geojson"',
+            f'farm = "farm.geojson"\ngarage = [{lon}, {lat}]\nid_field = "PLOT"',
+        )
+    )
+    (tmp_path / "tiny.toml").write_text(text)
+    scenario = load_scenario(tmp_path / "tiny.toml")
+    assert scenario.farm.garage_lonlat == (lon, lat)
+    assert [f.id for f in scenario.farm.fields] == ["A", "B", "C"]
+    (tmp_path / "bad.toml").write_text(text.replace(f"garage = [{lon}, {lat}]", 'garage = "barn"'))
+    with pytest.raises(
+        ConfigError, match=r"bad.toml: key 'garage' must be \[longitude, latitude\]"
+    ):
+        load_scenario(tmp_path / "bad.toml")
