@@ -163,3 +163,39 @@ def test_a_file_that_is_not_what_its_name_says_is_refused_naming_it(tmp_path, na
     with pytest.raises(GeometryError) as err:
         load_farm(path)
     assert str(err.value).startswith(f"{path}: ")
+
+
+GOOGLE_EARTH_KML = """<?xml version="1.0" encoding="UTF-8"?>
+<kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>My farm</name>
+<Folder><name>Fields</name>
+<Placemark><name>North 40</name><Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.0,50.0,0 10.002,50.0,0 10.002,50.001,0 10.0,50.001,0 10.0,50.0,0
+</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>
+<Placemark><name>Creek</name><MultiGeometry>
+<Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.003,50.0 10.005,50.0 10.005,50.001 10.003,50.001 10.003,50.0
+</coordinates></LinearRing></outerBoundaryIs></Polygon>
+<Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.006,50.0 10.008,50.0 10.008,50.001 10.006,50.001 10.006,50.0
+</coordinates></LinearRing></outerBoundaryIs></Polygon>
+</MultiGeometry></Placemark>
+</Folder>
+<Placemark><name>Barn</name><Point><coordinates>9.999,49.999,0</coordinates></Point></Placemark>
+</Document></kml>
+"""
+
+
+@pytest.mark.parametrize("suffix", [".kml", ".kmz"])
+def test_a_farm_drawn_in_google_earth_reads_without_our_properties(tmp_path, suffix):
+    """Placemarks with only a name, in folders, a MultiGeometry: no kind, no id needed."""
+    path = tmp_path / f"farm{suffix}"
+    if suffix == ".kmz":
+        import zipfile
+
+        with zipfile.ZipFile(path, "w") as kmz:
+            kmz.writestr("doc.kml", GOOGLE_EARTH_KML)
+    else:
+        path.write_text(GOOGLE_EARTH_KML)
+    farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["North 40", "Creek.0", "Creek.1"]
+    assert farm.garage_lonlat == (9.999, 49.999)
