@@ -127,6 +127,9 @@ def convert(source: Path, fmt: str, out: Path) -> Path:
     if fmt == "gpkg-utm":  # a projected CRS, converted back when read
         write_gdal(features, out / "utm.gpkg", "GPKG", layer="farm", crs="EPSG:32645")
         return out / "utm.gpkg"
+    if fmt == "geojson-utm":  # GeoJSON 2008 with a "crs" member: read through GDAL
+        write_gdal(features, out / "utm.geojson", "GeoJSON", crs="EPSG:32645")
+        return out / "utm.geojson"
     if fmt == "shp-folder":
         return write_shapefiles(features, out / "shapes")
     if fmt == "shp-zip":

@@ -38,7 +38,7 @@ def same_farm(farm: Farm, ref: Farm, roads: bool = True) -> None:
             assert a.line_lonlat.hausdorff_distance(b.line_lonlat) < CM_DEG
 
 
-@pytest.mark.parametrize("fmt", ["kml", "gpkg", "gpkg-utm", "shp-folder", "shp-zip"])
+@pytest.mark.parametrize("fmt", ["kml", "gpkg", "gpkg-utm", "geojson-utm", "shp-folder", "shp-zip"])
 def test_the_demo_farm_reads_the_same_from_every_gdal_format(tmp_path, reference, fmt):
     farm = load_farm(convert(CHANGJI, fmt, tmp_path))
     same_farm(farm, reference)
