@@ -154,6 +154,7 @@ def farm_from_geojson(
         raise GeometryError(f"{source}: 'features' must be a list")
     raw_fields: list[tuple[str, dict[str, Any], list[Any]]] = []
     garages: list[tuple[float, float]] = []
+    garage_wheres: list[str] = []
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: set[str] = set()
@@ -188,6 +189,7 @@ def farm_from_geojson(
                 raise GeometryError(f"{where}: the garage must be a Point")
             lon, lat = _lonlat(geom.get("coordinates"), f"{where} (garage)")
             garages.append((lon, lat))
+            garage_wheres.append(where.removeprefix(f"{source}: "))
         elif kind == "field":
             field_id = _field_id(props, options.id_field, k, where)
             name = _field_name(props, options.name_field, field_id, where)
@@ -250,7 +252,11 @@ def farm_from_geojson(
             "or the scenario's garage = [longitude, latitude])"
         )
     if len(garages) > 1:
-        raise GeometryError(f"{source}: {len(garages)} garages; exactly one is supported")
+        raise GeometryError(
+            f"{source}: {len(garages)} garages ({', '.join(garage_wheres)}); exactly one is "
+            "supported: give the other points a kind (a gate names its field), or the "
+            "scenario's garage = [longitude, latitude]"
+        )
     if not raw_fields:
         raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
 

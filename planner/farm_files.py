@@ -34,6 +34,10 @@ log = logging.getLogger(__name__)
 GEOJSON_SUFFIXES = (".geojson", ".json")
 ISOXML_NAME = "TASKDATA.XML"
 WGS84 = pyproj.CRS.from_epsg(4326)
+CONVERTED_DECIMALS = 9
+"""Converted lon/lat are rounded to 1e-9 degrees (0.1 mm): a farm drawn in WGS84 and
+converted there and back reads as the same numbers, so plans the same (the solver is
+deterministic on its inputs, and 1e-14 degrees of conversion noise changes its choices)."""
 
 # ISO 11783-10 codes read (ISOXML attributes are one-letter names in the element's order).
 PLN_BOUNDARY = "1"  # PLN A: partfield boundary
@@ -115,7 +119,9 @@ def read_gdal(path: Path) -> Document:
                 f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
             ) from exc
         names = [str(n) for n in meta["fields"]]
-        geoms = shapely.from_wkb(geometry)
+        # Rings as RFC 7946 has them (outline counter-clockwise), whatever the format's
+        # rule (a shapefile's outline is clockwise): the same farm gives the same plan.
+        geoms = shapely.orient_polygons(shapely.from_wkb(geometry))
         geoms = _to_wgs84(geoms, meta.get("crs"), f"{path}: layer {layer!r}")
         where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
         for k, geom in enumerate(geoms):
@@ -141,7 +147,10 @@ def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
         return geoms
     log.warning("%s: converted from %s to WGS84 longitude/latitude", where, source.name)
     to_wgs84 = pyproj.Transformer.from_crs(source, WGS84, always_xy=True)
-    return shapely.transform(geoms, lambda xy: np.column_stack(to_wgs84.transform(*xy.T)))
+    return shapely.transform(
+        geoms,
+        lambda xy: np.round(np.column_stack(to_wgs84.transform(*xy.T)), CONVERTED_DECIMALS),
+    )
 
 
 def _plain(value: Any) -> Any:

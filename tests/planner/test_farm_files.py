@@ -42,6 +42,8 @@ def same_farm(farm: Farm, ref: Farm, roads: bool = True) -> None:
 def test_the_demo_farm_reads_the_same_from_every_gdal_format(tmp_path, reference, fmt):
     farm = load_farm(convert(CHANGJI, fmt, tmp_path))
     same_farm(farm, reference)
+    for f, r in zip(farm.fields, reference.fields, strict=True):  # the very same numbers,
+        assert f.boundary_lonlat.equals_exact(r.boundary_lonlat, 0.0)  # so the same plan
     assert [f.name for f in farm.fields] == [f.name for f in reference.fields]
 
 
@@ -198,4 +200,17 @@ def test_a_farm_drawn_in_google_earth_reads_without_our_properties(tmp_path, suf
         path.write_text(GOOGLE_EARTH_KML)
     farm = load_farm(path)
     assert [f.id for f in farm.fields] == ["North 40", "Creek.0", "Creek.1"]
+    assert farm.garage_lonlat == (9.999, 49.999)
+
+
+def test_several_unmarked_points_are_named_and_the_scenario_garage_settles_it(tmp_path):
+    well = "<Placemark><name>Well</name><Point><coordinates>10.001,50.002</coordinates></Point></Placemark>"
+    path = tmp_path / "farm.kml"
+    path.write_text(GOOGLE_EARTH_KML.replace("</Document>", well + "</Document>"))
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert f"{path}: 2 garages (layer 'My farm' feature #0, layer 'My farm' feature #1)" in str(
+        err.value
+    )
+    farm = load_farm(path, FarmOptions(garage=(9.999, 49.999)))
     assert farm.garage_lonlat == (9.999, 49.999)
