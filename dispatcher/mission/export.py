@@ -189,29 +189,40 @@ def fence_polygons(
     dispatch: DispatchPlan,
 ) -> tuple[list[list[tuple[float, float]]], list[list[tuple[float, float]]]]:
     """The farm as fence polygons in (lat, lon): inclusion polygons around the fields, the
-    roads, the garage and every planned path, :data:`FENCE_MARGIN_M` outside them, and
-    exclusion polygons for what that leaves out inside (a pond in a field no path crosses)."""
+    roads, the garage and every planned path, :data:`FENCE_MARGIN_M` outside them (without
+    holes), and an exclusion polygon for each hole of a field (a pond), shrunk by the
+    margin and less the planned paths."""
     farm = dispatch.scenario.farm
-    parts: list[BaseGeometry] = [f.boundary for f in farm.fields]
-    parts += [r.line for r in farm.roads]
-    parts.append(Point(farm.garage))
+    paths: list[BaseGeometry] = [Point(farm.garage)]
     for mission in dispatch.missions.values():
-        lonlat = np.array(
-            [(it.lon, it.lat) for it in mission.items if it.is_waypoint] or [farm.garage_lonlat]
-        )
-        xs, ys = farm.frame.to_local(lonlat[:, 0], lonlat[:, 1])
-        parts.append(LineString(np.column_stack([xs, ys])) if len(xs) > 1 else Point(xs[0], ys[0]))
-    area = shapely.union_all([p.buffer(FENCE_MARGIN_M) for p in parts]).simplify(FENCE_SIMPLIFY_M)
-    polygons = [area] if isinstance(area, Polygon) else list(getattr(area, "geoms", []))
+        lonlat = np.array([(it.lon, it.lat) for it in mission.items if it.is_waypoint])
+        if len(lonlat) > 1:
+            xs, ys = farm.frame.to_local(lonlat[:, 0], lonlat[:, 1])
+            paths.append(LineString(np.column_stack([xs, ys])))
+    driven = shapely.union_all([p.buffer(FENCE_MARGIN_M) for p in paths])
+    farm_parts = [f.boundary for f in farm.fields] + [r.line for r in farm.roads]
+    area = shapely.union_all([driven, *(p.buffer(FENCE_MARGIN_M) for p in farm_parts)])
+    ponds = [
+        Polygon(hole).buffer(-FENCE_MARGIN_M).difference(driven)
+        for f in farm.fields
+        for hole in f.boundary.interiors
+    ]
 
-    def latlon(ring: Any) -> list[tuple[float, float]]:
-        xy = np.asarray(ring.coords)[:-1]  # QGroundControl's polygons are not closed
+    def latlon(polygon: Polygon) -> list[tuple[float, float]]:
+        xy = np.asarray(polygon.exterior.coords)[:-1]  # QGroundControl's are not closed
         lon, lat = farm.frame.to_lonlat(xy[:, 0], xy[:, 1])
         return [(round(float(a), 7), round(float(o), 7)) for a, o in zip(lat, lon, strict=True)]
 
-    inclusion = [latlon(p.exterior) for p in polygons]
-    exclusion = [latlon(hole) for p in polygons for hole in p.interiors]
+    inclusion = [latlon(p) for p in _polygons(area.simplify(FENCE_SIMPLIFY_M))]
+    exclusion = [latlon(p) for pond in ponds for p in _polygons(pond.simplify(FENCE_SIMPLIFY_M))]
     return inclusion, exclusion
+
+
+def _polygons(geometry: BaseGeometry) -> list[Polygon]:
+    """The polygons of a Polygon, MultiPolygon or collection (none of an empty one)."""
+    if isinstance(geometry, Polygon):
+        return [] if geometry.is_empty else [geometry]
+    return [p for g in getattr(geometry, "geoms", []) for p in _polygons(g)]
 
 
 def _seconds(t: float) -> float:

@@ -166,3 +166,43 @@ def test_the_scenario_gives_the_garage_and_the_id_field(tmp_path):
         ConfigError, match=r"bad.toml: key 'garage' must be \[longitude, latitude\]"
     ):
         load_scenario(tmp_path / "bad.toml")
+
+
+def test_a_pond_in_a_field_is_an_exclusion_no_path_enters(tmp_path):
+    def ring(x0, y0, w, h):  # metres east and north of 87.3 E, 44.0 N
+        lon = lambda x: 87.3 + x / 80_190.0  # noqa: E731 (metres per degree at 44 N)
+        lat = lambda y: 44.0 + y / 111_050.0  # noqa: E731
+        return [
+            [lon(x), lat(y)]
+            for x, y in [(x0, y0), (x0 + w, y0), (x0 + w, y0 + h), (x0, y0 + h), (x0, y0)]
+        ]
+
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"id": "P"},
+                "geometry": {
+                    "type": "Polygon",
+                    "coordinates": [ring(0, 0, 160, 160), ring(50, 50, 60, 60)[::-1]],
+                },
+            },
+            {
+                "type": "Feature",
+                "properties": {},
+                "geometry": {"type": "Point", "coordinates": ring(-20, -20, 0, 0)[0]},
+            },
+        ],
+    }
+    (tmp_path / "pond.geojson").write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "pond.geojson")]
+    assert main([*args, "--machines", "1", "--out", str(out)]) == 0
+    plan = json.loads((out / "v1.plan").read_text())
+    exclusion = [p for p in plan["geoFence"]["polygons"] if p["inclusion"] is False]
+    assert len(exclusion) == 1
+    pond = Polygon([(lon, lat) for lat, lon in exclusion[0]["polygon"]])
+    assert pond.area > 0
+    items = [i for i in plan["mission"]["items"] if i["command"] == 16]
+    assert not any(pond.contains(Point(i["params"][5], i["params"][4])) for i in items)
