@@ -204,7 +204,10 @@ def test_a_farm_drawn_in_google_earth_reads_without_our_properties(tmp_path, suf
 
 
 def test_several_unmarked_points_are_named_and_the_scenario_garage_settles_it(tmp_path):
-    well = "<Placemark><name>Well</name><Point><coordinates>10.001,50.002</coordinates></Point></Placemark>"
+    well = (
+        "<Placemark><name>Well</name>"
+        "<Point><coordinates>10.001,50.002</coordinates></Point></Placemark>"
+    )
     path = tmp_path / "farm.kml"
     path.write_text(GOOGLE_EARTH_KML.replace("</Document>", well + "</Document>"))
     with pytest.raises(GeometryError) as err:
