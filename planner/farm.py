@@ -1,7 +1,13 @@
-"""A farm as the operator draws it: fields, garage, roads and gates in WGS84 GeoJSON (RFC 7946).
+"""A farm as the operator draws it: fields, garage, roads and gates in WGS84 GeoJSON (RFC 7946),
+or any file :mod:`planner.farm_files` reads (KML, shapefile, GeoPackage, ISOXML, ...),
+which turns it into the same GeoJSON-shaped document checked here.
 
-Fields are ``Polygon`` features (holes allowed) with ``properties.kind = "field"`` and a
-string ``properties.id``; the garage is a ``Point`` with ``properties.kind = "garage"``.
+Fields are ``Polygon`` or ``MultiPolygon`` features (holes allowed; a MultiPolygon's parts
+become fields ``<id>.0``, ...) with ``properties.kind = "field"`` and an id (``properties.id``,
+or :data:`ID_FIELDS`, or ``FarmOptions.id_field``); the garage is a ``Point`` with
+``properties.kind = "garage"``, or comes from the scenario. A feature without a kind takes
+it from its geometry (polygon: field, line: road, point: gate if it names a field, else
+the garage).
 Optional field properties: ``name``, ``work_angle_deg`` (fixed swath direction, degrees
 counter-clockwise from east), ``headland_passes``.
 
@@ -34,6 +40,7 @@ from shapely.geometry import LineString, Point, Polygon
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
+from planner.farm_files import WHERE_KEY, read_farm_document
 from planner.geo import LocalFrame, check_wgs84
 
 MAX_GARAGE_DISTANCE_M = 50_000.0
@@ -45,6 +52,12 @@ MAX_ABS_LATITUDE = 75.0
 KINDS = ("field", "garage", "road", "gate")
 """The feature kinds (``properties.kind``) a farm file may hold; any other is refused."""
 EARTH_RADIUS_M = 6_371_000.0
+ID_FIELDS = ("id", "field_id", "fieldid", "name")
+"""Where a field's id is looked for, first found first (``--id-field`` names another);
+a field with none is ``field-<k>``, k its feature number. Numbers are taken as text."""
+NAME_FIELDS = ("name", "field_name", "fieldname", "designator", "title")
+"""Where a field's name is looked for (``--name-field`` names another); default: its id."""
+DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many characters
 
 log = logging.getLogger(__name__)
 
@@ -106,27 +119,34 @@ class Farm:
         return tuple(g for g in self.gates if g.field_id == field_id)
 
 
-def load_farm(path: str | Path) -> Farm:
-    """Read and check a farm GeoJSON file."""
+@dataclass(frozen=True)
+class FarmOptions:
+    """How to read a farm file: which properties hold a field's id and name (default: the
+    first of :data:`ID_FIELDS` and :data:`NAME_FIELDS` a field has), and the garage (lon,
+    lat) when it comes from the scenario instead of the file."""
+
+    id_field: str | None = None
+    name_field: str | None = None
+    garage: tuple[float, float] | None = None
+
+
+def load_farm(path: str | Path, options: FarmOptions | None = None) -> Farm:
+    """Read and check a farm file: GeoJSON, any format GDAL reads (KML, shapefile,
+    GeoPackage, ...) or ISO 11783-10 TaskData (:mod:`planner.farm_files`)."""
+    options = options or FarmOptions()
     path = Path(path)
+    doc = read_farm_document(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise GeometryError(f"{path}: cannot read the farm: {exc.strerror}") from exc
-    except UnicodeDecodeError as exc:
-        raise GeometryError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
-    except json.JSONDecodeError as exc:
-        raise GeometryError(f"{path}: not JSON (line {exc.lineno}: {exc.msg})") from exc
-    except ValueError as exc:  # e.g. an integer of more digits than Python reads
-        raise GeometryError(f"{path}: not JSON we can read ({exc})") from exc
-    try:
-        return farm_from_geojson(doc, str(path))
+        return farm_from_geojson(doc, str(path), options)
     except OverflowError as exc:  # an integer too large for a float, where a number belongs
         raise GeometryError(f"{path}: a number too large to be a coordinate or angle") from exc
 
 
-def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
-    """Build a :class:`Farm` from a parsed GeoJSON FeatureCollection."""
+def farm_from_geojson(
+    doc: Any, source: str = "<memory>", options: FarmOptions | None = None
+) -> Farm:
+    """Build a :class:`Farm` from a parsed GeoJSON FeatureCollection (see :func:`load_farm`)."""
+    options = options or FarmOptions()
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
         raise GeometryError(f"{source}: expected a GeoJSON FeatureCollection")
     features = doc.get("features")
@@ -134,15 +154,21 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
         raise GeometryError(f"{source}: 'features' must be a list")
     raw_fields: list[tuple[str, dict[str, Any], list[Any]]] = []
     garages: list[tuple[float, float]] = []
+    garage_wheres: list[str] = []
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: set[str] = set()
+    # A gate names its field as the file does (properties.id, an ISOXML PFD's id): which
+    # fields (parts of a MultiPolygon) that is, when the field id is another property.
+    aliases: dict[str, list[str]] = {}
     for k, feature in enumerate(features):
         where = f"{source}: feature #{k}"
         if not isinstance(feature, dict):
             raise GeometryError(
                 f"{where}: a feature must be a GeoJSON object, not {_shown(feature)}"
             )
+        if isinstance(feature.get(WHERE_KEY), str):  # named by its reader (layer, partfield)
+            where = f"{source}: {feature[WHERE_KEY]}"
         if feature.get("type") != "Feature":
             raise GeometryError(
                 f"{where}: 'type' must be \"Feature\", not {_shown(feature.get('type'))}"
@@ -157,45 +183,56 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
             geom = {}
         if not isinstance(geom, dict):
             raise GeometryError(f"{where}: 'geometry' must be an object, not {_shown(geom)}")
-        kind = props.get("kind")
-        if kind not in KINDS:
-            ident = props.get("id")
-            named = f"{where} (id {ident!r})" if ident is not None else f"{where} (no id)"
-            what = "no properties.kind" if kind is None else f"unknown kind {_shown(kind)}"
-            close = (
-                difflib.get_close_matches(kind, KINDS, n=1, cutoff=0.6)
-                if isinstance(kind, str)
-                else []
-            )
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise GeometryError(f"{named}: {what}{hint}; the known kinds are {', '.join(KINDS)}")
+        kind = _kind(props, geom, where)
         if kind == "garage":
             if geom.get("type") != "Point":
                 raise GeometryError(f"{where}: the garage must be a Point")
             lon, lat = _lonlat(geom.get("coordinates"), f"{where} (garage)")
             garages.append((lon, lat))
+            garage_wheres.append(where.removeprefix(f"{source}: "))
         elif kind == "field":
-            field_id = props.get("id")
-            if not isinstance(field_id, str) or not field_id:
-                raise GeometryError(f"{where}: a field needs a non-empty string properties.id")
+            field_id = _field_id(props, options.id_field, k, where)
+            name = _field_name(props, options.name_field, field_id, where)
             where = f"{source}: field {field_id!r}"
-            if field_id in seen:
-                raise GeometryError(f"{where}: duplicate field id")
-            seen.add(field_id)
-            if geom.get("type") != "Polygon":
+            gtype = geom.get("type")
+            if gtype not in ("Polygon", "MultiPolygon"):
                 raise GeometryError(
-                    f"{where}: geometry must be a Polygon, not {_shown(geom.get('type'))}"
+                    f"{where}: geometry must be a Polygon or MultiPolygon, not {_shown(gtype)}"
                 )
-            rings = geom.get("coordinates")
-            if not isinstance(rings, list) or not rings:
+            parts = (
+                geom.get("coordinates") if gtype == "MultiPolygon" else [geom.get("coordinates")]
+            )
+            if not isinstance(parts, list) or not parts:
                 raise GeometryError(
-                    f"{where}: a Polygon's coordinates must be a list of rings, not {_shown(rings)}"
+                    f"{where}: a MultiPolygon's coordinates must be a list of polygons, "
+                    f"not {_shown(parts)}"
                 )
-            raw_fields.append((field_id, props, [_ring(r, n, where) for n, r in enumerate(rings)]))
+            part_ids = (
+                [field_id]
+                if len(parts) == 1
+                else [part_name(field_id, n) for n in range(len(parts))]
+            )
+            for alias in {field_id, _text(_prop(props, "id")) or field_id}:
+                aliases.setdefault(alias, []).extend(part_ids)
+            for n, rings in enumerate(parts):
+                part_id = part_ids[n]
+                here = f"{source}: field {part_id!r}"
+                if part_id in seen:
+                    raise GeometryError(f"{here}: duplicate field id")
+                seen.add(part_id)
+                if not isinstance(rings, list) or not rings:
+                    raise GeometryError(
+                        f"{here}: a Polygon's coordinates must be a list of rings, "
+                        f"not {_shown(rings)}"
+                    )
+                part_props = {**props, "name": name if len(parts) == 1 else f"{name} ({n})"}
+                raw_fields.append(
+                    (part_id, part_props, [_ring(r, m, here) for m, r in enumerate(rings)])
+                )
         elif kind == "road":
             raw_roads += _road_parts(k, props, geom, where)
         else:  # a gate
-            field_id = props.get("field")
+            field_id = _prop(props, "field")
             if not isinstance(field_id, str) or not field_id:
                 raise GeometryError(
                     f"{where} (gate): a gate needs properties.field, the id of its field"
@@ -204,10 +241,22 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
                 raise GeometryError(f"{where} (gate of {field_id!r}): a gate must be a Point")
             where = f"{where} (gate of {field_id!r})"
             raw_gates.append((field_id, where, _lonlat(geom.get("coordinates"), where)))
+    if options.garage is not None:
+        if garages:
+            log.warning("%s: the scenario's garage replaces the garage in the farm file", source)
+        lon, lat = _lonlat(list(options.garage), f"{source}: the scenario's garage")
+        garages = [(lon, lat)]
     if not garages:
-        raise GeometryError(f"{source}: no garage (a Point feature with properties.kind 'garage')")
+        raise GeometryError(
+            f"{source}: no garage (a Point feature with properties.kind 'garage', "
+            "or the scenario's garage = [longitude, latitude])"
+        )
     if len(garages) > 1:
-        raise GeometryError(f"{source}: {len(garages)} garages; exactly one is supported")
+        raise GeometryError(
+            f"{source}: {len(garages)} garages ({', '.join(garage_wheres)}); exactly one is "
+            "supported: give the other points a kind (a gate names its field), or the "
+            "scenario's garage = [longitude, latitude]"
+        )
     if not raw_fields:
         raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
 
@@ -227,7 +276,10 @@ def farm_from_geojson(doc: Any, source: str = "<memory>") -> Farm:
         )
     by_id = {f.id: f for f in fields}
     roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
-    gates = tuple(_gate(frame, by_id, fid, where, lonlat) for fid, where, lonlat in raw_gates)
+    gates = tuple(
+        _gate(frame, by_id, aliases.get(fid, [fid]), where, lonlat)
+        for fid, where, lonlat in raw_gates
+    )
     for road in roads:
         for f in fields:
             if road.line.intersection(f.boundary).length > 1.0:
@@ -252,7 +304,7 @@ def _road_parts(
     k: int, props: dict[str, Any], geom: dict[str, Any], where: str
 ) -> list[tuple[str, str, list[tuple[float, float]]]]:
     """The checked lon/lat polylines of one road feature (one per part)."""
-    road_id = props.get("id")
+    road_id = _prop(props, "id")
     if road_id is not None and (isinstance(road_id, bool) or not isinstance(road_id, str | int)):
         raise GeometryError(
             f"{where} (road): properties.id must be a string, not {_shown(road_id)}"
@@ -275,7 +327,7 @@ def _road_parts(
         points = [_lonlat(p, here) for p in part]
         if len(set(points)) < 2:
             raise GeometryError(f"{here}: a road needs at least 2 distinct points")
-        out.append((road_id if len(parts) == 1 else f"{road_id}.{n}", here, points))
+        out.append((road_id if len(parts) == 1 else part_name(road_id, n), here, points))
     return out
 
 
@@ -290,15 +342,18 @@ def _road(frame: LocalFrame, road_id: str, where: str, points: list[tuple[float,
 def _gate(
     frame: LocalFrame,
     fields: dict[str, Field],
-    field_id: str,
+    field_ids: list[str],
     where: str,
     lonlat: tuple[float, float],
 ) -> Gate:
-    field = fields.get(field_id)
-    if field is None:
-        known = ", ".join(sorted(fields))
-        raise GeometryError(f"{where}: no field {field_id!r} in this farm (fields: {known})")
+    """A gate of the field it names (of the nearest part of a split MultiPolygon)."""
     x, y = frame.to_local(*lonlat)
+    named = [fields[f] for f in field_ids if f in fields]
+    if not named:
+        known = ", ".join(sorted(fields))
+        raise GeometryError(f"{where}: no field {field_ids[0]!r} in this farm (fields: {known})")
+    field = min(named, key=lambda f: f.boundary.boundary.distance(Point(x, y)))
+    field_id = field.id
     off = field.boundary.boundary.distance(Point(x, y))
     if off > MAX_GATE_DISTANCE_M:
         raise GeometryError(
@@ -306,6 +361,109 @@ def _gate(
             f"(limit {MAX_GATE_DISTANCE_M:.0f} m); a gate lies on its field's boundary"
         )
     return Gate(field_id=field_id, xy=(x, y), lonlat=lonlat)
+
+
+def part_name(ident: str, n: int) -> str:
+    """The id of part ``n`` of a multi-part feature (MultiPolygon field, MultiLineString road)."""
+    return f"{ident}.{n}"
+
+
+def _prop(props: dict[str, Any], key: str) -> Any:
+    """A property by name: as written, else in any case, else cut to a shapefile column's
+    length (``work_angle_deg`` is ``work_angle`` in a shapefile)."""
+    if key in props:
+        return props[key]
+    for name in (key.lower(), key[:DBASE_NAME_LENGTH].lower()):
+        for have, value in props.items():
+            if have.lower() == name:
+                return value
+    return None
+
+
+def _kind(props: dict[str, Any], geom: dict[str, Any], where: str) -> str:
+    """The feature's kind: ``properties.kind``, else what its geometry says (a polygon is
+    a field, a line a road, a point with ``properties.field`` a gate, any other point the
+    garage)."""
+    kind = _prop(props, "kind")
+    if isinstance(kind, str) and kind.lower() in KINDS:
+        return kind.lower()
+    if kind is None:
+        gtype = geom.get("type")
+        if gtype in ("Polygon", "MultiPolygon"):
+            return "field"
+        if gtype in ("LineString", "MultiLineString"):
+            return "road"
+        if gtype == "Point":
+            return "gate" if _prop(props, "field") is not None else "garage"
+    ident = _prop(props, "id")
+    named = f"{where} (id {ident!r})" if ident is not None else f"{where} (no id)"
+    what = (
+        f"no properties.kind and no geometry that tells it ({_shown(geom.get('type'))})"
+        if kind is None
+        else f"unknown kind {_shown(kind)}"
+    )
+    close = difflib.get_close_matches(kind, KINDS, n=1, cutoff=0.6) if isinstance(kind, str) else []
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise GeometryError(f"{named}: {what}{hint}; the known kinds are {', '.join(KINDS)}")
+
+
+def _text(value: Any) -> str | None:
+    """An id or name as text: a string, or a whole number (shapefile and GeoPackage
+    columns are often integers); None for anything else."""
+    if isinstance(value, str) and value.strip():
+        return value.strip()
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return None
+
+
+def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -> str:
+    if id_field is not None:
+        value = _prop(props, id_field)
+        if value is None:
+            have = ", ".join(sorted(props)) or "none"
+            raise GeometryError(
+                f"{where}: a field without property {id_field!r} (the --id-field); "
+                f"its properties: {have}"
+            )
+        found = _text(value)
+        if found is None:
+            raise GeometryError(
+                f"{where}: the field id {id_field!r} must be text or a whole number, "
+                f"not {_shown(value)}"
+            )
+        return found
+    for key in ID_FIELDS:
+        value = _prop(props, key)
+        if value is None:
+            continue
+        found = _text(value)
+        if found is None:
+            raise GeometryError(
+                f"{where}: a field needs a non-empty string properties.{key} "
+                f"(the field id), not {_shown(value)}"
+            )
+        return found
+    return f"field-{k}"
+
+
+def _field_name(props: dict[str, Any], name_field: str | None, field_id: str, where: str) -> str:
+    if name_field is not None:
+        value = _prop(props, name_field)
+        if value is None:
+            raise GeometryError(
+                f"{where} (field {field_id!r}): no property {name_field!r} (the --name-field)"
+            )
+        return str(value)
+    for key in NAME_FIELDS:
+        value = _prop(props, key)
+        if value is not None and str(value).strip():
+            return str(value)
+    return field_id
 
 
 def _shown(value: Any) -> str:
@@ -465,17 +623,17 @@ def _field(
             f"{where}: invalid polygon ({explain_validity(boundary)}); "
             "is its boundary self-intersecting?"
         )
-    angle = props.get("work_angle_deg")
+    angle = _prop(props, "work_angle_deg")
     if angle is not None and (
         isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(angle)
     ):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
-    passes = props.get("headland_passes")
+    passes = _prop(props, "headland_passes")
     if passes is not None and (
         not isinstance(passes, int) or isinstance(passes, bool) or passes < 0
     ):
         raise GeometryError(f"{where}: headland_passes must be a whole number >= 0, not {passes!r}")
-    name = props.get("name", field_id)
+    name = props["name"]
     return Field(
         id=field_id,
         name=str(name),

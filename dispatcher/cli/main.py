@@ -138,8 +138,10 @@ def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def
     from dispatcher.config.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
-    if args.fields:
-        scenario = scenario.with_farm(args.fields)
+    id_field, name_field = getattr(args, "id_field", None), getattr(args, "name_field", None)
+    if args.fields or id_field or name_field:
+        farm_file = args.fields or scenario.farm.source
+        scenario = scenario.with_farm(farm_file, id_field=id_field, name_field=name_field)
     if args.machines:
         scenario = scenario.with_machines(args.machines)
     return scenario
@@ -575,7 +577,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", type=Path, help="scenario TOML (see config/README.md)")
-    p.add_argument("--fields", type=Path, help="farm GeoJSON replacing the scenario's")
+    p.add_argument(
+        "--fields",
+        type=Path,
+        help="farm file replacing the scenario's: GeoJSON, KML, shapefile (.shp, folder or "
+        ".zip), GeoPackage, ISOXML TASKDATA.XML (docs/farm-files.md)",
+    )
+    p.add_argument("--id-field", help="the property that holds a field's id (default: id, ...)")
+    p.add_argument("--name-field", help="the property that holds a field's name (default: name)")
     p.add_argument("--machines", type=int, help="use the first K machines of the fleet")
     p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
     p.add_argument("--time-limit", type=float, help="solver seconds")

@@ -21,7 +21,7 @@ from typing import Any
 from dispatcher.config.errors import ConfigError
 from planner.choices import ALGORITHMS, Objective
 from planner.errors import PlannerError
-from planner.farm import Farm, load_farm
+from planner.farm import Farm, FarmOptions, load_farm
 from planner.problem import Machine
 
 logger = logging.getLogger(__name__)
@@ -148,7 +148,19 @@ LIMITS: dict[str, Limit] = {
 }
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 
-TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "keys", "solver", "dispatcher")
+TOP_KEYS = (
+    "farm_id",
+    "farm",
+    "garage",
+    "id_field",
+    "name_field",
+    "fleet",
+    "machines",
+    "machine",
+    "keys",
+    "solver",
+    "dispatcher",
+)
 FLEET_KEYS = ("machine",)
 MACHINE_KEYS = ("id", "system_id", *MACHINE_PARAMS, *OPTIONAL_MACHINE_PARAMS, "implement")
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
@@ -227,6 +239,7 @@ class Scenario:
     # The directory of the vehicles' MAVLink signing keys (dispatcher/link/keys.py), when
     # the scenario names one (relative to the scenario file); ``--keys`` overrides it.
     keys_dir: Path | None = None
+    farm_options: FarmOptions = FarmOptions()  # garage, id_field, name_field
 
     def vehicle(self, vehicle_id: str) -> Vehicle:
         for v in self.vehicles:
@@ -243,9 +256,18 @@ class Scenario:
             )
         return replace(self, vehicles=self.vehicles[:count])
 
-    def with_farm(self, path: str | Path) -> Scenario:
+    def with_farm(
+        self, path: str | Path, id_field: str | None = None, name_field: str | None = None
+    ) -> Scenario:
+        """Another farm file (``--fields``), or the same read with another ``--id-field``
+        or ``--name-field``; the scenario's garage is kept."""
+        options = replace(
+            self.farm_options,
+            id_field=id_field or self.farm_options.id_field,
+            name_field=name_field or self.farm_options.name_field,
+        )
         try:
-            return replace(self, farm=load_farm(path))
+            return replace(self, farm=load_farm(path, options), farm_options=options)
         except PlannerError as exc:
             raise ConfigError(str(exc)) from exc
 
@@ -268,8 +290,9 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ConfigError(
             f"{src}: key 'farm' must name the farm GeoJSON file (a string), not {_shown(farm_key)}"
         )
+    farm_options = _farm_options(doc, src)
     try:
-        farm = load_farm(path.parent / farm_key)
+        farm = load_farm(path.parent / farm_key, farm_options)
     except PlannerError as exc:
         raise ConfigError(str(exc)) from exc
     machines = doc.get("machine")
@@ -323,6 +346,31 @@ def load_scenario(path: str | Path) -> Scenario:
         source=src,
         watch=_watch(doc.get("dispatcher", {}), src),
         keys_dir=_keys_dir(doc, path, src),
+        farm_options=farm_options,
+    )
+
+
+def _farm_options(doc: dict[str, Any], src: str) -> FarmOptions:
+    """``garage = [longitude, latitude]``, ``id_field``, ``name_field`` (config/README.md)."""
+    garage = doc.get("garage")
+    if garage is not None and (
+        not isinstance(garage, list)
+        or len(garage) != 2
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in garage)
+    ):
+        raise ConfigError(
+            f"{src}: key 'garage' must be [longitude, latitude] in degrees, not {_shown(garage)}"
+        )
+    names = {}
+    for key in ("id_field", "name_field"):
+        value = doc.get(key)
+        if value is not None and (not isinstance(value, str) or not value):
+            raise ConfigError(
+                f"{src}: key {key!r} must name a property (a string), not {_shown(value)}"
+            )
+        names[key] = value
+    return FarmOptions(
+        garage=None if garage is None else (float(garage[0]), float(garage[1])), **names
     )
 
 

@@ -11,7 +11,11 @@
   ``MissionController::save`` / ``_loadJsonMissionFileV2``). The home item is not in
   ``mission.items`` but in ``plannedHomePosition``: QGroundControl numbers the items from
   1 and, for ArduPilot, sends the planned home itself as item 0. So the plan holds
-  ``len(mission) - 1`` SimpleItems whose ``doJumpId`` is their mission seq.
+  ``len(mission) - 1`` SimpleItems whose ``doJumpId`` is their mission seq. The farm is
+  its geofence (``geoFence.polygons``, each ``{"inclusion": bool, "polygon": [[lat, lon],
+  ...] (not closed), "version": 1}``) and the garage its rally point
+  (``rallyPoints.points``: ``[lat, lon, alt]``), as :mod:`dispatcher.mission.export` makes
+  them.
 
 Each writer writes the whole file to the path it is given in one go; writing to a
 temporary name and renaming is the caller's business.
@@ -21,6 +25,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from dispatcher.link import mavlink as mc
@@ -33,6 +39,7 @@ QGC_PLAN_FILE_VERSION = 1
 QGC_MISSION_VERSION = 2
 QGC_GEOFENCE_VERSION = 2
 QGC_RALLY_VERSION = 2
+QGC_FENCE_POLYGON_VERSION = 1  # QGCFencePolygon's own "version"
 QGC_ALTITUDE_MODE_RELATIVE = 1  # QGroundControlQmlGlobal::AltitudeModeRelative
 
 PathLike = str | os.PathLike[str]
@@ -65,7 +72,19 @@ def write_waypoints(mission: Mission, path: PathLike) -> None:
     _write_text(path, waypoints_text(mission))
 
 
-def qgc_plan(mission: Mission) -> dict[str, Any]:
+LatLonRing = Sequence[tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class Fence:
+    """A geofence and rally points for a ``.plan`` file, all in (lat, lon) degrees."""
+
+    inclusion: Sequence[LatLonRing] = ()
+    exclusion: Sequence[LatLonRing] = ()
+    rally: Sequence[tuple[float, float]] = ()
+
+
+def qgc_plan(mission: Mission, fence: Fence = Fence()) -> dict[str, Any]:
     """The mission as a QGroundControl plan document (a JSON-ready dict)."""
     if len(mission.items) == 0:
         raise ValueError(f"mission for {mission.machine_id!r} is empty: no home item")
@@ -89,14 +108,29 @@ def qgc_plan(mission: Mission) -> dict[str, Any]:
             "plannedHomePosition": [home.x / 1e7, home.y / 1e7, home.z],
             "items": [_simple_item(item) for item in rest],
         },
-        "geoFence": {"circles": [], "polygons": [], "version": QGC_GEOFENCE_VERSION},
-        "rallyPoints": {"points": [], "version": QGC_RALLY_VERSION},
+        "geoFence": {
+            "circles": [],
+            "polygons": [
+                {
+                    "inclusion": inclusion,
+                    "polygon": [[lat, lon] for lat, lon in ring],
+                    "version": QGC_FENCE_POLYGON_VERSION,
+                }
+                for inclusion, rings in ((True, fence.inclusion), (False, fence.exclusion))
+                for ring in rings
+            ],
+            "version": QGC_GEOFENCE_VERSION,
+        },
+        "rallyPoints": {
+            "points": [[lat, lon, 0.0] for lat, lon in fence.rally],
+            "version": QGC_RALLY_VERSION,
+        },
     }
 
 
-def write_qgc_plan(mission: Mission, path: PathLike) -> None:
+def write_qgc_plan(mission: Mission, path: PathLike, fence: Fence = Fence()) -> None:
     """Write the mission as a QGroundControl ``.plan`` file at ``path``."""
-    text = json.dumps(qgc_plan(mission), indent=4, sort_keys=True, allow_nan=False)
+    text = json.dumps(qgc_plan(mission, fence), indent=4, sort_keys=True, allow_nan=False)
     _write_text(path, text + "\n")
 
 

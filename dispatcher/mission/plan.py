@@ -30,7 +30,7 @@ from dispatcher.mission.document import (
     PlannedMachine,
     PlannedVisit,
 )
-from dispatcher.mission.files import write_qgc_plan, write_waypoints
+from dispatcher.mission.files import Fence, write_qgc_plan, write_waypoints
 from dispatcher.mission.job import DispatchJob
 from planner.farm import Farm
 from planner.field_plan import FarmPlan, MachinePlan, Visit
@@ -213,7 +213,9 @@ def _round7(value: float) -> float:
 
 
 def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
-    """Write plan.json, the missions and map.png into ``out_dir``, all or nothing."""
+    """Write plan.json, the missions, map.png and the plan for GIS (plan.geojson,
+    plan.kml) into ``out_dir``, all or nothing."""
+    from dispatcher.mission.export import fence_polygons, write_plan_geojson, write_plan_kml
     from dispatcher.mission.map import draw_plan_map
 
     out_dir = Path(out_dir)
@@ -221,9 +223,14 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent))
     try:
         (staging / "plan.json").write_text(dispatch.document.to_json(indent=1) + "\n")
+        inclusion, exclusion = fence_polygons(dispatch)
+        glon, glat = dispatch.scenario.farm.garage_lonlat
+        fence = Fence(inclusion, exclusion, rally=[(glat, glon)])
         for vehicle_id, mission in dispatch.missions.items():
             write_waypoints(mission, staging / f"{vehicle_id}.waypoints")
-            write_qgc_plan(mission, staging / f"{vehicle_id}.plan")
+            write_qgc_plan(mission, staging / f"{vehicle_id}.plan", fence)
+        write_plan_geojson(dispatch, staging / "plan.geojson")
+        write_plan_kml(dispatch, staging / "plan.kml")
         draw_plan_map(dispatch.plan, staging / "map.png", title=dispatch.scenario.farm_id)
         out_dir.mkdir(exist_ok=True)
         # Missions of machines no longer in the plan must not stay beside it.

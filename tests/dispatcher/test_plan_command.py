@@ -85,7 +85,16 @@ def test_plan_writes_every_file_with_traceable_missions(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["plan", str(scenario), "--out", str(out)]) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["a.plan", "a.waypoints", "b.plan", "b.waypoints", "map.png", "plan.json"]
+    assert names == [
+        "a.plan",
+        "a.waypoints",
+        "b.plan",
+        "b.waypoints",
+        "map.png",
+        "plan.geojson",
+        "plan.json",
+        "plan.kml",
+    ]
     doc = json.loads((out / "plan.json").read_text())
     assert {"machines", "totals", "plan_id"} <= set(doc)
     for m in doc["machines"]:

@@ -66,7 +66,16 @@ def test_replanning_into_the_same_folder_leaves_no_stale_mission(dispatch, tmp_p
     (out / "old-tractor.plan").write_text("{}")
     write_plan_files(dispatch, out)
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["map.png", "plan.json", "v1.plan", "v1.waypoints", "v2.plan", "v2.waypoints"]
+    assert names == [
+        "map.png",
+        "plan.geojson",
+        "plan.json",
+        "plan.kml",
+        "v1.plan",
+        "v1.waypoints",
+        "v2.plan",
+        "v2.waypoints",
+    ]
 
 
 @pytest.mark.parametrize(("key", "value"), [("farm_id", "north#2"), ("id", "JD 6R/1")])

@@ -111,11 +111,21 @@ def test_a_misspelled_kind_is_refused_naming_the_feature_and_the_known_kinds(tmp
     assert f"the known kinds are {', '.join(KINDS)}" in message
 
 
-def test_a_feature_without_kind_is_refused(tmp_path):
+def test_a_feature_without_kind_takes_it_from_its_geometry(tmp_path):
+    doc = farm_doc()
+    for f in doc["features"]:
+        del f["properties"]["kind"]  # polygons: fields, line: road, point with field: gate
+    farm = load_farm(write(tmp_path, doc))
+    assert [f.id for f in farm.fields] == ["F1", "F2"]
+    assert len(farm.roads) == 1 and len(farm.gates) == 1
+
+
+def test_a_feature_without_kind_nor_telling_geometry_is_refused(tmp_path):
     doc = farm_doc()
     del doc["features"][2]["properties"]["kind"]
+    doc["features"][2]["geometry"] = {"type": "MultiPoint", "coordinates": [[LON0, LAT0]]}
     message = refused(tmp_path, doc)
-    assert "feature #2 (no id): no properties.kind" in message
+    assert "feature #2 (no id): no properties.kind and no geometry that tells it" in message
     assert "field, garage, road, gate" in message
 
 

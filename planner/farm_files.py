@@ -1,0 +1,303 @@
+"""Farm files in the formats farmers have, read into the GeoJSON-shaped document that
+:func:`planner.farm.farm_from_geojson` checks and builds a farm from.
+
+* GeoJSON (``.geojson``, ``.json``): parsed as JSON, so that every error names the feature
+  at fault (GDAL unifies the properties of all features into typed columns and refuses a
+  bad feature without saying which). A GeoJSON file with a ``crs`` member (GeoJSON 2008)
+  in another CRS is read through GDAL, as below.
+* Everything GDAL reads (through pyogrio): KML/KMZ, shapefile (``.shp``, a folder of
+  them, or a ``.zip`` of them), GeoPackage, and the rest; every layer with geometry, each
+  reprojected from its CRS to WGS84 with a message.
+* ISO 11783-10 TaskData (``TASKDATA.XML``, a folder or ``.zip`` holding one): the
+  partfields (:func:`read_isoxml`, docs/farm-files.md lists the subset read).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyproj
+import shapely
+
+from planner.errors import GeometryError
+
+log = logging.getLogger(__name__)
+
+GEOJSON_SUFFIXES = (".geojson", ".json")
+ISOXML_NAME = "TASKDATA.XML"
+WGS84 = pyproj.CRS.from_epsg(4326)
+CONVERTED_DECIMALS = 9
+"""Converted lon/lat are rounded to 1e-9 degrees (0.1 mm): a farm drawn in WGS84 and
+converted there and back reads as the same numbers, so plans the same (the solver is
+deterministic on its inputs, and 1e-14 degrees of conversion noise changes its choices)."""
+
+# ISO 11783-10 codes read (ISOXML attributes are one-letter names in the element's order).
+PLN_BOUNDARY = "1"  # PLN A: partfield boundary
+LSG_EXTERIOR = "1"  # LSG A: polygon exterior
+LSG_INTERIOR = "2"  # LSG A: polygon interior (a hole)
+PNT_FIELD_ACCESS = "3"  # PNT A: field access (our gate)
+PNT_HOMEBASE = "11"  # PNT A: home base (our garage)
+
+Document = dict[str, Any]
+WHERE_KEY = "_where"
+"""A feature's name in messages (``layer 'fields' feature #3``, ``partfield 'PFD2'``), set
+by the readers of formats whose features a plain index would not find."""
+
+
+def read_farm_document(path: Path) -> Document:
+    """The farm file at ``path`` as a GeoJSON FeatureCollection in WGS84 (dicts, lists)."""
+    if path.is_dir():
+        if _isoxml_in_dir(path) is not None:
+            return read_isoxml(path)
+        return read_gdal(path)
+    suffix = path.suffix.lower()
+    if suffix in GEOJSON_SUFFIXES:
+        doc = read_json(path)
+        if isinstance(doc, dict) and doc.get("crs") is not None and not _crs_is_wgs84(doc["crs"]):
+            return read_gdal(path)
+        return doc  # type: ignore[no-any-return]
+    if suffix == ".xml" or (suffix == ".zip" and _isoxml_in_zip(path) is not None):
+        return read_isoxml(path)
+    return read_gdal(path)
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file, or a :class:`GeometryError` naming the file and what is wrong."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise GeometryError(f"{path}: cannot read the farm: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise GeometryError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except json.JSONDecodeError as exc:
+        raise GeometryError(f"{path}: not JSON (line {exc.lineno}: {exc.msg})") from exc
+    except ValueError as exc:  # e.g. an integer of more digits than Python reads
+        raise GeometryError(f"{path}: not JSON we can read ({exc})") from exc
+
+
+def _crs_is_wgs84(crs: Any) -> bool:
+    name = crs.get("properties", {}).get("name") if isinstance(crs, dict) else None
+    if not isinstance(name, str):
+        return True  # not a named CRS: GDAL would not read it either; the checks follow
+    try:
+        return pyproj.CRS.from_user_input(name).equals(WGS84, ignore_axis_order=True)
+    except pyproj.exceptions.CRSError:
+        return True
+
+
+# --- GDAL (pyogrio) ----------------------------------------------------------------------
+
+
+def read_gdal(path: Path) -> Document:
+    """Every layer with geometry of a file GDAL reads, reprojected to WGS84; each feature
+    named ``layer 'NAME' feature #k`` when the file has several layers."""
+    import pyogrio
+    from pyogrio.errors import DataLayerError, DataSourceError
+
+    if not path.exists():
+        raise GeometryError(f"{path}: cannot read the farm: No such file or directory")
+    try:
+        layers = [str(name) for name, geom in pyogrio.list_layers(path) if geom is not None]
+    except (DataSourceError, DataLayerError, OSError) as exc:
+        raise GeometryError(f"{path}: not a farm file GDAL can read ({_first_line(exc)})") from exc
+    if not layers:
+        raise GeometryError(f"{path}: no layer with geometry in this file")
+    features: list[dict[str, Any]] = []
+    for layer in layers:
+        try:
+            meta, _, geometry, values = pyogrio.raw.read(path, layer=layer)
+        except (DataSourceError, DataLayerError, OSError) as exc:
+            raise GeometryError(
+                f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
+            ) from exc
+        names = [str(n) for n in meta["fields"]]
+        # Rings as RFC 7946 has them (outline counter-clockwise), whatever the format's
+        # rule (a shapefile's outline is clockwise): the same farm gives the same plan.
+        geoms = shapely.orient_polygons(shapely.from_wkb(geometry))
+        geoms = _to_wgs84(geoms, meta.get("crs"), f"{path}: layer {layer!r}")
+        where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
+        for k, geom in enumerate(geoms):
+            props = {name: _plain(column[k]) for name, column in zip(names, values, strict=True)}
+            features.append(
+                {
+                    "type": "Feature",
+                    WHERE_KEY: f"{where} #{k}",
+                    "properties": props,
+                    "geometry": None if geom is None else json.loads(shapely.to_geojson(geom)),
+                }
+            )
+    return {"type": "FeatureCollection", "features": features}
+
+
+def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
+    """The geometries in WGS84 lon/lat; a layer in another CRS is converted, said in a
+    message. A layer without a CRS is taken as WGS84 (the checks of lon/lat follow)."""
+    if not crs:
+        return geoms
+    source = pyproj.CRS.from_user_input(crs)
+    if source.equals(WGS84, ignore_axis_order=True):
+        return geoms
+    log.warning("%s: converted from %s to WGS84 longitude/latitude", where, source.name)
+    to_wgs84 = pyproj.Transformer.from_crs(source, WGS84, always_xy=True)
+    return shapely.transform(
+        geoms,
+        lambda xy: np.round(np.column_stack(to_wgs84.transform(*xy.T)), CONVERTED_DECIMALS),
+    )
+
+
+def _plain(value: Any) -> Any:
+    """A value of a GDAL column as JSON would hold it: None for a missing value."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    return value
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+# --- ISO 11783-10 TaskData ---------------------------------------------------------------
+
+
+def _isoxml_in_dir(path: Path) -> Path | None:
+    for child in path.iterdir():
+        if child.name.upper() == ISOXML_NAME:
+            return child
+    return None
+
+
+def _isoxml_in_zip(path: Path) -> str | None:
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for name in archive.namelist():
+                if Path(name).name.upper() == ISOXML_NAME:
+                    return name
+    except (OSError, zipfile.BadZipFile):
+        return None
+    return None
+
+
+def read_isoxml(path: Path) -> Document:
+    """The partfields of a TASKDATA.XML (or a folder or .zip holding one) as GeoJSON
+    features: each PFD with a boundary PLN (type 1) is a field with properties ``id``
+    (PFD A), ``code`` (B) and ``name`` (C, the designator); its outer LSG (type 1) and holes
+    (type 2) are the rings, from their PNTs (C latitude, D longitude). Several boundary
+    PLNs make a multi-part field. PNTs of type 3 (field access) in a PFD are its gates, a
+    PNT of type 11 (home base) is the garage."""
+    source = path
+    try:
+        if path.is_dir():
+            found = _isoxml_in_dir(path)
+            if found is None:
+                raise GeometryError(f"{path}: no {ISOXML_NAME} in this folder")
+            source = found
+            data = found.read_bytes()
+        elif path.suffix.lower() == ".zip":
+            with zipfile.ZipFile(path) as archive:
+                name = _isoxml_in_zip(path)
+                if name is None:
+                    raise GeometryError(f"{path}: no {ISOXML_NAME} in this archive")
+                data = archive.read(name)
+        else:
+            data = path.read_bytes()
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise GeometryError(f"{path}: cannot read the farm: {exc}") from exc
+    try:
+        root = ET.parse(io.BytesIO(data)).getroot()
+    except ET.ParseError as exc:
+        raise GeometryError(f"{source}: not XML ({exc})") from exc
+    if root.tag != "ISO11783_TaskData":
+        raise GeometryError(
+            f"{source}: not ISO 11783-10 TaskData (the root element is {root.tag!r}, "
+            "not 'ISO11783_TaskData')"
+        )
+    features: list[dict[str, Any]] = []
+    for k, pfd in enumerate(root.iter("PFD")):
+        pfd_id = pfd.get("A") or f"PFD#{k}"
+        where = f"{source}: partfield {pfd_id!r}"
+        props = {"kind": "field", "id": pfd_id, "code": pfd.get("B"), "name": pfd.get("C")}
+        polygons = [
+            _isoxml_polygon(pln, f"{where} polygon #{n}")
+            for n, pln in enumerate(pfd.findall("PLN"))
+            if pln.get("A") == PLN_BOUNDARY
+        ]
+        if polygons:
+            geometry = (
+                {"type": "Polygon", "coordinates": polygons[0]}
+                if len(polygons) == 1
+                else {"type": "MultiPolygon", "coordinates": polygons}
+            )
+            features.append(
+                {
+                    "type": "Feature",
+                    WHERE_KEY: f"partfield {pfd_id!r}",
+                    "properties": props,
+                    "geometry": geometry,
+                }
+            )
+        else:
+            log.warning("%s: no boundary polygon (PLN of type 1); skipped", where)
+        for pnt in pfd.findall("PNT"):
+            if pnt.get("A") == PNT_FIELD_ACCESS:
+                features.append(
+                    _isoxml_point(
+                        pnt,
+                        f"partfield {pfd_id!r} field access",
+                        source,
+                        {"kind": "gate", "field": pfd_id},
+                    )
+                )
+    for pnt in root.iter("PNT"):
+        if pnt.get("A") == PNT_HOMEBASE:
+            features.append(_isoxml_point(pnt, "home base", source, {"kind": "garage"}))
+    return {"type": "FeatureCollection", "features": features}
+
+
+def _isoxml_polygon(pln: ET.Element, where: str) -> list[list[list[float]]]:
+    outer = [lsg for lsg in pln.findall("LSG") if lsg.get("A") == LSG_EXTERIOR]
+    holes = [lsg for lsg in pln.findall("LSG") if lsg.get("A") == LSG_INTERIOR]
+    if len(outer) != 1:
+        raise GeometryError(
+            f"{where}: a boundary needs exactly one outer line string (LSG of type 1), "
+            f"not {len(outer)}"
+        )
+    return [_isoxml_ring(lsg, f"{where} line string #{n}") for n, lsg in enumerate(outer + holes)]
+
+
+def _isoxml_ring(lsg: ET.Element, where: str) -> list[list[float]]:
+    ring = [_isoxml_lonlat(pnt, f"{where} point #{n}") for n, pnt in enumerate(lsg.findall("PNT"))]
+    if ring and ring[0] != ring[-1]:
+        ring.append(ring[0])  # ISOXML closes a polygon's rings implicitly
+    return ring
+
+
+def _isoxml_lonlat(pnt: ET.Element, where: str) -> list[float]:
+    try:
+        lat, lon = float(pnt.get("C", "")), float(pnt.get("D", ""))
+    except ValueError:
+        raise GeometryError(
+            f"{where}: a point needs its latitude in C and longitude in D as numbers, "
+            f"not C={pnt.get('C')!r} D={pnt.get('D')!r}"
+        ) from None
+    return [lon, lat]
+
+
+def _isoxml_point(pnt: ET.Element, what: str, source: Path, props: dict[str, Any]) -> Document:
+    return {
+        "type": "Feature",
+        WHERE_KEY: what,
+        "properties": props,
+        "geometry": {"type": "Point", "coordinates": _isoxml_lonlat(pnt, f"{source}: {what}")},
+    }

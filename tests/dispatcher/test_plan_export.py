@@ -1,0 +1,208 @@
+"""The plan for other tools (dispatcher/mission/export.py): plan.geojson and plan.kml read
+back with pyogrio carry every field and every machine's route within 1 cm; the .plan files'
+fence holds every waypoint and loads by QGroundControl's rules; nothing is written when a
+writer fails. And `agrifleet plan` plans the tiny farm the same from every format."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyogrio
+import pytest
+import shapely
+from helpers.farm_formats import convert
+from shapely.geometry import Point, Polygon
+
+from dispatcher.cli.main import main
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import load_scenario
+from dispatcher.mission import export
+from dispatcher.mission.files import QGC_FENCE_POLYGON_VERSION, QGC_GEOFENCE_VERSION
+from dispatcher.mission.plan import write_plan_files
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+CM_DEG = 1e-7  # about 1 cm
+
+
+@pytest.fixture(scope="module")
+def written(dispatch, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("plan")
+    write_plan_files(dispatch, out)
+    return out
+
+
+def read_layer(path: Path, layer: str | None = None) -> list[tuple[object, dict]]:
+    meta, _, geometry, values = pyogrio.raw.read(path, layer=layer)
+    names = list(meta["fields"])
+    geoms = shapely.force_2d(shapely.from_wkb(geometry))  # KML has altitudes
+    return [(g, {n: values[i][k] for i, n in enumerate(names)}) for k, g in enumerate(geoms)]
+
+
+def waypoints(mission) -> list[tuple[float, float]]:
+    return [(it.lon, it.lat) for it in mission.items if it.is_waypoint]
+
+
+def check_routes(features, dispatch) -> None:
+    routes = {p["machine"]: g for g, p in features if p["kind"] == "route"}
+    assert set(routes) == set(dispatch.missions)
+    for machine, mission in dispatch.missions.items():
+        assert np.allclose(np.asarray(routes[machine].coords), waypoints(mission), atol=CM_DEG)
+    fields = {p["id"]: g for g, p in features if p["kind"] == "field"}
+    for f in dispatch.scenario.farm.fields:
+        assert fields[f.id].hausdorff_distance(f.boundary_lonlat) < CM_DEG
+
+
+def test_plan_geojson_carries_fields_routes_and_timed_swaths(written, dispatch):
+    features = read_layer(written / "plan.geojson")
+    check_routes(features, dispatch)
+    doc = dispatch.document
+    for machine in doc.machines:
+        route = next(p for _, p in features if p["kind"] == "route" and p["machine"] == machine.id)
+        assert route["fields"] == " ".join(machine.fields)
+        assert route["time_h"] == pytest.approx(machine.time_h)
+        swaths = [p for _, p in features if p["kind"] == "swath" and p["machine"] == machine.id]
+        assert [s["order"] for s in swaths] == list(range(1, len(swaths) + 1))
+        starts = [s["start_s"] for s in swaths]
+        assert starts == sorted(starts) and all(s["end_s"] > s["start_s"] for s in swaths)
+        assert {s["field"] for s in swaths} == set(machine.fields)
+    worked = {p["id"]: p for _, p in features if p["kind"] == "field"}
+    for machine in doc.machines:
+        assert [worked[f]["order"] for f in machine.fields] == list(
+            range(1, len(machine.fields) + 1)
+        )
+
+
+def test_plan_kml_has_a_folder_per_machine(written, dispatch):
+    layers = [str(name) for name, _ in pyogrio.list_layers(written / "plan.kml")]
+    assert layers == [export.FARM_LAYER, *dispatch.missions]
+    features = [f for layer in layers for f in read_layer(written / "plan.kml", layer)]
+    check_routes(features, dispatch)
+    assert "<Folder" in (written / "plan.kml").read_text()
+
+
+def test_the_plan_files_fence_the_farm_and_rally_at_the_garage(written, dispatch):
+    glon, glat = dispatch.scenario.farm.garage_lonlat
+    for machine, mission in dispatch.missions.items():
+        doc = json.loads((written / f"{machine}.plan").read_text())
+        fence = doc["geoFence"]
+        assert fence["version"] == QGC_GEOFENCE_VERSION and fence["circles"] == []
+        inclusion = [p for p in fence["polygons"] if p["inclusion"] is True]
+        assert inclusion
+        for p in fence["polygons"]:
+            assert p["version"] == QGC_FENCE_POLYGON_VERSION and len(p["polygon"]) >= 3
+            assert p["polygon"][0] != p["polygon"][-1]  # QGroundControl's are not closed
+        areas = [Polygon([(lon, lat) for lat, lon in p["polygon"]]) for p in inclusion]
+        for lon, lat in waypoints(mission):
+            assert any(a.contains(Point(lon, lat)) for a in areas)
+        for f in dispatch.scenario.farm.fields:
+            assert any(a.contains(f.boundary_lonlat) for a in areas)
+        assert doc["rallyPoints"]["version"] == 2
+        assert doc["rallyPoints"]["points"] == [[glat, glon, 0.0]]
+
+
+def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
+    def broken(*_args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(export, "write_plan_kml", broken)
+    with pytest.raises(OSError, match="disk full"):
+        write_plan_files(dispatch, tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def plan_json(tmp_path: Path, farm: Path, *extra: str) -> dict:
+    out = tmp_path / f"out-{farm.name}"
+    # A generation limit, not the clock, ends the solver: the same seed gives the same plan.
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(farm), "--out", str(out)]
+    assert main([*args, "--time-limit", "60", "--seed", "3", *extra]) == 0
+    return json.loads((out / "plan.json").read_text())
+
+
+def essentials(doc: dict) -> list:
+    return [(m["id"], m["fields"], m["distance_m"], m["time_h"]) for m in doc["machines"]]
+
+
+@pytest.mark.parametrize("fmt", ["kml", "shp-zip", "gpkg", "isoxml"])
+def test_agrifleet_plan_plans_the_same_from_every_format(tmp_path, fmt):
+    reference = plan_json(tmp_path, DATA / "tiny-farm.geojson")
+    farm = convert(DATA / "tiny-farm.geojson", fmt, tmp_path / fmt)
+    if fmt == "isoxml":  # no roads in ISOXML: compare with the farm without them
+        doc = json.loads((DATA / "tiny-farm.geojson").read_text())
+        doc["features"] = [f for f in doc["features"] if f["properties"]["kind"] != "road"]
+        (tmp_path / "noroads.geojson").write_text(json.dumps(doc))
+        reference = plan_json(tmp_path, tmp_path / "noroads.geojson")
+        converted = plan_json(tmp_path, farm, "--id-field", "code")
+    else:
+        converted = plan_json(tmp_path, farm)
+    assert essentials(converted) == essentials(reference)
+    assert converted["totals"] == reference["totals"]
+
+
+def test_the_scenario_gives_the_garage_and_the_id_field(tmp_path):
+    doc = json.loads((DATA / "tiny-farm.geojson").read_text())
+    garage = next(f for f in doc["features"] if f["properties"]["kind"] == "garage")
+    doc["features"] = [f for f in doc["features"] if f is not garage]
+    for f in doc["features"]:
+        if f["properties"]["kind"] == "field":
+            f["properties"]["PLOT"] = f["properties"].pop("id")
+        else:
+            f["properties"].pop("id", None)
+    (tmp_path / "farm.geojson").write_text(json.dumps(doc))
+    lon, lat = garage["geometry"]["coordinates"]
+    text = (
+        (DATA / "tiny.toml")
+        .read_text()
+        .replace(
+            'farm = "tiny-farm.geojson"',
+            f'farm = "farm.geojson"\ngarage = [{lon}, {lat}]\nid_field = "PLOT"',
+        )
+    )
+    (tmp_path / "tiny.toml").write_text(text)
+    scenario = load_scenario(tmp_path / "tiny.toml")
+    assert scenario.farm.garage_lonlat == (lon, lat)
+    assert [f.id for f in scenario.farm.fields] == ["A", "B", "C"]
+    (tmp_path / "bad.toml").write_text(text.replace(f"garage = [{lon}, {lat}]", 'garage = "barn"'))
+    with pytest.raises(
+        ConfigError, match=r"bad.toml: key 'garage' must be \[longitude, latitude\]"
+    ):
+        load_scenario(tmp_path / "bad.toml")
+
+
+def test_a_pond_in_a_field_is_an_exclusion_no_path_enters(tmp_path):
+    def ring(x0, y0, w, h):  # metres east and north of 87.3 E, 44.0 N
+        lon = lambda x: 87.3 + x / 80_190.0  # noqa: E731 (metres per degree at 44 N)
+        lat = lambda y: 44.0 + y / 111_050.0  # noqa: E731
+        return [
+            [lon(x), lat(y)]
+            for x, y in [(x0, y0), (x0 + w, y0), (x0 + w, y0 + h), (x0, y0 + h), (x0, y0)]
+        ]
+
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"id": "P"},
+                "geometry": {
+                    "type": "Polygon",
+                    "coordinates": [ring(0, 0, 160, 160), ring(50, 50, 60, 60)[::-1]],
+                },
+            },
+            {
+                "type": "Feature",
+                "properties": {},
+                "geometry": {"type": "Point", "coordinates": ring(-20, -20, 0, 0)[0]},
+            },
+        ],
+    }
+    (tmp_path / "pond.geojson").write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "pond.geojson")]
+    assert main([*args, "--machines", "1", "--out", str(out)]) == 0
+    plan = json.loads((out / "v1.plan").read_text())
+    exclusion = [p for p in plan["geoFence"]["polygons"] if p["inclusion"] is False]
+    assert len(exclusion) == 1
+    pond = Polygon([(lon, lat) for lat, lon in exclusion[0]["polygon"]])
+    assert pond.area > 0
+    items = [i for i in plan["mission"]["items"] if i["command"] == 16]
+    assert not any(pond.contains(Point(i["params"][5], i["params"][4])) for i in items)

@@ -1,0 +1,219 @@
+"""Farm files in the formats farmers have (planner/farm_files.py): the demo farm converted
+to KML, GeoPackage (also in UTM), shapefiles (folder, zip) and ISOXML reads as the same
+farm as its GeoJSON (within 1 cm); ids and names from the properties asked for; the
+garage from the scenario; every error names the file and the feature."""
+
+import json
+import logging
+from pathlib import Path
+
+import pytest
+from helpers.farm_formats import convert, farm_features, write_gdal, write_isoxml
+
+from planner.errors import GeometryError
+from planner.farm import Farm, FarmOptions, load_farm
+
+REPO = Path(__file__).resolve().parents[2]
+CHANGJI = REPO / "config" / "changji.geojson"
+CM_DEG = 1e-7  # about 1 cm in degrees of latitude (and of longitude at 44 N, ~0.8 cm)
+
+
+@pytest.fixture(scope="module")
+def reference() -> Farm:
+    return load_farm(CHANGJI)
+
+
+def same_farm(farm: Farm, ref: Farm, roads: bool = True) -> None:
+    assert [f.id for f in farm.fields] == [f.id for f in ref.fields]
+    for f, r in zip(farm.fields, ref.fields, strict=True):
+        assert f.boundary_lonlat.hausdorff_distance(r.boundary_lonlat) < CM_DEG, f.id
+        assert f.boundary.hausdorff_distance(r.boundary) < 0.01, f.id  # metres
+    assert farm.garage_lonlat == pytest.approx(ref.garage_lonlat, abs=CM_DEG)
+    assert [(g.field_id, g.lonlat) for g in farm.gates] == [
+        (g.field_id, pytest.approx(g.lonlat, abs=CM_DEG)) for g in ref.gates
+    ]
+    if roads:
+        assert [r.id for r in farm.roads] == [r.id for r in ref.roads]
+        for a, b in zip(farm.roads, ref.roads, strict=True):
+            assert a.line_lonlat.hausdorff_distance(b.line_lonlat) < CM_DEG
+
+
+@pytest.mark.parametrize("fmt", ["kml", "gpkg", "gpkg-utm", "geojson-utm", "shp-folder", "shp-zip"])
+def test_the_demo_farm_reads_the_same_from_every_gdal_format(tmp_path, reference, fmt):
+    farm = load_farm(convert(CHANGJI, fmt, tmp_path))
+    same_farm(farm, reference)
+    for f, r in zip(farm.fields, reference.fields, strict=True):  # the very same numbers,
+        assert f.boundary_lonlat.equals_exact(r.boundary_lonlat, 0.0)  # so the same plan
+    assert [f.name for f in farm.fields] == [f.name for f in reference.fields]
+
+
+def test_a_projected_crs_is_converted_with_a_message(tmp_path, reference, caplog):
+    with caplog.at_level(logging.WARNING, logger="planner.farm_files"):
+        load_farm(convert(CHANGJI, "gpkg-utm", tmp_path))
+    assert "converted from WGS 84 / UTM zone 45N to WGS84" in caplog.text
+
+
+def test_isoxml_partfields_read_as_fields_with_gates_and_home_base(tmp_path, reference):
+    path = convert(CHANGJI, "isoxml", tmp_path)
+    by_code = load_farm(path, FarmOptions(id_field="code"))
+    same_farm(by_code, reference, roads=False)  # ISOXML has no roads
+    assert [f.name for f in by_code.fields] == [f.name for f in reference.fields]
+    by_default = load_farm(path.parent)  # the folder holding TASKDATA.XML
+    assert [f.id for f in by_default.fields][:3] == ["PFD1", "PFD2", "PFD3"]
+
+
+def test_isoxml_holes_and_a_bad_point_named(tmp_path):
+    outer = [[10.0, 50.0], [10.003, 50.0], [10.003, 50.002], [10.0, 50.002], [10.0, 50.0]]
+    hole = [[10.001, 50.0005], [10.002, 50.0005], [10.002, 50.0015], [10.001, 50.0015]]
+    features = [
+        {
+            "type": "Feature",
+            "properties": {"kind": "field", "id": "P", "name": "pond field"},
+            "geometry": {"type": "Polygon", "coordinates": [outer, hole + hole[:1]]},
+        },
+        {
+            "type": "Feature",
+            "properties": {"kind": "garage"},
+            "geometry": {"type": "Point", "coordinates": [9.999, 49.999]},
+        },
+    ]
+    path = write_isoxml(features, tmp_path / "TASKDATA.XML")
+    farm = load_farm(path)
+    assert len(farm.fields[0].boundary.interiors) == 1
+    assert farm.fields[0].name == "pond field"
+    path.write_text(path.read_text().replace('C="50.000500000"', 'C="north"', 1))
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert str(path) in str(err.value) and "partfield 'PFD1'" in str(err.value)
+    assert "C='north'" in str(err.value)
+
+
+def test_a_multipolygon_is_split_into_fields_with_derived_ids(tmp_path):
+    a = [[10.0, 50.0], [10.002, 50.0], [10.002, 50.001], [10.0, 50.001], [10.0, 50.0]]
+    b = [[10.003, 50.0], [10.005, 50.0], [10.005, 50.001], [10.003, 50.001], [10.003, 50.0]]
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"id": "W", "name": "west"},
+                "geometry": {"type": "MultiPolygon", "coordinates": [[a], [b]]},
+            },
+            {
+                "type": "Feature",
+                "properties": {},
+                "geometry": {"type": "Point", "coordinates": [9.999, 49.999]},
+            },
+        ],
+    }
+    path = tmp_path / "farm.geojson"
+    path.write_text(json.dumps(doc))
+    farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["W.0", "W.1"]
+    assert [f.name for f in farm.fields] == ["west (0)", "west (1)"]
+
+
+def shapefile_farm(tmp_path: Path, **props: object) -> Path:
+    ring = [[10.0, 50.0], [10.002, 50.0], [10.002, 50.001], [10.0, 50.001], [10.0, 50.0]]
+    features = [
+        {
+            "type": "Feature",
+            "properties": {"FIELD_NO": 7, "LABEL": "seven", **props},
+            "geometry": {"type": "Polygon", "coordinates": [ring]},
+        }
+    ]
+    write_gdal(features, tmp_path / "fields.shp", "ESRI Shapefile")
+    return tmp_path / "fields.shp"
+
+
+def test_id_and_name_fields_are_configurable_and_the_garage_comes_from_the_scenario(tmp_path):
+    path = shapefile_farm(tmp_path)
+    options = FarmOptions(id_field="FIELD_NO", name_field="LABEL", garage=(9.999, 49.999))
+    farm = load_farm(path, options)
+    assert [(f.id, f.name) for f in farm.fields] == [("7", "seven")]
+    assert farm.garage_lonlat == (9.999, 49.999)
+    defaulted = load_farm(path, FarmOptions(garage=(9.999, 49.999)))
+    assert [f.id for f in defaulted.fields] == ["field-0"]  # no id property: its number
+
+
+def test_a_missing_id_field_or_garage_is_refused_naming_file_and_feature(tmp_path):
+    path = shapefile_farm(tmp_path)
+    with pytest.raises(GeometryError) as err:
+        load_farm(path, FarmOptions(id_field="PLOT", garage=(9.999, 49.999)))
+    assert f"{path}: feature #0: a field without property 'PLOT'" in str(err.value)
+    assert "FIELD_NO" in str(err.value)
+    with pytest.raises(GeometryError, match="no garage .* or the scenario's garage"):
+        load_farm(path)
+
+
+def test_a_bad_feature_in_a_geopackage_names_the_layer_and_feature(tmp_path):
+    features = farm_features(CHANGJI)
+    features[3]["properties"]["kind"] = "feild"
+    write_gdal(features[:5], tmp_path / "farm.gpkg", "GPKG", layer="fields")
+    write_gdal(features[5:], tmp_path / "farm.gpkg", "GPKG", layer="rest", append=True)
+    with pytest.raises(GeometryError) as err:
+        load_farm(tmp_path / "farm.gpkg")
+    message = str(err.value)
+    assert f"{tmp_path / 'farm.gpkg'}: layer 'fields' feature #3" in message
+    assert "did you mean 'field'?" in message
+
+
+@pytest.mark.parametrize("name", ["farm.kml", "farm.gpkg", "farm.zip", "TASKDATA.XML"])
+def test_a_file_that_is_not_what_its_name_says_is_refused_naming_it(tmp_path, name):
+    path = tmp_path / name
+    path.write_text("not a farm")
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert str(err.value).startswith(f"{path}: ")
+
+
+GOOGLE_EARTH_KML = """<?xml version="1.0" encoding="UTF-8"?>
+<kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>My farm</name>
+<Folder><name>Fields</name>
+<Placemark><name>North 40</name><Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.0,50.0,0 10.002,50.0,0 10.002,50.001,0 10.0,50.001,0 10.0,50.0,0
+</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>
+<Placemark><name>Creek</name><MultiGeometry>
+<Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.003,50.0 10.005,50.0 10.005,50.001 10.003,50.001 10.003,50.0
+</coordinates></LinearRing></outerBoundaryIs></Polygon>
+<Polygon><outerBoundaryIs><LinearRing><coordinates>
+10.006,50.0 10.008,50.0 10.008,50.001 10.006,50.001 10.006,50.0
+</coordinates></LinearRing></outerBoundaryIs></Polygon>
+</MultiGeometry></Placemark>
+</Folder>
+<Placemark><name>Barn</name><Point><coordinates>9.999,49.999,0</coordinates></Point></Placemark>
+</Document></kml>
+"""
+
+
+@pytest.mark.parametrize("suffix", [".kml", ".kmz"])
+def test_a_farm_drawn_in_google_earth_reads_without_our_properties(tmp_path, suffix):
+    """Placemarks with only a name, in folders, a MultiGeometry: no kind, no id needed."""
+    path = tmp_path / f"farm{suffix}"
+    if suffix == ".kmz":
+        import zipfile
+
+        with zipfile.ZipFile(path, "w") as kmz:
+            kmz.writestr("doc.kml", GOOGLE_EARTH_KML)
+    else:
+        path.write_text(GOOGLE_EARTH_KML)
+    farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["North 40", "Creek.0", "Creek.1"]
+    assert farm.garage_lonlat == (9.999, 49.999)
+
+
+def test_several_unmarked_points_are_named_and_the_scenario_garage_settles_it(tmp_path):
+    well = (
+        "<Placemark><name>Well</name>"
+        "<Point><coordinates>10.001,50.002</coordinates></Point></Placemark>"
+    )
+    path = tmp_path / "farm.kml"
+    path.write_text(GOOGLE_EARTH_KML.replace("</Document>", well + "</Document>"))
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert f"{path}: 2 garages (layer 'My farm' feature #0, layer 'My farm' feature #1)" in str(
+        err.value
+    )
+    farm = load_farm(path, FarmOptions(garage=(9.999, 49.999)))
+    assert farm.garage_lonlat == (9.999, 49.999)
