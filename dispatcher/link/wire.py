@@ -5,7 +5,8 @@ Each Zenoh sample on a ``mavlink`` key carries exactly one MAVLink 2 frame as ra
     agrifleet/<farm>/vehicle/<vehicle>/mavlink/to     dispatcher -> vehicle
     agrifleet/<farm>/vehicle/<vehicle>/mavlink/from   vehicle -> dispatcher
     agrifleet/<farm>/vehicle/<vehicle>/alive          liveliness token held by the vehicle
-    agrifleet/<farm>/dispatcher/plan                  current plan JSON (with its plan id)
+    agrifleet/<farm>/dispatcher/plan                  current plan JSON (with its plan id);
+                                                      also a queryable: the current plan
     agrifleet/<farm>/dispatcher/status                queryable: JSON status of everything
 
 The dispatcher is MAVLink system 255; vehicles use their scenario ``system_id``.

@@ -3,8 +3,9 @@
 One run, one MCAP file: every MAVLink frame sent or received (raw, and as JSON when
 decoded), the vehicles' positions, the plan, the status documents and the dispatcher's
 log lines, all stamped with integer nanoseconds since the Unix epoch (the receive or send
-time). Topics and schemas are listed in ``docs/recording.md``; the JSON ones follow
-Foxglove's schemas so the file opens in Foxglove as it is.
+time). Topics, schemas and messages come from ``dispatcher.recording.topics`` (listed in
+``docs/recording.md``): the ``foxglove.*`` ones are the foxglove-sdk's, so the file opens
+in Foxglove as it is, and a live view attached (``Recorder.live``) serves the same.
 
 The record calls queue their messages for a writer thread (a bounded queue: a full one
 makes the caller wait, nothing is dropped), which writes them in chunks and hands each
