@@ -527,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_foxglove_argument(p: argparse.ArgumentParser, on_by_default: bool) -> None:
     """``--foxglove [HOST:]PORT`` (and ``--no-foxglove`` where it is on by default)."""
-    from dispatcher.recording.live import DEFAULT_HOST, DEFAULT_PORT
+    from dispatcher.recording.address import DEFAULT_HOST, DEFAULT_PORT
 
     default = f"{DEFAULT_HOST}:{DEFAULT_PORT}" if on_by_default else None
     g = p.add_argument_group("live view (docs/foxglove.md)")
@@ -551,7 +551,7 @@ def add_foxglove_argument(p: argparse.ArgumentParser, on_by_default: bool) -> No
 
 def foxglove_address(args: argparse.Namespace) -> tuple[str, int] | None:
     """The live view's (host, port) from ``--foxglove``, or None; a bad value exits 2."""
-    from dispatcher.recording.live import parse_address
+    from dispatcher.recording.address import parse_address
 
     return parse_address(args.foxglove) if args.foxglove else None
 

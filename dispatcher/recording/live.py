@@ -21,37 +21,18 @@ import foxglove
 import foxglove.layouts as fl
 from foxglove.websocket import ChannelView, Client, ServerListener, WebSocketServer
 
-from dispatcher.config.errors import DispatcherError
 from dispatcher.recording import topics
+from dispatcher.recording.address import DEFAULT_HOST, DEFAULT_PORT, LiveViewError
+
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "LiveView", "LiveViewError", "layout", "write_layout"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_HOST: Final = "127.0.0.1"
-DEFAULT_PORT: Final = 8765  # Foxglove's own default for a WebSocket connection
 SUBPROTOCOL: Final = "foxglove.sdk.v1"
 LATCHED_SCHEMAS: Final = frozenset(
     {topics.LOCATION_FIX, topics.GEOJSON, topics.PLAN, topics.STATUS}
 )
 """Messages that are a state (the latest tells all): a late subscriber gets the last one."""
-
-
-class LiveViewError(DispatcherError, ValueError):
-    """A bad ``--foxglove`` address, or a live view that cannot listen there."""
-
-
-def parse_address(text: str, default_host: str = DEFAULT_HOST) -> tuple[str, int]:
-    """``[HOST:]PORT`` (``--foxglove``) as (host, port); port 0 is any free port."""
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host = default_host
-    host = host.strip("[]") or default_host  # [::1]:8765
-    try:
-        number = int(port)
-    except ValueError:
-        number = -1
-    if not 0 <= number <= 65535:
-        raise LiveViewError(f"--foxglove wants [HOST:]PORT (e.g. 8765, 0.0.0.0:8765), got {text!r}")
-    return host, number
 
 
 class _Listener(ServerListener):

@@ -33,7 +33,7 @@ from dispatcher.link import wire
 from dispatcher.link.keys import read_keys, write_keys
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
-from dispatcher.recording.live import DEFAULT_PORT as DEFAULT_LIVE_PORT
+from dispatcher.recording.address import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from dispatcher.tools.replan import replanner_for
 from sim_vehicles.impairment import Impairment
 
@@ -412,8 +412,7 @@ def run_demo(
     print(
         f"plan {dispatch.plan_id}: {len(dispatch.missions)} tractors, "
         f"{len(dispatch.plan.farm.fields)} fields, planned makespan "
-        f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x\n"
-        f"zenoh: listening on {endpoint} (an outside tool: --connect {endpoint})",
+        f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}",
         flush=True,
     )
     for line in faults.describe():

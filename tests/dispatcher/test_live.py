@@ -15,14 +15,8 @@ import websockets
 
 from dispatcher.link import wire
 from dispatcher.recording import topics
-from dispatcher.recording.live import (
-    SUBPROTOCOL,
-    LiveView,
-    LiveViewError,
-    layout,
-    layout_path,
-    parse_address,
-)
+from dispatcher.recording.address import LiveViewError, parse_address
+from dispatcher.recording.live import SUBPROTOCOL, LiveView, layout, layout_path
 from dispatcher.recording.mcap_file import Recorder, read_log
 
 FARM = "changji"
