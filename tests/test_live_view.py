@@ -4,21 +4,18 @@ gets the current plan and the fields' states at once (docs/foxglove.md, docs/lin
 
 from __future__ import annotations
 
-import asyncio
 import json
-import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import websockets
 import zenoh
+from helpers.foxglove_client import first_message
 from helpers.processes import Processes, free_port, status_reader, wait_for
 
 from dispatcher.link import wire
 from dispatcher.recording import topics
-from dispatcher.recording.live import SUBPROTOCOL
 
 SCENARIO = Path(__file__).parent / "data" / "tiny.toml"
 FARM = "tiny"
@@ -46,25 +43,8 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
         procs.stop_all()
 
 
-async def _first_fix(url: str) -> tuple[dict, bytes]:
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws:
-        channel = None
-        while channel is None:
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 5))
-            if msg["op"] == "advertise":
-                channel = next(
-                    (c for c in msg["channels"] if c["topic"] == topics.location_topic("v1")), None
-                )
-        request = {"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel["id"]}]}
-        await ws.send(json.dumps(request))
-        while not isinstance(frame := await asyncio.wait_for(ws.recv(), 5), bytes):
-            pass
-        assert struct.unpack_from("<BI", frame) == (1, 1)  # message data, our subscription
-        return channel, frame[13:]
-
-
 def test_foxglove_client_decodes_a_live_location_fix(running: dict[str, Any]) -> None:
-    channel, data = asyncio.run(_first_fix(f"ws://127.0.0.1:{running['live']}"))
+    channel, data = first_message(f"ws://127.0.0.1:{running['live']}", topics.location_topic("v1"))
     assert channel["schemaName"] == "foxglove.LocationFix"
     fix = topics.decode(channel["schemaName"], channel["encoding"], data)
     assert fix["frame_id"] == "v1"

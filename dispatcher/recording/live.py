@@ -95,7 +95,7 @@ class LiveView:
                 if schema_name in LATCHED_SCHEMAS:
                     self._latched[topic] = (data, log_time_ns)
             resend, self._resend = self._resend, set()
-            for topic in resend:
+            for topic in resend - {item[0] for item in items}:  # not what was just sent
                 if topic in self._latched:
                     data, t_ns = self._latched[topic]
                     self._channels[topic].log(data, log_time=t_ns)

@@ -4,24 +4,21 @@ the present; the layout written beside each log; the --foxglove address."""
 
 from __future__ import annotations
 
-import asyncio
 import io
 import json
-import struct
 from typing import Any
 
 import pytest
-import websockets
+from helpers.foxglove_client import first_message
 
 from dispatcher.link import wire
 from dispatcher.recording import topics
 from dispatcher.recording.address import LiveViewError, parse_address
-from dispatcher.recording.live import SUBPROTOCOL, LiveView, layout, layout_path
+from dispatcher.recording.live import LiveView, layout, layout_path
 from dispatcher.recording.mcap_file import Recorder, read_log
 
 FARM = "changji"
 T0 = 1_704_067_200_000_000_000
-MESSAGE_DATA = 1  # the binary opcode of a message on a subscription
 FIELD = {
     "type": "Feature",
     "properties": {"kind": "field", "id": "F1", "name": "north"},
@@ -29,29 +26,6 @@ FIELD = {
 }
 PLAN_GEO = {"type": "FeatureCollection", "features": [FIELD]}
 STATUS = {"plan_id": "p1", "vehicles": {}, "fields": {"F1": {"status": "working"}}}
-
-
-async def receive(url: str, topic: str, after_subscribing: Any = None) -> tuple[dict, bytes]:
-    """Connect as Foxglove does, subscribe to ``topic`` once advertised, call
-    ``after_subscribing``, return the channel and the first message's payload."""
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws:
-        while True:
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 5))
-            channels = {c["topic"]: c for c in msg.get("channels", ())}
-            if msg["op"] == "advertise" and topic in channels:
-                channel = channels[topic]
-                break
-        request = {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channel["id"]}]}
-        await ws.send(json.dumps(request))
-        if after_subscribing is not None:
-            await asyncio.sleep(0.2)  # the server takes the subscription
-            after_subscribing()
-        while True:
-            frame = await asyncio.wait_for(ws.recv(), 5)
-            if isinstance(frame, bytes):
-                opcode, subscription, _log_time = struct.unpack_from("<BIQ", frame)
-                assert (opcode, subscription) == (MESSAGE_DATA, 7)
-                return channel, frame[13:]
 
 
 @pytest.fixture
@@ -72,7 +46,7 @@ def test_a_recorded_fix_is_served_live_as_recorded(live: Any) -> None:
     def move() -> None:
         recorder.record_location("t1", 44.001, 87.002, T0 + 1, 1.5, heading_deg=135.0)
 
-    channel, data = asyncio.run(receive(view.url, "/vehicle/t1/fix", move))
+    channel, data = first_message(view.url, "/vehicle/t1/fix", move)
     assert (channel["schemaName"], channel["encoding"]) == ("foxglove.LocationFix", "protobuf")
     fix = topics.decode(channel["schemaName"], channel["encoding"], data)
     # the latest position, not the one before the subscription
@@ -88,8 +62,8 @@ def test_a_late_subscriber_gets_the_plan_and_field_states(live: Any) -> None:
     again = {**STATUS, "vehicles": {"t1": {}}}  # the next status: same field states
 
     for topic in (topics.PLAN_GEOJSON_TOPIC, topics.FIELDS_GEOJSON_TOPIC):
-        channel, data = asyncio.run(
-            receive(view.url, topic, lambda: recorder.record_status(again, T0 + 2))
+        channel, data = first_message(
+            view.url, topic, lambda: recorder.record_status(again, T0 + 2)
         )
         doc = json.loads(topics.decode(channel["schemaName"], channel["encoding"], data)["geojson"])
         assert doc["features"][0]["geometry"] == FIELD["geometry"]
