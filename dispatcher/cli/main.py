@@ -266,6 +266,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 resume=run,
                 replanner=replanner,
                 keys=keys,
+                foxglove=foxglove_address(args),
             )
         )
         code = daemon.run()
@@ -357,7 +358,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     dispatch = plan_scenario(args, scenario)
     print_plan_table(dispatch)
-    result = run_demo(Path(args.scenario), dispatch, args.speedup, args.log_dir, faults=faults)
+    result = run_demo(
+        Path(args.scenario),
+        dispatch,
+        args.speedup,
+        args.log_dir,
+        faults=faults,
+        foxglove=foxglove_address(args),
+    )
     print(summary(result.daemon, result))
     print(f"log: {result.daemon.log_path}")
     return result.code
@@ -454,6 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
         "the dispatcher (docs/restart.md)",
     )
     add_signing_arguments(p)
+    add_foxglove_argument(p, on_by_default=False)
     wire.add_zenoh_arguments(p)
     p.set_defaults(handler=cmd_serve)
 
@@ -547,6 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
     )
     g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
+    add_foxglove_argument(p, on_by_default=True)
     p.set_defaults(handler=cmd_demo, fields=None)
 
     from dispatcher.tools.bridge import add_bridge_arguments
@@ -573,6 +583,37 @@ def build_parser() -> argparse.ArgumentParser:
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
     return parser
+
+
+def add_foxglove_argument(p: argparse.ArgumentParser, on_by_default: bool) -> None:
+    """``--foxglove [HOST:]PORT`` (and ``--no-foxglove`` where it is on by default)."""
+    from dispatcher.recording.address import DEFAULT_HOST, DEFAULT_PORT
+
+    default = f"{DEFAULT_HOST}:{DEFAULT_PORT}" if on_by_default else None
+    g = p.add_argument_group("live view (docs/foxglove.md)")
+    g.add_argument(
+        "--foxglove",
+        metavar="[HOST:]PORT",
+        default=default,
+        help="serve the fleet live to Foxglove over its WebSocket protocol on this address "
+        f"(HOST defaults to {DEFAULT_HOST}; 0.0.0.0 for other machines; PORT 0: any free one)"
+        + (f"; default {default}" if default else "; default: off"),
+    )
+    if on_by_default:
+        g.add_argument(
+            "--no-foxglove",
+            dest="foxglove",
+            action="store_const",
+            const=None,
+            help="no live view",
+        )
+
+
+def foxglove_address(args: argparse.Namespace) -> tuple[str, int] | None:
+    """The live view's (host, port) from ``--foxglove``, or None; a bad value exits 2."""
+    from dispatcher.recording.address import parse_address
+
+    return parse_address(args.foxglove) if args.foxglove else None
 
 
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:

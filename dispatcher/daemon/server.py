@@ -47,6 +47,7 @@ from dispatcher.link.mission_protocol import (
 )
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
+from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,8 @@ class DaemonConfig:
     # Each vehicle's MAVLink signing key (dispatcher/link/keys.py): frames to it are
     # signed, frames from it taken only when signed with it. None: no signing.
     keys: Mapping[str, bytes] | None = None
+    # Serve the run live to Foxglove on (host, port) (dispatcher/recording/live.py); None: not.
+    foxglove: tuple[str, int] | None = None
 
 
 class _VehicleSender:
@@ -181,6 +184,7 @@ class Dispatcher:
         self.links = {vid: _Link() for vid in self.state.vehicles}
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
+        self.live: LiveView | None = None
         self.publishers: dict[str, Any] = {}
         self._entities: list[Any] = []
         self._last_status = 0.0
@@ -188,6 +192,7 @@ class Dispatcher:
         self._started = time.monotonic()
         self.log_path: Path | None = None
         self._status_json = "{}"  # the last status, serialised in the main loop
+        self._plan_json = self.job.document.to_json()  # the current plan, for late joiners
         self.senders: dict[str, _VehicleSender] = {}
         self.upload_started: float | None = None
         self.all_acknowledged: float | None = None
@@ -221,6 +226,7 @@ class Dispatcher:
         )
         self.log_path = Path(self.recorder.path) if self.recorder.path else None
         log.info("recording to %s", self.log_path)
+        self._start_live_view()
         self.session = zenoh.open(cfg.zenoh.config())
         s = self.session
         self._entities.append(
@@ -244,6 +250,9 @@ class Dispatcher:
         self._entities.append(
             s.declare_queryable(wire.dispatcher_status(self.farm), self._on_query)
         )
+        self._entities.append(  # a late joiner asks for the plan (docs/link.md)
+            s.declare_queryable(wire.dispatcher_plan(self.farm), self._on_plan_query)
+        )
         for vid in self.state.vehicles:
             self.publishers[vid] = s.declare_publisher(
                 wire.vehicle_to(self.farm, vid), congestion_control=zenoh.CongestionControl.BLOCK
@@ -254,7 +263,7 @@ class Dispatcher:
         self.publishers["plan"] = s.declare_publisher(wire.dispatcher_plan(self.farm))
         now_ns = time.time_ns()
         self.recorder.record_plan(self.job.document.to_dict(), dict(self.job.geojson), now_ns)
-        self.publishers["plan"].put(self.job.document.to_json())
+        self.publishers["plan"].put(self._plan_json)
         if cfg.resume is not None:
             self._resume_run(cfg.resume)
         self._log(
@@ -331,6 +340,23 @@ class Dispatcher:
             self.recorder.record_status(self.state.status_doc(), time.time_ns())
             self.recorder.finish()
             log.info("log finished: %s", self.log_path)
+        if self.live is not None:
+            self.live.stop()
+
+    def _start_live_view(self) -> None:
+        """Serve what is recorded to Foxglove (``config.foxglove``), and write the log's
+        Foxglove layout beside it. A view that cannot listen is reported, the run goes on."""
+        if self.log_path is not None:
+            write_layout(layout_path(self.log_path), self.farm, list(self.state.vehicles))
+        if self.config.foxglove is None or self.recorder is None:
+            return
+        try:
+            self.live = LiveView(*self.config.foxglove, name=f"agrifleet {self.farm}")
+        except LiveViewError as exc:
+            log.warning("%s; going on without it", exc)
+            return
+        self.recorder.live = self.live
+        log.info("live view for Foxglove on %s", self.live.url)
 
     # --- zenoh callbacks (other threads): queue only ------------------------------------
     def _on_frame(self, sample: zenoh.Sample) -> None:
@@ -344,7 +370,11 @@ class Dispatcher:
         self.inbox.put((kind, str(sample.key_expr), b"", time.time_ns()))
 
     def _on_query(self, query: zenoh.Query) -> None:
-        query.reply(query.key_expr, self._status_json)  # an immutable string: consistent
+        # An immutable string: consistent. Its own key, also for a query on dispatcher/*.
+        query.reply(wire.dispatcher_status(self.farm), self._status_json)
+
+    def _on_plan_query(self, query: zenoh.Query) -> None:
+        query.reply(wire.dispatcher_plan(self.farm), self._plan_json)
 
     # --- main loop -----------------------------------------------------------------------
     def _handle(self, item: tuple[str, str, bytes, int], now: float) -> None:
@@ -374,7 +404,12 @@ class Dispatcher:
             self._apply(event, now)
         if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
             self.recorder.record_location(
-                vid, msg.lat / 1e7, msg.lon / 1e7, t_ns, msg.time_boot_ms / 1000.0
+                vid,
+                msg.lat / 1e7,
+                msg.lon / 1e7,
+                t_ns,
+                msg.time_boot_ms / 1000.0,
+                heading_deg=v.heading_deg,
             )
         link = self.links[vid]
         for machine in link.exchanges():
@@ -796,7 +831,8 @@ class Dispatcher:
             self.store.replace_missions(job)
         if self.recorder is not None:
             self.recorder.record_plan(job.document.to_dict(), dict(job.geojson), time.time_ns())
-        self.publishers["plan"].put(job.document.to_json())
+        self._plan_json = job.document.to_json()
+        self.publishers["plan"].put(self._plan_json)
         gone = [vid for vid, v in self.state.vehicles.items() if v.retired]
         for vid in gone:
             v = self.state.vehicles[vid]

@@ -5,7 +5,8 @@ Each Zenoh sample on a ``mavlink`` key carries exactly one MAVLink 2 frame as ra
     agrifleet/<farm>/vehicle/<vehicle>/mavlink/to     dispatcher -> vehicle
     agrifleet/<farm>/vehicle/<vehicle>/mavlink/from   vehicle -> dispatcher
     agrifleet/<farm>/vehicle/<vehicle>/alive          liveliness token held by the vehicle
-    agrifleet/<farm>/dispatcher/plan                  current plan JSON (with its plan id)
+    agrifleet/<farm>/dispatcher/plan                  current plan JSON (with its plan id);
+                                                      also a queryable: the current plan
     agrifleet/<farm>/dispatcher/status                queryable: JSON status of everything
 
 The dispatcher is MAVLink system 255; vehicles use their scenario ``system_id``. Only the
@@ -34,8 +35,9 @@ if TYPE_CHECKING:
 
 DISPATCHER_SYSTEM_ID = 255
 DISPATCHER_COMPONENT_ID = 190  # MAV_COMP_ID_MISSIONPLANNER
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-DEFAULT_TLS_ENDPOINT = "tls/127.0.0.1:7447"
+DEFAULT_PORT = 7447
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+DEFAULT_TLS_ENDPOINT = f"tls/127.0.0.1:{DEFAULT_PORT}"
 LOOPBACK_PEER_ENDPOINT = "tcp/127.0.0.1:0"
 PREFIX = "agrifleet"
 

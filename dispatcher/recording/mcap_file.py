@@ -3,8 +3,9 @@
 One run, one MCAP file: every MAVLink frame sent or received (raw, and as JSON when
 decoded), the vehicles' positions, the plan, the status documents and the dispatcher's
 log lines, all stamped with integer nanoseconds since the Unix epoch (the receive or send
-time). Topics and schemas are listed in ``docs/recording.md``; the JSON ones follow
-Foxglove's schemas so the file opens in Foxglove as it is.
+time). Topics, schemas and messages come from ``dispatcher.recording.topics`` (listed in
+``docs/recording.md``): the ``foxglove.*`` ones are the foxglove-sdk's, so the file opens
+in Foxglove as it is, and a live view attached (``Recorder.live``) serves the same.
 
 The record calls queue their messages for a writer thread (a bounded queue: a full one
 makes the caller wait, nothing is dropped), which writes them in chunks and hands each
@@ -20,6 +21,7 @@ files of one run (a dispatcher restarted) as one.
 from __future__ import annotations
 
 import atexit
+import copy
 import io
 import json
 import logging
@@ -30,13 +32,13 @@ import threading
 import time
 import weakref
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Final, NamedTuple, Self, cast
+from typing import IO, Any, Final, NamedTuple, Protocol, Self, cast
 
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import SeekingReader
@@ -45,7 +47,17 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from dispatcher.config.errors import DispatcherError
-from dispatcher.link import wire
+from dispatcher.recording import topics
+from dispatcher.recording.topics import (  # noqa: F401 - the names log readers use
+    EVENTS_TOPIC,
+    FIELDS_GEOJSON_TOPIC,
+    JSON_ENCODING,
+    LOG_TOPIC,
+    MAVLINK_ENCODING,
+    PLAN_GEOJSON_TOPIC,
+    SCHEMAS,
+    location_topic,
+)
 
 try:  # Chunk compression codecs are optional: mcap works (uncompressed) without them.
     import zstandard
@@ -70,14 +82,6 @@ DEFAULT_MAX_CHUNK_AGE_S: Final = 0.25
 DEFAULT_QUEUE_SIZE: Final = 4096
 _WARNING_INTERVAL_S: Final = 10.0  # at most one back-pressure warning this often
 _EXIT_TIMEOUT_S: Final = 5.0  # finishing unfinished logs at interpreter exit
-MAVLINK_ENCODING: Final = "mavlink2"
-JSON_ENCODING: Final = "json"
-JSONSCHEMA_ENCODING: Final = "jsonschema"
-LOG_TOPIC: Final = "/log"
-PLAN_GEOJSON_TOPIC: Final = "/plan/geojson"
-EVENTS_TOPIC: Final = "/dispatcher/events"
-"""Every change of the fleet state (``dispatcher.daemon.events``), as applied: review
-replays them."""
 # Records longer than this are taken as corruption rather than read into memory.
 _RECORD_SIZE_LIMIT: Final = 256 * 2**20
 
@@ -100,191 +104,6 @@ class RecordingError(DispatcherError, ValueError):
 
 class RecorderStateError(DispatcherError, RuntimeError):
     """A record call on a recorder that is not started yet or already finished."""
-
-
-def location_topic(vehicle_id: str) -> str:
-    """The topic of a vehicle's position fixes (``foxglove.LocationFix``)."""
-    return f"/vehicle/{vehicle_id}/fix"
-
-
-def json_topic(key: str) -> str:
-    """The topic of the decoded (JSON) twin of the frames on Zenoh key ``key``."""
-    return f"{key}/json"
-
-
-# --- schemas ---------------------------------------------------------------------------
-
-_TIME_SCHEMA: Final[dict[str, Any]] = {
-    "type": "object",
-    "title": "time",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-    },
-}
-
-# Foxglove's schemas (github.com/foxglove/foxglove-sdk, schemas/jsonschema), with the fields
-# we write; later optional additions (lineage, message_id, colour ...) are left out.
-LOCATION_FIX_SCHEMA: Final[dict[str, Any]] = {
-    "title": "foxglove.LocationFix",
-    "description": "A navigation satellite fix for any Global Navigation Satellite System",
-    "type": "object",
-    "properties": {
-        "timestamp": {**_TIME_SCHEMA, "description": "Timestamp of the message"},
-        "frame_id": {
-            "type": "string",
-            "description": "Frame for the sensor. Latitude and longitude readings are at the "
-            "origin of the frame.",
-        },
-        "latitude": {"type": "number", "description": "Latitude in degrees"},
-        "longitude": {"type": "number", "description": "Longitude in degrees"},
-        "altitude": {"type": "number", "description": "Altitude in meters"},
-        "position_covariance": {
-            "type": "array",
-            "items": {"type": "number"},
-            "minItems": 9,
-            "maxItems": 9,
-            "description": "Position covariance (m^2) defined relative to a tangential plane "
-            "through the reported position. The components are East, North, and Up (ENU), "
-            "in row-major order.",
-        },
-        "position_covariance_type": {
-            "title": "foxglove.PositionCovarianceType",
-            "description": "If `position_covariance` is available, `position_covariance_type` "
-            "must be set to indicate the type of covariance.",
-            "oneOf": [
-                {"title": "UNKNOWN", "const": 0},
-                {"title": "APPROXIMATED", "const": 1},
-                {"title": "DIAGONAL_KNOWN", "const": 2},
-                {"title": "KNOWN", "const": 3},
-            ],
-        },
-        "metadata": {
-            "type": "array",
-            "items": {
-                "title": "foxglove.KeyValuePair",
-                "type": "object",
-                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-                "required": ["key", "value"],
-            },
-            "description": "Additional user-provided metadata associated with the location "
-            "fix. Keys must be unique.",
-        },
-    },
-    "required": [
-        "timestamp",
-        "frame_id",
-        "latitude",
-        "longitude",
-        "altitude",
-        "position_covariance",
-        "position_covariance_type",
-    ],
-}
-
-GEOJSON_SCHEMA: Final[dict[str, Any]] = {
-    "title": "foxglove.GeoJSON",
-    "description": "GeoJSON data for annotating maps",
-    "type": "object",
-    "properties": {
-        "geojson": {"type": "string", "description": "GeoJSON data encoded as a UTF-8 string"}
-    },
-    "required": ["geojson"],
-}
-
-LOG_SCHEMA: Final[dict[str, Any]] = {
-    "title": "foxglove.Log",
-    "description": "A log message",
-    "type": "object",
-    "properties": {
-        "timestamp": {**_TIME_SCHEMA, "description": "Timestamp of log message"},
-        "level": {
-            "title": "foxglove.LogLevel",
-            "description": "Log level",
-            "oneOf": [
-                {"title": "UNKNOWN", "const": 0},
-                {"title": "DEBUG", "const": 1},
-                {"title": "INFO", "const": 2},
-                {"title": "WARNING", "const": 3},
-                {"title": "ERROR", "const": 4},
-                {"title": "FATAL", "const": 5},
-            ],
-        },
-        "message": {"type": "string", "description": "Log message"},
-        "name": {"type": "string", "description": "Process or node name"},
-        "file": {"type": "string", "description": "Filename"},
-        "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
-    },
-    "required": ["timestamp", "level", "message", "name", "file", "line"],
-}
-
-MAVLINK_JSON_SCHEMA: Final[dict[str, Any]] = {
-    "title": "agrifleet.MAVLink",
-    "description": "One decoded MAVLink message: its name and fields (bytes as lists of ints)",
-    "type": "object",
-    "properties": {"mavpackettype": {"type": "string", "description": "MAVLink message name"}},
-    "required": ["mavpackettype"],
-    "additionalProperties": True,
-}
-
-PLAN_SCHEMA: Final[dict[str, Any]] = {
-    "title": "agrifleet.Plan",
-    "description": "The dispatcher's plan document (plan.json)",
-    "type": "object",
-    "properties": {
-        "plan_id": {"type": "string"},
-        "farm_id": {"type": "string"},
-        "objective": {"type": "string"},
-        "fields": {"type": "object"},
-        "machines": {"type": "array"},
-        "totals": {"type": "object"},
-    },
-    "additionalProperties": True,
-}
-
-STATUS_SCHEMA: Final[dict[str, Any]] = {
-    "title": "agrifleet.Status",
-    "description": "The dispatcher's status of every vehicle and field",
-    "type": "object",
-    "properties": {
-        "plan_id": {"type": "string"},
-        "vehicles": {"type": "object"},
-        "fields": {"type": "object"},
-    },
-    "additionalProperties": True,
-}
-
-EVENT_SCHEMA: Final[dict[str, Any]] = {
-    "title": "agrifleet.Event",
-    "description": "A change of the fleet state (dispatcher.daemon.events), as applied",
-    "type": "object",
-    "properties": {"kind": {"type": "string"}, "vehicle": {"type": "string"}},
-    "required": ["kind", "vehicle"],
-    "additionalProperties": True,
-}
-
-SCHEMAS: Final[dict[str, dict[str, Any]]] = {
-    s["title"]: s
-    for s in (
-        LOCATION_FIX_SCHEMA,
-        GEOJSON_SCHEMA,
-        LOG_SCHEMA,
-        MAVLINK_JSON_SCHEMA,
-        PLAN_SCHEMA,
-        STATUS_SCHEMA,
-        EVENT_SCHEMA,
-    )
-}
-
-_LOG_LEVELS: Final[dict[str, int]] = {
-    "debug": 1,
-    "info": 2,
-    "warn": 3,
-    "warning": 3,
-    "error": 4,
-    "critical": 5,
-    "fatal": 5,
-}
 
 
 # --- writing ---------------------------------------------------------------------------
@@ -338,12 +157,6 @@ def _check_farm_id(farm_id: str) -> str:
     return farm_id
 
 
-def _stamp(ns: int) -> dict[str, int]:
-    """A Foxglove ``time``: seconds and nanoseconds."""
-    sec, nsec = divmod(ns, 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
-
-
 def _json_default(value: Any) -> Any:
     tolist = getattr(value, "tolist", None)  # numpy scalars and arrays
     if callable(tolist):
@@ -394,6 +207,18 @@ def _check_time(log_time_ns: int) -> None:
         raise RecordingError(
             f"log_time_ns must be integer nanoseconds since the epoch, got {log_time_ns!r}"
         )
+
+
+_PROTOBUF: Final = topics.PROTOBUF_ENCODING
+
+
+class LiveSink(Protocol):
+    """Takes every message as it is recorded (``dispatcher.recording.live.LiveView``)."""
+
+    def publish(
+        self, items: Sequence[tuple[str, str, str | None, bytes]], log_time_ns: int
+    ) -> None:
+        """``items``: (topic, message encoding, schema name or None, data)."""
 
 
 # What the record calls queue for the writer thread: (kind, payload, time.monotonic() when
@@ -540,6 +365,10 @@ class Recorder:
         self.flush_count = 0  # times the writer handed the file a closed chunk on time
         self.blocked_count = 0  # record calls that waited for room in the queue
         self.blocked_s = 0.0  # and how long they waited in all
+        # Where every message also goes as it is recorded (the live view), if anywhere.
+        self.live: LiveSink | None = None
+        self._plan_geojson: dict[str, Any] | None = None  # the last plan's, for field states
+        self._fields_shown: dict[str, Any] | None = None  # field states last drawn
 
     @classmethod
     def create_in(
@@ -700,7 +529,7 @@ class Recorder:
         self._write(
             (
                 (key, MAVLINK_ENCODING, None, bytes(frame)),
-                (json_topic(key), JSON_ENCODING, "agrifleet.MAVLink", _dumps(decoded, key)),
+                (topics.json_topic(key), JSON_ENCODING, topics.MAVLINK_JSON, _dumps(decoded, key)),
             ),
             log_time_ns,
         )
@@ -714,30 +543,27 @@ class Recorder:
         sim_time_s: float | None = None,
         *,
         altitude_m: float = 0.0,
+        heading_deg: float | None = None,
     ) -> None:
         """A position fix (degrees) on ``/vehicle/<id>/fix`` as ``foxglove.LocationFix``,
-        stamped with the log time; ``sim_time_s`` (the vehicle's own clock) goes into the
-        fix's metadata. A fix with a non-finite coordinate is skipped (JSON cannot hold it;
-        the raw frame is on the MAVLink topic anyway)."""
+        stamped with the log time, with the heading (degrees clockwise from north) when
+        known; ``sim_time_s`` (the vehicle's own clock) goes into the fix's metadata. A fix
+        with a non-finite coordinate is skipped (the raw frame is on the MAVLink topic)."""
         _check_time(log_time_ns)
         if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(altitude_m)):
             logger.debug("skipping non-finite fix of %s: %s, %s", vehicle_id, lat, lon)
             return
-        fix: dict[str, Any] = {
-            "timestamp": _stamp(log_time_ns),
-            "frame_id": vehicle_id,
-            "latitude": float(lat),
-            "longitude": float(lon),
-            "altitude": float(altitude_m),
-            "position_covariance": [0.0] * 9,
-            "position_covariance_type": 0,
-        }
-        if sim_time_s is not None and math.isfinite(sim_time_s):
-            fix["metadata"] = [{"key": "sim_time_s", "value": repr(float(sim_time_s))}]
-        data = _dumps(fix, "location fix")
-        self._write(
-            ((location_topic(vehicle_id), JSON_ENCODING, "foxglove.LocationFix", data),),
+        data = topics.location_fix(
+            vehicle_id,
+            lat,
+            lon,
             log_time_ns,
+            altitude_m=altitude_m,
+            heading_deg=heading_deg,
+            sim_time_s=sim_time_s,
+        )
+        self._write(
+            ((location_topic(vehicle_id), _PROTOBUF, topics.LOCATION_FIX, data),), log_time_ns
         )
 
     def record_plan(
@@ -745,14 +571,17 @@ class Recorder:
     ) -> None:
         """The plan document on ``agrifleet/<farm>/dispatcher/plan`` and its fields and
         routes as ``foxglove.GeoJSON`` on ``/plan/geojson``; a new ``plan_id`` in the plan
-        is added to the metadata."""
+        is added to the metadata. The fields' states (``/fields/geojson``) are drawn from
+        this plan's fields from now on."""
         _check_time(log_time_ns)
         plan = _dumps(plan_doc, "plan document")
-        geo = _dumps({"geojson": _dumps(geojson, "plan GeoJSON").decode()}, "plan GeoJSON")
+        geo = topics.geojson(_dumps(geojson, "plan GeoJSON").decode())
+        self._plan_geojson = copy.deepcopy(dict(geojson))
+        self._fields_shown = None
         self._write(
             (
-                (wire.dispatcher_plan(self.farm_id), JSON_ENCODING, "agrifleet.Plan", plan),
-                (PLAN_GEOJSON_TOPIC, JSON_ENCODING, "foxglove.GeoJSON", geo),
+                (topics.plan_topic(self.farm_id), JSON_ENCODING, topics.PLAN, plan),
+                (PLAN_GEOJSON_TOPIC, _PROTOBUF, topics.GEOJSON, geo),
             ),
             log_time_ns,
         )
@@ -769,16 +598,27 @@ class Recorder:
         it was applied."""
         _check_time(log_time_ns)
         data = _dumps(event, "fleet event")
-        self._write(((EVENTS_TOPIC, JSON_ENCODING, "agrifleet.Event", data),), log_time_ns)
+        self._write(((EVENTS_TOPIC, JSON_ENCODING, topics.EVENT, data),), log_time_ns)
 
     def record_status(self, status_doc: Mapping[str, Any], log_time_ns: int) -> None:
-        """A status document on ``agrifleet/<farm>/dispatcher/status``."""
+        """A status document on ``agrifleet/<farm>/dispatcher/status``, and the fields of
+        the last plan recorded coloured by their state on ``/fields/geojson`` when a
+        field's state changed."""
         _check_time(log_time_ns)
         data = _dumps(status_doc, "status document")
-        self._write(
-            ((wire.dispatcher_status(self.farm_id), JSON_ENCODING, "agrifleet.Status", data),),
-            log_time_ns,
-        )
+        items: list[_Item] = [
+            (topics.status_topic(self.farm_id), JSON_ENCODING, topics.STATUS, data)
+        ]
+        shown = {
+            k: (f.get("status"), f.get("vehicle")) for k, f in status_doc.get("fields", {}).items()
+        }
+        if self._plan_geojson is not None and shown != self._fields_shown:
+            fields = topics.fields_state(self._plan_geojson, status_doc)
+            self._fields_shown = shown
+            if fields is not None:
+                geo = topics.geojson(_dumps(fields, "fields GeoJSON").decode())
+                items.append((FIELDS_GEOJSON_TOPIC, _PROTOBUF, topics.GEOJSON, geo))
+        self._write(tuple(items), log_time_ns)
 
     def record_log(
         self,
@@ -793,23 +633,16 @@ class Recorder:
         """A log line on ``/log`` as ``foxglove.Log``; ``level`` is a ``logging`` level
         name (debug, info, warning, error, critical), anything else is UNKNOWN."""
         _check_time(log_time_ns)
-        entry = {
-            "timestamp": _stamp(log_time_ns),
-            "level": _LOG_LEVELS.get(level.lower(), 0),
-            "message": text,
-            "name": name,
-            "file": file,
-            "line": max(int(line), 0),
-        }
-        self._write(
-            ((LOG_TOPIC, JSON_ENCODING, "foxglove.Log", _dumps(entry, "log line")),), log_time_ns
-        )
+        data = topics.log_line(level, text, log_time_ns, name=name, file=file, line=line)
+        self._write(((LOG_TOPIC, _PROTOBUF, topics.LOG, data),), log_time_ns)
 
     # --- internals: the caller's side ----------------------------------------------------
     def _write(self, items: tuple[_Item, ...], log_time_ns: int) -> None:
         with self._lock:
             self._check_open()
             self._put_locked((_MESSAGES, (items, log_time_ns), time.monotonic()))
+        if self.live is not None:
+            self.live.publish(items, log_time_ns)
 
     def _add_metadata_locked(self, values: dict[str, str]) -> None:
         self._put_locked((_METADATA, values, time.monotonic()))
@@ -920,8 +753,8 @@ class Recorder:
         if schema_name is not None:
             schema_id = self._schemas.get(schema_name, 0)
             if not schema_id:
-                data = json.dumps(SCHEMAS[schema_name], separators=(",", ":")).encode()
-                schema_id = self._writer.register_schema(schema_name, JSONSCHEMA_ENCODING, data)
+                schema = SCHEMAS[schema_name]
+                schema_id = self._writer.register_schema(schema.name, schema.encoding, schema.data)
                 self._schemas[schema_name] = schema_id
         entry = [self._writer.register_channel(topic, encoding, schema_id), 0]
         self._channels[topic] = entry
@@ -999,8 +832,10 @@ class LogRecord(NamedTuple):
     data: bytes
 
     def decode_json(self) -> Any:
-        """The message as JSON (for the json-encoded topics)."""
-        return json.loads(self.data)
+        """The message as a plain value: JSON parsed, a ``foxglove.*`` (protobuf) message
+        as the dict of Foxglove's JSON schema (``topics.decode``). Raises ValueError for
+        data that does not decode."""
+        return topics.decode(self.schema_name, self.message_encoding, self.data)
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,13 @@ from dispatcher.mission.document import (
     PlannedItem,
     PlannedMachine,
 )
-from dispatcher.recording.mcap_file import EVENTS_TOPIC, LogContents, RecordingError, read_log
+from dispatcher.recording.mcap_file import (
+    EVENTS_TOPIC,
+    LogContents,
+    LogRecord,
+    RecordingError,
+    read_log,
+)
 from dispatcher.review.track import TrackQuality, track_quality
 from planner.geo import LocalFrame
 
@@ -347,6 +353,15 @@ def _decode(data: bytes) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
+def _decode_record(rec: LogRecord) -> dict[str, Any] | None:
+    """A message of any encoding (a fix is protobuf in newer logs, JSON in older ones)."""
+    try:
+        doc = rec.decode_json()
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
 def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int, Any]], list]:
     """Per vehicle its traffic; the plan documents and status documents (log ns, doc)."""
     json_seen: set[tuple[str, str]] = set()
@@ -376,7 +391,7 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
             continue
         fix = _FIX_TOPIC.match(topic)
         if fix:
-            doc = _decode(rec.data)
+            doc = _decode_record(rec)
             if doc is not None:
                 of(fix.group(1)).fixes.append((rec.log_time_ns, doc))
         elif topic == EVENTS_TOPIC:

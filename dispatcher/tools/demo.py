@@ -33,6 +33,7 @@ from dispatcher.link import wire
 from dispatcher.link.keys import read_keys, write_keys
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.plan import DispatchPlan
+from dispatcher.recording.address import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from dispatcher.tools.replan import replanner_for
 from sim_vehicles.impairment import Impairment
 
@@ -47,16 +48,33 @@ dispatcher's status period, which calls the progress callback, is cut to this: i
 1 s, is 200 simulated seconds at 200x)."""
 
 
-def free_port(preferred: int = 7447) -> int:
-    """``preferred`` if nothing listens on it on loopback, else any free port."""
+def free_port(preferred: int = wire.DEFAULT_PORT) -> int:
+    """``preferred`` if a listener can have it on loopback, else any free port."""
     for port in (preferred, 0):
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            # As the listeners do (zenoh, the Foxglove server): a port whose last connections
+            # wait out TIME_WAIT (the previous run's) can be listened on; one listened on cannot.
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
                 s.bind(("127.0.0.1", port))
             except OSError:
                 continue
             return int(s.getsockname()[1])
     raise RuntimeError("no free TCP port on 127.0.0.1")
+
+
+def _port_or_say(preferred: int, what: str) -> int:
+    """``preferred`` if it is free, else a free port, said loudly (on stderr): an outside
+    tool looking at the documented port would see nothing."""
+    port = free_port(preferred)
+    if port != preferred:
+        print(
+            f"WARNING: port {preferred} on 127.0.0.1 is taken by another program: the {what} "
+            f"of this demo is on port {port} instead. Outside tools must use port {port}.",
+            file=sys.stderr,
+            flush=True,
+        )
+    return port
 
 
 def auto_speedup(dispatch: DispatchPlan, target_wall_s: float = TARGET_WALL_S) -> float:
@@ -377,16 +395,20 @@ def run_demo(
     log_dir: Path,
     heartbeat_timeout_s: float = 10.0,
     faults: DemoFaults | None = None,
+    foxglove: tuple[str, int] | None = None,
 ) -> DemoResult:
     """Run the demo with ``faults`` injected; a simulator that exits early is reported and
     the run goes on (the dispatcher sees its tractor lost). Returns the dispatcher's exit
-    code with what happened, for the summary."""
+    code with what happened, for the summary. ``foxglove``: serve the run live to Foxglove
+    there (the default port taken: any free one, said loudly)."""
     faults = faults or DemoFaults()
     for fault in faults.faults:
         if fault.vehicle not in dispatch.missions:
             raise ConfigError(f"--{fault.action} names {fault.vehicle!r}, which has no mission")
     speed = speedup or auto_speedup(dispatch)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{_port_or_say(wire.DEFAULT_PORT, 'zenoh endpoint')}"
+    if foxglove is not None and foxglove[1] == DEFAULT_LIVE_PORT:
+        foxglove = (foxglove[0], _port_or_say(DEFAULT_LIVE_PORT, "Foxglove live view"))
     print(
         f"plan {dispatch.plan_id}: {len(dispatch.missions)} tractors, "
         f"{len(dispatch.plan.farm.fields)} fields, planned makespan "
@@ -416,6 +438,7 @@ def run_demo(
         on_progress=printer,
         replanner=replanner_for(dispatch.scenario, dispatch),
         keys=keys,
+        foxglove=foxglove,
     )
     if faults.faults:
         config.status_period_s = min(config.status_period_s, FAULT_CHECK_PERIOD_S)
@@ -432,6 +455,12 @@ def run_demo(
     children: Supervisor | None = None
     try:
         daemon.startup()
+        if daemon.live is not None:
+            print(
+                f"live view: in Foxglove, Open connection > Foxglove WebSocket > "
+                f"{daemon.live.url} (docs/foxglove.md)",
+                flush=True,
+            )
         vids = list(dispatch.missions)
         children = Supervisor.start(
             [

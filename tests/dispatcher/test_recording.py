@@ -27,7 +27,6 @@ from dispatcher.link import wire
 from dispatcher.recording.mcap_file import (
     FLUSH_BOUND_S,
     LIBRARY,
-    LOCATION_FIX_SCHEMA,
     SCHEMAS,
     SOFTWARE_VERSION,
     Recorder,
@@ -147,9 +146,12 @@ def test_seeking_reader_sees_channels_schemas_counts_and_metadata(small_log: byt
         "/log": "foxglove.Log",
     }
     for topic, schema in schema_of.items():
-        assert schema.encoding == "jsonschema"
-        assert channels[topic].message_encoding == "json"
-        assert json.loads(schema.data) == SCHEMAS[schema.name]
+        ours = SCHEMAS[schema.name]
+        assert (schema.encoding, schema.data) == (ours.encoding, ours.data)
+        # Foxglove's own schemas as its SDK has them (protobuf), ours as JSON Schema
+        foxglove = schema.name.startswith("foxglove.")
+        assert schema.encoding == ("protobuf" if foxglove else "jsonschema")
+        assert channels[topic].message_encoding == ("protobuf" if foxglove else "json")
     assert len(summary.schemas) == 6  # each registered once
 
     [meta] = list(reader.iter_metadata())
@@ -214,9 +216,41 @@ def test_location_fix_is_foxglove_location_fix(small_log: bytes) -> None:
         "position_covariance": [0.0] * 9,
         "position_covariance_type": 0,
         "metadata": [{"key": "sim_time_s", "value": "0.1"}],
+    }  # no heading: not known
+
+
+def test_location_fix_heading() -> None:
+    buf = io.BytesIO()
+    with Recorder(buf, FARM) as rec:
+        rec.record_location("t1", 44.0, 87.0, T0, heading_deg=370.0)
+        rec.record_location("t1", 44.0, 87.0, T0 + 1, heading_deg=float("nan"))
+    first, second = (r.decode_json() for r in read_log(buf).on("/vehicle/t1/fix"))
+    assert first["heading"] == 10.0 and "heading" not in second
+
+
+def test_field_states_drawn_when_they_change() -> None:
+    field = {
+        "type": "Feature",
+        "properties": {"kind": "field", "id": "F1", "name": "north"},
+        "geometry": {"type": "Polygon", "coordinates": [[[87, 44], [87.1, 44], [87, 44.1]]]},
     }
-    assert set(LOCATION_FIX_SCHEMA["required"]) <= set(fix)
-    assert set(fix) <= set(LOCATION_FIX_SCHEMA["properties"])
+    plan_geo = {**GEOJSON, "features": [*GEOJSON["features"], field]}
+    buf = io.BytesIO()
+    with Recorder(buf, FARM) as rec:
+        rec.record_plan(PLAN_DOC, plan_geo, T0)
+        for i, status in enumerate(["pending", "working", "working", "done"]):
+            doc = {"vehicles": {}, "fields": {"F1": {"status": status, "vehicle": "t1"}}}
+            rec.record_status(doc, T0 + i)
+    shown = [json.loads(r.decode_json()["geojson"]) for r in read_log(buf).on("/fields/geojson")]
+    assert [c["features"][0]["properties"]["status"] for c in shown] == [
+        "pending",
+        "working",
+        "done",
+    ]
+    done = shown[-1]["features"][0]
+    assert done["geometry"] == field["geometry"]
+    assert done["properties"]["style"]["color"] == "#2ca02c"
+    assert done["properties"]["name"] == "F1: done (t1)"
 
 
 def test_plan_geojson_status_and_log_content(small_log: bytes) -> None:

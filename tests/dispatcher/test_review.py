@@ -534,27 +534,3 @@ def test_an_mcap_of_someone_else_is_refused() -> None:
     writer.finish()
     with pytest.raises(RecordingError, match="not an agrifleet log"):
         review_log(io.BytesIO(buf.getvalue()))
-
-
-# --- the Foxglove layout that goes with the logs ---------------------------------------------
-
-
-def test_foxglove_layout_is_valid_and_names_our_topics() -> None:
-    path = Path(__file__).resolve().parents[2] / "config" / "foxglove-layout.json"
-    layout = json.loads(path.read_text())
-    panels = layout["configById"]
-
-    def leaves(node: Any) -> list[str]:
-        if isinstance(node, str):
-            return [node]
-        return leaves(node["first"]) + leaves(node["second"])
-
-    assert sorted(leaves(layout["layout"])) == sorted(panels)
-    kinds = {pid.split("!")[0]: cfg for pid, cfg in panels.items()}
-    assert set(kinds) == {"map", "RosOut", "RawMessages"}
-    assert kinds["RosOut"]["topicToRender"] == "/log"
-    assert kinds["RawMessages"]["topicPath"] == wire.dispatcher_status("changji")
-    assert kinds["map"]["disabledTopics"] == []  # fixes and /plan/geojson all shown
-    assert all(
-        t.startswith("/vehicle/") and t.endswith("/fix") for t in kinds["map"]["topicColors"]
-    )
