@@ -853,7 +853,9 @@ class Dispatcher:
             if v.phase is Phase.RUNNING and not v.switch:
                 continue  # driving a mission that did not change: it goes on as it is
             changed.add(m.id)
-            link = self.links[m.id] = _Link()
+            # A driving one told to HOLD while it was lost is started again on its new route.
+            held = self.links[m.id].hold if v.switch else None
+            link = self.links[m.id] = _Link(hold=held)
             if v.switch:  # driving: its new mission is uploaded under it
                 link.switch_from = v.route_from
                 self._log(
@@ -894,6 +896,7 @@ class Dispatcher:
             return
         self._apply(ev.UploadAcked(v.id), now)
         first = link.switch_from or 1
+        join = None
         if v.current > first:  # it went on with the old mission meanwhile
             join = self.state.join_item(v, first)
             self._apply(ev.RouteJoined(v.id, join), now)
@@ -902,6 +905,16 @@ class Dispatcher:
                 f"{v.id}: went past the part of its old mission the new one keeps; "
                 f"on at item {join} of its new route (item {first} begins it)",
             )
+        if link.hold is not None or not v.driving:
+            # Told to HOLD while it was lost (the order may still be on its way), or stopped:
+            # armed and in AUTO again, on its new route.
+            link.hold = None
+            link.start_item = join if join is not None else v.resume_item
+            self._log(
+                "info", f"{v.id}: not driving; on with its new route at item {link.start_item}"
+            )
+            self._start(v, link, now)
+        elif join is not None:
             link.start = CommandSequence([set_current_command(join)], v.system_id)
             self._send(v.id, link.start.start(now))
         else:
