@@ -44,6 +44,24 @@ OPTIONAL_MACHINE_PARAMS = {"min_turn_radius_m": 0.0}
 
 
 @dataclass(frozen=True)
+class OtherUnit:
+    """A machine key that gives a parameter of :data:`MACHINE_PARAMS` in another unit (the
+    unit is in the key's name): ``value * factor`` is the parameter in its own unit."""
+
+    param: str
+    factor: float
+    unit: str
+
+
+OTHER_UNITS: dict[str, OtherUnit] = {
+    # What a farmer reads off a spec sheet or a field log, beside the paper's units.
+    "capacity_hah": OtherUnit("capacity_m2h", 10_000.0, "ha/h"),
+    "turn_time_s": OtherUnit("turn_time_h", 1.0 / 3600.0, "s"),
+}
+"""Keys a fleet file may use instead of a parameter's own key (one of the two, not both)."""
+
+
+@dataclass(frozen=True)
 class Limit:
     """The values a number may take: ``low`` to ``high`` (both allowed), and why."""
 
@@ -146,11 +164,30 @@ LIMITS: dict[str, Limit] = {
         "an hour for a lost vehicle to come back",
     ),
 }
+LIMITS.update(
+    {
+        key: Limit(
+            LIMITS[other.param].low / other.factor,
+            LIMITS[other.param].high / other.factor,
+            other.unit,
+            LIMITS[other.param].why_low,
+            LIMITS[other.param].why_high,
+        )
+        for key, other in OTHER_UNITS.items()
+    }
+)
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 
 TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "keys", "solver", "dispatcher")
 FLEET_KEYS = ("machine",)
-MACHINE_KEYS = ("id", "system_id", *MACHINE_PARAMS, *OPTIONAL_MACHINE_PARAMS, "implement")
+MACHINE_KEYS = (
+    "id",
+    "system_id",
+    *MACHINE_PARAMS,
+    *OTHER_UNITS,
+    *OPTIONAL_MACHINE_PARAMS,
+    "implement",
+)
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
 SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
 WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s")
@@ -479,11 +516,7 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
                 f"{where}: key 'id' must be letters, digits, '_', '-' or '.' "
                 "(it names Zenoh keys and mission files)"
             )
-        missing = [key for key in (*MACHINE_PARAMS, "system_id") if key not in entry]
-        if missing:
-            raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
-        keys = [*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)]
-        params = {key: _number(entry, key, where) for key in keys}
+        params = _machine_params(entry, where)
         if "min_turn_radius_m" not in entry:
             logger.warning(
                 "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
@@ -503,6 +536,31 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
         system_ids[sysid] = ident
         out.append(Vehicle(machine, sysid, _implement(entry.get("implement"), where)))
     return tuple(out)
+
+
+def _machine_params(entry: dict[str, Any], where: str) -> dict[str, float]:
+    """The machine's parameters in the planner's units, each from its own key or from the
+    key of :data:`OTHER_UNITS` that gives it in another unit (not both)."""
+    given_as = {other.param: key for key, other in OTHER_UNITS.items() if key in entry}
+    for param, key in given_as.items():
+        if param in entry:
+            raise ConfigError(
+                f"{where}: give {param} or {key}, not both (the same figure in "
+                f"{LIMITS[param].unit} and in {LIMITS[key].unit})"
+            )
+    missing = [
+        " or ".join([key, *(k for k, o in OTHER_UNITS.items() if o.param == key)])
+        for key in (*MACHINE_PARAMS, "system_id")
+        if key not in entry and key not in given_as
+    ]
+    if missing:
+        raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
+    params = {}
+    for param in (*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)):
+        key = given_as.get(param, param)
+        factor = OTHER_UNITS[key].factor if key in OTHER_UNITS else 1.0
+        params[param] = _number(entry, key, where) * factor
+    return params
 
 
 def _implement(raw: Any, where: str) -> Implement:
