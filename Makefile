@@ -24,7 +24,7 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy planner dispatcher sim_vehicles
+	$(BIN)/mypy agrifleet planner dispatcher sim_vehicles
 	$(BIN)/lint-imports
 
 clean:

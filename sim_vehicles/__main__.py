@@ -76,7 +76,12 @@ def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParse
     add_signing_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     g = p.add_argument_group("zenoh (not with --mavlink)")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer")
+    g.add_argument(
+        "--mode",
+        choices=["peer", "client", "router"],
+        default="peer",
+        help="Zenoh session mode (default peer; client to go through a router)",
+    )
     g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     g.add_argument(
         "--connect",

@@ -1,5 +1,6 @@
 """The command line, called in-process through main()."""
 
+import importlib
 import json
 from pathlib import Path
 
@@ -131,3 +132,80 @@ def test_every_package_is_installed_and_the_light_ones_stay_light():
         "assert 'numba' not in sys.modules and 'planner.solve' not in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+# --- version, plan --json, exit codes --------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = DATA / "tiny.toml"
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    from importlib.metadata import version
+
+    import pytest
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"agrifleet {version('agrifleet')}"
+
+
+def test_plan_json_is_the_plan_document_alone_on_stdout(tmp_path, capsys):
+    from dispatcher.mission.document import PlanDocument
+
+    out = tmp_path / "plan"
+    assert main(["plan", str(TINY), "--json", "--out", str(out), "--time-limit", "2"]) == 0
+    captured = capsys.readouterr()
+    doc = PlanDocument.from_json(captured.out)  # the whole of stdout is one document
+    assert doc.plan_id == json.loads((out / "plan.json").read_text())["plan_id"]
+    assert (doc.farm_id, len(doc.fields)) == ("tiny", 3)
+    assert "wrote" in captured.err
+
+
+def test_plan_wants_an_output_folder_or_json(capsys):
+    assert main(["plan", str(TINY)]) == 2
+    assert "give --out DIR" in capsys.readouterr().err
+
+
+def test_the_farm_id_follows_the_fields_file(tmp_path, capsys):
+    farm = tmp_path / "North farm.geojson"
+    farm.write_text((DATA / "tiny-farm.geojson").read_text())
+    args = ["plan", str(TINY), "--fields", str(farm), "--json", "--time-limit", "2"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["farm_id"] == "North-farm"
+
+
+def test_interrupted_exits_130(monkeypatch, capsys):
+    cli = importlib.import_module("dispatcher.cli.main")  # the package's `main` is the function
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_review", interrupted)
+    assert main(["review", "nothing.mcap"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_exit_codes_are_documented_and_agree_with_the_code(capsys):
+    """--help and the README list every exit code; the daemon's and the simulator's
+    constants are the ones listed."""
+    import pytest
+
+    import sim_vehicles.__main__ as sim
+    from dispatcher.daemon import server
+
+    cli = importlib.import_module("dispatcher.cli.main")
+    assert (server.EXIT_OK, server.EXIT_INCOMPLETE, server.EXIT_INTERRUPTED) == (
+        cli.EXIT_OK,
+        cli.EXIT_INCOMPLETE,
+        cli.EXIT_INTERRUPTED,
+    )
+    assert (sim.EXIT_BAD_INPUT, sim.EXIT_LINK_DOWN) == (cli.EXIT_BAD_INPUT, cli.EXIT_LINK_DOWN)
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    help_text = capsys.readouterr().out
+    readme = (REPO / "README.md").read_text()
+    for code in cli.EXIT_CODES:
+        assert f"\n  {code:<4} " in help_text
+        assert f"| {code} |" in readme, f"README lists no exit code {code}"

@@ -15,6 +15,7 @@ import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,9 @@ from planner.farm import Farm, load_farm
 from planner.problem import Machine
 
 logger = logging.getLogger(__name__)
+
+DEMO_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
+"""The demo farm's scenario, shipped with agrifleet (config/ in a checkout)."""
 
 # Ids become Zenoh key segments and file names: nothing that either would misread.
 SAFE_ID = re.compile(r"[A-Za-z0-9_.-]+")
@@ -280,11 +284,25 @@ class Scenario:
             )
         return replace(self, vehicles=self.vehicles[:count])
 
-    def with_farm(self, path: str | Path) -> Scenario:
-        try:
-            return replace(self, farm=load_farm(path))
-        except PlannerError as exc:
-            raise ConfigError(str(exc)) from exc
+    def with_farm(self, farm: str | Path | Farm) -> Scenario:
+        """The fleet and settings on another farm (``--fields FARM``): the farm id is then
+        the farm file's name, as a scenario's is its own file's without ``farm_id`` (a farm
+        built in code keeps the scenario's)."""
+        if not isinstance(farm, Farm):
+            try:
+                farm = load_farm(farm)
+            except PlannerError as exc:
+                raise ConfigError(str(exc)) from exc
+        in_memory = farm.source.startswith("<")  # built in code: the scenario's id stays
+        return replace(
+            self, farm=farm, farm_id=self.farm_id if in_memory else farm_id_for(farm.source)
+        )
+
+
+def farm_id_for(path: str | Path) -> str:
+    """A farm id (a Zenoh key segment) from a file's name: what :data:`SAFE_ID` does not
+    allow becomes '-' ("Home farm.geojson" is "Home-farm")."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(path).stem).strip("-") or "farm"
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -120,8 +120,28 @@ def zenoh_options(args: argparse.Namespace, default_listen: bool) -> ZenohOption
 
 def add_zenoh_arguments(p: argparse.ArgumentParser, mode: str = "peer") -> None:
     g = p.add_argument_group("zenoh")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
-    g.add_argument("--listen", action="append", metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT")
+    g.add_argument(
+        "--mode",
+        choices=["peer", "client", "router"],
+        default=mode,
+        help=f"Zenoh session mode (default {mode}; client to go through a router)",
+    )
+    g.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="listen on this endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    g.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="connect to this endpoint, e.g. tcp/192.168.1.10:7447 (repeatable)",
+    )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
-    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+    g.add_argument(
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
+        help="zenoh config override, KEY a config path, VALUE JSON5 (repeatable)",
+    )

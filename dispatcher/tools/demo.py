@@ -21,11 +21,11 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from importlib.resources import files
 from pathlib import Path
 from typing import IO, Literal
 
 from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import DEMO_SCENARIO
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.daemon.store import Store
@@ -38,8 +38,7 @@ from sim_vehicles.impairment import Impairment
 
 log = logging.getLogger(__name__)
 
-# The demo farm ships with agrifleet (config/ in a checkout).
-DEFAULT_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
+DEFAULT_SCENARIO = DEMO_SCENARIO
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
 FAULT_CHECK_PERIOD_S = 0.1
 """How often (wall seconds) the share of the work is looked at when faults are planned (the
