@@ -6,11 +6,15 @@ STAMP := $(VENV)/.installed
 
 .PHONY: test demo bench lint clean
 
+# pip shows what it fetches and installs (a progress bar per download on a terminal).
 $(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,dev]'
-	touch $(STAMP)
+	@echo "==> setting up $(VENV): agrifleet and its dependencies (numpy, numba, shapely, zenoh, ...)"
+	@echo "    first time only, a minute or two; again only when pyproject.toml changes"
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --progress-bar on --upgrade pip
+	$(BIN)/python -m pip install --progress-bar on -e '.[test,dev]'
+	@touch $(STAMP)
+	@echo "==> $(VENV) ready"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
