@@ -411,52 +411,54 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
-    p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
-    p.add_argument(
-        "-m", "--salesmen", type=int, required=True, metavar="M", help="number of salesmen"
+    p = sub.add_parser(
+        "demo", help="plan, simulate the fleet and dispatch, end to end, on this computer"
     )
+    add_plan_arguments(p, scenario_default="the demo farm, config/changji.toml")
     p.add_argument(
-        "--objective",
-        choices=["minsum", "minmax"],
-        default="minsum",
-        help="total distance (minsum, default) or the longest route (minmax)",
+        "--speedup",
+        type=float,
+        default=None,
+        metavar="X",
+        help="simulated seconds per wall second (default: fit the run into ~45 s)",
     )
-    p.add_argument(
-        "--algorithm",
-        choices=["ighoa", "ga"],
-        default="ighoa",
-        help="IGHOA (default) or the plain genetic algorithm",
+    add_log_dir_argument(p)
+    g = p.add_argument_group("fault injection (docs/demo.md)")
+    g.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="SIGKILL that tractor's simulator when the fleet has done FRACTION (0..1) of its "
+        "planned work (repeatable)",
     )
-    p.add_argument(
-        "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
+    g.add_argument(
+        "--stall",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="at FRACTION of the work that tractor stops moving but keeps reporting, armed in "
+        "AUTO (repeatable)",
     )
-    p.add_argument("--generations", type=int, default=2000, help="at most this many (default 2000)")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    p.add_argument(
-        "--distance",
-        choices=["euclidean", "tsplib"],
-        default="euclidean",
-        help="real-valued distances (default) or TSPLIB's rounded integers",
+    g.add_argument(
+        "--loss",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio loses this share (0..1) of frames",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=cmd_mtsp)
-
-    bench = sub.add_parser("bench", help="benchmarks")
-    bench_sub = bench.add_subparsers(dest="suite", required=True, metavar="SUITE")
-    p = bench_sub.add_parser("paper", help="rerun the paper's tables beside its figures")
-    p.add_argument(
-        "--tables", default="2,3,4,5,8,9,10", help="comma-separated table numbers (default all)"
+    g.add_argument(
+        "--duplicate",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio sends this share (0..1) of frames twice",
     )
-    p.add_argument("--runs", type=int, default=5, help="seeds per cell (default 5)")
-    p.add_argument(
-        "--time-limit", type=float, default=30.0, metavar="S", help="seconds per run (default 30)"
+    g.add_argument(
+        "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
     )
-    p.add_argument(
-        "--generations", type=int, default=2000, help="at most this many per run (default 2000)"
-    )
-    p.add_argument("--out", type=Path, default=None, metavar="FILE.md", help="also write it here")
-    p.set_defaults(handler=cmd_bench_paper)
+    g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
+    p.set_defaults(handler=cmd_demo)
 
     p = sub.add_parser(
         "plan", help="plan a farm: plan.json, missions per machine, map.png (or --json)"
@@ -521,55 +523,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replace", action="store_true", help="new keys for vehicles that have one too")
     p.set_defaults(handler=cmd_keys)
 
-    p = sub.add_parser(
-        "demo", help="plan, simulate the fleet and dispatch, end to end, on this computer"
-    )
-    add_plan_arguments(p, scenario_default="the demo farm, config/changji.toml")
-    p.add_argument(
-        "--speedup",
-        type=float,
-        default=None,
-        metavar="X",
-        help="simulated seconds per wall second (default: fit the run into ~45 s)",
-    )
-    add_log_dir_argument(p)
-    g = p.add_argument_group("fault injection (docs/demo.md)")
-    g.add_argument(
-        "--kill",
-        action="append",
-        default=[],
-        metavar="VEHICLE@FRACTION",
-        help="SIGKILL that tractor's simulator when the fleet has done FRACTION (0..1) of its "
-        "planned work (repeatable)",
-    )
-    g.add_argument(
-        "--stall",
-        action="append",
-        default=[],
-        metavar="VEHICLE@FRACTION",
-        help="at FRACTION of the work that tractor stops moving but keeps reporting, armed in "
-        "AUTO (repeatable)",
-    )
-    g.add_argument(
-        "--loss",
-        type=float,
-        default=0.0,
-        metavar="P",
-        help="every radio loses this share (0..1) of frames",
-    )
-    g.add_argument(
-        "--duplicate",
-        type=float,
-        default=0.0,
-        metavar="P",
-        help="every radio sends this share (0..1) of frames twice",
-    )
-    g.add_argument(
-        "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
-    )
-    g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
-    p.set_defaults(handler=cmd_demo)
-
     from dispatcher.tools.bridge import add_bridge_arguments
 
     p = sub.add_parser("bridge", help="connect one real MAVLink autopilot to the dispatcher")
@@ -595,6 +548,53 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
+    p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
+    p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
+    p.add_argument(
+        "-m", "--salesmen", type=int, required=True, metavar="M", help="number of salesmen"
+    )
+    p.add_argument(
+        "--objective",
+        choices=["minsum", "minmax"],
+        default="minsum",
+        help="total distance (minsum, default) or the longest route (minmax)",
+    )
+    p.add_argument(
+        "--algorithm",
+        choices=["ighoa", "ga"],
+        default="ighoa",
+        help="IGHOA (default) or the plain genetic algorithm",
+    )
+    p.add_argument(
+        "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
+    )
+    p.add_argument("--generations", type=int, default=2000, help="at most this many (default 2000)")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument(
+        "--distance",
+        choices=["euclidean", "tsplib"],
+        default="euclidean",
+        help="real-valued distances (default) or TSPLIB's rounded integers",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=cmd_mtsp)
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    bench_sub = bench.add_subparsers(dest="suite", required=True, metavar="SUITE")
+    p = bench_sub.add_parser("paper", help="rerun the paper's tables beside its figures")
+    p.add_argument(
+        "--tables", default="2,3,4,5,8,9,10", help="comma-separated table numbers (default all)"
+    )
+    p.add_argument("--runs", type=int, default=5, help="seeds per cell (default 5)")
+    p.add_argument(
+        "--time-limit", type=float, default=30.0, metavar="S", help="seconds per run (default 30)"
+    )
+    p.add_argument(
+        "--generations", type=int, default=2000, help="at most this many per run (default 2000)"
+    )
+    p.add_argument("--out", type=Path, default=None, metavar="FILE.md", help="also write it here")
+    p.set_defaults(handler=cmd_bench_paper)
+
     return parser
 
 
