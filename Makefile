@@ -10,9 +10,14 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	@echo "==> setting up $(VENV): agrifleet and its dependencies (numpy, numba, shapely, zenoh, ...)"
 	@echo "    first time only, a minute or two; again only when pyproject.toml changes"
-	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --progress-bar on --upgrade pip
-	$(BIN)/python -m pip install --progress-bar on -e '.[test,dev]'
+	@# `python -m venv` says nothing for seconds while it installs pip: a dot a second.
+	@test -x $(BIN)/python || { \
+	  printf '    creating $(VENV) '; \
+	  $(PYTHON) -m venv $(VENV) & pid=$$!; \
+	  while kill -0 $$pid 2>/dev/null; do printf .; sleep 1; done; \
+	  wait $$pid && echo ' done'; }
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev]'
 	@touch $(STAMP)
 	@echo "==> $(VENV) ready"
 
