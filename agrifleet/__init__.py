@@ -13,17 +13,9 @@ Files or objects: a scenario file or a loaded :class:`Scenario`; ``fields=`` a f
 loaded :class:`Farm`. docs/api.md walks through it.
 """
 
-from agrifleet.api import (
-    DEMO_SCENARIO,
-    Farm,
-    Plan,
-    Scenario,
-    __version__,
-    kernels_cached,
-    load_farm,
-    load_scenario,
-    plan_farm,
-)
+from agrifleet.api import Plan, __version__, kernels_cached, plan_farm
+from dispatcher.config.scenario import DEMO_SCENARIO, Scenario, load_scenario
+from planner.farm import Farm, load_farm
 
 __all__ = [
     "DEMO_SCENARIO",

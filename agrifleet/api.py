@@ -12,27 +12,13 @@ from typing import Any
 from dispatcher.config.scenario import DEMO_SCENARIO, Scenario, load_scenario
 from dispatcher.mission.document import PlanDocument
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan, plan_geojson, write_plan_files
-from planner.farm import Farm, load_farm
+from planner.farm import Farm
 
 try:
     __version__ = version("agrifleet")
 except PackageNotFoundError:  # a checkout used without installing it
     __version__ = "0+unknown"
 
-__all__ = [
-    "DEMO_SCENARIO",
-    "Farm",
-    "Plan",
-    "Scenario",
-    "__version__",
-    "dispatch_for",
-    "kernels_cached",
-    "load_farm",
-    "load_scenario",
-    "plan_farm",
-    "plan_table",
-    "scenario_for",
-]
 
 GenerationCallback = Callable[[int, float, float], None]
 """``(generation, best cost, elapsed s)``, after every generation of the solver."""
@@ -48,14 +34,6 @@ class Plan:
     def document(self) -> PlanDocument:
         """The plan document, as `agrifleet plan` writes it to plan.json."""
         return self.dispatch.document
-
-    @property
-    def plan_id(self) -> str:
-        return self.document.plan_id
-
-    @property
-    def farm_id(self) -> str:
-        return self.document.farm_id
 
     @property
     def makespan_h(self) -> float:
@@ -78,7 +56,7 @@ class Plan:
         """Draw the map of the plan (as `agrifleet plan` does) to a PNG file."""
         from dispatcher.mission.map import draw_plan_map
 
-        draw_plan_map(self.dispatch.plan, path, title=self.farm_id)
+        draw_plan_map(self.dispatch.plan, path, title=self.document.farm_id)
         return Path(path)
 
     def write(self, out_dir: str | Path) -> list[Path]:

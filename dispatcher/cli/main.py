@@ -548,6 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
+
     p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
     p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
     p.add_argument(
