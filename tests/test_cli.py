@@ -209,3 +209,24 @@ def test_exit_codes_are_documented_and_agree_with_the_code(capsys):
     for code in cli.EXIT_CODES:
         assert f"\n  {code:<4} " in help_text
         assert f"| {code} |" in readme, f"README lists no exit code {code}"
+
+
+def test_every_option_has_help_text():
+    import argparse
+
+    from sim_vehicles.__main__ import build_parser as sim_parser
+
+    cli = importlib.import_module("dispatcher.cli.main")
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, name: str) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for command, sub in action.choices.items():
+                    walk(sub, f"{name} {command}")
+            elif action.help is None:
+                missing.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(cli.build_parser(), "agrifleet")
+    walk(sim_parser(), "agrifleet sim")
+    assert not missing
