@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -13,12 +12,6 @@ from dispatcher.config.scenario import DEMO_SCENARIO, Scenario, load_scenario
 from dispatcher.mission.document import PlanDocument
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan, plan_geojson, write_plan_files
 from planner.farm import Farm
-
-try:
-    __version__ = version("agrifleet")
-except PackageNotFoundError:  # a checkout used without installing it
-    __version__ = "0+unknown"
-
 
 GenerationCallback = Callable[[int, float, float], None]
 """``(generation, best cost, elapsed s)``, after every generation of the solver."""

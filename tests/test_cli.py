@@ -110,8 +110,9 @@ def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):
 
 
 def test_every_package_is_installed_and_the_light_ones_stay_light():
-    """pyproject lists its packages: none left out; a scenario, the link and the simulator
-    load without the solver (numba), as a tractor's companion computer needs."""
+    """pyproject lists its packages: none left out; a scenario, the link, the simulator and
+    the command line's parser (`agrifleet sim|bridge`) load without the solver (numba), as a
+    tractor's companion computer needs."""
     import subprocess
     import sys
     import tomllib
@@ -122,13 +123,14 @@ def test_every_package_is_installed_and_the_light_ones_stay_light():
     )
     on_disk = {
         ".".join(p.parent.relative_to(root).parts)
-        for top in ("planner", "dispatcher", "sim_vehicles")
+        for top in ("agrifleet", "planner", "dispatcher", "sim_vehicles")
         for p in (root / top).rglob("__init__.py")
     }
     assert on_disk <= listed, on_disk - listed
     code = (
         "import sys, sim_vehicles, sim_vehicles.runner, sim_vehicles.mavlink_port, "
-        "dispatcher.config.scenario, dispatcher.link.mission_protocol, dispatcher.tools.bridge; "
+        "dispatcher.config.scenario, dispatcher.link.mission_protocol, dispatcher.tools.bridge, "
+        "agrifleet, importlib; importlib.import_module('dispatcher.cli.main').build_parser(); "
         "assert 'numba' not in sys.modules and 'planner.solve' not in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)

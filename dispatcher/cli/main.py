@@ -399,7 +399,7 @@ OBJECTIVES = ["makespan", "distance", "time", "fuel", "minmax"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from agrifleet.api import __version__
+    from agrifleet.version import __version__
 
     parser = argparse.ArgumentParser(
         prog="agrifleet",
