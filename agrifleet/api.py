@@ -92,13 +92,20 @@ def dispatch_for(
     from planner.solve import stop_after
 
     solver = scenario.solver
+    machines = [v.machine for v in scenario.vehicles]
+    objective = objective or solver.objective
+    seed = solver.seed if seed is None else seed
+    if kernels_cached() is False:
+        # Compile first, on one generation: the time limit is then the solver's alone, and
+        # the first plan after installing is the plan every later run makes.
+        plan_fields(scenario.farm, machines, objective, solver.algorithm, stop_after(1), seed)
     plan = plan_fields(
         scenario.farm,
-        [v.machine for v in scenario.vehicles],
-        objective or solver.objective,
+        machines,
+        objective,
         solver.algorithm,
         stop_after(solver.generations, time_limit_s or solver.time_limit_s),
-        seed=solver.seed if seed is None else seed,
+        seed=seed,
         on_generation=on_generation,
     )
     return dispatch_plan(scenario, plan)

@@ -232,3 +232,16 @@ def test_every_option_has_help_text():
     walk(cli.build_parser(), "agrifleet")
     walk(sim_parser(), "agrifleet sim")
     assert not missing
+
+
+def test_a_cold_numba_cache_is_told_apart(tmp_path):
+    """The first plan says it compiles: an empty numba cache is seen as one (and the
+    cache of this checkout, filled by the tests that planned before, as warm)."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import agrifleet; print(agrifleet.kernels_cached())"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    cold = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert cold.stdout.strip() == "False", cold.stderr

@@ -66,9 +66,9 @@ class ProgressBar:
         self._task: Any = None
         self._solving = False
         if waiting is not None and self.enabled:
-            self._start(waiting, None, 0.0)
+            self._start(waiting, None)
 
-    def _start(self, description: str, total: int | None, best: float) -> None:
+    def _start(self, description: str, total: int | None) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -88,7 +88,7 @@ class ProgressBar:
         if not self.enabled or (self._progress is None and elapsed < 1.0):
             return
         if self._progress is None:
-            self._start(self.label, self.total, best)
+            self._start(self.label, self.total)
         if not self._solving:
             self._solving = True
             self._progress.update(self._task, description=self.label, total=self.total)
