@@ -235,8 +235,8 @@ def test_every_option_has_help_text():
 
 
 def test_a_cold_numba_cache_is_told_apart(tmp_path):
-    """The first plan says it compiles: an empty numba cache is seen as one (and the
-    cache of this checkout, filled by the tests that planned before, as warm)."""
+    """The first plan says it compiles (and compiles before it plans): an empty numba
+    cache is seen as cold."""
     import os
     import subprocess
     import sys
