@@ -168,6 +168,8 @@ LIMITS: dict[str, Limit] = {
         "an hour for a lost vehicle to come back",
     ),
 }
+"""Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
+# The keys in other units have the bounds of their parameter, in their unit.
 LIMITS.update(
     {
         key: Limit(
@@ -180,7 +182,6 @@ LIMITS.update(
         for key, other in OTHER_UNITS.items()
     }
 )
-"""Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 
 TOP_KEYS = ("farm_id", "farm", "fleet", "machines", "machine", "keys", "solver", "dispatcher")
 FLEET_KEYS = ("machine",)
