@@ -6,11 +6,20 @@ STAMP := $(VENV)/.installed
 
 .PHONY: test demo bench lint clean
 
+# pip shows what it fetches and installs (a progress bar per download on a terminal).
 $(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,dev]'
-	touch $(STAMP)
+	@echo "==> setting up $(VENV): agrifleet and its dependencies (numpy, numba, shapely, zenoh, ...)"
+	@echo "    first time only, a minute or two; again only when pyproject.toml changes"
+	@# `python -m venv` says nothing for seconds while it installs pip: a dot a second.
+	@test -x $(BIN)/python || { \
+	  printf '    creating $(VENV) '; \
+	  $(PYTHON) -m venv $(VENV) & pid=$$!; \
+	  while kill -0 $$pid 2>/dev/null; do printf .; sleep 1; done; \
+	  wait $$pid && echo ' done'; }
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev]'
+	@touch $(STAMP)
+	@echo "==> $(VENV) ready"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -24,7 +33,7 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy planner dispatcher sim_vehicles
+	$(BIN)/mypy agrifleet planner dispatcher sim_vehicles
 	$(BIN)/lint-imports
 
 clean:

@@ -42,7 +42,7 @@ from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
 from planner.farm import Farm, Field
 from planner.problem import Machine, Problem, Task
 from planner.roads import TransitNetwork
-from planner.solve import AnyOf, Criterion, Result, solve
+from planner.solve import AnyOf, Criterion, GenerationCallback, Result, solve
 
 log = logging.getLogger(__name__)
 
@@ -263,12 +263,14 @@ def plan_farm(
     algorithm: str = "ighoa",
     stop: AnyOf | Criterion | None = None,
     seed: int = 1,
+    on_generation: GenerationCallback | None = None,
 ) -> FarmPlan:
     """Allocate, order and lay out the work of ``machines`` on ``farm``.
 
     A time limit in ``stop`` is the limit of the whole: coverage raises
     :class:`~planner.errors.TimeLimitError` (naming the field) once it has passed, and
-    the solver stops by then at the latest (see the module's docstring)."""
+    the solver stops by then at the latest (see the module's docstring).
+    ``on_generation`` is the solver's progress callback (:func:`planner.solve.solve`)."""
     obj = Objective.parse(objective)
     if stop is not None and not isinstance(stop, AnyOf):
         stop = AnyOf(stop)
@@ -286,7 +288,7 @@ def plan_farm(
                 max(left, 0.0),
             )
         stop = stop.within(deadline)
-    result = solve(problem, obj, algorithm, stop, seed=seed)
+    result = solve(problem, obj, algorithm, stop, seed=seed, on_generation=on_generation)
     plans = []
     for i, route in enumerate(result.routes):
         machine = machines[i]

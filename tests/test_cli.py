@@ -1,5 +1,6 @@
 """The command line, called in-process through main()."""
 
+import importlib
 import json
 from pathlib import Path
 
@@ -109,8 +110,9 @@ def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):
 
 
 def test_every_package_is_installed_and_the_light_ones_stay_light():
-    """pyproject lists its packages: none left out; a scenario, the link and the simulator
-    load without the solver (numba), as a tractor's companion computer needs."""
+    """pyproject lists its packages: none left out; a scenario, the link, the simulator and
+    the command line's parser (`agrifleet sim|bridge`) load without the solver (numba), as a
+    tractor's companion computer needs."""
     import subprocess
     import sys
     import tomllib
@@ -121,13 +123,125 @@ def test_every_package_is_installed_and_the_light_ones_stay_light():
     )
     on_disk = {
         ".".join(p.parent.relative_to(root).parts)
-        for top in ("planner", "dispatcher", "sim_vehicles")
+        for top in ("agrifleet", "planner", "dispatcher", "sim_vehicles")
         for p in (root / top).rglob("__init__.py")
     }
     assert on_disk <= listed, on_disk - listed
     code = (
         "import sys, sim_vehicles, sim_vehicles.runner, sim_vehicles.mavlink_port, "
-        "dispatcher.config.scenario, dispatcher.link.mission_protocol, dispatcher.tools.bridge; "
+        "dispatcher.config.scenario, dispatcher.link.mission_protocol, dispatcher.tools.bridge, "
+        "agrifleet, importlib; importlib.import_module('dispatcher.cli.main').build_parser(); "
         "assert 'numba' not in sys.modules and 'planner.solve' not in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+# --- version, plan --json, exit codes --------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = DATA / "tiny.toml"
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    from importlib.metadata import version
+
+    import pytest
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"agrifleet {version('agrifleet')}"
+
+
+def test_plan_json_is_the_plan_document_alone_on_stdout(tmp_path, capsys):
+    from dispatcher.mission.document import PlanDocument
+
+    out = tmp_path / "plan"
+    assert main(["plan", str(TINY), "--json", "--out", str(out), "--time-limit", "2"]) == 0
+    captured = capsys.readouterr()
+    doc = PlanDocument.from_json(captured.out)  # the whole of stdout is one document
+    assert doc.plan_id == json.loads((out / "plan.json").read_text())["plan_id"]
+    assert (doc.farm_id, len(doc.fields)) == ("tiny", 3)
+    assert "wrote" in captured.err
+
+
+def test_plan_wants_an_output_folder_or_json(capsys):
+    assert main(["plan", str(TINY)]) == 2
+    assert "give --out DIR" in capsys.readouterr().err
+
+
+def test_the_farm_id_follows_the_fields_file(tmp_path, capsys):
+    farm = tmp_path / "North farm.geojson"
+    farm.write_text((DATA / "tiny-farm.geojson").read_text())
+    args = ["plan", str(TINY), "--fields", str(farm), "--json", "--time-limit", "2"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["farm_id"] == "North-farm"
+
+
+def test_interrupted_exits_130(monkeypatch, capsys):
+    cli = importlib.import_module("dispatcher.cli.main")  # the package's `main` is the function
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_review", interrupted)
+    assert main(["review", "nothing.mcap"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_exit_codes_are_documented_and_agree_with_the_code(capsys):
+    """--help and the README list every exit code; the daemon's and the simulator's
+    constants are the ones listed."""
+    import pytest
+
+    import sim_vehicles.__main__ as sim
+    from dispatcher.daemon import server
+
+    cli = importlib.import_module("dispatcher.cli.main")
+    assert (server.EXIT_OK, server.EXIT_INCOMPLETE, server.EXIT_INTERRUPTED) == (
+        cli.EXIT_OK,
+        cli.EXIT_INCOMPLETE,
+        cli.EXIT_INTERRUPTED,
+    )
+    assert (sim.EXIT_BAD_INPUT, sim.EXIT_LINK_DOWN) == (cli.EXIT_BAD_INPUT, cli.EXIT_LINK_DOWN)
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    help_text = capsys.readouterr().out
+    readme = (REPO / "README.md").read_text()
+    for code in cli.EXIT_CODES:
+        assert f"\n  {code:<4} " in help_text
+        assert f"| {code} |" in readme, f"README lists no exit code {code}"
+
+
+def test_every_option_has_help_text():
+    import argparse
+
+    from sim_vehicles.__main__ import build_parser as sim_parser
+
+    cli = importlib.import_module("dispatcher.cli.main")
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, name: str) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for command, sub in action.choices.items():
+                    walk(sub, f"{name} {command}")
+            elif action.help is None:
+                missing.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(cli.build_parser(), "agrifleet")
+    walk(sim_parser(), "agrifleet sim")
+    assert not missing
+
+
+def test_a_cold_numba_cache_is_told_apart(tmp_path):
+    """The first plan says it compiles (and compiles before it plans): an empty numba
+    cache is seen as cold."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import agrifleet; print(agrifleet.kernels_cached())"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    cold = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert cold.stdout.strip() == "False", cold.stderr

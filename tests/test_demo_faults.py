@@ -4,6 +4,7 @@ simulator killed part-way."""
 
 from __future__ import annotations
 
+import io
 import re
 import signal
 import subprocess
@@ -16,11 +17,13 @@ import pytest
 from dispatcher.cli.main import EXIT_BAD_INPUT
 from dispatcher.cli.main import main as cli_main
 from dispatcher.config.errors import ConfigError
-from dispatcher.daemon.state import Phase, VehicleState
+from dispatcher.daemon.state import FieldState, Phase, VehicleState
+from dispatcher.mission.document import PlannedItem
 from dispatcher.tools.demo import (
     DemoFaults,
     Fault,
     FaultInjector,
+    LiveStatus,
     Supervisor,
     demo_faults,
     describe_exit,
@@ -282,3 +285,48 @@ def _processes_with(word: str) -> list[int]:
         if word.encode() in args:
             out.append(int(cmdline.parent.name))
     return out
+
+
+@dataclass
+class _Farm:
+    vehicles: dict[str, VehicleState]
+    fields: dict[str, FieldState]
+
+
+def _six_tractors(done: int) -> _Farm:
+    """Six tractors with long ids on 15 fields, ``done`` of them done."""
+    item = PlannedItem(0, "field-with-a-long-id", 0, "swath_end", 440000000, 873000000, 16)
+    vehicles = {
+        f"tractor-{k}": VehicleState(
+            f"tractor-{k}",
+            k + 1,
+            (item, item),
+            [0.0, 7200.0],
+            phase=Phase.LOST,
+            reached=1,
+            sim_time_s=10_000.0 + k,
+            started_at=5.0,
+            last_seen=6.0,
+        )
+        for k in range(6)
+    }
+    fields = {f"F{k}": FieldState(f"F{k}", "tractor-0") for k in range(15)}
+    for f in list(fields.values())[:done]:
+        f.status = "done"
+    return _Farm(vehicles, fields)
+
+
+def test_the_live_view_fits_80_columns_and_ends_on_the_final_state() -> None:
+    out = io.StringIO()
+    planned = {vid: 21.15 for vid in _six_tractors(0).vehicles}
+    status = LiveStatus(1714.0, planned, stream=out, period_s=0.0)
+    status.marks["tractor-1"] = "simulator exited"
+    status(_six_tractors(10))  # type: ignore[arg-type]
+    status.close(_six_tractors(15))  # type: ignore[arg-type]
+    text = out.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= 80, text
+    assert "sim h" in text and "plan h" in text and "21.15" in text
+    last = text[text.rindex("fields done") - 10 :]
+    assert "15/15 fields done" in last and "lost (simulator" in text, text
+    # Hours since each tractor set off (its clock at the start: 10 000 s less 1 s at 1x).
+    assert status.worked_s(_six_tractors(0).vehicles["tractor-0"]) == pytest.approx(1.0)

@@ -1,7 +1,12 @@
-"""agrifleet's command line: parses arguments and forwards to typed functions.
+"""agrifleet plans the work of a fleet of autonomous tractors on a farm's fields and
+dispatches it to them over Zenoh as MAVLink missions, recording everything to MCAP.
 
-Each sub-command is one ``cmd_*`` handler; the work itself lives in planner/ and dispatcher/.
+Start with `agrifleet demo`; plan your own farm with `agrifleet plan SCENARIO.toml --out DIR`
+(scenario, fleet and farm files: config/README.md).
 """
+
+# The command line parses arguments and forwards to typed functions: each sub-command is
+# one ``cmd_*`` handler; the work itself lives in planner/, dispatcher/ and agrifleet/.
 
 from __future__ import annotations
 
@@ -11,7 +16,6 @@ import json
 import logging
 import os
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,38 +30,74 @@ log = logging.getLogger("agrifleet")
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
+EXIT_INCOMPLETE = 3  # dispatcher.daemon.server's (tests/test_cli.py checks they agree)
+EXIT_LINK_DOWN = 4  # sim_vehicles' --mavlink socket
+EXIT_INTERRUPTED = 130
+EXIT_CODES = {
+    EXIT_OK: "done (serve, demo: every field done)",
+    EXIT_FAILURE: "an unexpected error (a bug: please report it with the traceback)",
+    EXIT_BAD_INPUT: "bad input: a file, key or option, named in the message; nothing written",
+    EXIT_INCOMPLETE: "serve, demo: the run ended with fields not done (vehicles failed or lost)",
+    EXIT_LINK_DOWN: "sim --mavlink: the MAVLink socket could not be opened",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); a run's log is finished first",
+}
+"""What the exit codes mean, in `agrifleet --help` and the README."""
 
 
 class ProgressBar:
-    """A progress line on stderr (generation, best cost, elapsed) once a run passes 1 s,
-    only when stderr is a terminal."""
+    """The solver's progress on stderr, only when stderr is a terminal: generations and best
+    cost against its limits (``generations``, ``time_limit_s``).
 
-    def __init__(self, total: int, label: str) -> None:
+    With ``waiting`` (what happens before the first generation: coverage, compiling), it
+    shows at once; without, once the run passes 1 s."""
+
+    def __init__(
+        self,
+        total: int,
+        label: str,
+        time_limit_s: float | None = None,
+        waiting: str | None = None,
+    ) -> None:
         self.total = total
         self.label = label
+        self.time_limit_s = time_limit_s
         self.enabled = sys.stderr.isatty()
         self._progress: Any = None
         self._task: Any = None
-        self._started = time.perf_counter()
+        self._solving = False
+        if waiting is not None and self.enabled:
+            self._start(waiting, None)
+
+    def _start(self, description: str, total: int | None) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+        self._progress = Progress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.fields[detail]}"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            transient=True,
+        )
+        self._progress.start()
+        self._task = self._progress.add_task(description, total=total, detail="")
 
     def __call__(self, generation: int, best: float, elapsed: float) -> None:
-        if not self.enabled or elapsed < 1.0:
+        if not self.enabled or (self._progress is None and elapsed < 1.0):
             return
         if self._progress is None:
-            from rich.console import Console
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-            self._progress = Progress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                TextColumn("gen {task.completed:>5.0f}  best {task.fields[best]:.2f}"),
-                TimeElapsedColumn(),
-                console=Console(stderr=True),
-                transient=True,
-            )
-            self._progress.start()
-            self._task = self._progress.add_task(self.label, total=self.total, best=best)
-        self._progress.update(self._task, completed=generation, best=best)
+            self._start(self.label, self.total)
+        if not self._solving:
+            self._solving = True
+            self._progress.update(self._task, description=self.label, total=self.total)
+        done = float(generation)
+        if self.time_limit_s:  # whichever limit comes first
+            done = max(done, self.total * min(elapsed / self.time_limit_s, 1.0))
+        self._progress.update(
+            self._task, completed=done, detail=f"gen {generation:>5d}  best {best:.2f}"
+        )
 
     def close(self) -> None:
         if self._progress is not None:
@@ -70,7 +110,7 @@ def cmd_mtsp(args: argparse.Namespace) -> int:
 
     instance = read_instance(args.instance)
     problem = instance.to_problem(args.salesmen, args.distance)
-    bar = ProgressBar(args.generations, f"{instance.name} m={args.salesmen}")
+    bar = ProgressBar(args.generations, f"{instance.name} m={args.salesmen}", args.time_limit)
     try:
         result = solve(
             problem,
@@ -135,16 +175,15 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
 
 def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The scenario with the command line's overrides (--fields, --machines)."""
-    from dispatcher.config.scenario import load_scenario
+    from agrifleet.api import scenario_for
 
-    scenario = load_scenario(args.scenario)
-    id_field, name_field = getattr(args, "id_field", None), getattr(args, "name_field", None)
-    if args.fields or id_field or name_field:
-        farm_file = args.fields or scenario.farm.source
-        scenario = scenario.with_farm(farm_file, id_field=id_field, name_field=name_field)
-    if args.machines:
-        scenario = scenario.with_machines(args.machines)
-    return scenario
+    return scenario_for(
+        args.scenario,
+        args.fields,
+        args.machines,
+        id_field=getattr(args, "id_field", None),
+        name_field=getattr(args, "name_field", None),
+    )
 
 
 def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
@@ -164,53 +203,53 @@ def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: igno
 
 
 def plan_scenario(args: argparse.Namespace, scenario=None):  # type: ignore[no-untyped-def]
-    """Load the scenario with the command line's overrides (unless given) and plan it."""
-    from dispatcher.mission.plan import dispatch_plan
-    from planner.field_plan import plan_farm
-    from planner.solve import stop_after
+    """Load the scenario with the command line's overrides (unless given) and plan it,
+    saying on stderr what takes time: compiling the solver (first run), the solver."""
+    from agrifleet.api import dispatch_for, kernels_cached
 
     scenario = scenario or load_scenario_args(args)
     solver = scenario.solver
-    plan = plan_farm(
-        scenario.farm,
-        [v.machine for v in scenario.vehicles],
-        args.objective or solver.objective,
-        solver.algorithm,
-        stop_after(solver.generations, args.time_limit or solver.time_limit_s),
-        seed=solver.seed if args.seed is None else args.seed,
+    time_limit_s = args.time_limit or solver.time_limit_s
+    say = f"planning {len(scenario.farm.fields)} fields for {len(scenario.vehicles)} machines"
+    if kernels_cached() is False:
+        print(
+            "first run: compiling the solver's kernels (numba); they are cached for the next "
+            "runs. This takes a minute or so, once.",
+            file=sys.stderr,
+            flush=True,
+        )
+        say += " (compiling the solver first)"
+    bar = ProgressBar(
+        solver.generations,
+        f"solver: {solver.algorithm}, up to {time_limit_s:g} s",
+        time_limit_s,
+        waiting=say,
     )
-    return dispatch_plan(scenario, plan)
+    try:
+        return dispatch_for(scenario, args.objective, args.time_limit, args.seed, bar)
+    finally:
+        bar.close()
 
 
 def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
-    doc = dispatch.document
-    print(
-        f"plan {doc.plan_id} for {doc.farm_id}: objective {doc.objective}, "
-        f"{len(doc.machines)} machines, {len(doc.fields)} fields"
-    )
-    print(
-        f"{'machine':8} {'width m':>7} {'fields':>6} {'road km':>8} {'turns':>6} {'fuel L':>8} "
-        f"{'time h':>7}  order"
-    )
-    for m in doc.machines:
-        print(
-            f"{m.id:8} {m.working_width_m:7.1f} {len(m.fields):6d} "
-            f"{m.distance_m / 1000:8.2f} {m.turns:6.0f} {m.fuel_l:8.1f} {m.time_h:7.2f}  "
-            + " ".join(m.fields)
-        )
-    t = doc.totals
-    print(
-        f"{'total':8} {'':7} {len(doc.fields):6d} {t['distance_m'] / 1000:8.2f} "
-        f"{sum(m.turns for m in doc.machines):6.0f} {t['fuel_l']:8.1f} {t['time_h']:7.2f}  "
-        f"makespan {t['makespan_h']:.2f} h"
-    )
+    from agrifleet.api import plan_table
+
+    print(plan_table(dispatch.document), flush=True)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
+    from dispatcher.config.errors import ConfigError
     from dispatcher.mission.plan import write_plan_files
 
+    if args.out is None and not args.json:
+        raise ConfigError("plan: where to? give --out DIR (the files) or --json (stdout)")
     dispatch = plan_scenario(args)
-    written = write_plan_files(dispatch, args.out)
+    written = write_plan_files(dispatch, args.out) if args.out is not None else []
+    if args.json:  # the plan document alone on stdout; the rest on stderr
+        print(dispatch.document.to_json(), flush=True)
+        if written:
+            print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)
+        return EXIT_OK
     print_plan_table(dispatch)
     print(f"wrote {len(written)} files to {args.out}")
     return EXIT_OK
@@ -406,35 +445,90 @@ def cmd_review(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def exit_codes_text() -> str:
+    return "exit codes:\n" + "\n".join(
+        f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES.items()
+    )
+
+
+OBJECTIVES = ["makespan", "distance", "time", "fuel", "minmax"]
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
+    from agrifleet.version import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="agrifleet",
+        description=__doc__,
+        epilog=exit_codes_text() + "\n\n`agrifleet COMMAND --help` for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"agrifleet {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
-    p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
-    p.add_argument("-m", "--salesmen", type=int, required=True)
-    p.add_argument("--objective", choices=["minsum", "minmax"], default="minsum")
-    p.add_argument("--algorithm", choices=["ighoa", "ga"], default="ighoa")
-    p.add_argument("--time-limit", type=float, default=None, help="seconds")
-    p.add_argument("--generations", type=int, default=2000)
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--distance", choices=["euclidean", "tsplib"], default="euclidean")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(handler=cmd_mtsp)
+    p = sub.add_parser(
+        "demo", help="plan, simulate the fleet and dispatch, end to end, on this computer"
+    )
+    add_plan_arguments(p, scenario_default="the demo farm, config/changji.toml")
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=None,
+        metavar="X",
+        help="simulated seconds per wall second (default: fit the run into ~45 s)",
+    )
+    add_log_dir_argument(p)
+    g = p.add_argument_group("fault injection (docs/demo.md)")
+    g.add_argument(
+        "--kill",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="SIGKILL that tractor's simulator when the fleet has done FRACTION (0..1) of its "
+        "planned work (repeatable)",
+    )
+    g.add_argument(
+        "--stall",
+        action="append",
+        default=[],
+        metavar="VEHICLE@FRACTION",
+        help="at FRACTION of the work that tractor stops moving but keeps reporting, armed in "
+        "AUTO (repeatable)",
+    )
+    g.add_argument(
+        "--loss",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio loses this share (0..1) of frames",
+    )
+    g.add_argument(
+        "--duplicate",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="every radio sends this share (0..1) of frames twice",
+    )
+    g.add_argument(
+        "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
+    )
+    g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
+    add_foxglove_argument(p, on_by_default=True)
+    p.set_defaults(handler=cmd_demo)
 
-    bench = sub.add_parser("bench", help="benchmarks")
-    bench_sub = bench.add_subparsers(dest="suite", required=True)
-    p = bench_sub.add_parser("paper", help="rerun the paper's tables beside its figures")
-    p.add_argument("--tables", default="2,3,4,5,8,9,10")
-    p.add_argument("--runs", type=int, default=5, help="seeds per cell")
-    p.add_argument("--time-limit", type=float, default=30.0, help="seconds per run")
-    p.add_argument("--generations", type=int, default=2000)
-    p.add_argument("--out", type=Path, default=None, help="also write the report here")
-    p.set_defaults(handler=cmd_bench_paper)
-    p = sub.add_parser("plan", help="plan a scenario and write missions, plan.json, map.png")
+    p = sub.add_parser(
+        "plan", help="plan a farm: plan.json, missions per machine, map.png (or --json)"
+    )
     add_plan_arguments(p)
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument(
+        "--out", type=Path, metavar="DIR", help="write plan.json, the missions and map.png here"
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the plan document (plan.json) on stdout, and nothing else there",
+    )
     p.set_defaults(handler=cmd_plan)
 
     p = sub.add_parser(
@@ -442,10 +536,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="the dispatcher daemon: plan (or resume the unfinished run), upload, follow, record",
     )
     add_plan_arguments(p)
-    p.add_argument("--log-dir", type=Path, default=Path("logs"))
+    add_log_dir_argument(p)
     p.add_argument(
         "--data-dir",
         type=Path,
+        metavar="DIR",
         help="where the dispatcher keeps its state (an SQLite database) to resume after a "
         "restart (default $XDG_STATE_HOME/agrifleet/FARM, else ~/.local/state/agrifleet/FARM)",
     )
@@ -458,8 +553,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--sync",
         choices=["full", "normal"],
         default="full",
-        help="SQLite synchronous mode: full survives a power cut, normal only a crash of "
-        "the dispatcher (docs/restart.md)",
+        help="SQLite synchronous mode: full (default) survives a power cut, normal only a "
+        "crash of the dispatcher (docs/restart.md)",
     )
     add_signing_arguments(p)
     add_foxglove_argument(p, on_by_default=False)
@@ -502,63 +597,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replace", action="store_true", help="new CA, certificates and keys for all")
     p.set_defaults(handler=cmd_certs)
 
-    p = sub.add_parser("demo", help="plan, simulate the fleet and dispatch, end to end")
-    p.add_argument(
-        "scenario",
-        type=Path,
-        nargs="?",
-        default=None,
-        help="scenario TOML (default config/changji.toml)",
-    )
-    p.add_argument("--machines", type=int)
-    p.add_argument(
-        "--speedup",
-        type=float,
-        default=None,
-        help="simulated seconds per second (default: fit the run into ~45 s)",
-    )
-    p.add_argument("--log-dir", type=Path, default=Path("logs"))
-    p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
-    p.add_argument("--time-limit", type=float, help="solver seconds")
-    p.add_argument("--seed", type=int)
-    g = p.add_argument_group("fault injection (docs/demo.md)")
-    g.add_argument(
-        "--kill",
-        action="append",
-        default=[],
-        metavar="VEHICLE@FRACTION",
-        help="SIGKILL that tractor's simulator when the fleet has done FRACTION (0..1) of its "
-        "planned work (repeatable)",
-    )
-    g.add_argument(
-        "--stall",
-        action="append",
-        default=[],
-        metavar="VEHICLE@FRACTION",
-        help="at FRACTION of the work that tractor stops moving but keeps reporting, armed in "
-        "AUTO (repeatable)",
-    )
-    g.add_argument(
-        "--loss",
-        type=float,
-        default=0.0,
-        metavar="P",
-        help="every radio loses this share of frames",
-    )
-    g.add_argument(
-        "--duplicate",
-        type=float,
-        default=0.0,
-        metavar="P",
-        help="every radio sends this share of frames twice",
-    )
-    g.add_argument(
-        "--delay", type=float, default=0.0, metavar="MS", help="frames arrive 0 to MS ms late"
-    )
-    g.add_argument("--radio-seed", type=int, default=1, metavar="N", help="the radios' seed")
-    add_foxglove_argument(p, on_by_default=True)
-    p.set_defaults(handler=cmd_demo, fields=None)
-
     from dispatcher.tools.bridge import add_bridge_arguments
 
     p = sub.add_parser("bridge", help="connect one real MAVLink autopilot to the dispatcher")
@@ -576,12 +614,62 @@ def build_parser() -> argparse.ArgumentParser:
         "read as one in order of start time",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plot", type=Path, help="write a map and Gantt chart PNG here")
+    p.add_argument(
+        "--plot", type=Path, metavar="FILE.png", help="write a map and Gantt chart PNG here"
+    )
     p.set_defaults(handler=cmd_review)
 
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
+
+    p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
+    p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
+    p.add_argument(
+        "-m", "--salesmen", type=int, required=True, metavar="M", help="number of salesmen"
+    )
+    p.add_argument(
+        "--objective",
+        choices=["minsum", "minmax"],
+        default="minsum",
+        help="total distance (minsum, default) or the longest route (minmax)",
+    )
+    p.add_argument(
+        "--algorithm",
+        choices=["ighoa", "ga"],
+        default="ighoa",
+        help="IGHOA (default) or the plain genetic algorithm",
+    )
+    p.add_argument(
+        "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
+    )
+    p.add_argument("--generations", type=int, default=2000, help="at most this many (default 2000)")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument(
+        "--distance",
+        choices=["euclidean", "tsplib"],
+        default="euclidean",
+        help="real-valued distances (default) or TSPLIB's rounded integers",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(handler=cmd_mtsp)
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    bench_sub = bench.add_subparsers(dest="suite", required=True, metavar="SUITE")
+    p = bench_sub.add_parser("paper", help="rerun the paper's tables beside its figures")
+    p.add_argument(
+        "--tables", default="2,3,4,5,8,9,10", help="comma-separated table numbers (default all)"
+    )
+    p.add_argument("--runs", type=int, default=5, help="seeds per cell (default 5)")
+    p.add_argument(
+        "--time-limit", type=float, default=30.0, metavar="S", help="seconds per run (default 30)"
+    )
+    p.add_argument(
+        "--generations", type=int, default=2000, help="at most this many per run (default 2000)"
+    )
+    p.add_argument("--out", type=Path, default=None, metavar="FILE.md", help="also write it here")
+    p.set_defaults(handler=cmd_bench_paper)
+
     return parser
 
 
@@ -616,20 +704,63 @@ def foxglove_address(args: argparse.Namespace) -> tuple[str, int] | None:
     return parse_address(args.foxglove) if args.foxglove else None
 
 
-def add_plan_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", type=Path, help="scenario TOML (see config/README.md)")
+def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None = None) -> None:
+    """The scenario and the options that change a plan (plan, serve, demo)."""
+    if scenario_default is None:
+        p.add_argument("scenario", type=Path, help="scenario TOML (see config/README.md)")
+    else:
+        p.add_argument(
+            "scenario",
+            type=Path,
+            nargs="?",
+            default=None,
+            help=f"scenario TOML (see config/README.md; default {scenario_default})",
+        )
     p.add_argument(
         "--fields",
         type=Path,
-        help="farm file replacing the scenario's: GeoJSON, KML, shapefile (.shp, folder or "
-        ".zip), GeoPackage, ISOXML TASKDATA.XML (docs/farm-files.md)",
+        metavar="FARM",
+        help="a farm file replacing the scenario's: GeoJSON, KML, shapefile (.shp, folder or "
+        ".zip), GeoPackage, ISOXML TASKDATA.XML (docs/farm-files.md); the farm id becomes its "
+        "name",
     )
-    p.add_argument("--id-field", help="the property that holds a field's id (default: id, ...)")
-    p.add_argument("--name-field", help="the property that holds a field's name (default: name)")
-    p.add_argument("--machines", type=int, help="use the first K machines of the fleet")
-    p.add_argument("--objective", choices=["makespan", "distance", "time", "fuel", "minmax"])
-    p.add_argument("--time-limit", type=float, help="solver seconds")
-    p.add_argument("--seed", type=int)
+    p.add_argument(
+        "--id-field",
+        metavar="NAME",
+        help="the property that holds a field's id (default: the first of id, field_id, "
+        "fieldid, name)",
+    )
+    p.add_argument(
+        "--name-field",
+        metavar="NAME",
+        help="the property that holds a field's name (default: name)",
+    )
+    p.add_argument(
+        "--machines", type=int, metavar="K", help="use the first K machines of the fleet"
+    )
+    p.add_argument(
+        "--objective",
+        choices=OBJECTIVES,
+        help="what to minimise: makespan (when the farm is done), distance on roads, time "
+        "or fuel of the fleet, minmax (the longest route); default: the scenario's",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        metavar="S",
+        help="wall-clock seconds for the whole plan (default: the scenario's time_limit_s)",
+    )
+    p.add_argument("--seed", type=int, help="the solver's random seed (default: the scenario's)")
+
+
+def add_log_dir_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--log-dir",
+        type=Path,
+        default=Path("logs"),
+        metavar="DIR",
+        help="write the run's MCAP log here (default logs/)",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -652,7 +783,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
     except KeyboardInterrupt:
         print("agrifleet: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

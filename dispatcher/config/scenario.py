@@ -15,6 +15,7 @@ import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,9 @@ from planner.farm import Farm, FarmOptions, load_farm
 from planner.problem import Machine
 
 logger = logging.getLogger(__name__)
+
+DEMO_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
+"""The demo farm's scenario, shipped with agrifleet (config/ in a checkout)."""
 
 # Ids become Zenoh key segments and file names: nothing that either would misread.
 SAFE_ID = re.compile(r"[A-Za-z0-9_.-]+")
@@ -41,6 +45,24 @@ MACHINE_PARAMS = (
 # Optional machine keys and their defaults: 0 m turning radius = the paper's turn model,
 # a hop between swath ends costing turn_time_h.
 OPTIONAL_MACHINE_PARAMS = {"min_turn_radius_m": 0.0}
+
+
+@dataclass(frozen=True)
+class OtherUnit:
+    """A machine key that gives a parameter of :data:`MACHINE_PARAMS` in another unit (the
+    unit is in the key's name): ``value * factor`` is the parameter in its own unit."""
+
+    param: str
+    factor: float
+    unit: str
+
+
+OTHER_UNITS: dict[str, OtherUnit] = {
+    # What a farmer reads off a spec sheet or a field log, beside the paper's units.
+    "capacity_hah": OtherUnit("capacity_m2h", 10_000.0, "ha/h"),
+    "turn_time_s": OtherUnit("turn_time_h", 1.0 / 3600.0, "s"),
+}
+"""Keys a fleet file may use instead of a parameter's own key (one of the two, not both)."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +169,19 @@ LIMITS: dict[str, Limit] = {
     ),
 }
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
+# The keys in other units have the bounds of their parameter, in their unit.
+LIMITS.update(
+    {
+        key: Limit(
+            LIMITS[other.param].low / other.factor,
+            LIMITS[other.param].high / other.factor,
+            other.unit,
+            LIMITS[other.param].why_low,
+            LIMITS[other.param].why_high,
+        )
+        for key, other in OTHER_UNITS.items()
+    }
+)
 
 TOP_KEYS = (
     "farm_id",
@@ -162,7 +197,14 @@ TOP_KEYS = (
     "dispatcher",
 )
 FLEET_KEYS = ("machine",)
-MACHINE_KEYS = ("id", "system_id", *MACHINE_PARAMS, *OPTIONAL_MACHINE_PARAMS, "implement")
+MACHINE_KEYS = (
+    "id",
+    "system_id",
+    *MACHINE_PARAMS,
+    *OTHER_UNITS,
+    *OPTIONAL_MACHINE_PARAMS,
+    "implement",
+)
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
 SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
 WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s")
@@ -257,19 +299,38 @@ class Scenario:
         return replace(self, vehicles=self.vehicles[:count])
 
     def with_farm(
-        self, path: str | Path, id_field: str | None = None, name_field: str | None = None
+        self,
+        farm: str | Path | Farm,
+        id_field: str | None = None,
+        name_field: str | None = None,
     ) -> Scenario:
-        """Another farm file (``--fields``), or the same read with another ``--id-field``
-        or ``--name-field``; the scenario's garage is kept."""
+        """The fleet and settings on another farm (``--fields FARM``), or the same read with
+        another ``--id-field`` or ``--name-field``; the scenario's garage is kept. The farm id
+        is then the farm file's name, as a scenario's is its own file's without ``farm_id``
+        (a farm built in code keeps the scenario's)."""
         options = replace(
             self.farm_options,
             id_field=id_field or self.farm_options.id_field,
             name_field=name_field or self.farm_options.name_field,
         )
-        try:
-            return replace(self, farm=load_farm(path, options), farm_options=options)
-        except PlannerError as exc:
-            raise ConfigError(str(exc)) from exc
+        if not isinstance(farm, Farm):
+            try:
+                farm = load_farm(farm, options)
+            except PlannerError as exc:
+                raise ConfigError(str(exc)) from exc
+        in_memory = farm.source.startswith("<")  # built in code: the scenario's id stays
+        return replace(
+            self,
+            farm=farm,
+            farm_options=options,
+            farm_id=self.farm_id if in_memory else farm_id_for(farm.source),
+        )
+
+
+def farm_id_for(path: str | Path) -> str:
+    """A farm id (a Zenoh key segment) from a file's name: what :data:`SAFE_ID` does not
+    allow becomes '-' ("Home farm.geojson" is "Home-farm")."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(path).stem).strip("-") or "farm"
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -527,11 +588,7 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
                 f"{where}: key 'id' must be letters, digits, '_', '-' or '.' "
                 "(it names Zenoh keys and mission files)"
             )
-        missing = [key for key in (*MACHINE_PARAMS, "system_id") if key not in entry]
-        if missing:
-            raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
-        keys = [*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)]
-        params = {key: _number(entry, key, where) for key in keys}
+        params = _machine_params(entry, where)
         if "min_turn_radius_m" not in entry:
             logger.warning(
                 "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
@@ -551,6 +608,31 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
         system_ids[sysid] = ident
         out.append(Vehicle(machine, sysid, _implement(entry.get("implement"), where)))
     return tuple(out)
+
+
+def _machine_params(entry: dict[str, Any], where: str) -> dict[str, float]:
+    """The machine's parameters in the planner's units, each from its own key or from the
+    key of :data:`OTHER_UNITS` that gives it in another unit (not both)."""
+    given_as = {other.param: key for key, other in OTHER_UNITS.items() if key in entry}
+    for param, key in given_as.items():
+        if param in entry:
+            raise ConfigError(
+                f"{where}: give {param} or {key}, not both (the same figure in "
+                f"{LIMITS[param].unit} and in {LIMITS[key].unit})"
+            )
+    missing = [
+        " or ".join([key, *(k for k, o in OTHER_UNITS.items() if o.param == key)])
+        for key in (*MACHINE_PARAMS, "system_id")
+        if key not in entry and key not in given_as
+    ]
+    if missing:
+        raise ConfigError(f"{where}: missing key(s) {', '.join(missing)}")
+    params = {}
+    for param in (*MACHINE_PARAMS, *(k for k in OPTIONAL_MACHINE_PARAMS if k in entry)):
+        key = given_as.get(param, param)
+        factor = OTHER_UNITS[key].factor if key in OTHER_UNITS else 1.0
+        params[param] = _number(entry, key, where) * factor
+    return params
 
 
 def _implement(raw: Any, where: str) -> Implement:

@@ -182,22 +182,33 @@ def add_zenoh_arguments(
     p: argparse.ArgumentParser, mode: str = "peer", title: str = "zenoh"
 ) -> None:
     g = p.add_argument_group(title)
-    g.add_argument("--mode", choices=["peer", "client", "router"], default=mode)
+    g.add_argument(
+        "--mode",
+        choices=["peer", "client", "router"],
+        default=mode,
+        help=f"Zenoh session mode (default {mode}; client to go through a router)",
+    )
     g.add_argument(
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help=f"e.g. {DEFAULT_ENDPOINT}, or tls/HOST:PORT with --tls",
+        help=f"listen on this endpoint, e.g. {DEFAULT_ENDPOINT}, or tls/HOST:PORT with --tls "
+        "(repeatable)",
     )
     g.add_argument(
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help=f"default {DEFAULT_ENDPOINT} ({DEFAULT_TLS_ENDPOINT} with --tls) when neither "
-        "--listen nor --connect",
+        help=f"connect to this endpoint (repeatable); default {DEFAULT_ENDPOINT} "
+        f"({DEFAULT_TLS_ENDPOINT} with --tls) when neither --listen nor --connect",
     )
     g.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
-    g.add_argument("--cfg", action="append", metavar="KEY:VALUE", help="zenoh config override")
+    g.add_argument(
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
+        help="zenoh config override, KEY a config path, VALUE JSON5 (repeatable)",
+    )
     g.add_argument(
         "--tls",
         metavar="DIR",

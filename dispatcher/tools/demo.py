@@ -13,6 +13,7 @@ dispatcher sees that tractor lost and the run ends as the dispatcher decides.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import socket
@@ -21,13 +22,13 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from importlib.resources import files
 from pathlib import Path
-from typing import IO, Literal
+from typing import IO, Any, Literal
 
 from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import DEMO_SCENARIO
 from dispatcher.daemon.server import DaemonConfig, Dispatcher
-from dispatcher.daemon.state import FleetState, Phase
+from dispatcher.daemon.state import FleetState, Phase, VehicleState
 from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.keys import read_keys, write_keys
@@ -39,8 +40,7 @@ from sim_vehicles.impairment import Impairment
 
 log = logging.getLogger(__name__)
 
-# The demo farm ships with agrifleet (config/ in a checkout).
-DEFAULT_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
+DEFAULT_SCENARIO = DEMO_SCENARIO
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
 FAULT_CHECK_PERIOD_S = 0.1
 """How often (wall seconds) the share of the work is looked at when faults are planned (the
@@ -340,41 +340,109 @@ class FaultInjector:
         self.notify(text)
 
 
-class ProgressPrinter:
-    """Live progress per tractor: current field, share of its mission done, ETA (sim)."""
+class LiveStatus:
+    """The demo's live view, 80 columns: per tractor its field, the share of its mission
+    done, its simulated hours and the plan's, its state; above, the fields done and the
+    simulated time. Redrawn in place on a terminal, printed every ``period_s`` otherwise.
+    Times marked "sim" are the tractors' simulated clocks; "wall" is the real time."""
+
+    WIDTH = 80
 
     def __init__(
-        self, speedup: float, period_s: float = 3.0, stream: IO[str] | None = None
+        self,
+        speedup: float,
+        planned_h: dict[str, float],
+        stream: IO[str] | None = None,
+        period_s: float = 5.0,
     ) -> None:
+        from rich.console import Console
+
         self.speedup = speedup
+        self.planned_h = planned_h
         self.period_s = period_s
-        self.stream = stream or sys.stdout
         self.marks: dict[str, str] = {}  # vehicle id -> a fault it has (see FaultInjector)
-        self._last = 0.0
+        self.console = Console(file=stream or sys.stdout, width=self.WIDTH, highlight=False)
+        self.started = time.monotonic()
+        self.set_off_s: dict[str, float] = {}  # vehicle id -> its clock when it set off
+        self._live: Any = None
+        self._last = -math.inf
 
     def note(self, text: str) -> None:
-        """A line of news (a fault injected, a simulator gone), at once."""
-        print(f"! {text}", file=self.stream, flush=True)
+        """A line of news (a fault injected, a simulator gone), at once, above the view."""
+        self.console.print(f"! {text}", markup=False, soft_wrap=True)
+
+    def _watch_set_off(self, state: FleetState) -> None:
+        """Each vehicle's clock when its mission started: from the wall time of the start
+        and how fast its clock runs, so that its hours compare with the plan's."""
+        for v in state.vehicles.values():
+            if v.id not in self.set_off_s and v.started_at is not None and v.last_seen:
+                lag_s = max(v.last_seen - v.started_at, 0.0) * v.clock.rate
+                self.set_off_s[v.id] = max(v.sim_time_s - lag_s, 0.0)
+
+    def worked_s(self, v: VehicleState) -> float:
+        """Simulated seconds since ``v`` set off, to the end of its mission if it is done."""
+        if v.id not in self.set_off_s:
+            return 0.0
+        end = v.finished_s if v.finished_s is not None else v.sim_time_s
+        return max(end - self.set_off_s[v.id], 0.0)
+
+    def render(self, state: FleetState) -> Any:
+        from rich import box
+        from rich.table import Table
+
+        self._watch_set_off(state)
+        done = sum(f.status == "done" for f in state.fields.values())
+        sim_h = max((self.worked_s(v) for v in state.vehicles.values()), default=0.0) / 3600
+        table = Table(
+            title=f"{done}/{len(state.fields)} fields done · sim {sim_h:.2f} h at "
+            f"{self.speedup:.0f}x · wall {time.monotonic() - self.started:.0f} s",
+            box=box.SIMPLE_HEAD,
+            title_justify="left",
+        )
+        table.add_column("tractor")
+        table.add_column("field")
+        table.add_column("done", justify="right")
+        table.add_column("sim h", justify="right")
+        table.add_column("plan h", justify="right")
+        table.add_column("state")
+        for v in state.vehicles.values():
+            mark = f" ({self.marks[v.id]})" if v.id in self.marks else ""
+            planned = self.planned_h.get(v.id)
+            table.add_row(
+                v.id,
+                v.current_field or "-",
+                f"{100 * v.share_done:.0f} %",
+                f"{self.worked_s(v) / 3600:.2f}",
+                "-" if planned is None else f"{planned:.2f}",
+                f"{v.phase.value}{mark}",
+            )
+        return table
 
     def __call__(self, state: FleetState) -> None:
+        self._watch_set_off(state)
         now = time.monotonic()
-        if now - self._last < self.period_s:
-            return
-        self._last = now
-        done = sum(f.status == "done" for f in state.fields.values())
-        parts = []
-        for v in state.vehicles.values():
-            field = v.current_field or "-"
-            mark = f" [{self.marks[v.id]}]" if v.id in self.marks else ""
-            parts.append(
-                f"{v.id} {v.phase.value:<9} {field:<4} {100 * v.share_done:5.1f}% "
-                f"eta {v.eta_s / 3600:5.2f} h{mark}"
-            )
-        print(
-            f"[{done}/{len(state.fields)} fields] " + " | ".join(parts),
-            file=self.stream,
-            flush=True,
-        )
+        if self.console.is_terminal:
+            if now - self._last < 0.25:
+                return
+            self._last = now
+            if self._live is None:
+                from rich.live import Live
+
+                self._live = Live(console=self.console, auto_refresh=False)
+                self._live.start()
+            self._live.update(self.render(state), refresh=True)
+        elif now - self._last >= self.period_s:
+            self._last = now
+            self.console.print(self.render(state))
+
+    def close(self, state: FleetState) -> None:
+        """Show the final state (what the summary then tells) and stop redrawing."""
+        if self._live is not None:
+            self._live.update(self.render(state), refresh=True)
+            self._live.stop()
+            self._live = None
+        else:
+            self.console.print(self.render(state))
 
 
 @dataclass
@@ -386,6 +454,7 @@ class DemoResult:
     daemon: Dispatcher
     events: list[str]
     faults: DemoFaults
+    status: LiveStatus | None = None  # the live view, with each tractor's hours
 
 
 def run_demo(
@@ -412,7 +481,12 @@ def run_demo(
     print(
         f"plan {dispatch.plan_id}: {len(dispatch.missions)} tractors, "
         f"{len(dispatch.plan.farm.fields)} fields, planned makespan "
-        f"{dispatch.plan.makespan_h:.2f} h; simulating at {speed:.0f}x on {endpoint}",
+        f"{dispatch.plan.makespan_h:.2f} h\nsimulating at {speed:.0f}x on {endpoint}",
+        flush=True,
+    )
+    print(
+        f"sim: simulated time; the tractors' clocks run {speed:.0f}x "
+        f"(a planned hour takes {3600 / speed:.1f} s)",
         flush=True,
     )
     for line in faults.describe():
@@ -426,7 +500,8 @@ def run_demo(
     keys_dir = log_dir / "keys" / dispatch.document.farm_id
     write_keys(keys_dir, list(dispatch.missions), replace=True)
     keys = read_keys(keys_dir, list(dispatch.missions))
-    printer = ProgressPrinter(speed)
+    planned_h = {m.id: m.time_h for m in dispatch.document.machines}
+    printer = LiveStatus(speed, planned_h)
     config = DaemonConfig(
         job=job,
         store=store,
@@ -476,6 +551,7 @@ def run_demo(
         printer.marks = injector.marks
         code = daemon.main_loop()
     finally:
+        printer.close(daemon.state)
         if children is not None:
             children.stop()
         daemon.shutdown()
@@ -484,29 +560,38 @@ def run_demo(
     events = list(injector.events) if injector is not None else []
     if injector is not None:
         events += [f"{f}: not reached" for f in injector.pending]
-    return DemoResult(code, daemon, events, faults)
+    return DemoResult(code, daemon, events, faults, printer)
 
 
 def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
-    """The end of the run: per vehicle, fields done and not done; what was injected."""
+    """The end of the run: per vehicle, fields done and not done, its simulated hours
+    beside the plan's (the plan table's figure); what was injected."""
     state = daemon.state
-    lines = ["", "summary:"]
+    status = result.status if result is not None else None
+    lines = ["", "summary: (simulated hours, from when each tractor set off)"]
     for v in state.vehicles.values():
         not_done = [f.id for f in state.fields.values() if f.vehicle == v.id and f.status != "done"]
+        if status is not None:
+            worked_s, planned = status.worked_s(v), status.planned_h.get(v.id, 0.0)
+        else:  # without the live view: the tractor's own clock, the mission's planned time
+            end = v.finished_s if v.finished_s is not None else v.sim_time_s
+            worked_s, planned = end, (v.planned_s[-1] / 3600 if v.planned_s else 0.0)
         lines.append(
             f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}"
             + (f", not done {' '.join(not_done)}" if not_done else "")
             + f", {'finished after ' if v.finished_s is not None else ''}"
-            f"{(v.finished_s if v.finished_s is not None else v.sim_time_s) / 3600:.2f} h "
-            f"(planned {v.planned_s[-1] / 3600:.2f} h), upload retries {v.upload_retries}"
+            f"{worked_s / 3600:.2f} h (planned {planned:.2f} h)"
+            + (f", upload retries {v.upload_retries}" if v.upload_retries else "")
             + (f", {v.error}" if v.error else "")
         )
     done = sum(f.status == "done" for f in state.fields.values())
     lines.append(f"  fields done: {done}/{len(state.fields)}")
+    if status is not None:
+        lines.append(f"  the run took {time.monotonic() - status.started:.0f} s of wall time")
     if daemon.upload_started is not None and daemon.all_acknowledged is not None:
         lines.append(
             f"  every mission acknowledged {daemon.all_acknowledged - daemon.upload_started:.2f} s "
-            "after the first upload began"
+            "(wall) after the first upload began"
         )
     if result is not None:
         if result.faults.radio.active:

@@ -22,6 +22,7 @@ from dispatcher.cli.main import main
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import (
     LIMITS,
+    OTHER_UNITS,
     SOLVER_KEYS,
     WATCH_KEYS,
     SolverSettings,
@@ -331,6 +332,8 @@ def put(doc: dict[str, Any], path: tuple[Any, ...], value: Any) -> dict[str, Any
     for step in path[:-1]:
         node = node[step]
     node[path[-1]] = value
+    if path[-1] in OTHER_UNITS:  # in place of the parameter's own key
+        del node[OTHER_UNITS[path[-1]].param]
     return doc
 
 
@@ -454,3 +457,25 @@ def test_plan_with_one_fields_lat_lon_swapped_exits_2_naming_the_field(tmp_path)
     assert "look swapped" in done.stderr
     assert "Traceback" not in done.stderr
     assert not out.exists() or not any(out.iterdir())
+
+
+# --- units -------------------------------------------------------------------------------
+
+
+def test_a_farmers_units_give_the_same_machine_as_the_papers(tmp_path):
+    paper = load_scenario(write(tmp_path, scenario_doc(), "paper.toml")).vehicles[0].machine
+    doc = scenario_doc()
+    v1 = doc["machine"][0]
+    v1["capacity_hah"] = v1.pop("capacity_m2h") / 10_000  # 4 ha/h
+    v1["turn_time_s"] = v1.pop("turn_time_h") * 3600  # 3.6 s
+    farmer = load_scenario(write(tmp_path, doc, "farmer.toml")).vehicles[0].machine
+    assert farmer.capacity_m2h == pytest.approx(paper.capacity_m2h)
+    assert farmer.turn_time_h == pytest.approx(paper.turn_time_h)
+
+
+def test_one_figure_in_two_units_is_refused(tmp_path):
+    doc = scenario_doc()
+    doc["machine"][0]["turn_time_s"] = 4
+    assert "machine 'v1': give turn_time_h or turn_time_s, not both" in refused(tmp_path, doc)
+    del doc["machine"][0]["turn_time_s"], doc["machine"][0]["capacity_m2h"]
+    assert "missing key(s) capacity_m2h or capacity_hah" in refused(tmp_path, doc)
