@@ -460,23 +460,12 @@ class Dispatcher:
         """After a command on its key that we did not send: read the vehicle's mission back
         and, when it is not ours, upload ours again and go on where it was (or park it, if
         it was done)."""
-        if link.download is None:
-            link.download = MissionDownload(v.system_id)
-            link.since = now
-            self._log("warning", f"{v.id}: reading its mission back (a foreign command)")
-            self._send(v.id, link.download.start(now))
+        why = "a command on its key we did not send; reading its mission back"
+        different = self._read_back(v, link, now, why)
+        if different is None:
             return
-        if link.download.outcome is Outcome.RUNNING:
-            return
-        read, link.download = link.download, None
+        link.download = None
         v.verify_mission = False
-        different = ""
-        if read.outcome is Outcome.FAILED:
-            different = f"its mission could not be read back ({read.reason})"
-        elif diffs := mission_differences(
-            read.items, self.job.missions[v.id].to_mavlink(v.system_id)
-        ):
-            different = f"holds another mission (differs at {', '.join(diffs)})"
         if not different:
             self._log("info", f"{v.id}: its mission read back intact after the foreign command")
         elif v.phase is Phase.DONE:
@@ -490,6 +479,23 @@ class Dispatcher:
                 f"{link.start_item}",
             )
             self._upload(v, link, now)
+
+    def _read_back(self, v: VehicleState, link: _Link, now: float, why: str) -> str | None:
+        """Read the vehicle's mission back (``why`` is logged as it begins): None while that
+        is under way, then "" when it is ours item by item, else what is not."""
+        if link.download is None:
+            link.download = MissionDownload(v.system_id)
+            link.since = now
+            self._log("info", f"{v.id}: {why}")
+            self._send(v.id, link.download.start(now))
+            return None
+        if link.download.outcome is Outcome.RUNNING:
+            return None
+        if link.download.outcome is Outcome.FAILED:
+            return f"its mission could not be read back ({link.download.reason})"
+        ours = self.job.missions[v.id].to_mavlink(v.system_id)
+        diffs = mission_differences(link.download.items, ours)
+        return f"holds another mission (differs at {', '.join(diffs)})" if diffs else ""
 
     def _keep_signing_timestamps(self) -> None:
         """Signing timestamps never go back, across a restart too: the store keeps a mark
@@ -746,20 +752,11 @@ class Dispatcher:
         if v.mission_total != last:
             held = "no mission it told" if v.mission_total is None else f"{v.mission_total + 1}"
             different = f"holds {held} items, not our {len(v.items)}"
-        elif link.download is None:  # the same length: read it back to be sure
-            link.download = MissionDownload(v.system_id)
-            link.since = now
-            self._log("info", f"{v.id}: holds {len(v.items)} items; reading them back")
-            self._send(v.id, link.download.start(now))
-            return
-        elif link.download.outcome is Outcome.RUNNING:
-            return
-        elif link.download.outcome is Outcome.FAILED:
-            different = f"its mission could not be read back ({link.download.reason})"
-        else:
-            ours = self.job.missions[v.id].to_mavlink(v.system_id)
-            if diffs := mission_differences(link.download.items, ours):
-                different = f"holds another mission (differs at {', '.join(diffs)})"
+        else:  # the same length: read it back to be sure
+            found = self._read_back(v, link, now, f"holds {len(v.items)} items; reading them back")
+            if found is None:
+                return
+            different = found
         if different:
             link.start_item = v.resume_item
             self._log(
