@@ -53,7 +53,8 @@ class Plan:
         return Path(path)
 
     def write(self, out_dir: str | Path) -> list[Path]:
-        """plan.json, per machine ``.waypoints`` and ``.plan``, map.png; all or nothing."""
+        """plan.json, plan.geojson, plan.kml, per machine ``.waypoints`` and ``.plan``,
+        map.png; all or nothing."""
         return write_plan_files(self.dispatch, out_dir)
 
     def table(self) -> str:

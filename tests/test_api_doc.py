@@ -23,4 +23,13 @@ def test_the_api_page_runs_as_a_notebook(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "map.png").stat().st_size > 0
     assert (tmp_path / "plan.geojson").exists()
     written = sorted(p.suffix for p in (tmp_path / "out" / "plan").iterdir())
-    assert written == [".json", ".plan", ".plan", ".png", ".waypoints", ".waypoints"]
+    assert written == [
+        ".geojson",
+        ".json",
+        ".kml",
+        ".plan",
+        ".plan",
+        ".png",
+        ".waypoints",
+        ".waypoints",
+    ]
