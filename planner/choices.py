@@ -9,6 +9,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 ALGORITHMS = ("ighoa", "ga")
+DEFAULT_ALGORITHM = "ighoa"
 """``ighoa``: the paper's hybrid (simulated annealing, then the genetic algorithm with its
 local search); ``ga``: the classic genetic algorithm it is compared with."""
 

@@ -354,6 +354,50 @@ def cmd_review(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_bench_mtsp(args: argparse.Namespace) -> int:
+    from dispatcher.tools.bench import bench_mtsp, parse_cells
+
+    print(
+        bench_mtsp(
+            parse_cells(args.cells),
+            args.peer,
+            args.objective,
+            args.time_limit,
+            args.runs,
+            args.seed,
+            args.algorithm,
+            progress=lambda line: print(line, file=sys.stderr, flush=True),
+        )
+    )
+    return EXIT_OK
+
+
+def cmd_bench_farm(args: argparse.Namespace) -> int:
+    from dispatcher.tools.bench import bench_farm, parse_farms
+
+    print(
+        bench_farm(
+            parse_farms(args.farms),
+            args.peer,
+            args.time_limit,
+            args.runs,
+            args.seed,
+            args.algorithm,
+            progress=lambda line: print(line, file=sys.stderr, flush=True),
+        )
+    )
+    return EXIT_OK
+
+
+def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+
+    p.add_argument("--time-limit", type=float, default=time_limit, help="seconds per run")
+    p.add_argument("--runs", type=int, default=5, help="our seeds per cell")
+    p.add_argument("--seed", type=int, default=1, help="our first seed (and the peer's)")
+    p.add_argument("--algorithm", choices=ALGORITHMS, default=DEFAULT_ALGORITHM)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -380,6 +424,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--generations", type=int, default=2000)
     p.add_argument("--out", type=Path, default=None, help="also write the report here")
     p.set_defaults(handler=cmd_bench_paper)
+    from dispatcher.tools.bench import DEFAULT_CELLS, DEFAULT_FARMS, PEERS
+
+    p = bench_sub.add_parser("mtsp", help="ours and OR-Tools or PyVRP on TSPLIB mTSP cells")
+    p.add_argument("--peer", choices=PEERS, default=None)
+    p.add_argument("--cells", default=DEFAULT_CELLS, help="INSTANCE:M,… (default %(default)s)")
+    p.add_argument("--objective", choices=["minsum", "minmax"], default="minsum")
+    add_bench_arguments(p, 10.0)
+    p.set_defaults(handler=cmd_bench_mtsp)
+    p = bench_sub.add_parser("farm", help="ours and OR-Tools on generated farms (makespan)")
+    p.add_argument("--peer", choices=["ortools"], default=None)
+    p.add_argument("--farms", default=DEFAULT_FARMS, help="FIELDSxMACHINES,… (default %(default)s)")
+    add_bench_arguments(p, 60.0)
+    p.set_defaults(handler=cmd_bench_farm)
     p = sub.add_parser("plan", help="plan a scenario and write missions, plan.json, map.png")
     add_plan_arguments(p)
     p.add_argument("--out", type=Path, required=True, help="output folder")
