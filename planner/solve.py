@@ -412,7 +412,11 @@ def solve(
         if costs[best] < elite_cost:
             elite_perm[:], elite_counts[:] = perms[best], counts[best]
             elite_route[:], elite_cost = route_costs[best], float(costs[best])
-        if isinstance(params, hybrid.HybridParams) and not stop.interrupted():
+        if (
+            isinstance(params, hybrid.HybridParams)
+            and (params.ils_on_sums or obj in (Objective.MINMAX, Objective.MAKESPAN))
+            and not stop.interrupted()
+        ):
             improved = hybrid.ils_step(
                 state,
                 elite_perm,
@@ -426,7 +430,6 @@ def solve(
                 pins,
                 params.ils_steps,
                 params.perturb,
-                params.or_opt,
                 stop.deadline(),
             )
             if improved < elite_cost:

@@ -354,38 +354,20 @@ def cmd_review(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_bench_mtsp(args: argparse.Namespace) -> int:
-    from dispatcher.tools.bench import bench_mtsp, parse_cells
+def cmd_bench_peer(args: argparse.Namespace) -> int:
+    """`bench mtsp` and `bench farm`: ours and a peer side by side."""
+    from dispatcher.tools.bench import Runs, bench_farm, bench_mtsp, parse_cells, parse_farms
 
-    print(
-        bench_mtsp(
-            parse_cells(args.cells),
-            args.peer,
-            args.objective,
-            args.time_limit,
-            args.runs,
-            args.seed,
-            args.algorithm,
-            progress=lambda line: print(line, file=sys.stderr, flush=True),
-        )
-    )
-    return EXIT_OK
+    runs = Runs(args.time_limit, args.runs, args.seed, args.algorithm)
 
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
 
-def cmd_bench_farm(args: argparse.Namespace) -> int:
-    from dispatcher.tools.bench import bench_farm, parse_farms
-
-    print(
-        bench_farm(
-            parse_farms(args.farms),
-            args.peer,
-            args.time_limit,
-            args.runs,
-            args.seed,
-            args.algorithm,
-            progress=lambda line: print(line, file=sys.stderr, flush=True),
-        )
-    )
+    if args.suite == "mtsp":
+        report = bench_mtsp(parse_cells(args.cells), args.peer, args.objective, runs, progress)
+    else:
+        report = bench_farm(parse_farms(args.farms), args.peer, runs, progress)
+    print(report)
     return EXIT_OK
 
 
@@ -431,12 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cells", default=DEFAULT_CELLS, help="INSTANCE:M,… (default %(default)s)")
     p.add_argument("--objective", choices=["minsum", "minmax"], default="minsum")
     add_bench_arguments(p, 10.0)
-    p.set_defaults(handler=cmd_bench_mtsp)
+    p.set_defaults(handler=cmd_bench_peer)
     p = bench_sub.add_parser("farm", help="ours and OR-Tools on generated farms (makespan)")
     p.add_argument("--peer", choices=["ortools"], default=None)
     p.add_argument("--farms", default=DEFAULT_FARMS, help="FIELDSxMACHINES,… (default %(default)s)")
     add_bench_arguments(p, 60.0)
-    p.set_defaults(handler=cmd_bench_farm)
+    p.set_defaults(handler=cmd_bench_peer)
     p = sub.add_parser("plan", help="plan a scenario and write missions, plan.json, map.png")
     add_plan_arguments(p)
     p.add_argument("--out", type=Path, required=True, help="output folder")

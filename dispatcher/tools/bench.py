@@ -29,6 +29,33 @@ class BenchError(DispatcherError, ValueError):
 
 
 @dataclass(frozen=True)
+class Runs:
+    """How ours runs on every cell: ``runs`` seeds from ``seed``, ``time_limit`` seconds
+    each (the peer's limit too), with ``algorithm``."""
+
+    time_limit: float
+    runs: int
+    seed: int
+    algorithm: str
+
+    def __post_init__(self) -> None:
+        if self.runs < 1:
+            raise BenchError(f"--runs must be at least 1, not {self.runs}")
+        if not self.time_limit > 0:
+            raise BenchError(f"--time-limit must be positive, not {self.time_limit}")
+
+    @property
+    def seeds(self) -> range:
+        return range(self.seed, self.seed + self.runs)
+
+    def describe(self, peer: str | None) -> str:
+        return (
+            f"{self.time_limit:g} s per run, ours = {self.algorithm} seeds {self.seed}.."
+            f"{self.seed + self.runs - 1}, peer = {peer or 'none'} (one run)"
+        )
+
+
+@dataclass(frozen=True)
 class Cell:
     instance: str
     salesmen: int
@@ -96,14 +123,12 @@ def bench_mtsp(
     cells: list[Cell],
     peer: str | None,
     objective: str,
-    time_limit: float,
-    runs: int,
-    seed: int,
-    algorithm: str,
+    runs: Runs,
     progress: Progress = lambda line: None,
 ) -> str:
     """Ours and ``peer`` on TSPLIB mTSP cells; returns the Markdown report."""
     from agrifleet_bench import peers
+
     from planner.choices import Objective
     from planner.cost import figures
     from planner.paper import TSPLIB_DIR, best_known
@@ -112,8 +137,6 @@ def bench_mtsp(
 
     if objective not in ("minsum", "minmax"):
         raise BenchError(f"--objective {objective!r}: choose minsum or minmax")
-    if runs < 1 or not time_limit > 0:
-        raise BenchError("--runs must be >= 1 and --time-limit positive")
     _check_peer(peer)
     minmax = objective == "minmax"
     note = ""
@@ -123,8 +146,7 @@ def bench_mtsp(
     bks_table = best_known()
     peer_label = peer or "peer"
     lines = [
-        f"{objective}, {time_limit:g} s per run, ours = {algorithm} seeds {seed}.."
-        f"{seed + runs - 1}, peer = {peer or 'none'} (one run)" + (f"; {note}" if note else ""),
+        f"{objective}, {runs.describe(peer)}" + (f"; {note}" if note else ""),
         "",
         f"| instance | m | ours mean | ours best | {peer_label} | BKS | ours gap | "
         f"{peer_label} gap | ours / {peer_label} |",
@@ -135,21 +157,21 @@ def bench_mtsp(
         if cell.salesmen > problem.num_tasks:
             raise BenchError(f"--cells {cell.instance}:{cell.salesmen}: more salesmen than cities")
         ours = [
-            solve(problem, objective, algorithm, stop_after(None, time_limit), seed=s).cost
-            for s in range(seed, seed + runs)
+            solve(problem, objective, runs.algorithm, stop_after(None, runs.time_limit), seed=s)
+            for s in runs.seeds
         ]
         peer_cost = None
         if peer == "ortools":
-            routes = peers.ortools_mtsp(problem, minmax, time_limit)
+            routes = peers.ortools_mtsp(problem, minmax, runs.time_limit)
         elif peer == "pyvrp":
-            routes = peers.pyvrp_mtsp(problem, time_limit, seed)
+            routes = peers.pyvrp_mtsp(problem, runs.time_limit, runs.seed)
         if peer is not None:
             peer_cost = figures(problem, routes).value(Objective.parse(objective))
         bks = bks_table.get((cell.instance, objective, cell.salesmen))
         bks_value = bks.value if bks else None
-        mean = statistics.fmean(ours)
+        mean = statistics.fmean(r.cost for r in ours)
         row = (
-            f"| {cell.instance} | {cell.salesmen} | {mean:.2f} | {min(ours):.2f} "
+            f"| {cell.instance} | {cell.salesmen} | {mean:.2f} | {min(r.cost for r in ours):.2f} "
             f"| {_num(peer_cost)} | {_num(bks_value)} | {_gap(mean, bks_value)} "
             f"| {_gap(peer_cost, bks_value)} | {_ratio(mean, peer_cost)} |"
         )
@@ -161,45 +183,40 @@ def bench_mtsp(
 def bench_farm(
     sizes: list[tuple[int, int]],
     peer: str | None,
-    time_limit: float,
-    runs: int,
-    seed: int,
-    algorithm: str,
+    runs: Runs,
     progress: Progress = lambda line: None,
 ) -> str:
     """Ours and OR-Tools on generated farms (makespan); returns the Markdown report."""
     from agrifleet_bench import peers
     from agrifleet_bench.farm import generate_farm, makespan_lower_bound
+
     from planner.cost import figures
     from planner.solve import solve, stop_after
 
-    if runs < 1 or not time_limit > 0:
-        raise BenchError("--runs must be >= 1 and --time-limit positive")
     if peer not in (None, "ortools"):
         raise BenchError(f"--peer {peer!r}: the farm's peer is ortools (PyVRP has no makespan)")
     _check_peer(peer)
     lines = [
-        f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {seed}), "
-        f"{time_limit:g} s per run, ours = {algorithm} seeds {seed}..{seed + runs - 1}, "
-        f"peer = {peer or 'none'} (one run); road km = total road distance; LB ignores travel.",
+        f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}), "
+        f"{runs.describe(peer)}; road km = total road distance; LB ignores travel.",
         "",
         "| farm | ours mean | ours best | ours road km | OR-Tools | OR-Tools road km | LB "
         "| ours gap to LB | OR-Tools gap to LB | ours / OR-Tools | machines used ours/OR-Tools |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for fields, machines in sizes:
-        problem = generate_farm(fields, machines, seed)
+        problem = generate_farm(fields, machines, runs.seed)
         bound = makespan_lower_bound(problem)
         results = [
-            solve(problem, "makespan", algorithm, stop_after(None, time_limit), seed=s)
-            for s in range(seed, seed + runs)
+            solve(problem, "makespan", runs.algorithm, stop_after(None, runs.time_limit), seed=s)
+            for s in runs.seeds
         ]
         spans = [r.cost for r in results]
         best = min(results, key=lambda r: r.cost)
         peer_span = peer_km = None
         peer_used = "–"
         if peer == "ortools":
-            routes = peers.ortools_farm(problem, time_limit)
+            routes = peers.ortools_farm(problem, runs.time_limit)
             figs = figures(problem, routes)
             peer_span, peer_km = figs.makespan_h, figs.distance_m / 1000.0
             peer_used = str(sum(1 for r in routes if r))
@@ -214,4 +231,3 @@ def bench_farm(
         lines.append(row)
         progress(row)
     return "\n".join(lines) + "\n"
-

@@ -2,15 +2,14 @@
 
 import numpy as np
 import pytest
-
 from agrifleet_bench.farm import generate_farm, makespan_lower_bound, service_hours
+
 from dispatcher.cli.main import EXIT_BAD_INPUT, main
-from dispatcher.tools.bench import BenchError, Cell, bench_mtsp, parse_cells, parse_farms
+from dispatcher.tools.bench import BenchError, Cell, Runs, bench_mtsp, parse_cells, parse_farms
 from planner.cost import figures
-from planner.paper import BKS_MINSUM, best_known
+from planner.paper import BKS_MINSUM, TSPLIB_DIR, best_known
 from planner.problem import Machine, Problem, Task
 from planner.tsplib import read_instance
-from planner.paper import TSPLIB_DIR
 
 
 def test_cells_and_farms_are_parsed_and_bad_ones_named():
@@ -24,9 +23,11 @@ def test_cells_and_farms_are_parsed_and_bad_ones_named():
         parse_farms("10x20")
 
 
-def test_a_bad_cell_exits_2(capsys):
+def test_a_bad_cell_or_run_setting_exits_2(capsys):
     assert main(["bench", "mtsp", "--cells", "eil51:x"]) == EXIT_BAD_INPUT
     assert "eil51:x" in capsys.readouterr().err
+    assert main(["bench", "farm", "--runs", "0"]) == EXIT_BAD_INPUT
+    assert "--runs" in capsys.readouterr().err
 
 
 def test_the_bks_table_has_both_objectives_with_sources():
@@ -64,7 +65,7 @@ def test_the_lower_bound_is_exact_on_related_machines_and_below_any_schedule():
 
 
 def test_bench_mtsp_without_a_peer_reports_ours_beside_the_bks():
-    report = bench_mtsp([Cell("eil51", 3)], None, "minmax", 0.3, 1, 1, "ighoa")
+    report = bench_mtsp([Cell("eil51", 3)], None, "minmax", Runs(0.3, 1, 1, "ighoa"))
     row = next(line for line in report.splitlines() if line.startswith("| eil51"))
     assert "| 159.57 |" in row  # the BKS column
 
