@@ -590,7 +590,7 @@ def warm_up() -> None:
     _warmed = True
     for algorithm, params in (
         ("ighoa", ighoa.IGHOAParams(population=4)),
-        ("hybrid", hybrid.HybridParams(population=4, ils_steps=2)),
+        ("hybrid", hybrid.HybridParams(population=4, ils_steps=2, ils_on_sums=True)),
         ("ga", ga.GAParams(population=4)),
     ):
         solve(
