@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from planner import ga, hybrid, ighoa
-from planner.choices import ALGORITHMS
+from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
 from planner.cost import (
     CostTables,
     Figures,
@@ -264,7 +264,7 @@ GenerationCallback = Callable[[int, float, float], None]
 def solve(
     problem: Problem,
     objective: str | Objective = Objective.DISTANCE,
-    algorithm: str = "ighoa",
+    algorithm: str = DEFAULT_ALGORITHM,
     stop: AnyOf | Criterion | None = None,
     seed: int = 1,
     params: ighoa.IGHOAParams | hybrid.HybridParams | ga.GAParams | None = None,

@@ -384,12 +384,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="agrifleet", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True)
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
 
     p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
     p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
     p.add_argument("-m", "--salesmen", type=int, required=True)
     p.add_argument("--objective", choices=["minsum", "minmax"], default="minsum")
-    p.add_argument("--algorithm", choices=["ighoa", "ga"], default="ighoa")
+    p.add_argument("--algorithm", choices=ALGORITHMS, default=DEFAULT_ALGORITHM)
     p.add_argument("--time-limit", type=float, default=None, help="seconds")
     p.add_argument("--generations", type=int, default=2000)
     p.add_argument("--seed", type=int, default=1)
