@@ -35,8 +35,10 @@ def assert_valid(perm, counts, n, m, min_count=1):
     assert counts.min() >= min_count
 
 
-def problem_for(n, m, seed):
-    rng = np.random.default_rng(seed)
+def problem_for(n, m, seed, min_count=1, rng=None):
+    """n random tasks in a 3 km square, m machines at the origin (draws from ``rng`` when
+    given, so that a caller can go on drawing from it)."""
+    rng = np.random.default_rng(seed) if rng is None else rng
     machines = [
         Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)
     ]
@@ -44,4 +46,4 @@ def problem_for(n, m, seed):
         Task(f"t{j}", float(x), float(y), 10000.0, 100.0, 80.0)
         for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))
     ]
-    return Problem.build(machines, tasks, (0.0, 0.0))
+    return Problem.build(machines, tasks, (0.0, 0.0), min_tasks_per_machine=min_count)
