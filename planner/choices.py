@@ -8,9 +8,11 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-ALGORITHMS = ("ighoa", "ga")
+ALGORITHMS = ("ighoa", "ga", "hybrid")
+DEFAULT_ALGORITHM = "ighoa"
 """``ighoa``: the paper's hybrid (simulated annealing, then the genetic algorithm with its
-local search); ``ga``: the classic genetic algorithm it is compared with."""
+local search); ``ga``: the classic genetic algorithm it is compared with; ``hybrid``: IGHOA
+with Or-opt and an iterated local search on the elite (planner.hybrid)."""
 
 
 class Objective(IntEnum):

@@ -98,6 +98,32 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     Works in place on the chromosome and returns the number of moves applied. A pinned
     task (``pins``) is never moved, and nothing is put before it. Once ``deadline`` (a
     monotonic instant) has passed it stops, keeping the moves made, without the 2-opt."""
+    dont_look = np.zeros(perm.shape[0], dtype=np.bool_)
+    return allocation_search(
+        perm, counts, objective, tables, neighbours, min_count, max_passes, pins, deadline,
+        dont_look, False,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def allocation_search(  # type: ignore[no-untyped-def]
+    perm,
+    counts,
+    objective,
+    tables,
+    neighbours,
+    min_count,
+    max_passes,
+    pins,
+    deadline,
+    dont_look,
+    use_bits,
+):
+    """:func:`improve_allocation`, with don't-look bits when ``use_bits``: a task whose
+    bit is set is not looked at; a task in which no move pays gets its bit set, and a move
+    clears the bits of the tasks around it (and, for the min-max objectives, of every task
+    of the route that is then the longest). Starting with few bits clear (the tasks a
+    perturbation moved) keeps the search local: O(moves), not O(n) a pass."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
@@ -141,7 +167,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
             if t % CHECK_EVERY == 0 and past(deadline):
                 late = True
                 break
-            if pins[t] >= 0:
+            if pins[t] >= 0 or (use_bits and dont_look[t]):
                 continue
             a = route_of[t]
             pa = pos[t]
@@ -223,8 +249,14 @@ def improve_allocation(  # type: ignore[no-untyped-def]
                 trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
                 trial_values[a], trial_values[b] = values[a], values[b]
             if best_kind < 0:
+                if use_bits:
+                    dont_look[t] = True
                 continue
             b = best_b
+            if use_bits:
+                _wake(dont_look, routes, sizes, a, pa)
+                _wake(dont_look, routes, sizes, b, pos[best_w])
+                dont_look[best_w] = False
             if best_kind == 0:
                 # Remove t from a.
                 for k in range(pa, sizes[a] - 1):
@@ -277,6 +309,10 @@ def improve_allocation(  # type: ignore[no-untyped-def]
             trial_values[:] = values
             trial_lengths[:] = lengths
             current = _objective(objective, values, lengths)
+            if use_bits and (objective == 3 or objective == 4):
+                longest = np.argmax(values)
+                for k in range(sizes[longest]):
+                    dont_look[routes[longest, k]] = False
             moves += 1
             improved = True
         if late or not improved:
@@ -290,6 +326,13 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     if not late:
         improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves
+
+
+@njit(cache=True)
+def _wake(dont_look, routes, sizes, r, p):  # type: ignore[no-untyped-def]
+    """Clear the don't-look bits of route r's tasks at places p-1..p+1."""
+    for k in range(max(p - 1, 0), min(p + 2, sizes[r])):
+        dont_look[routes[r, k]] = False
 
 
 @njit(cache=True)

@@ -229,11 +229,35 @@ def run_fleet_cell(cell: FleetCell, runs: int, time_limit: float, generations: i
     )
 
 
-# Best-known min-sum solutions (benchmarks/mtsp-bks.md) for the cells that have one.
+BKS_FILE = Path(str(files("agrifleet_tsplib") / "mtsp-bks.toml"))
+
+
+@dataclass(frozen=True)
+class BestKnown:
+    """A best-known solution value of one mTSP cell and where it was published."""
+
+    value: float
+    sources: tuple[str, ...]  # full references (or "optimal": equal to a proven bound)
+
+
+def best_known(path: Path = BKS_FILE) -> dict[tuple[str, str, int], BestKnown]:
+    """The BKS table, keyed ``(instance, objective, m)`` with objective ``minsum`` or
+    ``minmax`` (benchmarks/tsplib/mtsp-bks.toml; benchmarks/mtsp-bks.md explains it)."""
+    raw = tomllib.loads(path.read_text())
+    refs: dict[str, str] = raw["sources"]
+    table: dict[tuple[str, str, int], BestKnown] = {}
+    for row in raw["bks"]:
+        for m, value in row["values"].items():
+            keys = row["sources"][m].split()
+            table[(row["instance"], row["objective"], int(m))] = BestKnown(
+                float(value), tuple(refs.get(k, k) for k in keys)
+            )
+    return table
+
+
+# Best-known min-sum solutions for the cells that have one.
 BKS_MINSUM: dict[tuple[str, int], float] = {
-    ("eil51", 3): 445.99,
-    ("eil51", 5): 471.69,
-    ("pcb3038", 3): 137916.26,
+    (inst, m): bks.value for (inst, obj, m), bks in best_known().items() if obj == "minsum"
 }
 
 

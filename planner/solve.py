@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from planner import ga, ighoa
-from planner.choices import ALGORITHMS
+from planner import ga, hybrid, ighoa
+from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
 from planner.cost import (
     CostTables,
     Figures,
@@ -264,10 +264,10 @@ GenerationCallback = Callable[[int, float, float], None]
 def solve(
     problem: Problem,
     objective: str | Objective = Objective.DISTANCE,
-    algorithm: str = "ighoa",
+    algorithm: str = DEFAULT_ALGORITHM,
     stop: AnyOf | Criterion | None = None,
     seed: int = 1,
-    params: ighoa.IGHOAParams | ga.GAParams | None = None,
+    params: ighoa.IGHOAParams | hybrid.HybridParams | ga.GAParams | None = None,
     annealing: AnnealingParams | None = None,
     on_generation: GenerationCallback | None = None,
     initial_routes: Sequence[Sequence[int]] | None = None,
@@ -288,7 +288,11 @@ def solve(
         stop = stop_after()
     elif not isinstance(stop, AnyOf):
         stop = AnyOf(stop)
-    if algorithm == "ighoa":
+    if algorithm == "hybrid":
+        params = params or hybrid.HybridParams()
+        if not isinstance(params, hybrid.HybridParams):
+            raise TypeError("hybrid takes HybridParams")
+    elif algorithm == "ighoa":
         params = params or ighoa.IGHOAParams()
         if not isinstance(params, ighoa.IGHOAParams):
             raise TypeError("ighoa takes IGHOAParams")
@@ -320,7 +324,7 @@ def solve(
             min_count,
             pins,
             tables,
-            algorithm == "ighoa" and not stop.interrupted(),
+            algorithm in ("ighoa", "hybrid") and not stop.interrupted(),
             annealing.t_start,
             annealing.t_end,
             annealing.alpha,
@@ -408,6 +412,32 @@ def solve(
         if costs[best] < elite_cost:
             elite_perm[:], elite_counts[:] = perms[best], counts[best]
             elite_route[:], elite_cost = route_costs[best], float(costs[best])
+        if (
+            isinstance(params, hybrid.HybridParams)
+            and (params.ils_on_sums or obj in (Objective.MINMAX, Objective.MAKESPAN))
+            and not stop.interrupted()
+        ):
+            improved = hybrid.ils_step(
+                state,
+                elite_perm,
+                elite_counts,
+                elite_route,
+                elite_cost,
+                int(obj),
+                tables,
+                neighbours,
+                min_count,
+                pins,
+                params.ils_steps,
+                params.perturb,
+                stop.deadline(),
+            )
+            if improved < elite_cost:
+                elite_cost = float(improved)
+                # The improved elite also enters the population, in place of its worst.
+                worst = int(np.argmax(costs))
+                perms[worst], counts[worst] = elite_perm, elite_counts
+                route_costs[worst], costs[worst] = elite_route, elite_cost
         history.append(elite_cost)
         if on_generation is not None:
             on_generation(gen, elite_cost, time.perf_counter() - started)
@@ -483,6 +513,8 @@ def _polish(  # type: ignore[no-untyped-def]
             improve_allocation(
                 perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline
             )
+            if isinstance(params, hybrid.HybridParams) and params.or_opt:
+                hybrid.or_opt_routes(perm, cnt, tables[0], tables[1], tables[2], neighbours, pins)
             cost = evaluate(perm, cnt, objective, tables, route)
         if cost < costs[idx] - 1e-12:
             stats["polish_gains"] += 1
@@ -558,6 +590,7 @@ def warm_up() -> None:
     _warmed = True
     for algorithm, params in (
         ("ighoa", ighoa.IGHOAParams(population=4)),
+        ("hybrid", hybrid.HybridParams(population=4, ils_steps=2, ils_on_sums=True)),
         ("ga", ga.GAParams(population=4)),
     ):
         solve(

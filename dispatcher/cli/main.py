@@ -454,6 +454,37 @@ def exit_codes_text() -> str:
 OBJECTIVES = ["makespan", "distance", "time", "fuel", "minmax"]
 
 
+def cmd_bench_peer(args: argparse.Namespace) -> int:
+    """`bench mtsp` and `bench farm`: ours and a peer side by side."""
+    from dispatcher.tools.bench import Runs, bench_farm, bench_mtsp, parse_cells, parse_farms
+
+    runs = Runs(args.time_limit, args.runs, args.seed, args.algorithm)
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    if args.suite == "mtsp":
+        report = bench_mtsp(parse_cells(args.cells), args.peer, args.objective, runs, progress)
+    else:
+        report = bench_farm(parse_farms(args.farms), args.peer, runs, progress)
+    print(report)
+    return EXIT_OK
+
+
+def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+
+    p.add_argument("--time-limit", type=float, default=time_limit, help="seconds per run")
+    p.add_argument("--runs", type=int, default=5, help="our seeds per cell")
+    p.add_argument("--seed", type=int, default=1, help="our first seed (and the peer's)")
+    p.add_argument(
+        "--algorithm",
+        choices=ALGORITHMS,
+        default=DEFAULT_ALGORITHM,
+        help=f"our solver (default {DEFAULT_ALGORITHM})",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     from agrifleet.version import __version__
 
@@ -623,6 +654,8 @@ def build_parser() -> argparse.ArgumentParser:
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
 
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+
     p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
     p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
     p.add_argument(
@@ -636,9 +669,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--algorithm",
-        choices=["ighoa", "ga"],
-        default="ighoa",
-        help="IGHOA (default) or the plain genetic algorithm",
+        choices=ALGORITHMS,
+        default=DEFAULT_ALGORITHM,
+        help=f"ighoa (the paper's), ga (plain genetic algorithm) or hybrid (ighoa with Or-opt "
+        f"and an iterated local search, docs/ighoa.md); default {DEFAULT_ALGORITHM}",
     )
     p.add_argument(
         "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
@@ -669,6 +703,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, default=None, metavar="FILE.md", help="also write it here")
     p.set_defaults(handler=cmd_bench_paper)
+    from dispatcher.tools.bench import DEFAULT_CELLS, DEFAULT_FARMS, PEERS
+
+    p = bench_sub.add_parser("mtsp", help="ours and OR-Tools or PyVRP on TSPLIB mTSP cells")
+    p.add_argument("--peer", choices=PEERS, default=None, help="the peer solver (default none)")
+    p.add_argument("--cells", default=DEFAULT_CELLS, help="INSTANCE:M,… (default %(default)s)")
+    p.add_argument(
+        "--objective",
+        choices=["minsum", "minmax"],
+        default="minsum",
+        help="total length, or the longest route (default minsum)",
+    )
+    add_bench_arguments(p, 10.0)
+    p.set_defaults(handler=cmd_bench_peer)
+    p = bench_sub.add_parser("farm", help="ours and OR-Tools on generated farms (makespan)")
+    p.add_argument("--peer", choices=["ortools"], default=None, help="the peer (default none)")
+    p.add_argument("--farms", default=DEFAULT_FARMS, help="FIELDSxMACHINES,… (default %(default)s)")
+    add_bench_arguments(p, 60.0)
+    p.set_defaults(handler=cmd_bench_peer)
 
     return parser
 

@@ -4,42 +4,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, problem_for
+from hypothesis import given
 from hypothesis import strategies as st
 
 from planner import operators as ops
 from planner.cost import CostTables, Objective, evaluate
 from planner.ighoa import polish
 from planner.local_search import improve_allocation, nearest_neighbours
-from planner.population import positional_similarity, random_counts
-from planner.problem import Machine, Problem, Task
-from planner.rng import make_state
-
-SETTINGS = settings(max_examples=80, deadline=None, derandomize=True)
-
-
-def NO_PINS(n):  # noqa: N802
-    return np.full(n, -1, dtype=np.int64)
-
-
-@st.composite
-def chromosomes(draw, min_count=1):
-    n = draw(st.integers(2, 30))
-    m = draw(st.integers(1, min(n, 6)))
-    seed = draw(st.integers(0, 2**31))
-    state = make_state(seed)
-    rng = np.random.default_rng(seed)
-    perm = rng.permutation(n).astype(np.int64)
-    counts = np.empty(m, dtype=np.int64)
-    random_counts(state, n, m, min_count, counts)
-    return state, perm, counts
-
-
-def assert_valid(perm, counts, n, m, min_count=1):
-    assert sorted(perm.tolist()) == list(range(n))
-    assert counts.shape == (m,)
-    assert counts.sum() == n
-    assert counts.min() >= min_count
+from planner.population import positional_similarity
 
 
 @SETTINGS
@@ -83,18 +56,6 @@ def test_random_two_opt_keeps_validity(case):
     state, perm, counts = case
     ops.random_two_opt(state, perm, counts)
     assert_valid(perm, counts, perm.size, counts.size)
-
-
-def problem_for(n, m, seed):
-    rng = np.random.default_rng(seed)
-    machines = [
-        Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)
-    ]
-    tasks = [
-        Task(f"t{j}", float(x), float(y), 10000.0, 100.0, 80.0)
-        for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))
-    ]
-    return Problem.build(machines, tasks, (0.0, 0.0))
 
 
 @SETTINGS

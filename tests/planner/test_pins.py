@@ -6,6 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
+from helpers.chromosomes import problem_for
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -17,7 +18,6 @@ from planner.ighoa import IGHOAParams, polish
 from planner.local_search import improve_allocation, nearest_neighbours, optimal_split
 from planner.pins import pins_hold, repair_pins
 from planner.population import random_counts
-from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
 from planner.solve import MaxGenerations, solve, stop_after
 
@@ -28,14 +28,7 @@ def pinned_problem(n, m, seed, min_count=1):
     """Random tasks; machines at random points now, busy for random hours; up to m tasks
     pinned, each to its own machine."""
     rng = np.random.default_rng(seed)
-    machines = [
-        Machine(f"m{i}", 3.0 + i, 5000.0 + 500 * i, 10.0 + i, 0.003, 2.5, 5.0) for i in range(m)
-    ]
-    tasks = [
-        Task(f"t{j}", float(x), float(y), 10000.0, 100.0, 80.0)
-        for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))
-    ]
-    problem = Problem.build(machines, tasks, (0.0, 0.0), min_tasks_per_machine=min_count)
+    problem = problem_for(n, m, seed, min_count, rng)
     starts = [(float(x), float(y)) for x, y in rng.uniform(0, 3000, size=(m, 2))]
     problem = problem.starting_at(starts, ready_h=rng.uniform(0, 2, size=m).tolist())
     k = int(rng.integers(1, min(n, m) + 1))

@@ -1,0 +1,233 @@
+"""`agrifleet bench mtsp` and `agrifleet bench farm`: ours and a peer solver side by side.
+
+For every cell our solver runs ``runs`` times (seeds ``seed``, ``seed + 1``, …), then the
+peer once (OR-Tools has no seed; PyVRP gets ``seed``), with the same time limit, one
+after the other in this process, so that both see the same machine. Our compile time is
+not charged (the kernels are compiled before the first clock starts); the peers' set-up
+is. Every answer, ours and the peer's, is scored by our cost model
+(:func:`planner.cost.figures`). The report is a Markdown table: ours (mean and best), the
+peer, the best known (benchmarks/tsplib/mtsp-bks.toml) or, for the farm, the makespan
+lower bound that ignores travel (agrifleet_bench.farm), the gaps, and ours / peer.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from dispatcher.config.errors import DispatcherError
+
+DEFAULT_CELLS = "eil51:3,eil76:3,kroA200:3,lin318:3"
+DEFAULT_FARMS = "100x10,500x30"
+PEERS = ("ortools", "pyvrp")
+Progress = Callable[[str], None]
+
+
+class BenchError(DispatcherError, ValueError):
+    """A bad benchmark argument (cell, farm size, peer); the message names it."""
+
+
+@dataclass(frozen=True)
+class Runs:
+    """How ours runs on every cell: ``runs`` seeds from ``seed``, ``time_limit`` seconds
+    each (the peer's limit too), with ``algorithm``."""
+
+    time_limit: float
+    runs: int
+    seed: int
+    algorithm: str
+
+    def __post_init__(self) -> None:
+        if self.runs < 1:
+            raise BenchError(f"--runs must be at least 1, not {self.runs}")
+        if not self.time_limit > 0:
+            raise BenchError(f"--time-limit must be positive, not {self.time_limit}")
+
+    @property
+    def seeds(self) -> range:
+        return range(self.seed, self.seed + self.runs)
+
+    def describe(self, peer: str | None) -> str:
+        return (
+            f"{self.time_limit:g} s per run, ours = {self.algorithm} seeds {self.seed}.."
+            f"{self.seed + self.runs - 1}, peer = {peer or 'none'} (one run)"
+        )
+
+
+@dataclass(frozen=True)
+class Cell:
+    instance: str
+    salesmen: int
+
+
+def parse_cells(text: str) -> list[Cell]:
+    """``eil51:3,kroA200:4`` as cells; an unknown instance or a bad m is an error."""
+    from planner.paper import TSPLIB_DIR
+
+    cells = []
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, _, m = item.partition(":")
+        if not (TSPLIB_DIR / f"{name}.tsp").is_file():
+            known = ", ".join(sorted(p.stem for p in TSPLIB_DIR.glob("*.tsp")))
+            raise BenchError(f"--cells {item!r}: no instance {name!r}; we ship {known}")
+        if not m.isdigit() or int(m) < 1:
+            raise BenchError(f"--cells {item!r}: give INSTANCE:M with M >= 1 salesmen")
+        cells.append(Cell(name, int(m)))
+    if not cells:
+        raise BenchError("--cells: no cell given")
+    return cells
+
+
+def parse_farms(text: str) -> list[tuple[int, int]]:
+    """``100x10,500x30`` as (fields, machines) pairs."""
+    sizes = []
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        fields, _, machines = item.partition("x")
+        if not (fields.isdigit() and machines.isdigit() and int(fields) >= int(machines) >= 1):
+            raise BenchError(f"--farms {item!r}: give FIELDSxMACHINES, fields >= machines >= 1")
+        sizes.append((int(fields), int(machines)))
+    if not sizes:
+        raise BenchError("--farms: no farm given")
+    return sizes
+
+
+def _gap(value: float | None, reference: float | None) -> str:
+    if value is None or not reference:
+        return "–"
+    return f"{100.0 * (value / reference - 1.0):+.2f} %"
+
+
+def _num(value: float | None) -> str:
+    return "–" if value is None else f"{value:.2f}"
+
+
+def _ratio(ours: float, peer: float | None) -> str:
+    return "–" if not peer else f"{ours / peer:.4f}"
+
+
+def _check_peer(peer: str | None) -> None:
+    if peer is None:
+        return
+    if peer not in PEERS:
+        raise BenchError(f"--peer {peer!r}: choose one of {', '.join(PEERS)}")
+    try:
+        __import__(peer)
+    except ImportError:
+        raise BenchError(
+            f"--peer {peer}: {peer} is not installed; pip install 'agrifleet[bench]'"
+        ) from None
+
+
+def bench_mtsp(
+    cells: list[Cell],
+    peer: str | None,
+    objective: str,
+    runs: Runs,
+    progress: Progress = lambda line: None,
+) -> str:
+    """Ours and ``peer`` on TSPLIB mTSP cells; returns the Markdown report."""
+    from agrifleet_bench import peers
+
+    from planner.choices import Objective
+    from planner.cost import figures
+    from planner.paper import TSPLIB_DIR, best_known
+    from planner.solve import solve, stop_after
+    from planner.tsplib import read_instance
+
+    if objective not in ("minsum", "minmax"):
+        raise BenchError(f"--objective {objective!r}: choose minsum or minmax")
+    _check_peer(peer)
+    minmax = objective == "minmax"
+    note = ""
+    if peer == "pyvrp" and minmax:
+        note = "PyVRP has no min-max objective: no peer figure on min-max."
+        peer = None
+    bks_table = best_known()
+    peer_label = peer or "peer"
+    lines = [
+        f"{objective}, {runs.describe(peer)}" + (f"; {note}" if note else ""),
+        "",
+        f"| instance | m | ours mean | ours best | {peer_label} | BKS | ours gap | "
+        f"{peer_label} gap | ours / {peer_label} |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for cell in cells:
+        problem = read_instance(TSPLIB_DIR / f"{cell.instance}.tsp").to_problem(cell.salesmen)
+        if cell.salesmen > problem.num_tasks:
+            raise BenchError(f"--cells {cell.instance}:{cell.salesmen}: more salesmen than cities")
+        ours = [
+            solve(problem, objective, runs.algorithm, stop_after(None, runs.time_limit), seed=s)
+            for s in runs.seeds
+        ]
+        peer_cost = None
+        if peer == "ortools":
+            routes = peers.ortools_mtsp(problem, minmax, runs.time_limit)
+        elif peer == "pyvrp":
+            routes = peers.pyvrp_mtsp(problem, runs.time_limit, runs.seed)
+        if peer is not None:
+            peer_cost = figures(problem, routes).value(Objective.parse(objective))
+        bks = bks_table.get((cell.instance, objective, cell.salesmen))
+        bks_value = bks.value if bks else None
+        mean = statistics.fmean(r.cost for r in ours)
+        row = (
+            f"| {cell.instance} | {cell.salesmen} | {mean:.2f} | {min(r.cost for r in ours):.2f} "
+            f"| {_num(peer_cost)} | {_num(bks_value)} | {_gap(mean, bks_value)} "
+            f"| {_gap(peer_cost, bks_value)} | {_ratio(mean, peer_cost)} |"
+        )
+        lines.append(row)
+        progress(row)
+    return "\n".join(lines) + "\n"
+
+
+def bench_farm(
+    sizes: list[tuple[int, int]],
+    peer: str | None,
+    runs: Runs,
+    progress: Progress = lambda line: None,
+) -> str:
+    """Ours and OR-Tools on generated farms (makespan); returns the Markdown report."""
+    from agrifleet_bench import peers
+    from agrifleet_bench.farm import generate_farm, makespan_lower_bound
+
+    from planner.cost import figures
+    from planner.solve import solve, stop_after
+
+    if peer not in (None, "ortools"):
+        raise BenchError(f"--peer {peer!r}: the farm's peer is ortools (PyVRP has no makespan)")
+    _check_peer(peer)
+    lines = [
+        f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}), "
+        f"{runs.describe(peer)}; road km = total road distance; LB ignores travel.",
+        "",
+        "| farm | ours mean | ours best | ours road km | OR-Tools | OR-Tools road km | LB "
+        "| ours gap to LB | OR-Tools gap to LB | ours / OR-Tools | machines used ours/OR-Tools |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for fields, machines in sizes:
+        problem = generate_farm(fields, machines, runs.seed)
+        bound = makespan_lower_bound(problem)
+        results = [
+            solve(problem, "makespan", runs.algorithm, stop_after(None, runs.time_limit), seed=s)
+            for s in runs.seeds
+        ]
+        spans = [r.cost for r in results]
+        best = min(results, key=lambda r: r.cost)
+        peer_span = peer_km = None
+        peer_used = "–"
+        if peer == "ortools":
+            routes = peers.ortools_farm(problem, runs.time_limit)
+            figs = figures(problem, routes)
+            peer_span, peer_km = figs.makespan_h, figs.distance_m / 1000.0
+            peer_used = str(sum(1 for r in routes if r))
+        mean = statistics.fmean(spans)
+        ours_km = statistics.fmean(r.figures.distance_m for r in results) / 1000.0
+        row = (
+            f"| {fields}x{machines} | {mean:.2f} | {best.cost:.2f} | {ours_km:.1f} "
+            f"| {_num(peer_span)} | {'–' if peer_km is None else f'{peer_km:.1f}'} "
+            f"| {bound:.2f} | {_gap(mean, bound)} | {_gap(peer_span, bound)} "
+            f"| {_ratio(mean, peer_span)} | {sum(1 for r in best.routes if r)}/{peer_used} |"
+        )
+        lines.append(row)
+        progress(row)
+    return "\n".join(lines) + "\n"

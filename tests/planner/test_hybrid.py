@@ -1,0 +1,110 @@
+"""planner.hybrid's operators: valid chromosomes, true deltas, same seed same answer."""
+
+import numpy as np
+import pytest
+from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, problem_for
+from hypothesis import given
+from hypothesis import strategies as st
+
+from planner.cost import CostTables, Objective, evaluate
+from planner.hybrid import HybridParams, ils_step, or_opt, or_opt_routes, perturb
+from planner.local_search import nearest_neighbours
+from planner.pins import pins_hold, repair_pins
+from planner.problem import Machine, Problem, Task
+from planner.rng import make_state
+from planner.solve import solve, stop_after
+
+
+def route_lengths(perm, counts, tables):
+    out = np.empty(counts.size)
+    evaluate(perm, counts, int(Objective.MINMAX), tables, out)
+    return out
+
+
+@SETTINGS
+@given(chromosomes(), st.integers(1, 8))
+def test_or_opt_keeps_validity_and_its_gain_is_the_true_shortening(case, k):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, int(perm[0]) + 3 * n)
+    tables = CostTables.of(problem).kernel_args()
+    nn = nearest_neighbours(problem.dist, k)
+    before = route_lengths(perm, counts, tables)
+    gain = or_opt_routes(perm, counts, *tables[:3], nn, NO_PINS(n))
+    assert_valid(perm, counts, n, m)
+    after = route_lengths(perm, counts, tables)
+    assert gain >= 0.0
+    assert before.sum() - after.sum() == pytest.approx(gain, rel=1e-9, abs=1e-6)
+    assert np.all(after <= before + 1e-6)  # each route on its own never lengthens
+
+
+def test_or_opt_moves_a_misplaced_task_home_and_keeps_a_pinned_first():
+    # Tasks on a line, one visited out of order; the depot at x = 0.
+    xs = [1.0, 2.0, 6.0, 3.0, 4.0, 5.0]
+    problem = Problem.build(
+        [Machine("m", 1.0, 1.0, 1.0, 0.0, 1.0, 1.0)],
+        [Task(f"t{j}", x, 0.0) for j, x in enumerate(xs)],
+        (0.0, 0.0),
+    )
+    tables = CostTables.of(problem).kernel_args()
+    perm = np.arange(6, dtype=np.int64)
+    gain = or_opt(perm, 0, 6, 0, *tables[:3], nearest_neighbours(problem.dist, 3), 0)
+    # 16 long before; out and back along the line (12) after: task 2 (x = 6) moved on.
+    assert gain == pytest.approx(4.0) and perm[:4].tolist() == [0, 1, 3, 4]
+    perm = np.array([2, 0, 1, 3, 4, 5], dtype=np.int64)  # task 2 pinned first
+    or_opt(perm, 0, 6, 0, *tables[:3], nearest_neighbours(problem.dist, 3), 1)
+    assert perm[0] == 2 and sorted(perm.tolist()) == list(range(6))
+
+
+@SETTINGS
+@given(chromosomes(min_count=0), st.integers(1, 6), st.booleans(), st.integers(0, 1))
+def test_perturb_keeps_validity_minimum_and_pins(case, strength, focus, min_count):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    if min_count and counts.min() < 1:
+        return
+    pins = NO_PINS(n)
+    pins[int(perm[0])] = 0  # the first task of route 0 (or of a later one) pinned there
+    repair_pins(perm, counts, pins, min_count)
+    nn = nearest_neighbours(problem_for(n, m, n).dist, 4)
+    moved = np.empty(strength, dtype=np.int64)
+    route_cost = np.arange(m, dtype=np.float64)
+    done = perturb(state, perm, counts, route_cost, strength, focus, min_count, pins, nn, moved)
+    assert_valid(perm, counts, n, m, min_count)
+    assert pins_hold(perm, counts, pins)
+    assert 0 <= done <= strength and set(moved[:done]) <= set(range(n))
+    assert pins[moved[:done]].max(initial=-1) < 0  # the pinned task never moves
+
+
+@pytest.mark.parametrize("objective", list(Objective))
+def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
+    problem = problem_for(25, 3, 5)
+    tables = CostTables.of(problem).kernel_args()
+    rng = np.random.default_rng(1)
+    perm = rng.permutation(25).astype(np.int64)
+    counts = np.array([8, 8, 9], dtype=np.int64)
+    route = np.empty(3)
+    cost = evaluate(perm, counts, int(objective), tables, route)
+    nn = nearest_neighbours(problem.dist, 6)
+    new = ils_step(
+        make_state(2), perm, counts, route, cost, int(objective), tables, nn, 1,
+        NO_PINS(25), 10, 3, np.inf,
+    )  # fmt: skip
+    assert_valid(perm, counts, 25, 3)
+    check = np.empty(3)
+    assert new == pytest.approx(evaluate(perm, counts, int(objective), tables, check), rel=1e-12)
+    assert new <= cost
+    np.testing.assert_allclose(route, check)
+
+
+@pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
+def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objective):
+    problem = problem_for(20, 3, 11)
+    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True)
+    a, b = (
+        solve(problem, objective, "hybrid", stop_after(15), seed=3, params=params) for _ in range(2)
+    )
+    assert sorted(j for r in a.routes for j in r) == list(range(20)) and all(a.routes)
+    assert a.routes == b.routes and a.history == b.history
+    assert all(x >= y for x, y in zip(a.history, a.history[1:], strict=False))
+    assert a.cost == pytest.approx(a.figures.value(a.objective))
