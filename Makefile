@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	  while kill -0 $$pid 2>/dev/null; do printf .; sleep 1; done; \
 	  wait $$pid && echo ' done'; }
 	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip
-	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev]'
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev,bench]'
 	@touch $(STAMP)
 	@echo "==> $(VENV) ready"
 
