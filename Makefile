@@ -6,6 +6,27 @@ STAMP := $(VENV)/.installed
 
 .PHONY: test demo bench lint clean
 
+# A pipeline fails when pip does, not only when its last command does.
+SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -c
+
+# Passes pip's output through as it comes and prints a dot after each second and a half of
+# silence (pip says nothing for seconds while it builds or resolves): never silent for long.
+define TICKER
+import os, select, sys
+fd, out = sys.stdin.fileno(), sys.stdout.buffer
+while True:
+    ready, _, _ = select.select([fd], [], [], 1.5)
+    if not ready:
+        out.write(b"."); out.flush(); continue
+    data = os.read(fd, 65536)
+    if not data:
+        break
+    out.write(data); out.flush()
+endef
+export TICKER
+TICK := $(PYTHON) -u -c "$$TICKER"
+
 # pip shows what it fetches and installs (a progress bar per download on a terminal).
 $(STAMP): pyproject.toml
 	@echo "==> setting up $(VENV): agrifleet and its dependencies (numpy, numba, shapely, zenoh, ...)"
@@ -16,8 +37,8 @@ $(STAMP): pyproject.toml
 	  $(PYTHON) -m venv $(VENV) & pid=$$!; \
 	  while kill -0 $$pid 2>/dev/null; do printf .; sleep 1; done; \
 	  wait $$pid && echo ' done'; }
-	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip
-	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev,bench]'
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip 2>&1 | $(TICK)
+	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev,bench]' 2>&1 | $(TICK)
 	@touch $(STAMP)
 	@echo "==> $(VENV) ready"
 
