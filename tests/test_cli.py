@@ -4,6 +4,8 @@ import importlib
 import json
 from pathlib import Path
 
+import pytest
+
 from dispatcher.cli.main import main
 
 DATA = Path(__file__).parent / "data"
@@ -245,3 +247,10 @@ def test_a_cold_numba_cache_is_told_apart(tmp_path):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     cold = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert cold.stdout.strip() == "False", cold.stderr
+
+
+def test_sim_help_is_the_simulators(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["sim", "--help"])
+    assert stop.value.code == 0
+    assert "usage: agrifleet sim" in capsys.readouterr().out

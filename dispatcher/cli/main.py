@@ -816,6 +816,11 @@ def add_log_dir_argument(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["sim"]:
+        # Straight to the simulator's own parser: argparse would take `sim --help` (any
+        # option right after `sim`) as agrifleet's.
+        return cmd_sim(argparse.Namespace(rest=argv[1:]))
     args = build_parser().parse_args(argv)
     # Daemons log what they do; interactive commands keep the terminal for their own output.
     quiet = args.command in ("demo", "plan", "mtsp", "bench", "review")
