@@ -209,6 +209,10 @@ ALARMS = (ProgressDoubted, ForeignCommand)
 FLEET = "*"
 """The ``vehicle`` of an event about the whole fleet."""
 
+STORED = "stored"
+"""Key of an event a resumed dispatcher copies from its store into its new log (the earlier
+log may lack the last of them): review takes these in place of the earlier log's."""
+
 
 @dataclass(frozen=True)
 class PlanReplaced(Event):

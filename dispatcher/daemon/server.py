@@ -739,6 +739,13 @@ class Dispatcher:
             f"resuming run {run.id} of plan {run.job.plan_id} from its {len(run.events)} "
             f"stored events: {done}/{len(self.state.fields)} fields done; not planning again",
         )
+        if self.recorder is not None:
+            # The events it resumes from, into the new log as well (marked "stored"): the
+            # old log may lack its last half second (kill -9), the store does not; review
+            # takes these in place of the old log's.
+            for wall, event in run.events:
+                stored = {**ev.to_dict(event), ev.STORED: True}
+                self.recorder.record_event(stored, int(wall * 1e9))
         now = time.monotonic()
         for vid in self.state.vehicles:
             self._apply(ev.Resumed(vid), now)  # one done is parked again (HOLD, disarm)
@@ -788,8 +795,15 @@ class Dispatcher:
         if replanner is None:
             return
         if self._replan is None and self._replan_reason:
-            if any(v.resuming and v.phase not in GONE for v in self.state.vehicles.values()):
-                return  # after a restart: not before every vehicle has said where it is
+            if any(
+                (v.resuming and v.phase not in GONE) or v.phase is Phase.STARTING
+                for v in self.state.vehicles.values()
+            ):
+                # Not before every vehicle has said where it is (after a restart), nor while
+                # one is being started: it is about to drive, and its kept part is cut from
+                # where it drives (found by the restart-then-kill test: a tractor started
+                # at item 21 during a re-plan was given its new route from item 2).
+                return
             reason, self._replan_reason = self._replan_reason, ""
             snapshot = copy.deepcopy(self.state)
             started = self._replan_wanted_at

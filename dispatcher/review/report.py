@@ -402,6 +402,7 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
                 doc is not None
                 and doc.get("kind") == ev.ItemReached.kind
                 and doc.get("caught_up")
+                and not doc.get(ev.STORED)  # a copy, after a restart, of one seen before
                 and isinstance(doc.get("vehicle"), str)
             ):
                 of(doc["vehicle"]).from_vehicle.append(
@@ -1353,11 +1354,44 @@ def review_contents(log: LogContents) -> Review:
     )
 
 
+def _event_records(log: LogContents) -> list[LogRecord]:
+    """The run's fleet events in time order. A dispatcher resumed on its stored run copies
+    the events it resumed from into its new log (marked ``events.STORED``, at their own
+    times); the earlier log may lack the last of them (a crash loses its last half
+    second): a copy counts where the earlier logs do not hold the same event within
+    :data:`SAME_EVENT_NS` of its time."""
+    originals: dict[str, list[int]] = {}
+    copies: list[tuple[LogRecord, str]] = []
+    out: list[LogRecord] = []
+    for rec in log.records:
+        if rec.topic != EVENTS_TOPIC:
+            continue
+        doc = _decode(rec.data)
+        if not isinstance(doc, dict):
+            continue
+        stored = doc.pop(ev.STORED, None) is True
+        key = json.dumps(doc, sort_keys=True)
+        if stored:
+            copies.append((rec, key))
+        else:
+            originals.setdefault(key, []).append(rec.log_time_ns)
+            out.append(rec)
+    for rec, key in copies:
+        if not any(abs(t - rec.log_time_ns) <= SAME_EVENT_NS for t in originals.get(key, ())):
+            out.append(rec)
+    return sorted(out, key=lambda r: r.log_time_ns)
+
+
+SAME_EVENT_NS = 10_000_000
+"""A stored copy's time (the store's float seconds) and its original's (the log's ns) differ
+by rounding only."""
+
+
 def _replans(log: LogContents) -> list[tuple[int, str, str, Any]]:
     """The run's re-plans: (log ns, new plan id, reason, plan document) of its
     plan_replaced events."""
     out = []
-    for rec in log.on(EVENTS_TOPIC):
+    for rec in _event_records(log):
         doc = rec.decode_json()
         if isinstance(doc, dict) and doc.get("kind") == ev.PlanReplaced.kind:
             out.append(
@@ -1402,7 +1436,7 @@ def _losses(
     """Vehicles the dispatcher gave up on (lost or stalled), each where it was last heard
     of before then."""
     out = []
-    for rec in log.on(EVENTS_TOPIC):
+    for rec in _event_records(log):
         if rec.log_time_ns < since_ns:
             continue
         doc = rec.decode_json()
@@ -1425,7 +1459,7 @@ def _alarms(log: LogContents, since_ns: int, start_ns: int | None) -> list[Alarm
     """The dispatcher's alarms, as its recorded events tell them."""
     kinds = {cls.kind for cls in ev.ALARMS}
     out = []
-    for rec in log.on(EVENTS_TOPIC):
+    for rec in _event_records(log):
         doc = rec.decode_json()
         if rec.log_time_ns < since_ns or not isinstance(doc, dict) or doc.get("kind") not in kinds:
             continue
@@ -1467,7 +1501,7 @@ def _replay_events(log: LogContents, plan: _Plan) -> FleetState | None:
         return None
     state = FleetState(plan.document)
     seen = False
-    for rec in log.on(EVENTS_TOPIC):
+    for rec in _event_records(log):
         if rec.log_time_ns < plan.log_ns:
             continue
         try:

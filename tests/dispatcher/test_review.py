@@ -534,3 +534,29 @@ def test_an_mcap_of_someone_else_is_refused() -> None:
     writer.finish()
     with pytest.raises(RecordingError, match="not an agrifleet log"):
         review_log(io.BytesIO(buf.getvalue()))
+
+
+def test_a_resumed_logs_stored_events_stand_in_for_what_the_crashed_log_lost() -> None:
+    """kill -9 loses a log's last half second; the store does not: the events a resumed
+    dispatcher copies from its store replace the earlier log's (found by the restart test:
+    two items reached just before the kill were in the store, not in the first log)."""
+    from dispatcher.daemon import events as ev
+    from dispatcher.recording.mcap_file import EVENTS_TOPIC, LogContents, LogRecord
+    from dispatcher.review.report import _event_records
+
+    def rec(event: ev.Event, ns: int, stored: bool = False) -> LogRecord:
+        doc = {**ev.to_dict(event), **({ev.STORED: True} if stored else {})}
+        return LogRecord(EVENTS_TOPIC, "agrifleet.Event", "json", ns, json.dumps(doc).encode())
+
+    reached = [ev.ItemReached("v2", seq, 10.0 * seq) for seq in (1, 2, 3)]
+    first_log = [rec(reached[0], 1), rec(reached[1], 2)]  # item 3's event was lost
+    second_log = [rec(e, k + 1, stored=True) for k, e in enumerate(reached)]
+    second_log.append(rec(ev.VehicleLost("v2", "liveliness token dropped"), 9))
+    log = LogContents("logs", "", "", {}, first_log + second_log, True, None)
+    kinds = [(r.decode_json()["kind"], r.decode_json().get("seq")) for r in _event_records(log)]
+    assert kinds == [
+        ("item_reached", 1),
+        ("item_reached", 2),
+        ("item_reached", 3),
+        ("vehicle_lost", None),
+    ]
