@@ -796,13 +796,19 @@ class Dispatcher:
             return
         if self._replan is None and self._replan_reason:
             if any(
-                (v.resuming and v.phase not in GONE) or v.phase is Phase.STARTING
+                (v.resuming and v.phase not in GONE)
+                or v.phase is Phase.STARTING
+                or (v.phase is Phase.RUNNING and not v.clock.rate_known)
                 for v in self.state.vehicles.values()
             ):
                 # Not before every vehicle has said where it is (after a restart), nor while
-                # one is being started: it is about to drive, and its kept part is cut from
-                # where it drives (found by the restart-then-kill test: a tractor started
-                # at item 21 during a re-plan was given its new route from item 2).
+                # one is being started (it is about to drive, and its kept part is cut from
+                # where it drives: one started at item 21 during a re-plan was given its new
+                # route from item 2), nor before it is known how fast a driving one's clock
+                # runs (the kept part is a lead of wall time at its pace: heard for less
+                # than a second after a restart, a 20x tractor was taken for 1x and drove
+                # past its kept part before the new mission was on board). Found by the
+                # restart-then-kill test.
                 return
             reason, self._replan_reason = self._replan_reason, ""
             snapshot = copy.deepcopy(self.state)

@@ -103,15 +103,21 @@ class RunClock:
         return t, rebooted
 
     @property
-    def rate(self) -> float:
-        """How fast the vehicle's clock runs against the receive clock (its speedup; 1 for
-        a real vehicle), since it was first heard; 1 until a second has passed."""
-        if (
+    def rate_known(self) -> bool:
+        """Heard for more than a second: :attr:`rate` is measured, not assumed."""
+        return (
             self._first is not None
             and self.now is not None
             and self._last_wall > self._first[1] + 1.0
             and self.now > self._first[0]
-        ):
+        )
+
+    @property
+    def rate(self) -> float:
+        """How fast the vehicle's clock runs against the receive clock (its speedup; 1 for
+        a real vehicle), since it was first heard; 1 until a second has passed."""
+        if self.rate_known:
+            assert self._first is not None and self.now is not None
             return (self.now - self._first[0]) / (self._last_wall - self._first[1])
         return 1.0
 
