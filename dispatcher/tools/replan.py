@@ -145,8 +145,11 @@ def _where(
     if cut is None:
         return (x0, y0), 0.0
     heading = _heading(v)
+    # The first item from there with a position: a speed change or an implement command has
+    # none (0, 0), which is no place on the farm (its local coordinates can be infinite).
+    towards = next((k for k in range(heading, cut + 1) if v.items[k].x or v.items[k].y), cut)
     end = v.items[cut]
-    hx, hy = (float(c) for c in farm.frame.to_local(v.items[heading].lon, v.items[heading].lat))
+    hx, hy = (float(c) for c in farm.frame.to_local(v.items[towards].lon, v.items[towards].lat))
     x, y = (float(c) for c in farm.frame.to_local(end.lon, end.lat))
     seconds = math.hypot(hx - x0, hy - y0) / (work_speed_kmh / 3.6)
     if v.planned_s and len(v.planned_s) == len(v.items):

@@ -1,6 +1,7 @@
 """Planning the rest of the day from the fleet state: a vehicle lost in the middle of a
 field, the others taking over from where they are (dispatcher/tools/replan.py)."""
 
+import math
 from pathlib import Path
 
 import pytest
@@ -111,3 +112,20 @@ def test_a_replan_without_the_planners_view_plans_the_rest_from_the_first_layout
     nxt = replan(scenario, None, state, stop=stop_after(30), base=base)
     total = len(visit_segments(visit_of(current, lost_field)))
     assert sorted(visit_of(nxt, lost_field).original_segments) == list(range(3, total))
+
+
+def test_a_vehicle_heading_for_an_item_without_a_position_starts_its_route_somewhere(current):
+    """A speed change or an implement command has no position (0, 0): where a driving
+    vehicle starts its new route is counted from the next item that has one (before, the
+    re-plan failed with "ready_h must be a finite number, not inf": found by the soak)."""
+    from dispatcher.tools.replan import _where
+
+    state = FleetState(current.document)
+    started(state, "v1")
+    v = state.vehicles["v1"]
+    blind = next(k for k, i in enumerate(v.items) if k > 1 and not (i.x or i.y))
+    v.reached = blind - 1  # heading for an item without a position
+    cut = next(k for k in range(blind, len(v.items)) if v.items[k].role == "swath_end")
+    farm = current.scenario.farm
+    (x, y), ready_h = _where(v, farm, 5.0, cut)
+    assert all(math.isfinite(c) for c in (x, y, ready_h)) and ready_h > 0.0
