@@ -27,7 +27,6 @@ import datetime
 import ipaddress
 import json
 import os
-import stat
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,6 +34,7 @@ from typing import Any
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.link import wire
+from dispatcher.link.keys import PRIVATE_MODE, refuse_if_open, write_file
 
 DISPATCHER = "dispatcher"
 ROUTER = "router"
@@ -46,6 +46,7 @@ CERT_SUFFIX = ".pem"
 KEY_SUFFIX = ".key"
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 CA_DAYS = 3650
+PUBLIC_MODE = 0o644  # certificates and the ACL: anyone may read them
 LEAF_DAYS = 825  # the longest a public CA may sign for; renew with `agrifleet certs --replace`
 
 ALL_MESSAGES = (
@@ -128,11 +129,7 @@ def check_private(path: Path, what: str, remedy: str) -> None:
         raise AccessError(
             f"{path}: no {what}; make it with `agrifleet certs SCENARIO {remedy}`"
         ) from None
-    if mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise AccessError(
-            f"{path}: {what} is open to group or others (mode {stat.S_IMODE(mode):03o}); "
-            f"make it the owner's only: chmod 600 {path}"
-        )
+    refuse_if_open(mode, path, what, AccessError)
 
 
 # --- the access-control list --------------------------------------------------------
@@ -250,12 +247,7 @@ def make_farm_pki(
     written: list[Path] = []
 
     def write(path: Path, data: bytes, private: bool) -> None:
-        tmp = path.with_name(path.name + ".tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o600 if private else 0o644)
-        os.replace(tmp, path)
+        write_file(path, data, PRIVATE_MODE if private else PUBLIC_MODE)
         written.append(path)
 
     def key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:

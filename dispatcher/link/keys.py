@@ -51,11 +51,7 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
         ) from None
     except OSError as exc:
         raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
-    if mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise SigningKeyError(
-            f"{path}: the signing key of {vehicle_id!r} is open to group or others "
-            f"(mode {stat.S_IMODE(mode):03o}); make it the owner's only: chmod 600 {path}"
-        )
+    refuse_if_open(mode, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
     try:
         text = path.read_text(encoding="ascii").strip()
         key = bytes.fromhex(text)
@@ -69,6 +65,30 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
             f"found {len(text)}"
         )
     return key
+
+
+PRIVATE_MODE = 0o600
+"""A private file's mode: its owner's only, as ssh wants of a private key."""
+
+
+def refuse_if_open(mode: int, path: Path, what: str, error: type[ConfigError]) -> None:
+    """``error`` naming the file and the fix when group or others may read ``what``."""
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise error(
+            f"{path}: {what} is open to group or others (mode {stat.S_IMODE(mode):03o}); "
+            f"make it the owner's only: chmod 600 {path}"
+        )
+
+
+def write_file(path: Path, data: bytes, mode: int) -> None:
+    """``data`` into ``path`` whole or not at all (a temporary file renamed), with ``mode``
+    whatever the umask."""
+    tmp = path.with_name(path.name + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.chmod(tmp, mode)
+    os.replace(tmp, path)
 
 
 def read_keys(keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str]) -> dict[str, bytes]:
@@ -87,12 +107,8 @@ def write_keys(
         path = key_path(folder, vid)
         if path.exists() and not replace:
             continue
-        tmp = path.with_suffix(".tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w", encoding="ascii") as f:
-            f.write(secrets.token_bytes(SIGNING_KEY_BYTES).hex() + "\n")
-        os.chmod(tmp, 0o600)  # whatever the umask
-        os.replace(tmp, path)
+        key = secrets.token_bytes(SIGNING_KEY_BYTES).hex() + "\n"
+        write_file(path, key.encode("ascii"), PRIVATE_MODE)
         written.append(path)
     return written
 
