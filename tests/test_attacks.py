@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import secrets
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -27,6 +27,7 @@ from helpers.processes import (
     Processes,
     free_port,
     log_of,
+    status_asker,
     wait_for,
     wait_for_share,
 )
@@ -56,18 +57,6 @@ def outside(endpoint: str, tls: TlsIdentity | None = None) -> zenoh.Session:
     """A Zenoh session of someone else's on the dispatcher's endpoint (a peer: it connects
     once the dispatcher listens)."""
     return zenoh.open(wire.ZenohOptions(connect=(endpoint,), tls=tls).config())
-
-
-def asker(session: zenoh.Session) -> Callable[[], dict]:
-    """The dispatcher's status through ``session`` (``{}`` until it answers)."""
-
-    def ask() -> dict:
-        for reply in session.get(wire.dispatcher_status(FARM), timeout=2.0):
-            if reply.ok is not None:
-                return dict(json.loads(reply.ok.payload.to_string()))
-        return {}
-
-    return ask
 
 
 def frames(codec: mc.Codec, *messages: mc.MAVLinkMessage) -> list[bytes]:
@@ -145,7 +134,7 @@ def test_foreign_commands_and_forged_progress_fail_raise_alarms_and_the_run_fini
     wrong_key = mc.Codec(ATTACKER, 190, key=secrets.token_bytes(32))
     v1 = mc.Codec(11, 1, key=read_key(keys, "v1"), link_id=7)  # v1's leaked key
     with outside(endpoint) as session:
-        status = asker(session)
+        status = status_asker(session, FARM)
         wait_for("the dispatcher", lambda: bool(status()), 60.0, procs.report)
         # ~1,400 spoofed protocol frames on v1's key, before and during its upload.
         spoof = [
@@ -227,7 +216,7 @@ def test_without_the_farms_certificate_or_on_anothers_keys_nothing_gets_through(
     for vid in ("v1", "v2"):
         procs.sim(SCENARIO, port, SPEEDUP, vid, extra=("--tls", str(tls)), scheme="tls")
     with outside(endpoint, TlsIdentity(tls, OPERATOR)) as watcher:
-        wait_for_share(asker(watcher), ("v1",), 0.1, 120.0, procs.report)
+        wait_for_share(status_asker(watcher, FARM), ("v1",), 0.1, 120.0, procs.report)
     # No certificate: the TLS handshake fails, no session.
     plain = wire.ZenohOptions(mode="client", connect=(endpoint,)).config()
     plain.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(str(tls / "ca.pem")))

@@ -178,16 +178,22 @@ def status_reader(port: int, farm: str) -> Iterator[Callable[[], dict]]:
     """A function that asks the dispatcher's status queryable (``{}`` until it answers)."""
     conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
     with zenoh.open(conf) as session:
+        yield status_asker(session, farm)
 
-        def ask() -> dict:
-            for reply in session.get(wire.dispatcher_status(farm), timeout=2.0):
-                if reply.ok is not None:
-                    doc = json.loads(reply.ok.payload.to_string())
-                    if doc:
-                        return doc
-            return {}
 
-        yield ask
+def status_asker(session: zenoh.Session, farm: str) -> Callable[[], dict]:
+    """A function that asks the dispatcher's status queryable through ``session`` (``{}``
+    until it answers)."""
+
+    def ask() -> dict:
+        for reply in session.get(wire.dispatcher_status(farm), timeout=2.0):
+            if reply.ok is not None:
+                doc = json.loads(reply.ok.payload.to_string())
+                if doc:
+                    return dict(doc)
+        return {}
+
+    return ask
 
 
 def wait_for_share(
