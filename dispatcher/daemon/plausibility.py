@@ -5,16 +5,27 @@ on the link, with a MISSION_CURRENT past it). Signing proves who sent the frame,
 it is true: a faulty or compromised autopilot, or a replayed or forged frame on a vehicle
 whose key leaked, could claim a whole field. So a claim counts only once the positions the
 vehicle reported (GLOBAL_POSITION_INT) have passed, in mission order, every item up to the
-one claimed, each within :data:`REACH_M` of the track between two fixes: the item lies in
-the ellipse about the two fixes a and b that a path of 1.2 |ab| + 2 REACH_M can visit, so a
-corner cut between two fixes still passes while a point well beyond them does not. A claim
-not borne out within :data:`WAIT_REPORTS` further reports (and :data:`WAIT_S`) is an alarm
-(:class:`~dispatcher.daemon.events.ProgressDoubted`), and none of it counts as done: the
-field stays to be worked.
+one claimed.
 
-Items without a position (DO_CHANGE_SPEED, DO_SET_SERVO ...) pass with the item before
-them. One positioned item in a row may go unseen (two fixes far apart around a sharp
-corner); two may not: a jump over unfinished swaths is never taken as work.
+Between two fixes a and b the track passes the items p+1 … k (in mission order, from the
+last one passed) when the path a → p+1 → … → k → b is no longer than what the vehicle can
+have driven between them: the larger of :data:`PATH_SLACK` · |ab| (a curve between two
+fixes close in time) and :data:`SPEED_SLACK` × its top speed × the time between the fixes
+on its own clock (a gap in the reports: a radio that went quiet, a process descheduled, a
+simulator that moved on in one step), plus 2 · :data:`REACH_M` for the corners it may cut;
+and as far as the last such item k after which b lies on the route (within :data:`REACH_M`
+of the line from k to the next item).
+The top speed is the fastest DO_CHANGE_SPEED of the mission on board, else
+:data:`FALLBACK_SPEED_MS`. So a vehicle that was out of hearing and comes back further on
+its route is believed as far as it could have driven meanwhile and to where it is now, while
+a claim that jumps over swaths its track never went near is not. (Swaths closer together
+than :data:`REACH_M` cannot be told apart by position: after a long gap, a vehicle that lies
+about its progress could have a few of them counted that it will drive next.)
+
+A claim not borne out within :data:`WAIT_REPORTS` further reports (and :data:`WAIT_S`) is
+an alarm (:class:`~dispatcher.daemon.events.ProgressDoubted`), and none of it counts as
+done: the field stays to be worked. Items without a position (DO_CHANGE_SPEED,
+DO_SET_SERVO ...) pass with the item before them.
 """
 
 from __future__ import annotations
@@ -24,6 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from dispatcher.daemon import events as ev
+from dispatcher.link import mavlink as mc
 from dispatcher.mission.document import PlannedItem
 
 REACH_M = 25.0
@@ -31,6 +43,12 @@ REACH_M = 25.0
 default), GPS error and the overshoot of a turn, with a wide margin."""
 PATH_SLACK = 1.2
 """How much longer than the straight line between two fixes the path between them may be."""
+SPEED_SLACK = 1.5
+"""How much faster than its mission's top speed a vehicle may seem to go between two fixes
+(the autopilot's speed overshoot, and clocks read at slightly different moments)."""
+FALLBACK_SPEED_MS = 70.0 / 3.6
+"""Top speed of a mission that sets none: the upper bound of a road speed
+(dispatcher.config.scenario, ``road_speed_kmh``)."""
 WAIT_REPORTS = 10
 """Position reports a claim may wait for the track to get there (the claim can arrive
 before the fix that shows the vehicle at the item)."""
@@ -57,6 +75,8 @@ class ProgressWitness:
         self.passed = 0  # the last item the track passed (all before it too)
         self.closest: dict[int, float] = {}  # item -> closest approach so far, metres
         self.prev: tuple[float, float] | None = None
+        self.prev_clock_s: float | None = None  # the vehicle's own time at ``prev``
+        self.top_speed_ms = FALLBACK_SPEED_MS
         self.claims: list[Claim] = []
 
     def follow(self, mission: Sequence[PlannedItem], reached: int) -> None:
@@ -67,6 +87,7 @@ class ProgressWitness:
             self.passed = reached
             self.closest.clear()
             self.claims.clear()
+            self.top_speed_ms = top_speed_ms(mission)
         self.passed = max(self.passed, reached)
 
     def claim(
@@ -80,13 +101,21 @@ class ProgressWitness:
             self.claims.append(Claim(seq, clock_s, caught_up, source, now))
         return []
 
-    def observe(self, vid: str, lat: float, lon: float, now: float) -> list[ev.Event]:
-        """A position report: advance along the mission as far as the track has passed;
-        the claims it bears out, and alarms for those that waited too long."""
+    def observe(
+        self, vid: str, lat: float, lon: float, now: float, clock_s: float | None = None
+    ) -> list[ev.Event]:
+        """A position report (``clock_s``: the vehicle's own time of it, when known):
+        advance along the mission as far as the track has passed; the claims it bears
+        out, and alarms for those that waited too long."""
         here = (lat, lon)
         prev, self.prev = self.prev or here, here
+        dt = 0.0
+        if clock_s is not None:
+            if self.prev_clock_s is not None:
+                dt = max(clock_s - self.prev_clock_s, 0.0)
+            self.prev_clock_s = clock_s
         if self.mission is not None:
-            self._advance(prev, here)
+            self._advance(prev, here, dt)
         out: list[ev.Event] = []
         waiting = []
         for c in self.claims:
@@ -121,36 +150,58 @@ class ProgressWitness:
             k += 1
         return min(k, len(self.mission) - 1)
 
-    def _advance(self, a: tuple[float, float], b: tuple[float, float]) -> None:
-        """Pass the items the track from fix ``a`` to fix ``b`` came within reach of, in
-        order; one positioned item in a row may be passed unseen if the next is seen."""
+    def _advance(self, a: tuple[float, float], b: tuple[float, float], dt: float) -> None:
+        """Pass the items the track from fix ``a`` to fix ``b``, ``dt`` of the vehicle's
+        seconds later, can have visited in mission order, as far as the last one after
+        which ``b`` lies on the route (the module's rule)."""
         assert self.mission is not None
         mission = self.mission
-        ab = metres(a, b)
+        budget = max(PATH_SLACK * metres(a, b), SPEED_SLACK * self.top_speed_ms * dt) + 2 * REACH_M
+        path = 0.0  # a -> the items so far
+        at = a
         k = self.passed + 1
-        unseen: int | None = None
         while k < len(mission):
             item = mission[k]
             if not _positioned(item):
                 k += 1
                 continue
             here = (item.lat, item.lon)
-            self.closest[k] = min(self.closest.get(k, math.inf), _to_segment(item, a, b))
-            if metres(here, a) + metres(here, b) <= PATH_SLACK * ab + 2 * REACH_M:
-                self.passed = k
-                unseen = None
-            elif unseen is None:
-                unseen = k  # perhaps cut between fixes: seen if the next one is
-            else:
+            self.closest[k] = min(self.closest.get(k, math.inf), _to_segment(here, a, b))
+            path += metres(at, here)
+            # Never shorter for a later item (triangle inequality): the first that does
+            # not fit ends the walk.
+            if path + metres(here, b) > budget:
                 break
+            if _to_segment(b, here, self._next_position(k)) <= REACH_M:
+                self.passed = k  # b lies on the route after k
+            at = here
             k += 1
         # Items without a position right after the last passed one pass with it.
         while self.passed + 1 < len(mission) and not _positioned(mission[self.passed + 1]):
             self.passed += 1
 
+    def _next_position(self, k: int) -> tuple[float, float]:
+        """Where the route goes after item ``k``: the next item with a position (``k``'s
+        own at the end)."""
+        assert self.mission is not None
+        for item in self.mission[k + 1 :]:
+            if _positioned(item):
+                return item.lat, item.lon
+        return self.mission[k].lat, self.mission[k].lon
+
 
 def _positioned(item: PlannedItem) -> bool:
     return item.x != 0 or item.y != 0
+
+
+def top_speed_ms(mission: Sequence[PlannedItem]) -> float:
+    """The fastest ground speed the mission sets (DO_CHANGE_SPEED), else the fallback."""
+    speeds = [
+        item.param2
+        for item in mission
+        if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0
+    ]
+    return max(speeds, default=FALLBACK_SPEED_MS)
 
 
 def metres(a: tuple[float, float], b: tuple[float, float]) -> float:
@@ -159,11 +210,11 @@ def metres(a: tuple[float, float], b: tuple[float, float]) -> float:
     return 111_195.0 * math.hypot(b[0] - a[0], (b[1] - a[1]) * k)
 
 
-def _to_segment(item: PlannedItem, a: tuple[float, float], b: tuple[float, float]) -> float:
-    """Metres from the item to the segment a-b (equirectangular about the item)."""
-    k = math.cos(math.radians(item.lat))
-    ax, ay = (a[1] - item.lon) * k * 111_195.0, (a[0] - item.lat) * 111_195.0
-    bx, by = (b[1] - item.lon) * k * 111_195.0, (b[0] - item.lat) * 111_195.0
+def _to_segment(p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Metres from the point p to the segment a-b, all (lat, lon) (equirectangular about p)."""
+    k = math.cos(math.radians(p[0]))
+    ax, ay = (a[1] - p[1]) * k * 111_195.0, (a[0] - p[0]) * 111_195.0
+    bx, by = (b[1] - p[1]) * k * 111_195.0, (b[0] - p[0]) * 111_195.0
     dx, dy = bx - ax, by - ay
     length2 = dx * dx + dy * dy
     t = 0.0 if length2 == 0 else max(0.0, min(1.0, -(ax * dx + ay * dy) / length2))

@@ -556,7 +556,7 @@ class FleetState:
                 v.finished_s = v.sim_time_s
                 v.finished_at_next_fix = False
             self._follow(v)
-            out += v.witness.observe(vid, msg.lat / 1e7, msg.lon / 1e7, now)
+            out += v.witness.observe(vid, v.lat, v.lon, now, v.sim_time_s)
         elif kind == "SYSTEM_TIME":
             if msg.time_boot_ms > 0:
                 out += self._clock(v, msg.time_boot_ms / 1000.0, now)

@@ -5,7 +5,14 @@ from __future__ import annotations
 from helpers.messages import position
 
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.plausibility import REACH_M, WAIT_REPORTS, WAIT_S, ProgressWitness
+from dispatcher.daemon.plausibility import (
+    FALLBACK_SPEED_MS,
+    REACH_M,
+    WAIT_REPORTS,
+    WAIT_S,
+    ProgressWitness,
+    top_speed_ms,
+)
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.document import PlannedItem
@@ -115,3 +122,32 @@ def test_fleet_state_keeps_the_alarm_and_counts_no_field(dispatch):
     assert v.reached == 0 and v.alarms == 1 and v.phase is Phase.RUNNING
     assert all(f.status == "pending" for f in state.fields.values())
     assert "not counted" in state.status_doc()["alarms"][0]
+
+
+def test_after_a_gap_in_its_reports_a_vehicle_is_believed_as_far_as_it_could_drive():
+    # A zigzag of swaths 100 m long east-west, 60 m apart.
+    east = 1.0 / (M_PER_DEG_LAT * 0.719)
+    zigzag = [item(0, 0.0, "home")]
+    for k in range(1, 21):
+        lat, lon = at(60.0 * ((k + 1) // 2))
+        x = round(lat * 1e7)
+        y = round((lon + (100.0 * east if k % 4 in (2, 3) else 0.0)) * 1e7)
+        zigzag.append(PlannedItem(k, "F1", k, "swath_end", x, y, 16))
+    w = ProgressWitness()
+    w.follow(tuple(zigzag), 0)
+    assert w.top_speed_ms == FALLBACK_SPEED_MS  # the mission sets no speed
+    w.observe("v", *at(0.0), 0.0, clock_s=0.0)
+    far = zigzag[15]
+    # A second of its clock later it cannot have driven 1.9 km of swaths: nothing passes.
+    w.observe("v", far.lat, far.lon, 1.0, clock_s=1.0)
+    assert w.passed == 0
+    assert w.claim("v", 15, 1.0, True, "MISSION_CURRENT", 1.0) == []
+    # Five minutes of its clock later it can: everything up to where it is now passes.
+    assert reached(w.observe("v", far.lat, far.lon, 2.0, clock_s=300.0)) == [15]
+    assert w.passed == 15  # not beyond where it is, though it had the time
+
+
+def test_the_top_speed_is_the_fastest_speed_change_of_the_mission():
+    fast = PlannedItem(3, None, None, "speed", 0, 0, mc.MAV_CMD_DO_CHANGE_SPEED, 1.0, 8.0)
+    slow = PlannedItem(4, None, None, "speed", 0, 0, mc.MAV_CMD_DO_CHANGE_SPEED, 1.0, 2.0)
+    assert top_speed_ms((*MISSION, fast, slow)) == 8.0
