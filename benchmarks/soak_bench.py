@@ -15,8 +15,10 @@ by default: the first uploads through lossy radios take minutes).
 
 from __future__ import annotations
 
+import os
 import random
 import resource
+import shutil
 import signal
 import statistics
 import subprocess
@@ -56,7 +58,7 @@ def bench_soak(
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         farm = _grid_farm(folder, fields)
-        scenario_path = _scenario(folder, farm, vehicles, 6.0, 5.0)
+        scenario_path = _scenario(folder, farm, vehicles, 6.0, 20.0)  # not measured: room on a loaded machine
         scenario_path.write_text(scenario_path.read_text() + SOAK_DISPATCHER)
         dispatch = _plan(scenario_path)
         wall_s = minutes * 60.0
@@ -131,6 +133,9 @@ def bench_soak(
         twice = sum(len(f.worked_twice) for f in daemon.state.fields.values())
         never = sum(len(f.never_worked) for f in daemon.state.fields.values())
         segments = sum(f.segments for f in daemon.state.fields.values())
+        keep = os.environ.get("AGRIFLEET_SOAK_LOGS")
+        if keep:  # for a look afterwards: agrifleet review DIR/logs/...
+            shutil.copytree(folder, keep, dirs_exist_ok=True)
     faults = figures["faults"]
     plan_s = [r[1] for r in daemon.replans]
     acked_s = [r[2] for r in daemon.replans if r[2] is not None]

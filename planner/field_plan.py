@@ -30,7 +30,7 @@ by then (:class:`planner.solve.UntilDeadline`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -328,9 +328,6 @@ def lay_out(
     return tuple(visits), back
 
 
-TransitLength = Callable[[XY, XY, str | None, str | None], float]
-
-
 def best_corners(
     garage: XY,
     covs: Sequence[FieldCoverage],
@@ -344,27 +341,30 @@ def best_corners(
     The route starts at ``start`` (default: the garage), inside ``start_field`` if any."""
     if not covs:
         return [], 0.0
-    leg: TransitLength = network.length if network is not None else _straight
     ids = [cov.field_id for cov in covs]
+
+    def legs(
+        a: Sequence[XY], a_field: str | None, b: Sequence[XY], b_field: str | None
+    ) -> FloatArray:
+        """Transit lengths from each of ``a`` to each of ``b`` (rows: ``a``)."""
+        if network is not None:
+            return network.lengths(a, [a_field] * len(a), b, [b_field] * len(b))
+        return np.array([[_straight(p, q, a_field, b_field) for q in b] for p in a])
+
     n = len(covs)
     cost = np.full((n, CORNERS), np.inf)
     back = np.zeros((n, CORNERS), dtype=np.int64)
     origin, origin_field = (garage, None) if start is None else (start, start_field)
-    for c in range(CORNERS):
-        approach = leg(origin, covs[0].entry(c), origin_field, ids[0])
-        cost[0, c] = approach + covs[0].transit_inside_m(c)
+    entries = [[cov.entry(c) for c in range(CORNERS)] for cov in covs]
+    exits = [[cov.exit(c) for c in range(CORNERS)] for cov in covs]
+    inside = np.array([[cov.transit_inside_m(c) for c in range(CORNERS)] for cov in covs])
+    cost[0] = legs([origin], origin_field, entries[0], ids[0])[0] + inside[0]
     for k in range(1, n):
-        for c in range(CORNERS):
-            here = covs[k].entry(c)
-            legs = [
-                cost[k - 1, p] + leg(covs[k - 1].exit(p), here, ids[k - 1], ids[k])
-                for p in range(CORNERS)
-            ]
-            back[k, c] = int(np.argmin(legs))
-            cost[k, c] = legs[back[k, c]] + covs[k].transit_inside_m(c)
-    final = [
-        cost[n - 1, c] + leg(covs[n - 1].exit(c), garage, ids[n - 1], None) for c in range(CORNERS)
-    ]
+        # total[p, c]: to corner c of field k from corner p of field k - 1
+        total = cost[k - 1][:, None] + legs(exits[k - 1], ids[k - 1], entries[k], ids[k])
+        back[k] = np.argmin(total, axis=0)
+        cost[k] = total[back[k], np.arange(CORNERS)] + inside[k]
+    final = cost[n - 1] + legs(exits[n - 1], ids[n - 1], [garage], None)[:, 0]
     corner = int(np.argmin(final))
     corners = [corner]
     for k in range(n - 1, 0, -1):

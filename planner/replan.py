@@ -277,12 +277,7 @@ def replan_farm(
     ids: list[str | None] = [None, *(f.id for f in todo)]
     lengths = network.length_matrix([farm.garage, *anchors], ids)
     inside = [_field_at(farm, s.position) for s in machines]
-    start = np.array(
-        [
-            [network.length(s.position, anchors[j], inside[i], todo[j].id) for j in range(n)]
-            for i, s in enumerate(machines)
-        ]
-    )
+    start = network.lengths([s.position for s in machines], inside, anchors, ids[1:])
     turns, work_hours = np.zeros((m, n)), np.zeros((m, n))
     for i, mc in enumerate(fleet):
         for j, f in enumerate(todo):

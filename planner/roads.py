@@ -295,26 +295,64 @@ class _FreeSpace:
         ``owners[k]``), vectorised for the solver's matrix."""
         m = len(points)
         out = np.zeros((m, m))
-        reach = [self.reach(p, o) for p, o in zip(points, owners, strict=True)]
         i, j = np.triu_indices(m, k=1)
+        d = self._pair_lengths(points, owners, points, owners, i, j)
+        out[i, j] = out[j, i] = d
+        return out
+
+    def lengths(
+        self,
+        sources: Sequence[XY],
+        source_owners: Sequence[int | None],
+        targets: Sequence[XY],
+        target_owners: Sequence[int | None],
+    ) -> FloatArray:
+        """Route lengths from each source to each target (rows: sources), vectorised."""
+        i, j = np.indices((len(sources), len(targets))).reshape(2, -1)
+        d = self._pair_lengths(sources, source_owners, targets, target_owners, i, j)
+        return d.reshape(len(sources), len(targets))
+
+    def _pair_lengths(
+        self,
+        a: Sequence[XY],
+        own_a: Sequence[int | None],
+        b: Sequence[XY],
+        own_b: Sequence[int | None],
+        i: NDArray[np.int64],
+        j: NDArray[np.int64],
+    ) -> FloatArray:
+        """The route length from ``a[i[k]]`` to ``b[j[k]]`` for each k, as :meth:`route`
+        finds it: straight when no obstacle but their own is in the way, else around the
+        obstacles' corners."""
+        out = np.zeros(len(i))
         if not len(i):
             return out
-        pts = np.asarray(points, dtype=float)
-        lines = shapely.linestrings(np.stack([pts[i], pts[j]], axis=-2))
+        pa, pb = (
+            np.asarray(a, dtype=float).reshape(-1, 2),
+            np.asarray(b, dtype=float).reshape(-1, 2),
+        )
+        out[:] = np.hypot(*(pa[i] - pb[j]).T)
+        lines = shapely.linestrings(np.stack([pa[i], pb[j]], axis=-2))
         hit_line, hit_block = self._tree.query(lines, predicate="intersects")
-        inside = [self._ignored(p, o) for p, o in zip(points, owners, strict=True)]
+        inside_a = [self._ignored(p, o) for p, o in zip(a, own_a, strict=True)]
+        inside_b = [self._ignored(p, o) for p, o in zip(b, own_b, strict=True)]
         blocked = np.zeros(len(i), dtype=bool)
         for line, block in zip(hit_line.tolist(), hit_block.tolist(), strict=True):
-            if block not in inside[i[line]] and block not in inside[j[line]]:
+            if block not in inside_a[i[line]] and block not in inside_b[j[line]]:
                 blocked[line] = True
-        for k, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True)):
-            if blocked[k]:
-                d = float(np.min(reach[a][1] + reach[b][0])) if len(self.nodes) else math.inf
-                if not math.isfinite(d):
-                    d = math.dist(points[a], points[b])
-            else:
-                d = math.dist(points[a], points[b])
-            out[a, b] = out[b, a] = d
+        blocked &= out >= _SAME_M
+        k = np.flatnonzero(blocked)
+        if len(self.nodes) and len(k):
+            reach_a = {r: self.reach(a[r], own_a[r])[1] for r in set(i[k].tolist())}
+            seen_b = {c: self.reach(b[c], own_b[c])[0] for c in set(j[k].tolist())}
+            around = np.array(
+                [
+                    np.min(reach_a[r] + seen_b[c])
+                    for r, c in zip(i[k].tolist(), j[k].tolist(), strict=True)
+                ]
+            )
+            found = np.isfinite(around)
+            out[k[found]] = around[found]
         return out
 
 
@@ -457,6 +495,34 @@ class TransitNetwork:
             if not leaving:
                 pts = pts[::-1]
             out.append(_Option(node, access + float(part.length), pts))
+        return out
+
+    def lengths(
+        self,
+        sources: Sequence[XY],
+        source_fields: Sequence[str | None],
+        targets: Sequence[XY],
+        target_fields: Sequence[str | None],
+    ) -> FloatArray:
+        """Transit lengths from each source (in ``source_fields[k]``) to each target, rows
+        the sources; vectorised when there are no roads."""
+        if self._roads is not None:
+            return np.array(
+                [
+                    [self.length(a, b, f, g) for b, g in zip(targets, target_fields, strict=True)]
+                    for a, f in zip(sources, source_fields, strict=True)
+                ]
+            ).reshape(len(sources), len(targets))
+        out = self._free.lengths(
+            sources,
+            [None if f is None else self._index[f] for f in source_fields],
+            targets,
+            [None if f is None else self._index[f] for f in target_fields],
+        )
+        for r, (a, f) in enumerate(zip(sources, source_fields, strict=True)):
+            for c, (b, g) in enumerate(zip(targets, target_fields, strict=True)):
+                if f is not None and f == g:  # within one field: its own router
+                    out[r, c] = self.length(a, b, f, g)
         return out
 
     def length_matrix(self, points: Sequence[XY], field_ids: Sequence[str | None]) -> FloatArray:

@@ -542,6 +542,10 @@ class FleetState:
             else:
                 v.off_auto_since = None
         elif kind == "GLOBAL_POSITION_INT":
+            if msg.lat == 0 and msg.lon == 0:
+                # No position yet (an autopilot without a GPS fix reports 0, 0): its clock
+                # still counts, nothing else.
+                return out + self._clock(v, msg.time_boot_ms / 1000.0, now)
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0

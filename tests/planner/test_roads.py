@@ -7,6 +7,7 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import shapely
 from shapely.geometry import LineString, Polygon, box
@@ -339,3 +340,27 @@ def test_demo_road_metres_are_the_transit_lengths(demo_plan):
             where = visit.exit
         driven += LineString([where, *route.return_path, farm.garage]).length
         assert route.road_m == pytest.approx(driven, rel=1e-9)
+
+
+@pytest.mark.parametrize("with_roads", [True, False])
+def test_lengths_from_many_points_equal_the_routes_one_by_one(with_roads):
+    # 4 x 4 fields of 80 m; sources in fields, on the roads and at the garage.
+    polys = {
+        f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
+        for r in range(4)
+        for c in range(4)
+    }
+    roads = [[(-10, 100 * r - 10), (390, 100 * r - 10)] for r in range(5)]
+    gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
+    farm = farm_of(polys, (-30, 180), roads, gates) if with_roads else farm_of(polys, (-30, 180))
+    net = TransitNetwork(farm)
+    sources = [farm.garage, (10.0, 10.0), (250.0, 190.0), (390.0, 5.0), (-30.0, 180.0)]
+    source_fields = [None, "f0_0", None, None, None]
+    targets = [(p.centroid.x, p.centroid.y) for p in polys.values()]
+    got = net.lengths(sources, source_fields, targets, list(polys))
+    want = [
+        [net.length(a, b, f, g) for b, g in zip(targets, polys, strict=True)]
+        for a, f in zip(sources, source_fields, strict=True)
+    ]
+    assert got == pytest.approx(np.array(want))
+    assert got[0, 15] > math.dist(sources[0], targets[15])  # around fields in the way
