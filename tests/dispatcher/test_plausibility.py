@@ -151,3 +151,14 @@ def test_the_top_speed_is_the_fastest_speed_change_of_the_mission():
     fast = PlannedItem(3, None, None, "speed", 0, 0, mc.MAV_CMD_DO_CHANGE_SPEED, 1.0, 8.0)
     slow = PlannedItem(4, None, None, "speed", 0, 0, mc.MAV_CMD_DO_CHANGE_SPEED, 1.0, 2.0)
     assert top_speed_ms((*MISSION, fast, slow)) == 8.0
+
+
+def test_a_position_of_0_0_is_no_position(dispatch):
+    # An autopilot without a GPS fix reports 0, 0: the vehicle stays where it was heard.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    home = v.items[0]
+    state.on_message("v1", position(1_000, home.x, home.y), 1.0)
+    state.on_message("v1", position(2_000), 2.0)
+    assert (v.lat, v.lon) == (home.lat, home.lon)
+    assert v.sim_time_s == 2.0  # its clock still counts
