@@ -116,7 +116,7 @@ def bench_soak() -> str:
 def bench_replan() -> str:
     from benchmarks.soak_bench import bench_soak as run
 
-    return run(minutes=4.0, loss=0.0, fit=0.9, gap_s=(15.0, 25.0))
+    return run(minutes=4.0, loss=0.0, fit=0.5, gap_s=(15.0, 25.0))
 
 
 def bench_sitl() -> str:

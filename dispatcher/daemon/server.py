@@ -142,6 +142,7 @@ class _Link:
     since: float = 0.0  # when the current exchange began (for the autopilot's texts)
     ready_since: float | None = None  # resuming: when it was first heard booted
     switch_from: int | None = None  # re-planned while driving: the first item of its new route
+    join: int | None = None  # and where it went on in it, having driven past the kept part
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
@@ -890,8 +891,8 @@ class Dispatcher:
         self._send(v.id, link.upload.start(now))
 
     def _advance_switch(self, v: VehicleState, link: _Link, now: float) -> None:
-        """A driving vehicle re-planned: upload, read back, then make sure it drives the
-        new route (set the current item when it went past the end of its old part)."""
+        """A driving vehicle re-planned: upload, then make sure it drives the new route
+        (set the current item when it went past the end of its old part), then read back."""
         if link.upload is None or link.upload.outcome is Outcome.RUNNING:
             return
         if link.upload.outcome is Outcome.FAILED:
@@ -901,6 +902,7 @@ class Dispatcher:
         if link.download is None:
             if v.old_items is not None:
                 self._apply(ev.SwitchUploaded(v.id), now)
+                self._join(v, link, now)
             link.download = MissionDownload(v.system_id)
             self._send(v.id, link.download.start(now))
             return
@@ -912,30 +914,37 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        first = link.switch_from or 1
-        join = None
-        if v.current > first:  # it went on with the old mission meanwhile
-            join = self.state.join_item(v, first)
-            self._apply(ev.RouteJoined(v.id, join), now)
-            self._log(
-                "warning",
-                f"{v.id}: went past the part of its old mission the new one keeps; "
-                f"on at item {join} of its new route (item {first} begins it)",
-            )
         if link.hold is not None or not v.driving:
             # Told to HOLD while it was lost (the order may still be on its way), or stopped:
             # armed and in AUTO again, on its new route.
             link.hold = None
-            link.start_item = join if join is not None else v.resume_item
+            link.start_item = link.join if link.join is not None else v.resume_item
             self._log(
                 "info", f"{v.id}: not driving; on with its new route at item {link.start_item}"
             )
             self._start(v, link, now)
-        elif join is not None:
-            link.start = CommandSequence([set_current_command(join)], v.system_id)
-            self._send(v.id, link.start.start(now))
         else:
             self._log("info", f"{v.id}: new mission on board while driving")
+
+    def _join(self, v: VehicleState, link: _Link, now: float) -> None:
+        """The new mission just went on board. A vehicle that went on past the part of its
+        old mission the new one keeps now drives the new mission's item at its index,
+        another one (an autopilot keeps its current index across an upload): sent at once
+        to where its new route goes on, before the read-back (which takes as long as the
+        upload), so it does not work again what it did meanwhile."""
+        first = link.switch_from or 1
+        if v.current <= first:
+            return
+        link.join = self.state.join_item(v, first)
+        self._apply(ev.RouteJoined(v.id, link.join), now)
+        self._log(
+            "warning",
+            f"{v.id}: went past the part of its old mission the new one keeps; "
+            f"on at item {link.join} of its new route (item {first} begins it)",
+        )
+        if link.hold is None and v.driving:
+            link.start = CommandSequence([set_current_command(link.join)], v.system_id)
+            self._send(v.id, link.start.start(now))
 
     def _hold(self, v: VehicleState, link: _Link, now: float) -> None:
         """Tell a lost vehicle to stop where it is (HOLD), once; it may not hear it."""

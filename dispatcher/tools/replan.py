@@ -49,6 +49,10 @@ LEAD_S = 4.0
 the solver's time: a driving vehicle keeps at least this much of its old mission (module
 doc)."""
 
+FIRST_REPLAN_S = 2.5
+"""What a re-plan is taken to take until one has been timed (the first re-plan of a run):
+coverage of the rest, transit from where the vehicles are, the solver, the missions."""
+
 IMPLEMENT_DOWN = frozenset({"implement_down", "implement_lower"})
 IMPLEMENT_UP = frozenset({"implement_raise", "implement_up"})
 
@@ -320,7 +324,9 @@ def _replanner(
     seconds: float,
 ) -> Callable[[FleetState], DispatchJob]:
     current = dispatch
-    took_s = 0.0  # how long the last re-plan took (wall), the next lead allows twice that
+    took_s = (
+        FIRST_REPLAN_S  # how long the last re-plan took (wall); the next lead allows twice that
+    )
 
     def plan_rest(state: FleetState) -> DispatchJob:
         nonlocal current, job, base, took_s
