@@ -534,3 +534,33 @@ def test_a_vehicle_that_went_past_its_kept_part_carries_on_and_is_not_restarted(
     doc2 = dataclasses.replace(doc, plan_id="").with_id()
     state.apply(ev.PlanReplaced(ev.FLEET, doc2.plan_id, "again", doc2.to_dict()), 3.0)
     assert not v.switch and v.acked and v.route_from == cut + 1
+
+
+def test_a_tractor_past_its_kept_part_is_sent_on_as_soon_as_its_new_mission_is_on_board(
+    dispatch,
+):
+    # Re-planned while driving: its new mission keeps items up to 4, the new route begins
+    # at 5; the upload done, it has driven on to item 9 of the old mission meanwhile. It
+    # now drives item 9 of the new mission (an autopilot keeps its index): it is sent to
+    # where its new route goes on before the read-back, not after.
+    from dispatcher.link.mission_protocol import MissionUpload, Outcome
+
+    daemon = daemon_for(dispatch)
+    vid = "v1"
+    v = daemon.state.vehicles[vid]
+    for event in running_events(vid, 8):
+        daemon.state.apply(event, 0.0)
+    v.mode, v.armed = 10, True  # AUTO, armed: driving
+    v.current, v.switch, v.old_items, v.route_from = 9, True, v.items, 5
+    link = daemon.links[vid]
+    link.switch_from = 5
+    link.upload = MissionUpload(daemon.job.missions[vid].to_mavlink(v.system_id), v.system_id)
+    link.upload.outcome = Outcome.DONE
+    daemon._advance(vid, 1.0)
+    sent = daemon.publishers[vid].sent()
+    kinds = [m.get_type() for m in sent]
+    assert kinds[:2] == ["COMMAND_LONG", "MISSION_REQUEST_LIST"], kinds
+    assert sent[0].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    assert sent[0].param1 == link.join and link.join >= 5
+    assert v.reached == link.join - 1
+    assert v.old_items is None  # the new mission is on board
