@@ -171,7 +171,7 @@ def bench_upload(repeats: int = 3) -> str:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "changji.geojson").write_text((REPO / "config/changji.geojson").read_text())
-        scenario = _scenario(folder, "changji.geojson", 6, 3.7, 5.0)
+        scenario = _scenario(folder, "changji.geojson", 6, 3.7, 20.0)
         dispatch = _plan(scenario)
         items = [len(m) for m in dispatch.missions.values()]
         spans = []
@@ -248,7 +248,7 @@ def bench_telemetry(vehicles: int = 100, hz: float = 10.0, seconds: float = 60.0
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         farm = _grid_farm(folder, vehicles)
-        scenario = _scenario(folder, farm, vehicles, 6.0, 5.0)
+        scenario = _scenario(folder, farm, vehicles, 6.0, 20.0)
         dispatch = _plan(scenario)
         port = free_port()
         daemon = Dispatcher(
