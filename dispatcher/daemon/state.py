@@ -300,6 +300,10 @@ class FleetState:
                 v.old_items = None
             case ev.SwitchUploaded():
                 v.old_items = None
+                # Its MISSION_CURRENT still counts in the old mission until it is sent on
+                # (a vehicle past the kept part): news of this one only once it says it is
+                # active again, CURRENT_SETTLE_S from now.
+                v.started_at, v.active_seen = now, False
             case ev.RouteJoined(item=item):
                 v.reached = min(max(item - 1, 0), len(v.items) - 1)
             case ev.UploadFailed(reason=reason, final=final):
@@ -360,8 +364,10 @@ class FleetState:
             common = _common_prefix(v.items, m.items)
             # Driving its mission, which the new one begins with: it carries on. When it
             # went past that part meanwhile, the items it reached beyond are the new
-            # route's now: it is sent back to the route's first item (the daemon).
-            keeps = v.phase is Phase.RUNNING and common > 1
+            # route's now: it is sent back to the route's first item (the daemon). One left
+            # out and back (held where it is) gets a new mission planned from there, whose
+            # first items may equal its old one's by chance: not a switch.
+            keeps = v.phase is Phase.RUNNING and common > 1 and not v.retired
             if keeps and v.old_items is None:
                 v.old_items, v.old_reached = v.items, v.reached
             if keeps and v.reached >= common:
