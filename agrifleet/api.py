@@ -164,4 +164,3 @@ def plan_table(doc: PlanDocument) -> str:
         f"makespan {t['makespan_h']:.2f} h"
     )
     return "\n".join(lines)
-

@@ -23,9 +23,9 @@ from numba.core import event
 
 log = logging.getLogger(__name__)
 
-COMPILE_ESTIMATE_S = 30
-"""Wall seconds to compile every kernel from an empty cache on a 2-core x86 machine
-(benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
+COMPILE_ESTIMATE_S = 40
+"""Wall seconds to compile every kernel from an empty cache on our 2-core x86 machines (30-40 s
+measured, benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
 
 
 @dataclass(frozen=True)

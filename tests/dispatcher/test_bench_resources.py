@@ -37,8 +37,8 @@ def test_the_table_has_a_row_per_instance_and_the_slopes():
     assert "| a | 50 | 10 | 0.0025 | 0.50 | 180 | 180 | 123.00 |" in lines
     assert "| d | 3000 | 10 | – |" in table  # fewer than two generations: no rate
     assert (
-        "n^2.00 (least squares on log-log, 3 instances with 2+ generations), as n^2.00 over the larger half (n ≥ 100)"
-        in table
+        "n^2.00 (least squares on log-log, 3 instances with 2+ generations), "
+        "as n^2.00 over the larger half (n ≥ 100)" in table
     )
     assert "memory above the loaded kernels as n^1.00 (3 instances 5 MB or more" in table
     assert table.rstrip().endswith("(scale.png)")
