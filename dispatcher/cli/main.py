@@ -536,11 +536,15 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
 
 
 def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
-    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
-
     p.add_argument("--time-limit", type=float, default=time_limit, help="seconds per run")
     p.add_argument("--runs", type=int, default=5, help="our seeds per cell")
     p.add_argument("--seed", type=int, default=1, help="our first seed (and the peer's)")
+    add_algorithm_argument(p)
+
+
+def add_algorithm_argument(p: argparse.ArgumentParser) -> None:
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+
     p.add_argument(
         "--algorithm",
         choices=ALGORITHMS,
@@ -807,12 +811,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-limit", type=float, default=20.0, metavar="S", help="seconds per instance (20)"
     )
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    p.add_argument(
-        "--algorithm",
-        choices=ALGORITHMS,
-        default=DEFAULT_ALGORITHM,
-        help=f"the solver (default {DEFAULT_ALGORITHM})",
-    )
+    add_algorithm_argument(p)
     p.add_argument(
         "--plot", type=Path, default=None, metavar="FILE.png", help="also draw the log-log plot"
     )

@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from dispatcher.tools.bench import BenchError
+from dispatcher.tools.bench import BenchError, check_instance
 
 SCALE_INSTANCES = "eil51,eil76,kroA100,kroA200,lin318,rat575,pr1002,u1432,vm1748,pcb3038"
 Progress = Callable[[str], None]
@@ -89,13 +89,9 @@ def bench_compile(progress: Progress = lambda line: None) -> str:
 
 def scale_instances(text: str) -> list[str]:
     """``eil51,kroA200`` as shipped instance names; an unknown one is an error."""
-    from planner.paper import TSPLIB_DIR
-
     names = [part.strip() for part in text.split(",") if part.strip()]
     for name in names:
-        if not (TSPLIB_DIR / f"{name}.tsp").is_file():
-            known = ", ".join(sorted(p.stem for p in TSPLIB_DIR.glob("*.tsp")))
-            raise BenchError(f"--instances: no instance {name!r}; we ship {known}")
+        check_instance(name, "--instances")
     if not names:
         raise BenchError("--instances: no instance given")
     return names
