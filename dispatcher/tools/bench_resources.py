@@ -6,9 +6,10 @@ install) and then with the cache it left (every later run), each in a fresh proc
 
 ``scale``: the default solver for a fixed time on TSPLIB instances of growing n, each in a
 fresh process: generations, seconds per generation (from the first generation's end to the
-last's, so that the initial population is not counted), the time to the first generation,
-and the process's peak memory (max RSS). The slope of log(seconds per generation) against
-log(n) says how a generation grows with n; a log-log plot shows it.
+last's, so that the initial population is not counted) in wall time and in the process's
+CPU time (which other work on a shared machine does not inflate), the time to the first
+generation, and the process's peak memory (max RSS). The slope of log(CPU seconds per
+generation) against log(n) says how a generation grows with n; a log-log plot shows it.
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ class ScaleRow:
     instance: str
     n: int
     generations: int
-    seconds_per_generation: float | None  # None: fewer than two generations
+    seconds_per_generation: float | None  # wall; None: fewer than two generations
+    cpu_per_generation: float | None  # this process's CPU seconds (the machine may be shared)
     first_generation_s: float | None  # None: no generation at all
     elapsed_s: float
     cost: float
@@ -129,33 +131,34 @@ def _exponent(slope: float | None) -> str:
 
 
 def _timed(rows: Sequence[ScaleRow]) -> list[ScaleRow]:
-    return [r for r in rows if r.seconds_per_generation is not None]
+    return [r for r in rows if r.cpu_per_generation is not None]
 
 
 def scale_table(rows: Sequence[ScaleRow], plot: str | None = None) -> str:
     """The Markdown table of `bench scale`, with the fitted slopes (and the plot's link)."""
     lines = [
-        "| instance | n | generations | s per generation | first generation at s "
-        "| peak MB | peak before the instance MB | cost |",
-        "|---|---|---|---|---|---|---|---|",
+        "| instance | n | generations | CPU s per generation | wall s per generation "
+        "| first generation at s | peak MB | peak before the instance MB | cost |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         per = "–" if r.seconds_per_generation is None else f"{r.seconds_per_generation:.4g}"
+        cpu = "–" if r.cpu_per_generation is None else f"{r.cpu_per_generation:.4g}"
         first = "–" if r.first_generation_s is None else f"{r.first_generation_s:.2f}"
         lines.append(
-            f"| {r.instance} | {r.n} | {r.generations} | {per} | {first} | {r.peak_mb:.0f} "
+            f"| {r.instance} | {r.n} | {r.generations} | {cpu} | {per} | {first} | {r.peak_mb:.0f} "
             f"| {r.baseline_mb:.0f} | {r.cost:.2f} |"
         )
     timed = _timed(rows)
-    slope = fit_slope([r.n for r in timed], [r.seconds_per_generation or 0.0 for r in timed])
+    slope = fit_slope([r.n for r in timed], [r.cpu_per_generation or 0.0 for r in timed])
     # Peak memory is a maximum: an instance shows only once it needs more than the kernels.
     grown = [r for r in rows if r.peak_mb - r.baseline_mb >= MEMORY_SEEN_MB]
     memory = fit_slope([r.n for r in grown], [r.peak_mb - r.baseline_mb for r in grown])
     large = sorted(timed, key=lambda r: r.n)[len(timed) // 2 :]
-    upper = fit_slope([r.n for r in large], [r.seconds_per_generation or 0.0 for r in large])
+    upper = fit_slope([r.n for r in large], [r.cpu_per_generation or 0.0 for r in large])
     lines += [
         "",
-        f"Seconds per generation grow as n^{_exponent(slope)} (least squares on log-log, "
+        f"CPU seconds per generation grow as n^{_exponent(slope)} (least squares on log-log, "
         f"{len(timed)} instances with 2+ generations), as n^{_exponent(upper)} over the "
         f"larger half (n ≥ {large[0].n if large else '–'}); peak memory above the loaded kernels "
         f"as n^{_exponent(memory)} ({len(grown)} instances {MEMORY_SEEN_MB:g} MB or more "
@@ -176,13 +179,13 @@ def plot_scale(rows: Sequence[ScaleRow], path: str | Path, title: str) -> Path:
 
     timed = _timed(rows)
     ns = np.array([r.n for r in timed], float)
-    per = np.array([r.seconds_per_generation for r in timed], float)
+    per = np.array([r.cpu_per_generation for r in timed], float)
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
     ax.loglog(ns, per, "o", color="tab:blue", label="measured")
     for r in timed:
         ax.annotate(
             r.instance,
-            (r.n, r.seconds_per_generation or 0.0),
+            (r.n, r.cpu_per_generation or 0.0),
             fontsize=7,
             xytext=(4, -10),
             textcoords="offset points",
@@ -195,7 +198,7 @@ def plot_scale(rows: Sequence[ScaleRow], path: str | Path, title: str) -> Path:
             xs, np.exp(intercept) * xs**slope, "--", color="tab:gray", label=f"fit: n^{slope:.2f}"
         )
     ax.set_xlabel("n (cities)")
-    ax.set_ylabel("seconds per generation")
+    ax.set_ylabel("CPU seconds per generation")
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
@@ -240,7 +243,7 @@ def _child_solve(name: str, salesmen: int, seconds: float, seed: int, algorithm:
 
     compile_kernels()
     baseline = peak_rss_mb()
-    ticks: list[tuple[int, float]] = []
+    ticks: list[tuple[int, float, float]] = []
     problem = read_instance(TSPLIB_DIR / f"{name}.tsp").to_problem(salesmen)
     result = solve(
         problem,
@@ -248,17 +251,18 @@ def _child_solve(name: str, salesmen: int, seconds: float, seed: int, algorithm:
         algorithm,
         stop_after(None, seconds),
         seed=seed,
-        on_generation=lambda gen, best, elapsed: ticks.append((gen, elapsed)),
+        on_generation=lambda gen, best, elapsed: ticks.append((gen, elapsed, time.process_time())),
     )
-    per = None
+    per = cpu = None
     if len(ticks) >= 2:
-        (g0, t0), (g1, t1) = ticks[0], ticks[-1]
-        per = (t1 - t0) / (g1 - g0)
+        (g0, t0, c0), (g1, t1, c1) = ticks[0], ticks[-1]
+        per, cpu = (t1 - t0) / (g1 - g0), (c1 - c0) / (g1 - g0)
     row = ScaleRow(
         instance=name,
         n=problem.num_tasks + 1,  # the TSPLIB dimension: the depot and the cities
         generations=result.generations,
         seconds_per_generation=per,
+        cpu_per_generation=cpu,
         first_generation_s=ticks[0][1] if ticks else None,
         elapsed_s=result.elapsed_s,
         cost=result.cost,

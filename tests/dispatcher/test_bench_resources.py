@@ -14,7 +14,8 @@ from dispatcher.tools.bench_resources import (
 
 
 def row(name, n, per, grown=True):
-    return ScaleRow(name, n, 10, per, 0.5, 10.0, 123.0, 180.0, 180.0 + grown * n / 10)
+    wall = None if per is None else 1.5 * per
+    return ScaleRow(name, n, 10, wall, per, 0.5, 10.0, 123.0, 180.0, 180.0 + grown * n / 10)
 
 
 ROWS = [
@@ -33,9 +34,9 @@ def test_the_slope_is_fitted_on_log_log():
 def test_the_table_has_a_row_per_instance_and_the_slopes():
     table = scale_table(ROWS, "scale.png")
     lines = table.splitlines()
-    assert lines[0].startswith("| instance | n | generations | s per generation")
-    assert "| a | 50 | 10 | 0.0025 | 0.50 | 180 | 180 | 123.00 |" in lines
-    assert "| d | 3000 | 10 | – |" in table  # fewer than two generations: no rate
+    assert lines[0].startswith("| instance | n | generations | CPU s per generation | wall s")
+    assert "| a | 50 | 10 | 0.0025 | 0.00375 | 0.50 | 180 | 180 | 123.00 |" in lines
+    assert "| d | 3000 | 10 | – | – |" in table  # fewer than two generations: no rate
     assert (
         "n^2.00 (least squares on log-log, 3 instances with 2+ generations), "
         "as n^2.00 over the larger half (n ≥ 100)" in table

@@ -41,3 +41,10 @@ def test_an_empty_cache_compiles_and_a_filled_one_loads(tmp_path):
 def test_a_compilation_is_cold_when_numba_compiled_something():
     assert Compilation(31.0, 167, "/cache").cold
     assert not Compilation(0.3, 0, "/cache").cold
+
+
+def test_the_api_offers_it():
+    import agrifleet
+    from planner.kernels import compile_kernels
+
+    assert agrifleet.compile_kernels is compile_kernels
