@@ -39,6 +39,9 @@ $(STAMP): pyproject.toml
 	  wait $$pid && echo ' done'; }
 	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on --upgrade pip 2>&1 | $(TICK)
 	$(BIN)/python -m pip install --disable-pip-version-check --progress-bar on -e '.[test,dev,bench]' 2>&1 | $(TICK)
+	@# The solver's numba kernels, compiled once for this install (~30 s, and says so):
+	@# plans, tests and benchmarks then load them from numba's cache at once.
+	$(BIN)/agrifleet warm
 	@touch $(STAMP)
 	@echo "==> $(VENV) ready"
 

@@ -24,23 +24,23 @@ from agrifleet.version import __version__
 
 if TYPE_CHECKING:  # the names below, for type checkers (re-exported: `X as X`)
     from agrifleet.api import Plan as Plan
-    from agrifleet.api import kernels_cached as kernels_cached
     from agrifleet.api import plan_farm as plan_farm
     from dispatcher.config.scenario import DEMO_SCENARIO as DEMO_SCENARIO
     from dispatcher.config.scenario import Scenario as Scenario
     from dispatcher.config.scenario import load_scenario as load_scenario
     from planner.farm import Farm as Farm
     from planner.farm import load_farm as load_farm
+    from planner.kernels import compile_kernels as compile_kernels
 
 _OWNERS = {
     "Plan": "agrifleet.api",
-    "kernels_cached": "agrifleet.api",
     "plan_farm": "agrifleet.api",
     "DEMO_SCENARIO": "dispatcher.config.scenario",
     "Scenario": "dispatcher.config.scenario",
     "load_scenario": "dispatcher.config.scenario",
     "Farm": "planner.farm",
     "load_farm": "planner.farm",
+    "compile_kernels": "planner.kernels",
 }
 
 __all__ = ["__version__", *_OWNERS]

@@ -98,16 +98,16 @@ def dispatch_for(
 ) -> DispatchPlan:
     """Plan ``scenario`` (its solver settings unless overridden) into missions."""
     from planner.field_plan import plan_farm as plan_fields
+    from planner.kernels import compile_kernels
     from planner.solve import stop_after
 
     solver = scenario.solver
     machines = [v.machine for v in scenario.vehicles]
     objective = objective or solver.objective
     seed = solver.seed if seed is None else seed
-    if kernels_cached() is False:
-        # Compile first, on one generation: the time limit is then the solver's alone, and
-        # the first plan after installing is the plan every later run makes.
-        plan_fields(scenario.farm, machines, objective, solver.algorithm, stop_after(1), seed)
+    # Compile (first run) or load the kernels before the clock starts: the time limit is
+    # then the plan's alone, and the first plan after installing is the one later runs make.
+    compile_kernels()
     plan = plan_fields(
         scenario.farm,
         machines,
@@ -164,50 +164,3 @@ def plan_table(doc: PlanDocument) -> str:
         f"makespan {t['makespan_h']:.2f} h"
     )
     return "\n".join(lines)
-
-
-_KERNEL_MODULES = (
-    "planner.cost",
-    "planner.ga",
-    "planner.ighoa",
-    "planner.local_search",
-    "planner.operators",
-    "planner.pins",
-    "planner.population",
-    "planner.rng",
-    "planner.sa",
-    "planner.solve",
-)
-WARM_SHARE = 0.75
-"""Share of the solver's kernels found in numba's on-disk cache for it to count as warm
-(a plan compiles nearly all of them; the few it does not use stay uncached)."""
-
-
-def kernels_cached() -> bool | None:
-    """Whether numba's on-disk cache holds the solver's compiled kernels (``cache=True``),
-    for this numba and these sources: False on a first run, which compiles them (tens of
-    seconds). None when it cannot tell (numba's cache layout is not its public API)."""
-    import importlib
-
-    from numba.core.registry import CPUDispatcher
-
-    kernels: dict[int, Any] = {
-        id(obj): obj
-        for name in _KERNEL_MODULES
-        for obj in vars(importlib.import_module(name)).values()
-        if isinstance(obj, CPUDispatcher)
-    }
-    if not kernels:  # NUMBA_DISABLE_JIT: nothing to compile
-        return True
-    try:
-        from numba.core.caching import NullCache
-
-        indexes = [
-            k._cache._cache_file for k in kernels.values() if not isinstance(k._cache, NullCache)
-        ]
-        cached = sum(bool(index._load_index()) for index in indexes)
-    except (AttributeError, OSError, ValueError, EOFError, ImportError):
-        return None
-    if not indexes:  # no kernel is cached on disk: each run compiles them
-        return False
-    return cached >= WARM_SHARE * len(indexes)

@@ -41,18 +41,27 @@ class Instance:
         x, y = self.coords[:, 0], self.coords[:, 1]
         if self.edge_weight_type == "GEO":
             return _geo_matrix(x, y, official=rule == "tsplib")
-        dx = x[:, None] - x[None, :]
-        dy = y[:, None] - y[None, :]
+        # In place, two n x n arrays at most (pcb3038: 74 MB each): the peak memory of a
+        # large instance is this matrix's making, not the solver's (benchmarks/RESULTS.md).
+        d = np.subtract.outer(x, x)
+        d *= d
+        dy = np.subtract.outer(y, y)
+        dy *= dy
+        d += dy
+        del dy
+        if rule != "euclidean" and self.edge_weight_type == "ATT":
+            d /= 10.0  # pseudo-Euclidean
+        d = np.sqrt(d, out=d)
         if rule == "euclidean":
-            return np.sqrt(dx * dx + dy * dy)
+            return d
         if self.edge_weight_type == "EUC_2D":
-            return np.floor(np.sqrt(dx * dx + dy * dy) + 0.5)
+            d += 0.5
+            return np.floor(d, out=d)
         if self.edge_weight_type == "CEIL_2D":
-            return np.ceil(np.sqrt(dx * dx + dy * dy))
-        # ATT: pseudo-Euclidean, rounded up when nint falls short.
-        r = np.sqrt((dx * dx + dy * dy) / 10.0)
-        t = np.floor(r + 0.5)
-        return np.where(t < r, t + 1.0, t)
+            return np.ceil(d, out=d)
+        # ATT: rounded up when nint falls short.
+        t = np.floor(d + 0.5)
+        return np.where(t < d, t + 1.0, t)
 
     def tour_length(self, tour: list[int], rule: str = "tsplib") -> float:
         """Length of a closed tour of 1-based node ids."""
@@ -68,6 +77,8 @@ class Instance:
         if salesmen < 1:
             raise TSPLIBError(f"{self.name}: the number of salesmen must be at least 1")
         d = self.distance_matrix(rule)
+        dist, depot_dist = np.ascontiguousarray(d[1:, 1:]), d[0, 1:].copy()
+        del d  # before Problem.build copies ``dist``: one n x n array fewer at the peak
         machines = [
             Machine(
                 id=f"m{k + 1}",
@@ -89,8 +100,8 @@ class Instance:
             machines,
             tasks,
             depot,
-            dist=np.ascontiguousarray(d[1:, 1:]),
-            depot_dist=np.ascontiguousarray(d[0, 1:]),
+            dist=dist,
+            depot_dist=depot_dist,
             name=self.name,
         )
 

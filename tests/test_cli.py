@@ -236,17 +236,35 @@ def test_every_option_has_help_text():
     assert not missing
 
 
-def test_a_cold_numba_cache_is_told_apart(tmp_path):
-    """The first plan says it compiles (and compiles before it plans): an empty numba
-    cache is seen as cold."""
-    import os
-    import subprocess
-    import sys
+def test_the_first_run_says_it_compiles_and_how_long(monkeypatch, capsys):
+    """While numba compiles (a tiny function of the test's, standing for the solver's
+    kernels) the command says so on stderr, then how long it took; warm says where the
+    kernels are cached."""
+    from numba import njit
 
-    code = "import agrifleet; print(agrifleet.kernels_cached())"
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    cold = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    assert cold.stdout.strip() == "False", cold.stderr
+    import planner.solve
+
+    @njit
+    def tiny(x):
+        return x * 2
+
+    monkeypatch.setattr(planner.solve, "warm_up", lambda: tiny(2))
+    assert main(["warm"]) == 0
+    out, err = capsys.readouterr()
+    first, done = err.splitlines()
+    assert first.startswith("compiling the solver's kernels once for this install (~")
+    assert done.startswith("compiled in ") and done.endswith(" s; cached for the next runs")
+    assert out.startswith("the solver's kernels are compiled and cached in ")
+
+
+def test_a_cached_run_says_nothing_of_compiling(monkeypatch, capsys):
+    import planner.solve
+
+    monkeypatch.setattr(planner.solve, "warm_up", lambda: None)  # all loaded from the cache
+    assert main(["warm"]) == 0
+    out, err = capsys.readouterr()
+    assert err == ""
+    assert out.startswith("the solver's kernels were compiled already: loaded from ")
 
 
 def test_sim_help_is_the_simulators(capsys):

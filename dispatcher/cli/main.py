@@ -104,12 +104,49 @@ class ProgressBar:
             self._progress.stop()
 
 
+def compile_solver():  # type: ignore[no-untyped-def]
+    """Make the solver's kernels ready: load them from numba's cache, or compile them (the
+    first run after installing) saying so on stderr, with the seconds it took."""
+    from planner.kernels import COMPILE_ESTIMATE_S, compile_kernels
+
+    def say() -> None:
+        print(
+            f"compiling the solver's kernels once for this install (~{COMPILE_ESTIMATE_S} s)…",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    done = compile_kernels(say)
+    if done.cold:
+        print(
+            f"compiled in {done.seconds:.1f} s; cached for the next runs",
+            file=sys.stderr,
+            flush=True,
+        )
+    return done
+
+
+def cmd_warm(args: argparse.Namespace) -> int:
+    done = compile_solver()
+    if done.cache_dir is None:
+        print("nothing to compile: numba's JIT is off (NUMBA_DISABLE_JIT)")
+    elif done.cold:
+        print(f"the solver's kernels are compiled and cached in {done.cache_dir}")
+    else:
+        print(
+            f"the solver's kernels were compiled already: loaded from {done.cache_dir} "
+            f"in {done.seconds:.1f} s"
+        )
+    return EXIT_OK
+
+
 def cmd_mtsp(args: argparse.Namespace) -> int:
     from planner.solve import solve, stop_after
     from planner.tsplib import read_instance
 
     instance = read_instance(args.instance)
     problem = instance.to_problem(args.salesmen, args.distance)
+    compile_solver()
     bar = ProgressBar(args.generations, f"{instance.name} m={args.salesmen}", args.time_limit)
     try:
         result = solve(
@@ -205,20 +242,13 @@ def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: igno
 def plan_scenario(args: argparse.Namespace, scenario=None):  # type: ignore[no-untyped-def]
     """Load the scenario with the command line's overrides (unless given) and plan it,
     saying on stderr what takes time: compiling the solver (first run), the solver."""
-    from agrifleet.api import dispatch_for, kernels_cached
+    from agrifleet.api import dispatch_for
 
     scenario = scenario or load_scenario_args(args)
     solver = scenario.solver
     time_limit_s = args.time_limit or solver.time_limit_s
     say = f"planning {len(scenario.farm.fields)} fields for {len(scenario.vehicles)} machines"
-    if kernels_cached() is False:
-        print(
-            "first run: compiling the solver's kernels (numba); they are cached for the next "
-            "runs. This takes a minute or so, once.",
-            file=sys.stderr,
-            flush=True,
-        )
-        say += " (compiling the solver first)"
+    compile_solver()
     bar = ProgressBar(
         solver.generations,
         f"solver: {solver.algorithm}, up to {time_limit_s:g} s",
@@ -464,19 +494,57 @@ def cmd_bench_peer(args: argparse.Namespace) -> int:
         print(line, file=sys.stderr, flush=True)
 
     if args.suite == "mtsp":
-        report = bench_mtsp(parse_cells(args.cells), args.peer, args.objective, runs, progress)
+        cells = parse_cells(args.cells)
+        compile_solver()
+        report = bench_mtsp(cells, args.peer, args.objective, runs, progress)
     else:
-        report = bench_farm(parse_farms(args.farms), args.peer, runs, progress)
+        farms = parse_farms(args.farms)
+        compile_solver()
+        report = bench_farm(farms, args.peer, runs, progress)
+    print(report)
+    return EXIT_OK
+
+
+def cmd_bench_compile(args: argparse.Namespace) -> int:
+    from dispatcher.tools.bench_resources import bench_compile
+
+    print(bench_compile(lambda line: print(line, file=sys.stderr, flush=True)))
+    return EXIT_OK
+
+
+def cmd_bench_scale(args: argparse.Namespace) -> int:
+    from dispatcher.tools.bench import BenchError
+    from dispatcher.tools.bench_resources import bench_scale, scale_instances
+
+    instances = scale_instances(args.instances)
+    if args.salesmen < 1:
+        raise BenchError(f"-m/--salesmen must be at least 1, not {args.salesmen}")
+    if not args.time_limit > 0:
+        raise BenchError(f"--time-limit must be positive, not {args.time_limit}")
+    compile_solver()
+    report = bench_scale(
+        instances,
+        args.salesmen,
+        args.time_limit,
+        args.seed,
+        args.algorithm,
+        args.plot,
+        lambda line: print(line, file=sys.stderr, flush=True),
+    )
     print(report)
     return EXIT_OK
 
 
 def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
-    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
-
     p.add_argument("--time-limit", type=float, default=time_limit, help="seconds per run")
     p.add_argument("--runs", type=int, default=5, help="our seeds per cell")
     p.add_argument("--seed", type=int, default=1, help="our first seed (and the peer's)")
+    add_algorithm_argument(p)
+
+
+def add_algorithm_argument(p: argparse.ArgumentParser) -> None:
+    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+
     p.add_argument(
         "--algorithm",
         choices=ALGORITHMS,
@@ -654,6 +722,13 @@ def build_parser() -> argparse.ArgumentParser:
     wire.add_zenoh_arguments(p, mode="router")
     p.set_defaults(handler=cmd_router)
 
+    p = sub.add_parser(
+        "warm",
+        help="compile the solver's kernels now, once for this install (make does it after "
+        "installing; otherwise the first plan does)",
+    )
+    p.set_defaults(handler=cmd_warm)
+
     from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
 
     p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
@@ -721,6 +796,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--farms", default=DEFAULT_FARMS, help="FIELDSxMACHINES,… (default %(default)s)")
     add_bench_arguments(p, 60.0)
     p.set_defaults(handler=cmd_bench_peer)
+    p = bench_sub.add_parser(
+        "compile", help="seconds to compile the kernels (empty numba cache), then to load them"
+    )
+    p.set_defaults(handler=cmd_bench_compile)
+    from dispatcher.tools.bench_resources import SCALE_INSTANCES
+
+    p = bench_sub.add_parser(
+        "scale", help="seconds per generation and peak memory as n grows (log-log plot)"
+    )
+    p.add_argument("--instances", default=SCALE_INSTANCES, help="INSTANCE,… (default %(default)s)")
+    p.add_argument("-m", "--salesmen", type=int, default=3, help="salesmen (default 3)")
+    p.add_argument(
+        "--time-limit", type=float, default=20.0, metavar="S", help="seconds per instance (20)"
+    )
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    add_algorithm_argument(p)
+    p.add_argument(
+        "--plot", type=Path, default=None, metavar="FILE.png", help="also draw the log-log plot"
+    )
+    p.set_defaults(handler=cmd_bench_scale)
 
     return parser
 
@@ -823,7 +918,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_sim(argparse.Namespace(rest=argv[1:]))
     args = build_parser().parse_args(argv)
     # Daemons log what they do; interactive commands keep the terminal for their own output.
-    quiet = args.command in ("demo", "plan", "mtsp", "bench", "review")
+    quiet = args.command in ("demo", "plan", "mtsp", "bench", "review", "warm")
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else (logging.WARNING if quiet else logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -61,16 +61,21 @@ class Cell:
     salesmen: int
 
 
-def parse_cells(text: str) -> list[Cell]:
-    """``eil51:3,kroA200:4`` as cells; an unknown instance or a bad m is an error."""
+def check_instance(name: str, where: str) -> None:
+    """A shipped TSPLIB instance's name, or an error that names ``where`` it was given."""
     from planner.paper import TSPLIB_DIR
 
+    if not (TSPLIB_DIR / f"{name}.tsp").is_file():
+        known = ", ".join(sorted(p.stem for p in TSPLIB_DIR.glob("*.tsp")))
+        raise BenchError(f"{where}: no instance {name!r}; we ship {known}")
+
+
+def parse_cells(text: str) -> list[Cell]:
+    """``eil51:3,kroA200:4`` as cells; an unknown instance or a bad m is an error."""
     cells = []
     for item in filter(None, (part.strip() for part in text.split(","))):
         name, _, m = item.partition(":")
-        if not (TSPLIB_DIR / f"{name}.tsp").is_file():
-            known = ", ".join(sorted(p.stem for p in TSPLIB_DIR.glob("*.tsp")))
-            raise BenchError(f"--cells {item!r}: no instance {name!r}; we ship {known}")
+        check_instance(name, f"--cells {item!r}")
         if not m.isdigit() or int(m) < 1:
             raise BenchError(f"--cells {item!r}: give INSTANCE:M with M >= 1 salesmen")
         cells.append(Cell(name, int(m)))

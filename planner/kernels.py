@@ -1,0 +1,94 @@
+"""The solver's numba kernels: compiled once per install, and said so while it happens.
+
+The kernels are ``@njit(cache=True)``: numba compiles each on its first call (about half a
+minute for all of them, :data:`COMPILE_ESTIMATE_S`) and keeps the machine code in its
+on-disk cache (``__pycache__`` beside the sources, or under ``NUMBA_CACHE_DIR``), which
+later processes load in a fraction of a second. ``agrifleet warm`` (run by ``make`` after
+installing) pays the compile at install; otherwise the first plan does.
+
+Whether a process compiles or loads is told by numba's event API: numba broadcasts a
+``numba:compile`` event for a real compile only, never for a load from its cache. Nothing
+here reads numba's cache files, whose layout is not numba's public API.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+from numba.core import event
+
+log = logging.getLogger(__name__)
+
+COMPILE_ESTIMATE_S = 40
+"""Wall seconds to compile every kernel from an empty cache on our 2-core x86 machines (30-40 s
+measured, benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
+
+
+@dataclass(frozen=True)
+class Compilation:
+    """What making the kernels ready took: ``seconds`` of wall time, ``compiled`` functions
+    numba compiled (0: all loaded from its cache), and where that cache is (None: unknown,
+    or no JIT)."""
+
+    seconds: float
+    compiled: int
+    cache_dir: str | None
+
+    @property
+    def cold(self) -> bool:
+        """Whether numba had to compile (an empty or stale cache)."""
+        return self.compiled > 0
+
+
+class CompileWatch(event.Listener):
+    """Counts numba's compiles while installed; calls ``on_first`` at the first one."""
+
+    def __init__(self, on_first: Callable[[], None] | None = None) -> None:
+        self.compiled = 0
+        self._on_first = on_first
+
+    def on_start(self, event: event.Event) -> None:
+        self.compiled += 1
+        if self.compiled == 1 and self._on_first is not None:
+            self._on_first()
+
+    def on_end(self, event: event.Event) -> None:
+        pass
+
+
+@contextmanager
+def watch_compiles(on_first: Callable[[], None] | None = None) -> Iterator[CompileWatch]:
+    """Within the block, count numba's compiles (loads from its cache are not counted)."""
+    watch = CompileWatch(on_first)
+    with event.install_listener("numba:compile", watch):
+        yield watch
+
+
+def cache_dir() -> str | None:
+    """Where numba keeps the compiled kernels (it chooses: ``NUMBA_CACHE_DIR``, else
+    ``__pycache__`` beside the sources when writable, else a per-user cache)."""
+    from planner import cost
+
+    stats = getattr(cost.evaluate, "stats", None)  # none under NUMBA_DISABLE_JIT
+    return getattr(stats, "cache_path", None)
+
+
+def compile_kernels(on_compile: Callable[[], None] | None = None) -> Compilation:
+    """Make every solver kernel ready in this process: load it from numba's cache, or
+    compile it (and cache it for later processes) when the cache is empty or stale.
+    ``on_compile`` is called once, when numba starts to compile (never on a warm cache)."""
+    from planner.solve import warm_up
+
+    def first() -> None:
+        log.info("compiling the solver's kernels (numba), once for this install")
+        if on_compile is not None:
+            on_compile()
+
+    started = time.perf_counter()
+    with watch_compiles(first) as watch:
+        warm_up()
+    return Compilation(time.perf_counter() - started, watch.compiled, cache_dir())
