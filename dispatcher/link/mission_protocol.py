@@ -27,11 +27,9 @@ from dispatcher.link import mavlink as mc
 log = logging.getLogger(__name__)
 
 REQUEST_TIMEOUT_S = 1.5
-"""The protocol's timeout for an answer; once round trips are measured, shortened to the
-smoothed round trip plus four times its mean deviation (Jacobson/Karels, as TCP's RFC 6298
-computes its retransmission timeout), never under MIN_TIMEOUT_S: a lossy link resends
-soon, a slow or jittery one is not flooded with copies."""
-MIN_TIMEOUT_S = 0.1
+"""The protocol's timeout for an answer; shortened to a few round trips once they are
+measured (never under MIN_TIMEOUT_S), so a lossy link resends soon."""
+MIN_TIMEOUT_S = 0.3
 MAX_RETRIES = 8
 """Resends of one command without an answer before it fails (with 30 % of the frames lost
 each way, 0.51^9 ≈ 0.2 % of the commands)."""
@@ -83,7 +81,6 @@ class _Exchange:
         self.stats = Stats()
         self._base_timeout_s = timeout_s
         self._srtt: float | None = None  # smoothed round trip (s)
-        self._rttvar = 0.0  # its mean deviation (s)
         self._sent_at = 0.0
         self._resent = False  # the last message went out more than once
 
@@ -108,13 +105,8 @@ class _Exchange:
         if self._resent:
             return
         sample = max(now - self._sent_at, 0.0)
-        if self._srtt is None:
-            self._srtt, self._rttvar = sample, sample / 2.0
-        else:
-            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - sample)
-            self._srtt = 0.875 * self._srtt + 0.125 * sample
-        rto = self._srtt + 4.0 * self._rttvar
-        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, rto))
+        self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
+        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
 
 
 class _Transfer(_Exchange):
