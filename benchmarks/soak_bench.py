@@ -9,7 +9,8 @@ acknowledged (median, max; goal < 3 s), fields not done at the end and of those 
 ones, in no working vehicle's route (goal 0), segments (swaths, headland edges) worked
 twice or never (goal 0), as the fleet state counts them, dispatcher CPU and memory at the
 start and at the end. Faults come once every tractor has started (a fault during the first
-uploads only delays the start), 30-60 s apart, until half the wall time (from 30 % of it when the first uploads take longer), to a third of the
+uploads only delays the start) or from 30 % of the wall time on (the first uploads through a
+lossy radio can take longer), 30-60 s apart, until half the wall time, to a third of the
 simulator processes at most (a farm cannot be finished in the time by what is left of a
 fleet that lost most of its tractors: that measures the fleet, not the dispatcher); the
 planned makespan is fitted to ``fit`` of the wall time (40 % by default: the first uploads
