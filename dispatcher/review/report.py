@@ -510,6 +510,10 @@ def _read_events(
     pending: tuple[int, int, float | None] | None = None
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
+    # Whether the vehicle holds the mission reviewed, as far as its MISSION_CURRENT.total
+    # tells: the items it reports of another (before a re-plan gave it a new mission whole)
+    # say nothing of where it heads in this one.
+    this_mission = True
 
     def settle(t: float | None) -> None:
         nonlocal pending
@@ -560,15 +564,17 @@ def _read_events(
                     caught_up.add(seq)
                 reached.append((seq, clock.now, order))
                 continue
-            if 0 <= seq < len(items):
+            if 0 <= seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq + 1))
             if 0 <= seq < len(items) and items[seq].is_nav:
                 pending = (seq, order, clock.now)
             else:
                 reached.append((seq, clock.now, order))
         elif kind == "MISSION_CURRENT":
-            seq = msg.get("seq")
-            if isinstance(seq, int) and 0 < seq < len(items):
+            seq, total = msg.get("seq"), msg.get("total")
+            if isinstance(total, int) and total not in (0, 0xFFFF):
+                this_mission = total == len(items) - 1
+            if isinstance(seq, int) and 0 < seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq))
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
