@@ -207,18 +207,26 @@ def test_a_point_off_the_roads_joins_the_nearest_road_point():
     assert via[0] == (200, 120)
 
 
+def grid_farm(rows, cols, garage, with_roads):
+    """Fields of 80 m in a grid 100 m apart, with 20 m roads between them and one gate
+    each (or no roads)."""
+    polys = {
+        f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
+        for r in range(rows)
+        for c in range(cols)
+    }
+    if not with_roads:
+        return polys, farm_of(polys, garage)
+    roads = [[(-10, 100 * r - 10), (100 * cols - 10, 100 * r - 10)] for r in range(rows + 1)]
+    roads += [[(100 * c - 10, -10), (100 * c - 10, 100 * rows - 10)] for c in range(cols + 1)]
+    gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
+    return polys, farm_of(polys, garage, roads, gates)
+
+
 @pytest.mark.parametrize("with_roads", [True, False])
 def test_the_solver_matrix_stays_fast_for_200_fields(with_roads):
     # 10 x 20 fields of 80 m, 20 m roads between them, one gate each (or nothing).
-    polys = {
-        f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
-        for r in range(10)
-        for c in range(20)
-    }
-    roads = [[(-10, 100 * r - 10), (1990, 100 * r - 10)] for r in range(11)]
-    roads += [[(100 * c - 10, -10), (100 * c - 10, 990)] for c in range(21)]
-    gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
-    farm = farm_of(polys, (-30, 480), roads, gates) if with_roads else farm_of(polys, (-30, 480))
+    polys, farm = grid_farm(10, 20, (-30, 480), with_roads)
     start = time.perf_counter()
     net = TransitNetwork(farm)
     points = [farm.garage] + [(p.centroid.x, p.centroid.y) for p in polys.values()]
@@ -345,14 +353,7 @@ def test_demo_road_metres_are_the_transit_lengths(demo_plan):
 @pytest.mark.parametrize("with_roads", [True, False])
 def test_lengths_from_many_points_equal_the_routes_one_by_one(with_roads):
     # 4 x 4 fields of 80 m; sources in fields, on the roads and at the garage.
-    polys = {
-        f"f{r}_{c}": box(100 * c, 100 * r, 100 * c + 80, 100 * r + 80)
-        for r in range(4)
-        for c in range(4)
-    }
-    roads = [[(-10, 100 * r - 10), (390, 100 * r - 10)] for r in range(5)]
-    gates = [(k, (p.bounds[0] + 40, p.bounds[1])) for k, p in polys.items()]
-    farm = farm_of(polys, (-30, 180), roads, gates) if with_roads else farm_of(polys, (-30, 180))
+    polys, farm = grid_farm(4, 4, (-30, 180), with_roads)
     net = TransitNetwork(farm)
     sources = [farm.garage, (10.0, 10.0), (250.0, 190.0), (390.0, 5.0), (-30.0, 180.0)]
     source_fields = [None, "f0_0", None, None, None]
