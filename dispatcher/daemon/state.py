@@ -295,6 +295,8 @@ class FleetState:
                 v.acked = False
                 v.resuming = False
             case ev.UploadAcked():
+                if v.switch:  # it may have stood still meanwhile (stalled_for)
+                    v.progress_s, v.progress_wall = v.sim_time_s, now
                 v.acked = True
                 v.switch = False
                 v.old_items = None
@@ -427,6 +429,12 @@ class FleetState:
         that is longer than ``limit_s`` and than STALL_MIN_WALL_S of wall time (a simulator
         at a high speedup passes a minute between two reports); else None."""
         if v.phase is not Phase.RUNNING or not v.driving or v.progress_s is None:
+            return None
+        if v.switch:
+            # Its new mission on its way: an autopilot truncates its mission to the new
+            # count at MISSION_COUNT, so one that drove past the new mission's length
+            # stands still, its mission complete, until it is sent on (the daemon); its
+            # stall clock starts again once the new mission is on board.
             return None
         idle = v.sim_time_s - v.progress_s
         if v.progress_wall is None or now - v.progress_wall < STALL_MIN_WALL_S:
@@ -610,6 +618,7 @@ class FleetState:
         (of an earlier mission, complete) says nothing of this one."""
         if (
             v.phase is not Phase.RUNNING
+            or v.old_items is not None  # the new mission on its way: which one it reports?
             or v.mission_total != len(v.items) - 1
             or v.started_at is None
             or now - v.started_at < CURRENT_SETTLE_S

@@ -564,3 +564,24 @@ def test_a_tractor_past_its_kept_part_is_sent_on_as_soon_as_its_new_mission_is_o
     assert sent[0].param1 == link.join and link.join >= 5
     assert v.reached == link.join - 1
     assert v.old_items is None  # the new mission is on board
+
+
+def test_a_tractor_standing_still_while_its_new_mission_comes_is_not_stalled(dispatch):
+    # An autopilot truncates its mission at MISSION_COUNT: one past the new mission's length
+    # stands still, mission complete, until it is sent on. Neither a stall nor progress.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    for event in running_events("v1", 8):
+        state.apply(event, 0.0)
+    v.mode, v.armed = 10, True  # AUTO, armed
+    v.sim_time_s, v.progress_s, v.progress_wall = 1_000.0, 100.0, 0.0
+    v.switch, v.old_items = True, v.items
+    assert state.stalled_for(v, 60.0, 50.0) is None
+    last = len(v.items) - 1
+    done = mission_current(v.system_id, last, last, mc.MISSION_STATE_COMPLETE)
+    assert state.on_message("v1", done, 51.0) == []
+    state.apply(ev.SwitchUploaded("v1"), 52.0)
+    state.apply(ev.UploadAcked("v1"), 53.0)
+    assert state.stalled_for(v, 60.0, 54.0) is None  # its stall clock starts again
+    v.sim_time_s = 1_100.0
+    assert state.stalled_for(v, 60.0, 60.0) == 100.0
