@@ -584,7 +584,8 @@ class Dispatcher:
             # Its work went to the others: it stays where it is, and rejoins at a re-plan
             # asked for when it is heard again.
             if (
-                v.phase is not Phase.LOST
+                v.phase not in GONE
+                and v.phase is not Phase.DONE
                 and not link.rejoin_asked
                 and not self._replan_reason
                 and self._replan is None
@@ -854,7 +855,9 @@ class Dispatcher:
         gone = [vid for vid, v in self.state.vehicles.items() if v.retired]
         for vid in gone:
             v = self.state.vehicles[vid]
-            if v.phase is not Phase.LOST:  # back while the re-plan ran: it must not go on
+            if v.phase not in GONE and v.phase is not Phase.DONE:
+                # Back while the re-plan ran: it must not go on (one failed for good, or
+                # done, is not back: asking for it again would re-plan for ever).
                 self.links[vid] = _Link()
                 self._hold(v, self.links[vid], now)
                 self._replan_reason = self._replan_reason or f"{vid} back"

@@ -585,3 +585,16 @@ def test_a_tractor_standing_still_while_its_new_mission_comes_is_not_stalled(dis
     assert state.stalled_for(v, 60.0, 54.0) is None  # its stall clock starts again
     v.sim_time_s = 1_100.0
     assert state.stalled_for(v, 60.0, 60.0) == 100.0
+
+
+def test_a_left_out_tractor_asks_to_rejoin_when_it_is_back_not_when_it_failed(dispatch):
+    # A vehicle failed for good (a start never acknowledged) is left out of every plan:
+    # taking it for "back" re-planned for ever (47 times in a soak).
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    v.retired, v.phase = True, Phase.FAILED
+    daemon._advance("v1", 1.0)
+    assert daemon._replan_reason == ""
+    v.phase = Phase.RUNNING  # heard again after it was lost
+    daemon._advance("v1", 2.0)
+    assert daemon._replan_reason == "v1 back"
