@@ -27,6 +27,7 @@ from numba import njit
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
 from planner.local_search import allocation_search
+from planner.moves import MOVES, mask
 from planner.operators import improve_routes, leg
 from planner.pins import first_fixed
 from planner.rng import randint
@@ -44,11 +45,25 @@ class HybridParams(IGHOAParams):
     # pay at 10 s (benchmarks/RESULTS.md), unless this is set.
     ils_on_sums: bool = False
     or_opt: bool = True  # Or-opt in the polish
+    # The moves between routes of the local search, by name (planner.moves.MOVES).
+    moves: tuple[str, ...] = MOVES
+    # Total distance as the local search's second objective, after the objective's own
+    # figure (lexicographic): routes that do not set a min-max figure are shortened too.
+    lexicographic: bool = True
+    # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
+    # elite is walked on from; 0: every step starts from the elite.
+    accept: float = 0.01
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.ils_steps < 0 or self.perturb < 1:
             raise ValueError("ils_steps must be >= 0 and perturb >= 1")
+        mask(self.moves)
+
+    @property
+    def move_mask(self) -> int:
+        """:attr:`moves` as the local search's bit mask."""
+        return mask(self.moves)
 
 
 @njit(cache=True)
@@ -215,15 +230,16 @@ def perturb(
 
 @njit(cache=True)
 def local_optimum(
-    perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look
+    perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look, moves, lexi
 ):  # type: ignore[no-untyped-def]
-    """Relocate/exchange between routes from the tasks whose don't-look bit is clear,
-    then the neighbour-list 2-opt inside the routes, in place. (Or-opt is left to the
+    """The ``moves`` between routes from the tasks whose don't-look bit is clear, then
+    the neighbour-list 2-opt inside the routes, in place. (Or-opt is left to the
     polish: over every route it costs more than an ILS step is worth.)"""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     allocation_search(
-        perm, counts, objective, tables, neighbours, min_count, 50, pins, deadline, dont_look, True
-    )
+        perm, counts, objective, tables, neighbours, min_count, 50, pins, deadline, dont_look,
+        True, moves, lexi,
+    )  # fmt: skip
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
 
 
@@ -234,6 +250,10 @@ def ils_step(  # type: ignore[no-untyped-def]
     elite_counts,
     elite_route,
     elite_cost,
+    walk_perm,
+    walk_counts,
+    walk_route,
+    walk_cost,
     objective,
     tables,
     neighbours,
@@ -242,20 +262,26 @@ def ils_step(  # type: ignore[no-untyped-def]
     steps,
     strength,
     deadline,
+    moves,
+    lexi,
+    accept,
 ):
-    """``steps`` perturb-and-improve attempts from the elite, each kept when better
-    (the elite arrays are updated in place); returns the new elite cost."""
-    perm = elite_perm.copy()
-    counts = elite_counts.copy()
-    route = elite_route.copy()
+    """``steps`` perturb-and-improve attempts from the walk's solution (record-to-record
+    travel): a result is the walk's next solution when it costs less than ``1 + accept``
+    times the elite, and the new elite when it costs less than the elite (both sets of
+    arrays are updated in place). With ``accept`` = 0 the walk is the elite.
+    Returns the new elite cost and walk cost."""
+    perm = walk_perm.copy()
+    counts = walk_counts.copy()
+    route = walk_route.copy()
     focus = objective == 3 or objective == 4
     moved = np.empty(strength, dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     for _ in range(steps):
-        perm[:] = elite_perm
-        counts[:] = elite_counts
+        perm[:] = walk_perm
+        counts[:] = walk_counts
         done = perturb(
-            state, perm, counts, elite_route, strength, focus, min_count, pins, neighbours, moved
+            state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours, moved
         )
         # Only the moved tasks and their neighbours are looked at first.
         dont_look[:] = True
@@ -264,12 +290,18 @@ def ils_step(  # type: ignore[no-untyped-def]
             for w in neighbours[moved[q]]:
                 dont_look[w] = False
         local_optimum(
-            perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look
-        )
+            perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look,
+            moves, lexi,
+        )  # fmt: skip
         cost = evaluate(perm, counts, objective, tables, route)
+        if cost < walk_cost - 1e-12 or cost < elite_cost * (1.0 + accept) - 1e-12:
+            walk_perm[:] = perm
+            walk_counts[:] = counts
+            walk_route[:] = route
+            walk_cost = cost
         if cost < elite_cost - 1e-12:
             elite_perm[:] = perm
             elite_counts[:] = counts
             elite_route[:] = route
             elite_cost = cost
-    return elite_cost
+    return elite_cost, walk_cost

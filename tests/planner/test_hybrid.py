@@ -88,7 +88,7 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
     nn = nearest_neighbours(problem.dist, 6)
     new = ils_step(
         make_state(2), perm, counts, route, cost, int(objective), tables, nn, 1,
-        NO_PINS(25), 10, 3, np.inf,
+        NO_PINS(25), 10, 3, np.inf, 7, True,
     )  # fmt: skip
     assert_valid(perm, counts, 25, 3)
     check = np.empty(3)
