@@ -246,7 +246,9 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         trial_values[a], trial_values[b] = values[a], values[b]
                 if move_mask & TWO_OPT_STAR:
                     for var in range(2):
-                        if not two_opt_star_allowed(routes, sizes, pins, a, pa, b, pw, var, min_count):
+                        if not two_opt_star_allowed(
+                            routes, sizes, pins, a, pa, b, pw, var, min_count
+                        ):
                             continue
                         la, lb = two_opt_star_lengths(
                             routes, sizes, pref, a, pa, b, pw, var, dist, start_dist, end_dist
@@ -256,8 +258,12 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         if use_extra:
                             ea, eb = _star_extras(routes, sizes, a, pa, b, pw, var, task_x)
                         trial_lengths[a], trial_lengths[b] = la, lb
-                        trial_values[a] = _route_value(objective, a, la, ea, road_h, road_f, ready, na)
-                        trial_values[b] = _route_value(objective, b, lb, eb, road_h, road_f, ready, nb)
+                        trial_values[a] = _route_value(
+                            objective, a, la, ea, road_h, road_f, ready, na
+                        )
+                        trial_values[b] = _route_value(
+                            objective, b, lb, eb, road_h, road_f, ready, nb
+                        )
                         gain = current - _objective(objective, trial_values, trial_lengths)
                         gs = total - trial_lengths.sum()
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):

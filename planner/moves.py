@@ -81,7 +81,11 @@ def two_opt_star_lengths(  # type: ignore[no-untyped-def]
             new_b = pref[b, pw - 1] + end_dist[b, routes[b, pw - 1]]
         else:
             first = routes[a, pa + 1]
-            into = start_dist[b, first] if pw == 0 else pref[b, pw - 1] + dist[routes[b, pw - 1], first]
+            into = (
+                start_dist[b, first]
+                if pw == 0
+                else pref[b, pw - 1] + dist[routes[b, pw - 1], first]
+            )
             new_b = into + _inner(pref, a, pa + 1, sa - 1) + end_dist[b, a_last]
         return new_a, new_b
     b_first = routes[b, 0]
