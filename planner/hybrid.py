@@ -26,10 +26,11 @@ from numba import njit
 
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
-from planner.local_search import allocation_search
+from planner.local_search import allocation_search, optimal_split, past
 from planner.moves import MOVES, mask
-from planner.operators import improve_routes, leg
-from planner.pins import first_fixed
+from planner.operators import improve_routes, leg, two_opt_neighbours
+from planner.pins import first_fixed, repair_pins
+from planner.population import random_counts
 from planner.rng import randint
 
 MAX_SEGMENT = 3  # Or-opt moves segments of 1..MAX_SEGMENT tasks
@@ -53,6 +54,10 @@ class HybridParams(IGHOAParams):
     # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
     # elite is walked on from; 0: every step starts from the elite.
     accept: float = 0.01
+    # One individual of the first population is a giant tour (nearest neighbour, then
+    # 2-opt and Or-opt with neighbour lists) cut optimally into routes (route first,
+    # cluster second): what the GA's random orders take long to find on a large instance.
+    giant_tour: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -305,3 +310,37 @@ def ils_step(  # type: ignore[no-untyped-def]
             elite_route[:] = route
             elite_cost = cost
     return elite_cost, walk_cost
+
+
+@njit(cache=True)
+def giant_tour(state, perm, counts, objective, tables, neighbours, min_count, pins, deadline):  # type: ignore[no-untyped-def]
+    """A first individual, route first and cluster second: one tour through every task
+    (nearest neighbour from machine 0's start, then 2-opt and Or-opt with the neighbour
+    lists until neither pays) cut by :func:`optimal_split` for the objective; when the
+    pins allow no cut, or ``deadline`` passes, a random split repaired for the pins."""
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    n = perm.shape[0]
+    m = counts.shape[0]
+    free = np.ones(n, dtype=np.bool_)
+    prev = -1
+    for k in range(n):
+        best = -1
+        best_d = np.inf
+        for t in range(n):
+            if free[t]:
+                d = start_dist[0, t] if prev < 0 else dist[prev, t]
+                if d < best_d:
+                    best, best_d = t, d
+        perm[k] = best
+        free[best] = False
+        prev = best
+    where = np.full(n, -1, dtype=np.int64)
+    gain = 1.0
+    while gain > 1e-9 and not past(deadline):
+        gain = two_opt_neighbours(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, where, 0)
+        gain += or_opt(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, 0)
+    random_counts(state, n, m, min_count, counts)
+    split = counts.copy()
+    if optimal_split(perm, split, objective, tables, min_count, pins, deadline) < np.inf:
+        counts[:] = split
+    repair_pins(perm, counts, pins, min_count)

@@ -335,6 +335,18 @@ def solve(
             annealing.alpha,
             annealing.chain,
         )
+    if isinstance(params, hybrid.HybridParams) and params.giant_tour and not stop.interrupted():
+        hybrid.giant_tour(
+            state,
+            perms[pop - 1],
+            counts[pop - 1],
+            int(obj),
+            tables,
+            nearest_neighbours(problem.dist, params.neighbours),
+            min_count,
+            pins,
+            stop.deadline(),
+        )
     if warm is not None:
         perms[0], counts[0] = warm
     costs = np.empty(pop)
