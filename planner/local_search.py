@@ -30,8 +30,12 @@ from planner.cost import TIE_BREAK
 from planner.moves import (
     EXCHANGE,
     RELOCATE,
+    SEGMENT,
+    SEGMENT_RELOCATE,
     TWO_OPT_STAR,
     prefix,
+    segment_apply,
+    segment_lengths,
     two_opt_star_allowed,
     two_opt_star_apply,
     two_opt_star_lengths,
@@ -244,6 +248,38 @@ def allocation_search(  # type: ignore[no-untyped-def]
                             best_kind, best_b, best_p, best_w = 0, b, pw + side, w
                         trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
                         trial_values[a], trial_values[b] = values[a], values[b]
+                if move_mask & SEGMENT_RELOCATE:
+                    for side in range(2):
+                        if side == 0 and pins[w] >= 0:
+                            continue  # nothing goes before a pinned task
+                        for length in range(2, SEGMENT + 1):
+                            if pa + length > sizes[a] or sizes[a] - length < min_count:
+                                break
+                            ea, eb = extras[a], extras[b]
+                            if use_extra:
+                                for k in range(pa, pa + length):
+                                    ea -= task_x[a, routes[a, k]]
+                                    eb += task_x[b, routes[a, k]]
+                            for rev in range(2):
+                                la, lb = segment_lengths(
+                                    routes, sizes, pref, lengths, a, pa, length, b, pw + side,
+                                    rev == 1, dist, start_dist, end_dist,
+                                )  # fmt: skip
+                                trial_lengths[a], trial_lengths[b] = la, lb
+                                trial_values[a] = _route_value(
+                                    objective, a, la, ea, road_h, road_f, ready, sizes[a] - length
+                                )
+                                trial_values[b] = _route_value(
+                                    objective, b, lb, eb, road_h, road_f, ready, sizes[b] + length
+                                )
+                                gain = current - _objective(objective, trial_values, trial_lengths)
+                                gs = total - trial_lengths.sum()
+                                if _better(gain, gs, best_gain, best_gs, eps, lexi):
+                                    best_gain, best_gs = gain, gs
+                                    best_kind, best_b, best_p, best_w = 3, b, pw + side, w
+                                    best_var = length * 2 + rev
+                                trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
+                                trial_values[a], trial_values[b] = values[a], values[b]
                 if move_mask & TWO_OPT_STAR:
                     for var in range(2):
                         if not two_opt_star_allowed(
@@ -314,14 +350,25 @@ def allocation_search(  # type: ignore[no-untyped-def]
                 _wake(dont_look, routes, sizes, a, pa)
                 _wake(dont_look, routes, sizes, b, pos[best_w])
                 dont_look[best_w] = False
-            if best_kind == 2:
-                old_a = sizes[a]
-                two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, best_p, best_var, buf)
-                if use_bits:
-                    _wake(dont_look, routes, sizes, a, pa + 1)
+            if best_kind == 2 or best_kind == 3:
+                if best_kind == 2:
+                    old_a = sizes[a]
+                    two_opt_star_apply(
+                        routes, sizes, pos, route_of, a, pa, b, best_p, best_var, buf
+                    )
                     seam = best_p if best_var == 0 else old_a - pa - 1
-                    _wake(dont_look, routes, sizes, b, seam - 1)
-                    _wake(dont_look, routes, sizes, b, seam)
+                    ends = (pa + 1, seam - 1, seam)
+                else:
+                    length = best_var // 2
+                    segment_apply(
+                        routes, sizes, pos, route_of, a, pa, length, b, best_p,
+                        best_var % 2 == 1, buf,
+                    )  # fmt: skip
+                    ends = (pa, best_p - 1, best_p + length)
+                if use_bits:
+                    _wake(dont_look, routes, sizes, a, ends[0])
+                    _wake(dont_look, routes, sizes, b, ends[1])
+                    _wake(dont_look, routes, sizes, b, ends[2])
                 for r in (a, b):
                     s = 0.0
                     prev = -1

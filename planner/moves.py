@@ -12,7 +12,10 @@ route rows: ``routes[r, :sizes[r]]`` the tasks of machine r in driving order, an
 - ``two_opt_star``: 2-opt* (Potvin & Rousseau): two routes exchange their tails so that a
   task and one of its nearest neighbours in the other route become consecutive, as they
   are (variant 0: t's head, then w and the rest of w's route) or crosswise (variant 1:
-  t's head, then w's head reversed; w's route gets t's tail reversed, then w's tail).
+  t's head, then w's head reversed; w's route gets t's tail reversed, then w's tail);
+- ``segment_relocate`` (Or-opt between routes): 2..:data:`SEGMENT` consecutive tasks
+  starting at a task go, as they are or reversed, next to one of its nearest neighbours
+  in another route.
 
 ``relocate`` and ``exchange`` are evaluated and applied by the search itself (they were
 there before this module); their bits let them be switched off like any other.
@@ -25,8 +28,10 @@ from numba import njit
 
 from planner.operators import leg
 
-MOVES = ("relocate", "exchange", "two_opt_star")
-RELOCATE, EXCHANGE, TWO_OPT_STAR = 1, 2, 4  # bits of the ``moves`` mask, in MOVES' order
+MOVES = ("relocate", "exchange", "two_opt_star", "segment_relocate")
+# Bits of the ``moves`` mask, in MOVES' order.
+RELOCATE, EXCHANGE, TWO_OPT_STAR, SEGMENT_RELOCATE = 1, 2, 4, 8
+SEGMENT = 3  # segment_relocate moves 2..SEGMENT tasks
 
 
 def mask(names: tuple[str, ...] | list[str]) -> int:
@@ -156,6 +161,59 @@ def two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, pw, variant, buf)
     for k in range(nb):
         routes[b, k] = buf[k]
     sizes[a], sizes[b] = na, nb
+    for r in (a, b):
+        for k in range(sizes[r]):
+            t = routes[r, k]
+            pos[t] = k
+            route_of[t] = r
+
+
+@njit(cache=True)
+def segment_lengths(  # type: ignore[no-untyped-def]
+    routes, sizes, pref, lengths, a, pa, length, b, p, rev, dist, start_dist, end_dist
+):
+    """The lengths of routes a and b after :func:`segment_apply` with the same arguments,
+    in O(1): routes[a, pa:pa+length] leave a and go into b before its p-th task (p =
+    sizes[b]: at its end), reversed when ``rev``. Assumes ``dist`` symmetric."""
+    s0 = routes[a, pa]
+    s1 = routes[a, pa + length - 1]
+    before = routes[a, pa - 1] if pa > 0 else -1
+    after = routes[a, pa + length] if pa + length < sizes[a] else -2
+    inner = pref[a, pa + length - 1] - pref[a, pa]
+    new_a = (
+        lengths[a]
+        - leg(before, s0, a, dist, start_dist, end_dist)
+        - inner
+        - leg(s1, after, a, dist, start_dist, end_dist)
+        + leg(before, after, a, dist, start_dist, end_dist)
+    )
+    u = routes[b, p - 1] if p > 0 else -1
+    v = routes[b, p] if p < sizes[b] else -2
+    first, last = (s1, s0) if rev else (s0, s1)
+    new_b = (
+        lengths[b]
+        - leg(u, v, b, dist, start_dist, end_dist)
+        + leg(u, first, b, dist, start_dist, end_dist)
+        + inner
+        + leg(last, v, b, dist, start_dist, end_dist)
+    )
+    return new_a, new_b
+
+
+@njit(cache=True)
+def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf):  # type: ignore[no-untyped-def]
+    """Apply the move (see :func:`segment_lengths`) to the route rows and the
+    ``pos``/``route_of`` index of every task; ``buf`` is scratch of n ints."""
+    for k in range(length):
+        buf[k] = routes[a, pa + length - 1 - k] if rev else routes[a, pa + k]
+    for k in range(pa, sizes[a] - length):
+        routes[a, k] = routes[a, k + length]
+    sizes[a] -= length
+    for k in range(sizes[b] - 1, p - 1, -1):
+        routes[b, k + length] = routes[b, k]
+    for k in range(length):
+        routes[b, p + k] = buf[k]
+    sizes[b] += length
     for r in (a, b):
         for k in range(sizes[r]):
             t = routes[r, k]

@@ -16,6 +16,8 @@ from planner.moves import (
     mask,
     prefix,
     route_rows,
+    segment_apply,
+    segment_lengths,
     two_opt_star_allowed,
     two_opt_star_apply,
     two_opt_star_lengths,
@@ -71,6 +73,49 @@ def test_two_opt_star_lengths_equal_the_lengths_after_the_move(case, data):
     assert flat == list(range(n))
 
 
+@SETTINGS
+@given(chromosomes(min_count=0), st.data())
+def test_segment_relocate_lengths_equal_the_lengths_after_the_move(case, data):
+    _, perm, counts = case
+    n, m = perm.size, counts.size
+    if m < 2:
+        return
+    rng = np.random.default_rng(n * 17 + m)
+    problem = problem_for(n, m, n + 3 * m).starting_at(
+        [tuple(rng.uniform(0, 3000, 2)) for _ in range(m)]
+    )
+    tables = CostTables.of(problem).kernel_args()
+    dist, start_dist, end_dist = tables[:3]
+    routes, sizes = route_rows(perm, counts)
+    busy = [r for r in range(m) if sizes[r] >= 2]
+    if not busy:
+        return
+    a = data.draw(st.sampled_from(busy))
+    b = data.draw(st.sampled_from([r for r in range(m) if r != a]))
+    length = data.draw(st.integers(2, min(3, int(sizes[a]))))
+    pa = data.draw(st.integers(0, int(sizes[a]) - length))
+    p = data.draw(st.integers(0, int(sizes[b])))
+    rev = data.draw(st.booleans())
+    pref = np.zeros((m, n))
+    for r in range(m):
+        prefix(routes, sizes, r, r, dist, start_dist, pref)
+    lengths = lengths_of(routes, sizes, tables)
+    new_a, new_b = segment_lengths(
+        routes, sizes, pref, lengths, a, pa, length, b, p, rev, dist, start_dist, end_dist
+    )
+    moved = routes[a, pa : pa + length].tolist()
+    pos = np.empty(n, dtype=np.int64)
+    route_of = np.empty(n, dtype=np.int64)
+    segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, np.empty(n, np.int64))
+    after = lengths_of(routes, sizes, tables)
+    assert after[a] == pytest.approx(new_a, rel=1e-9, abs=1e-6)
+    assert after[b] == pytest.approx(new_b, rel=1e-9, abs=1e-6)
+    assert routes[b, p : p + length].tolist() == (moved[::-1] if rev else moved)
+    assert all(route_of[t] == b for t in moved)
+    flat = sorted(int(t) for r in range(m) for t in routes[r, : sizes[r]])
+    assert flat == list(range(n))
+
+
 def test_two_opt_star_keeps_a_pinned_first_task_and_the_minimum():
     routes = np.array([[0, 1, 2], [3, 4, 5]], dtype=np.int64)
     sizes = np.array([3, 3], dtype=np.int64)
@@ -85,13 +130,13 @@ def test_two_opt_star_keeps_a_pinned_first_task_and_the_minimum():
 
 
 def test_moves_are_chosen_by_name():
-    assert mask(MOVES) == 7 and mask(("two_opt_star",)) == TWO_OPT_STAR
+    assert mask(MOVES) == 15 and mask(("two_opt_star",)) == TWO_OPT_STAR
     with pytest.raises(ValueError, match="unknown move 'cross'"):
         mask(("cross",))
 
 
 @SETTINGS
-@given(chromosomes(), st.sampled_from(list(Objective)), st.booleans(), st.integers(1, 7))
+@given(chromosomes(), st.sampled_from(list(Objective)), st.booleans(), st.integers(1, 15))
 def test_allocation_search_with_every_move_never_worsens(case, objective, lexi, moves):
     _, perm, counts = case
     n, m = perm.size, counts.size
