@@ -138,10 +138,12 @@ def test_giant_tour_is_a_good_tour_cut_optimally():
     perm = np.zeros(40, dtype=np.int64)
     counts = np.zeros(2, dtype=np.int64)
     nn = nearest_neighbours(problem.dist, 6)
-    giant_tour(make_state(1), perm, counts, int(Objective.MINMAX), tables, nn, 1, NO_PINS(40), np.inf)
+    giant_tour(
+        make_state(1), perm, counts, int(Objective.MINMAX), tables, nn, 1, NO_PINS(40), np.inf
+    )
     route = np.empty(2)
     evaluate(perm, counts, int(Objective.MINMAX), tables, route)
-    # Two half circles: each 100 out, 39/40 of half the circumference... and 100 back.
+    # Two half circles: 100 out, 19 chords along the circle, 100 back.
     chord = 2 * 100 * np.sin(np.pi / 40)
     assert counts.tolist() == [20, 20]
     assert route.max() == pytest.approx(200 + 19 * chord, rel=1e-9)
