@@ -31,87 +31,69 @@ def lengths_of(routes, sizes, tables):
     return out
 
 
-@SETTINGS
-@given(chromosomes(min_count=0), st.data())
-def test_two_opt_star_lengths_equal_the_lengths_after_the_move(case, data):
-    _, perm, counts = case
+def scattered_case(perm, counts):
+    """The chromosome as route rows with their prefix lengths, on a problem whose machines
+    start at different places (so that start and end legs cannot be mixed up)."""
     n, m = perm.size, counts.size
-    if m < 2:
-        return
     rng = np.random.default_rng(n * 31 + m)
-    # Machines starting at different places: start and end legs must not be mixed up.
     problem = problem_for(n, m, n + m).starting_at(
         [tuple(rng.uniform(0, 3000, 2)) for _ in range(m)]
     )
     tables = CostTables.of(problem).kernel_args()
-    dist, start_dist, end_dist = tables[:3]
     routes, sizes = route_rows(perm, counts)
-    busy = [r for r in range(m) if sizes[r] > 0]
-    if len(busy) < 2:
-        return
-    a, b = data.draw(st.permutations(busy))[:2]
-    pa = data.draw(st.integers(0, int(sizes[a]) - 1))
-    pw = data.draw(st.integers(0, int(sizes[b]) - 1))
-    variant = data.draw(st.integers(0, 1))
     pref = np.zeros((m, n))
     for r in range(m):
-        prefix(routes, sizes, r, r, dist, start_dist, pref)
-    new_a, new_b = two_opt_star_lengths(
-        routes, sizes, pref, a, pa, b, pw, variant, dist, start_dist, end_dist
-    )
-    pos = np.empty(n, dtype=np.int64)
-    route_of = np.empty(n, dtype=np.int64)
-    two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, pw, variant, np.empty(n, np.int64))
-    after = lengths_of(routes, sizes, tables)
-    assert after[a] == pytest.approx(new_a, rel=1e-9, abs=1e-6)
-    assert after[b] == pytest.approx(new_b, rel=1e-9, abs=1e-6)
-    assert sizes.sum() == n
-    for r in (a, b):
-        for k in range(sizes[r]):
-            assert pos[routes[r, k]] == k and route_of[routes[r, k]] == r
-    flat = sorted(int(t) for r in range(m) for t in routes[r, : sizes[r]])
-    assert flat == list(range(n))
+        prefix(routes, sizes, r, r, tables[0], tables[1], pref)
+    return tables, routes, sizes, pref
 
 
 @SETTINGS
-@given(chromosomes(min_count=0), st.data())
-def test_segment_relocate_lengths_equal_the_lengths_after_the_move(case, data):
+@given(chromosomes(min_count=0), st.sampled_from(["two_opt_star", "segment_relocate"]), st.data())
+def test_a_moves_lengths_equal_the_lengths_after_it_is_applied(case, move, data):
     _, perm, counts = case
     n, m = perm.size, counts.size
     if m < 2:
         return
-    rng = np.random.default_rng(n * 17 + m)
-    problem = problem_for(n, m, n + 3 * m).starting_at(
-        [tuple(rng.uniform(0, 3000, 2)) for _ in range(m)]
-    )
-    tables = CostTables.of(problem).kernel_args()
+    tables, routes, sizes, pref = scattered_case(perm, counts)
     dist, start_dist, end_dist = tables[:3]
-    routes, sizes = route_rows(perm, counts)
-    busy = [r for r in range(m) if sizes[r] >= 2]
-    if not busy:
-        return
-    a = data.draw(st.sampled_from(busy))
-    b = data.draw(st.sampled_from([r for r in range(m) if r != a]))
-    length = data.draw(st.integers(2, min(3, int(sizes[a]))))
-    pa = data.draw(st.integers(0, int(sizes[a]) - length))
-    p = data.draw(st.integers(0, int(sizes[b])))
-    rev = data.draw(st.booleans())
-    pref = np.zeros((m, n))
-    for r in range(m):
-        prefix(routes, sizes, r, r, dist, start_dist, pref)
-    lengths = lengths_of(routes, sizes, tables)
-    new_a, new_b = segment_lengths(
-        routes, sizes, pref, lengths, a, pa, length, b, p, rev, dist, start_dist, end_dist
-    )
-    moved = routes[a, pa : pa + length].tolist()
     pos = np.empty(n, dtype=np.int64)
     route_of = np.empty(n, dtype=np.int64)
-    segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, np.empty(n, np.int64))
+    buf = np.empty(n, dtype=np.int64)
+    if move == "two_opt_star":
+        busy = [r for r in range(m) if sizes[r] > 0]
+        if len(busy) < 2:
+            return
+        a, b = data.draw(st.permutations(busy))[:2]
+        pa = data.draw(st.integers(0, int(sizes[a]) - 1))
+        pw = data.draw(st.integers(0, int(sizes[b]) - 1))
+        variant = data.draw(st.integers(0, 1))
+        new_a, new_b = two_opt_star_lengths(
+            routes, sizes, pref, a, pa, b, pw, variant, dist, start_dist, end_dist
+        )
+        two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, pw, variant, buf)
+    else:
+        busy = [r for r in range(m) if sizes[r] >= 2]
+        if not busy:
+            return
+        a = data.draw(st.sampled_from(busy))
+        b = data.draw(st.sampled_from([r for r in range(m) if r != a]))
+        length = data.draw(st.integers(2, min(3, int(sizes[a]))))
+        pa = data.draw(st.integers(0, int(sizes[a]) - length))
+        p = data.draw(st.integers(0, int(sizes[b])))
+        rev = data.draw(st.booleans())
+        lengths = lengths_of(routes, sizes, tables)
+        new_a, new_b = segment_lengths(
+            routes, sizes, pref, lengths, a, pa, length, b, p, rev, dist, start_dist, end_dist
+        )
+        moved = routes[a, pa : pa + length].tolist()
+        segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf)
+        assert routes[b, p : p + length].tolist() == (moved[::-1] if rev else moved)
     after = lengths_of(routes, sizes, tables)
     assert after[a] == pytest.approx(new_a, rel=1e-9, abs=1e-6)
     assert after[b] == pytest.approx(new_b, rel=1e-9, abs=1e-6)
-    assert routes[b, p : p + length].tolist() == (moved[::-1] if rev else moved)
-    assert all(route_of[t] == b for t in moved)
+    for r in (a, b):
+        for k in range(sizes[r]):
+            assert pos[routes[r, k]] == k and route_of[routes[r, k]] == r
     flat = sorted(int(t) for r in range(m) for t in routes[r, : sizes[r]])
     assert flat == list(range(n))
 
