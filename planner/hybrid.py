@@ -12,7 +12,13 @@ Beyond ``ighoa`` with its extended local search, each generation:
   route, the one that sets the cost) followed by the relocate/exchange search between
   routes with don't-look bits (only the moved tasks and their neighbours are looked at
   first, so a step costs O(moves), not O(n)), 2-opt and Or-opt; the result is kept when
-  it is better than the elite.
+  it is better than the elite, and walked on from (record-to-record travel) when it is
+  within ``accept`` of it.
+
+The local search between routes also tries 2-opt* (:mod:`planner.moves`: the moves, by
+name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shorten the
+fleet's total distance without worsening the objective's figure. One individual of the
+first population is a giant tour cut by the optimal split (:func:`giant_tour`).
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """

@@ -6,7 +6,9 @@ exactly under every objective (sums and min-max alike):
 
 - relocate: take a task out of its route and put it next to one of its nearest
   neighbours in another route;
-- exchange: swap a task with one of its nearest neighbours in another route.
+- exchange: swap a task with one of its nearest neighbours in another route;
+- for ``hybrid`` also the moves of :mod:`planner.moves` (2-opt*, segment relocate),
+  chosen by a bit mask.
 
 Candidate positions come from each task's ``k`` nearest tasks, so a pass costs
 O(n k m) rather than O(n^2). Moves are applied best-per-task, first-improvement over tasks,
