@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from planner.cost import CostTables, Objective, evaluate
 from planner.hybrid import HybridParams, giant_tour, ils_step, or_opt, or_opt_routes, perturb
 from planner.local_search import nearest_neighbours
+from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
 from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
@@ -101,7 +102,7 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
 @pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
 def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objective):
     problem = problem_for(20, 3, 11)
-    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True)
+    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True, moves=MOVES)
     a, b = (
         solve(problem, objective, "hybrid", stop_after(15), seed=3, params=params) for _ in range(2)
     )
