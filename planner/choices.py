@@ -9,10 +9,12 @@ from __future__ import annotations
 from enum import IntEnum
 
 ALGORITHMS = ("ighoa", "ga", "hybrid")
-DEFAULT_ALGORITHM = "ighoa"
+DEFAULT_ALGORITHM = "hybrid"
 """``ighoa``: the paper's hybrid (simulated annealing, then the genetic algorithm with its
-local search); ``ga``: the classic genetic algorithm it is compared with; ``hybrid``: IGHOA
-with Or-opt and an iterated local search on the elite (planner.hybrid)."""
+local search); ``ga``: the classic genetic algorithm it is compared with; ``hybrid`` (the
+default since it beat ``ighoa`` on every cell measured, benchmarks/RESULTS.md): IGHOA with
+Or-opt, 2-opt* between routes, a giant-tour individual and an iterated local search on the
+elite (planner.hybrid, docs/ighoa.md)."""
 
 
 class Objective(IntEnum):

@@ -12,7 +12,13 @@ Beyond ``ighoa`` with its extended local search, each generation:
   route, the one that sets the cost) followed by the relocate/exchange search between
   routes with don't-look bits (only the moved tasks and their neighbours are looked at
   first, so a step costs O(moves), not O(n)), 2-opt and Or-opt; the result is kept when
-  it is better than the elite.
+  it is better than the elite, and walked on from (record-to-record travel) when it is
+  within ``accept`` of it.
+
+The local search between routes also tries 2-opt* (:mod:`planner.moves`: the moves, by
+name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shorten the
+fleet's total distance without worsening the objective's figure. One individual of the
+first population is a giant tour cut by the optimal split (:func:`giant_tour`).
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -26,9 +32,11 @@ from numba import njit
 
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
-from planner.local_search import allocation_search
-from planner.operators import improve_routes, leg
-from planner.pins import first_fixed
+from planner.local_search import allocation_search, optimal_split, past
+from planner.moves import mask
+from planner.operators import improve_routes, leg, two_opt_neighbours
+from planner.pins import first_fixed, repair_pins
+from planner.population import random_counts
 from planner.rng import randint
 
 MAX_SEGMENT = 3  # Or-opt moves segments of 1..MAX_SEGMENT tasks
@@ -44,11 +52,31 @@ class HybridParams(IGHOAParams):
     # pay at 10 s (benchmarks/RESULTS.md), unless this is set.
     ils_on_sums: bool = False
     or_opt: bool = True  # Or-opt in the polish
+    # The moves between routes of the local search, by name (planner.moves.MOVES);
+    # segment_relocate did not pay on kroA200 min-max (benchmarks/RESULTS.md), so it is
+    # selectable but off.
+    moves: tuple[str, ...] = ("relocate", "exchange", "two_opt_star")
+    # Total distance as the local search's second objective, after the objective's own
+    # figure (lexicographic): routes that do not set a min-max figure are shortened too.
+    lexicographic: bool = True
+    # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
+    # elite is walked on from; 0: every step starts from the elite.
+    accept: float = 0.01
+    # One individual of the first population is a giant tour (nearest neighbour, then
+    # 2-opt and Or-opt with neighbour lists) cut optimally into routes (route first,
+    # cluster second): what the GA's random orders take long to find on a large instance.
+    giant_tour: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.ils_steps < 0 or self.perturb < 1:
             raise ValueError("ils_steps must be >= 0 and perturb >= 1")
+        mask(self.moves)
+
+    @property
+    def move_mask(self) -> int:
+        """:attr:`moves` as the local search's bit mask."""
+        return mask(self.moves)
 
 
 @njit(cache=True)
@@ -215,15 +243,16 @@ def perturb(
 
 @njit(cache=True)
 def local_optimum(
-    perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look
+    perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look, moves, lexi
 ):  # type: ignore[no-untyped-def]
-    """Relocate/exchange between routes from the tasks whose don't-look bit is clear,
-    then the neighbour-list 2-opt inside the routes, in place. (Or-opt is left to the
+    """The ``moves`` between routes from the tasks whose don't-look bit is clear, then
+    the neighbour-list 2-opt inside the routes, in place. (Or-opt is left to the
     polish: over every route it costs more than an ILS step is worth.)"""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     allocation_search(
-        perm, counts, objective, tables, neighbours, min_count, 50, pins, deadline, dont_look, True
-    )
+        perm, counts, objective, tables, neighbours, min_count, 50, pins, deadline, dont_look,
+        True, moves, lexi,
+    )  # fmt: skip
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
 
 
@@ -234,6 +263,10 @@ def ils_step(  # type: ignore[no-untyped-def]
     elite_counts,
     elite_route,
     elite_cost,
+    walk_perm,
+    walk_counts,
+    walk_route,
+    walk_cost,
     objective,
     tables,
     neighbours,
@@ -242,20 +275,26 @@ def ils_step(  # type: ignore[no-untyped-def]
     steps,
     strength,
     deadline,
+    moves,
+    lexi,
+    accept,
 ):
-    """``steps`` perturb-and-improve attempts from the elite, each kept when better
-    (the elite arrays are updated in place); returns the new elite cost."""
-    perm = elite_perm.copy()
-    counts = elite_counts.copy()
-    route = elite_route.copy()
+    """``steps`` perturb-and-improve attempts from the walk's solution (record-to-record
+    travel): a result is the walk's next solution when it costs less than ``1 + accept``
+    times the elite, and the new elite when it costs less than the elite (both sets of
+    arrays are updated in place). With ``accept`` = 0 the walk is the elite.
+    Returns the new elite cost and walk cost."""
+    perm = walk_perm.copy()
+    counts = walk_counts.copy()
+    route = walk_route.copy()
     focus = objective == 3 or objective == 4
     moved = np.empty(strength, dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     for _ in range(steps):
-        perm[:] = elite_perm
-        counts[:] = elite_counts
+        perm[:] = walk_perm
+        counts[:] = walk_counts
         done = perturb(
-            state, perm, counts, elite_route, strength, focus, min_count, pins, neighbours, moved
+            state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours, moved
         )
         # Only the moved tasks and their neighbours are looked at first.
         dont_look[:] = True
@@ -264,12 +303,52 @@ def ils_step(  # type: ignore[no-untyped-def]
             for w in neighbours[moved[q]]:
                 dont_look[w] = False
         local_optimum(
-            perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look
-        )
+            perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look,
+            moves, lexi,
+        )  # fmt: skip
         cost = evaluate(perm, counts, objective, tables, route)
+        if cost < walk_cost - 1e-12 or cost < elite_cost * (1.0 + accept) - 1e-12:
+            walk_perm[:] = perm
+            walk_counts[:] = counts
+            walk_route[:] = route
+            walk_cost = cost
         if cost < elite_cost - 1e-12:
             elite_perm[:] = perm
             elite_counts[:] = counts
             elite_route[:] = route
             elite_cost = cost
-    return elite_cost
+    return elite_cost, walk_cost
+
+
+@njit(cache=True)
+def giant_tour(state, perm, counts, objective, tables, neighbours, min_count, pins, deadline):  # type: ignore[no-untyped-def]
+    """A first individual, route first and cluster second: one tour through every task
+    (nearest neighbour from machine 0's start, then 2-opt and Or-opt with the neighbour
+    lists until neither pays) cut by :func:`optimal_split` for the objective; when the
+    pins allow no cut, or ``deadline`` passes, a random split repaired for the pins."""
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    n = perm.shape[0]
+    m = counts.shape[0]
+    free = np.ones(n, dtype=np.bool_)
+    prev = -1
+    for k in range(n):
+        best = -1
+        best_d = np.inf
+        for t in range(n):
+            if free[t]:
+                d = start_dist[0, t] if prev < 0 else dist[prev, t]
+                if d < best_d:
+                    best, best_d = t, d
+        perm[k] = best
+        free[best] = False
+        prev = best
+    where = np.full(n, -1, dtype=np.int64)
+    gain = 1.0
+    while gain > 1e-9 and not past(deadline):
+        gain = two_opt_neighbours(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, where, 0)
+        gain += or_opt(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, 0)
+    random_counts(state, n, m, min_count, counts)
+    split = counts.copy()
+    if optimal_split(perm, split, objective, tables, min_count, pins, deadline) < np.inf:
+        counts[:] = split
+    repair_pins(perm, counts, pins, min_count)

@@ -6,7 +6,9 @@ exactly under every objective (sums and min-max alike):
 
 - relocate: take a task out of its route and put it next to one of its nearest
   neighbours in another route;
-- exchange: swap a task with one of its nearest neighbours in another route.
+- exchange: swap a task with one of its nearest neighbours in another route;
+- for ``hybrid`` also the moves of :mod:`planner.moves` (2-opt*, segment relocate),
+  chosen by a bit mask.
 
 Candidate positions come from each task's ``k`` nearest tasks, so a pass costs
 O(n k m) rather than O(n^2). Moves are applied best-per-task, first-improvement over tasks,
@@ -27,6 +29,20 @@ import numpy as np
 from numba import njit, objmode
 
 from planner.cost import TIE_BREAK
+from planner.moves import (
+    EXCHANGE,
+    RELOCATE,
+    SEGMENT,
+    SEGMENT_RELOCATE,
+    TWO_OPT_STAR,
+    prefix,
+    segment_apply,
+    segment_lengths,
+    two_opt_star_allowed,
+    two_opt_star_apply,
+    two_opt_star_lengths,
+    two_opt_star_sizes,
+)
 from planner.operators import improve_routes, leg
 
 CHECK_EVERY = 64  # tasks (moves tried, or cuts) between two looks at the clock
@@ -101,7 +117,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     dont_look = np.zeros(perm.shape[0], dtype=np.bool_)
     return allocation_search(
         perm, counts, objective, tables, neighbours, min_count, max_passes, pins, deadline,
-        dont_look, False,
+        dont_look, False, RELOCATE | EXCHANGE, False,
     )  # fmt: skip
 
 
@@ -118,12 +134,19 @@ def allocation_search(  # type: ignore[no-untyped-def]
     deadline,
     dont_look,
     use_bits,
+    move_mask,
+    lexi,
 ):
     """:func:`improve_allocation`, with don't-look bits when ``use_bits``: a task whose
     bit is set is not looked at; a task in which no move pays gets its bit set, and a move
     clears the bits of the tasks around it (and, for the min-max objectives, of every task
     of the route that is then the longest). Starting with few bits clear (the tasks a
-    perturbation moved) keeps the search local: O(moves), not O(n) a pass."""
+    perturbation moved) keeps the search local: O(moves), not O(n) a pass.
+
+    ``move_mask`` is the mask of the moves tried (:mod:`planner.moves`). With ``lexi``, the
+    total distance is a second objective, compared lexicographically after the
+    objective's own figure: a move that leaves the figure as it is (the longest route of
+    a min-max objective untouched) but shortens the fleet's total distance is taken."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
@@ -156,7 +179,12 @@ def allocation_search(  # type: ignore[no-untyped-def]
         s += leg(prev, -2, r, dist, start_dist, end_dist)
         lengths[r] = s
         values[r] = _route_value(objective, r, s, extras[r], road_h, road_f, ready, sizes[r])
+    pref = np.zeros((m, n))
+    for r in range(m):
+        prefix(routes, sizes, r, r, dist, start_dist, pref)
+    buf = np.empty(n, dtype=np.int64)
     current = _objective(objective, values, lengths)
+    total = lengths.sum()
     trial_values = values.copy()
     trial_lengths = lengths.copy()
     moves = 0
@@ -178,7 +206,11 @@ def allocation_search(  # type: ignore[no-untyped-def]
                 - leg(prev_t, t, a, dist, start_dist, end_dist)
                 - leg(t, next_t, a, dist, start_dist, end_dist)
             )
-            best_gain = 1e-9 * max(1.0, abs(current))
+            eps = 1e-9 * max(1.0, abs(current))
+            # Best gain so far in the objective's figure and (with lexi) in total distance.
+            best_gain = 0.0 if lexi else eps
+            best_gs = 1e-9 * max(1.0, total)
+            best_var = 0
             best_kind = -1
             best_b = -1
             best_p = -1
@@ -190,7 +222,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                     continue
                 pw = pos[w]
                 # Relocate t next to w (before: between pw-1 and pw; after: pw and pw+1).
-                if sizes[a] > min_count:
+                if sizes[a] > min_count and move_mask & RELOCATE:
                     for side in range(2):
                         if side == 0 and pins[w] >= 0:
                             continue  # nothing goes before a pinned task
@@ -212,12 +244,73 @@ def allocation_search(  # type: ignore[no-untyped-def]
                             objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b] + 1
                         )
                         gain = current - _objective(objective, trial_values, trial_lengths)
-                        if gain > best_gain:
-                            best_gain, best_kind, best_b, best_p, best_w = gain, 0, b, pw + side, w
+                        gs = total - trial_lengths.sum()
+                        if _better(gain, gs, best_gain, best_gs, eps, lexi):
+                            best_gain, best_gs = gain, gs
+                            best_kind, best_b, best_p, best_w = 0, b, pw + side, w
+                        trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
+                        trial_values[a], trial_values[b] = values[a], values[b]
+                if move_mask & SEGMENT_RELOCATE:
+                    for side in range(2):
+                        if side == 0 and pins[w] >= 0:
+                            continue  # nothing goes before a pinned task
+                        for length in range(2, SEGMENT + 1):
+                            if pa + length > sizes[a] or sizes[a] - length < min_count:
+                                break
+                            ea, eb = extras[a], extras[b]
+                            if use_extra:
+                                for k in range(pa, pa + length):
+                                    ea -= task_x[a, routes[a, k]]
+                                    eb += task_x[b, routes[a, k]]
+                            for rev in range(2):
+                                la, lb = segment_lengths(
+                                    routes, sizes, pref, lengths, a, pa, length, b, pw + side,
+                                    rev == 1, dist, start_dist, end_dist,
+                                )  # fmt: skip
+                                trial_lengths[a], trial_lengths[b] = la, lb
+                                trial_values[a] = _route_value(
+                                    objective, a, la, ea, road_h, road_f, ready, sizes[a] - length
+                                )
+                                trial_values[b] = _route_value(
+                                    objective, b, lb, eb, road_h, road_f, ready, sizes[b] + length
+                                )
+                                gain = current - _objective(objective, trial_values, trial_lengths)
+                                gs = total - trial_lengths.sum()
+                                if _better(gain, gs, best_gain, best_gs, eps, lexi):
+                                    best_gain, best_gs = gain, gs
+                                    best_kind, best_b, best_p, best_w = 3, b, pw + side, w
+                                    best_var = length * 2 + rev
+                                trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
+                                trial_values[a], trial_values[b] = values[a], values[b]
+                if move_mask & TWO_OPT_STAR:
+                    for var in range(2):
+                        if not two_opt_star_allowed(
+                            routes, sizes, pins, a, pa, b, pw, var, min_count
+                        ):
+                            continue
+                        la, lb = two_opt_star_lengths(
+                            routes, sizes, pref, a, pa, b, pw, var, dist, start_dist, end_dist
+                        )
+                        na, nb = two_opt_star_sizes(sizes, a, pa, b, pw, var)
+                        ea, eb = 0.0, 0.0
+                        if use_extra:
+                            ea, eb = _star_extras(routes, sizes, a, pa, b, pw, var, task_x)
+                        trial_lengths[a], trial_lengths[b] = la, lb
+                        trial_values[a] = _route_value(
+                            objective, a, la, ea, road_h, road_f, ready, na
+                        )
+                        trial_values[b] = _route_value(
+                            objective, b, lb, eb, road_h, road_f, ready, nb
+                        )
+                        gain = current - _objective(objective, trial_values, trial_lengths)
+                        gs = total - trial_lengths.sum()
+                        if _better(gain, gs, best_gain, best_gs, eps, lexi):
+                            best_gain, best_gs = gain, gs
+                            best_kind, best_b, best_p, best_w, best_var = 2, b, pw, w, var
                         trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
                         trial_values[a], trial_values[b] = values[a], values[b]
                 # Exchange t and w.
-                if pins[w] >= 0:
+                if pins[w] >= 0 or not move_mask & EXCHANGE:
                     continue
                 prev_w = _node(routes, sizes, b, pw - 1)
                 next_w = _node(routes, sizes, b, pw + 1)
@@ -244,8 +337,10 @@ def allocation_search(  # type: ignore[no-untyped-def]
                     objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b]
                 )
                 gain = current - _objective(objective, trial_values, trial_lengths)
-                if gain > best_gain:
-                    best_gain, best_kind, best_b, best_p, best_w = gain, 1, b, pw, w
+                gs = total - trial_lengths.sum()
+                if _better(gain, gs, best_gain, best_gs, eps, lexi):
+                    best_gain, best_gs = gain, gs
+                    best_kind, best_b, best_p, best_w = 1, b, pw, w
                 trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
                 trial_values[a], trial_values[b] = values[a], values[b]
             if best_kind < 0:
@@ -257,7 +352,36 @@ def allocation_search(  # type: ignore[no-untyped-def]
                 _wake(dont_look, routes, sizes, a, pa)
                 _wake(dont_look, routes, sizes, b, pos[best_w])
                 dont_look[best_w] = False
-            if best_kind == 0:
+            if best_kind == 2 or best_kind == 3:
+                if best_kind == 2:
+                    old_a = sizes[a]
+                    two_opt_star_apply(
+                        routes, sizes, pos, route_of, a, pa, b, best_p, best_var, buf
+                    )
+                    seam = best_p if best_var == 0 else old_a - pa - 1
+                    ends = (pa + 1, seam - 1, seam)
+                else:
+                    length = best_var // 2
+                    segment_apply(
+                        routes, sizes, pos, route_of, a, pa, length, b, best_p,
+                        best_var % 2 == 1, buf,
+                    )  # fmt: skip
+                    ends = (pa, best_p - 1, best_p + length)
+                if use_bits:
+                    _wake(dont_look, routes, sizes, a, ends[0])
+                    _wake(dont_look, routes, sizes, b, ends[1])
+                    _wake(dont_look, routes, sizes, b, ends[2])
+                for r in (a, b):
+                    s = 0.0
+                    prev = -1
+                    extras[r] = 0.0
+                    for k in range(sizes[r]):
+                        s += leg(prev, routes[r, k], r, dist, start_dist, end_dist)
+                        prev = routes[r, k]
+                        if use_extra:
+                            extras[r] += task_x[r, prev]
+                    lengths[r] = s + leg(prev, -2, r, dist, start_dist, end_dist)
+            elif best_kind == 0:
                 # Remove t from a.
                 for k in range(pa, sizes[a] - 1):
                     routes[a, k] = routes[a, k + 1]
@@ -306,9 +430,12 @@ def allocation_search(  # type: ignore[no-untyped-def]
             values[b] = _route_value(
                 objective, b, lengths[b], extras[b], road_h, road_f, ready, sizes[b]
             )
+            prefix(routes, sizes, a, a, dist, start_dist, pref)
+            prefix(routes, sizes, b, b, dist, start_dist, pref)
             trial_values[:] = values
             trial_lengths[:] = lengths
             current = _objective(objective, values, lengths)
+            total = lengths.sum()
             if use_bits and (objective == 3 or objective == 4):
                 longest = np.argmax(values)
                 for k in range(sizes[longest]):
@@ -326,6 +453,34 @@ def allocation_search(  # type: ignore[no-untyped-def]
     if not late:
         improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves
+
+
+@njit(cache=True)
+def _better(gain, gs, best_gain, best_gs, eps, lexi):  # type: ignore[no-untyped-def]
+    """Whether a move of ``gain`` in the objective and ``gs`` in total distance beats the
+    best so far: by its gain, or (with ``lexi``) by its distance at no smaller gain."""
+    if not lexi:
+        return gain > best_gain
+    return gain > best_gain + eps or (gain >= best_gain and gs > best_gs)
+
+
+@njit(cache=True)
+def _star_extras(routes, sizes, a, pa, b, pw, variant, task_x):  # type: ignore[no-untyped-def]
+    """The in-field figures (``task_x`` per machine) of routes a and b after the 2-opt*
+    move (:func:`planner.moves.two_opt_star_lengths`): O(route lengths)."""
+    ea = 0.0
+    eb = 0.0
+    for k in range(pa + 1):
+        ea += task_x[a, routes[a, k]]
+    for k in range(pa + 1, sizes[a]):
+        eb += task_x[b, routes[a, k]]
+    lo, hi = (pw, sizes[b]) if variant == 0 else (0, pw + 1)
+    for k in range(sizes[b]):
+        if lo <= k < hi:
+            ea += task_x[a, routes[b, k]]
+        else:
+            eb += task_x[b, routes[b, k]]
+    return ea, eb
 
 
 @njit(cache=True)

@@ -42,7 +42,12 @@ from planner.cost import (
     split_routes,
 )
 from planner.errors import Deadline
-from planner.local_search import improve_allocation, nearest_neighbours, optimal_split
+from planner.local_search import (
+    allocation_search,
+    improve_allocation,
+    nearest_neighbours,
+    optimal_split,
+)
 from planner.pins import repair_pins
 from planner.population import random_counts
 from planner.problem import Problem
@@ -330,6 +335,18 @@ def solve(
             annealing.alpha,
             annealing.chain,
         )
+    if isinstance(params, hybrid.HybridParams) and params.giant_tour and not stop.interrupted():
+        hybrid.giant_tour(
+            state,
+            perms[pop - 1],
+            counts[pop - 1],
+            int(obj),
+            tables,
+            nearest_neighbours(problem.dist, params.neighbours),
+            min_count,
+            pins,
+            stop.deadline(),
+        )
     if warm is not None:
         perms[0], counts[0] = warm
     costs = np.empty(pop)
@@ -340,6 +357,9 @@ def solve(
         best = 0  # a tie keeps the warm start
     elite_perm, elite_counts = perms[best].copy(), counts[best].copy()
     elite_route, elite_cost = route_costs[best].copy(), float(costs[best])
+    # The ILS's walk (hybrid): starts at the elite, goes back to it when left behind.
+    walk_perm, walk_counts = elite_perm.copy(), elite_counts.copy()
+    walk_route, walk_cost = elite_route.copy(), elite_cost
     history: list[float] = []
     neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
     stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
@@ -417,12 +437,19 @@ def solve(
             and (params.ils_on_sums or obj in (Objective.MINMAX, Objective.MAKESPAN))
             and not stop.interrupted()
         ):
-            improved = hybrid.ils_step(
+            if walk_cost > elite_cost * (1.0 + params.accept):
+                walk_perm[:], walk_counts[:] = elite_perm, elite_counts
+                walk_route[:], walk_cost = elite_route, elite_cost
+            improved, walk_cost = hybrid.ils_step(
                 state,
                 elite_perm,
                 elite_counts,
                 elite_route,
                 elite_cost,
+                walk_perm,
+                walk_counts,
+                walk_route,
+                walk_cost,
                 int(obj),
                 tables,
                 neighbours,
@@ -431,6 +458,9 @@ def solve(
                 params.ils_steps,
                 params.perturb,
                 stop.deadline(),
+                params.move_mask,
+                params.lexicographic,
+                params.accept,
             )
             if improved < elite_cost:
                 elite_cost = float(improved)
@@ -510,9 +540,16 @@ def _polish(  # type: ignore[no-untyped-def]
             deadline = stop.deadline()
             if idx == targets[0]:
                 optimal_split(perm, cnt, objective, tables, min_count, pins, deadline)
-            improve_allocation(
-                perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline
-            )
+            if isinstance(params, hybrid.HybridParams):
+                allocation_search(
+                    perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline,
+                    np.zeros(len(perm), dtype=np.bool_), False, params.move_mask,
+                    params.lexicographic,
+                )  # fmt: skip
+            else:
+                improve_allocation(
+                    perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline
+                )
             if isinstance(params, hybrid.HybridParams) and params.or_opt:
                 hybrid.or_opt_routes(perm, cnt, tables[0], tables[1], tables[2], neighbours, pins)
             cost = evaluate(perm, cnt, objective, tables, route)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from dispatcher.config.errors import ConfigError
-from planner.choices import ALGORITHMS, Objective
+from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM, Objective
 from planner.errors import PlannerError
 from planner.farm import Farm, FarmOptions, load_farm
 from planner.problem import Machine
@@ -254,7 +254,7 @@ class Vehicle:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    algorithm: str = "ighoa"
+    algorithm: str = DEFAULT_ALGORITHM
     objective: str = "makespan"
     time_limit_s: float = 10.0
     generations: int = 2000

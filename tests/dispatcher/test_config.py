@@ -29,6 +29,7 @@ from dispatcher.config.scenario import (
     WatchSettings,
     load_scenario,
 )
+from planner.choices import DEFAULT_ALGORITHM
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "tests" / "data"
@@ -59,7 +60,12 @@ def scenario_doc() -> dict[str, Any]:
         "farm": str(DATA / "tiny-farm.geojson"),
         "machines": ["v1", "v2"],
         "machine": [machine("v1", 11), machine("v2", 12, "relay", 1, 6.0)],
-        "solver": {"algorithm": "ighoa", "time_limit_s": 1.0, "generations": 100, "seed": 3},
+        "solver": {
+            "algorithm": DEFAULT_ALGORITHM,
+            "time_limit_s": 1.0,
+            "generations": 100,
+            "seed": 3,
+        },
         "dispatcher": {"lost_after_s": 5.0, "stall_after_s": 60.0, "lost_grace_s": 30.0},
     }
 

@@ -7,8 +7,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from planner.cost import CostTables, Objective, evaluate
-from planner.hybrid import HybridParams, ils_step, or_opt, or_opt_routes, perturb
+from planner.hybrid import HybridParams, giant_tour, ils_step, or_opt, or_opt_routes, perturb
 from planner.local_search import nearest_neighbours
+from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
 from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
@@ -86,10 +87,11 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
     route = np.empty(3)
     cost = evaluate(perm, counts, int(objective), tables, route)
     nn = nearest_neighbours(problem.dist, 6)
-    new = ils_step(
-        make_state(2), perm, counts, route, cost, int(objective), tables, nn, 1,
-        NO_PINS(25), 10, 3, np.inf,
+    new, walk = ils_step(
+        make_state(2), perm, counts, route, cost, perm.copy(), counts.copy(), route.copy(),
+        cost, int(objective), tables, nn, 1, NO_PINS(25), 10, 3, np.inf, 7, True, 0.01,
     )  # fmt: skip
+    assert new <= walk + 1e-9 and walk <= cost * 1.01
     assert_valid(perm, counts, 25, 3)
     check = np.empty(3)
     assert new == pytest.approx(evaluate(perm, counts, int(objective), tables, check), rel=1e-12)
@@ -100,7 +102,7 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
 @pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
 def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objective):
     problem = problem_for(20, 3, 11)
-    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True)
+    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True, moves=MOVES)
     a, b = (
         solve(problem, objective, "hybrid", stop_after(15), seed=3, params=params) for _ in range(2)
     )
@@ -108,3 +110,41 @@ def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objecti
     assert a.routes == b.routes and a.history == b.history
     assert all(x >= y for x, y in zip(a.history, a.history[1:], strict=False))
     assert a.cost == pytest.approx(a.figures.value(a.objective))
+
+
+@SETTINGS
+@given(chromosomes(min_count=0), st.sampled_from(list(Objective)), st.integers(0, 1))
+def test_giant_tour_gives_a_valid_chromosome_with_its_pins(case, objective, min_count):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, n + 2 * m)
+    tables = CostTables.of(problem).kernel_args()
+    pins = NO_PINS(n)
+    pins[int(perm[-1])] = m - 1  # one task pinned to the last machine
+    nn = nearest_neighbours(problem.dist, 5)
+    giant_tour(state, perm, counts, int(objective), tables, nn, min_count, pins, np.inf)
+    assert_valid(perm, counts, n, m, min_count)
+    assert pins_hold(perm, counts, pins)
+
+
+def test_giant_tour_is_a_good_tour_cut_optimally():
+    # Tasks on a circle around the depot: the giant tour goes round it once.
+    angles = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
+    problem = Problem.build(
+        [Machine(f"m{i}", 1.0, 1.0, 1.0, 0.0, 1.0, 1.0) for i in range(2)],
+        [Task(f"t{j}", 100 * np.cos(a), 100 * np.sin(a)) for j, a in enumerate(angles)],
+        (0.0, 0.0),
+    )
+    tables = CostTables.of(problem).kernel_args()
+    perm = np.zeros(40, dtype=np.int64)
+    counts = np.zeros(2, dtype=np.int64)
+    nn = nearest_neighbours(problem.dist, 6)
+    giant_tour(
+        make_state(1), perm, counts, int(Objective.MINMAX), tables, nn, 1, NO_PINS(40), np.inf
+    )
+    route = np.empty(2)
+    evaluate(perm, counts, int(Objective.MINMAX), tables, route)
+    # Two half circles: 100 out, 19 chords along the circle, 100 back.
+    chord = 2 * 100 * np.sin(np.pi / 40)
+    assert counts.tolist() == [20, 20]
+    assert route.max() == pytest.approx(200 + 19 * chord, rel=1e-9)
