@@ -73,9 +73,19 @@ def _port_free(port: int) -> bool:
     return True
 
 
-def free_instance(first: int = 20) -> int:
-    """A SITL instance number whose TCP ports (5760..5763 + 10 K) are free."""
-    for k in range(first, first + 200):
+FIRST_INSTANCE = 20
+WORKER_BLOCK = 50
+"""Instance numbers each pytest-xdist worker searches (gwN from FIRST_INSTANCE + N times
+this): two workers starting SITL at the same moment both found instance 20 free, and the
+second SITL could not take its ports."""
+
+
+def free_instance() -> int:
+    """A SITL instance number whose TCP ports (5760..5763 + 10 K) are free, in this test
+    worker's own block."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    first = FIRST_INSTANCE + WORKER_BLOCK * (int(worker) if worker.isdigit() else 0)
+    for k in range(first, first + WORKER_BLOCK):
         if all(_port_free(5760 + 10 * k + d) for d in range(4)):
             return k
     raise RuntimeError("no free SITL instance number")
