@@ -16,6 +16,7 @@ keys reaches neither the dispatcher nor v1.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import secrets
 from collections.abc import Iterator
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from helpers.mavlink_wire import HOME
 from helpers.processes import (
     Processes,
     free_port,
@@ -84,23 +86,9 @@ def far_mission(target: int) -> list[mc.MAVLinkMessage]:
     """A mission of a foreign system's: one waypoint 1.5 km north of the farm."""
     count = mc.message("MISSION_COUNT", target_system=target, target_component=1, count=2)
     wp = [
-        mc.message(
-            "MISSION_ITEM_INT",
-            target_system=target,
-            target_component=1,
-            seq=seq,
-            frame=0,
-            command=16,
-            current=0,
-            autocontinue=1,
-            param1=0.0,
-            param2=0.0,
-            param3=0.0,
-            param4=0.0,
-            x=int((44.0 + 0.0135 * seq) * 1e7),
-            y=int(87.3 * 1e7),
-            z=0.0,
-        )
+        dataclasses.replace(
+            HOME, seq=seq, x=int((44.0 + 0.0135 * seq) * 1e7), y=int(87.3 * 1e7)
+        ).to_item_int(target, 1)
         for seq in range(2)
     ]
     return [count, *wp]
@@ -115,19 +103,13 @@ def test_foreign_commands_and_forged_progress_fail_raise_alarms_and_the_run_fini
     endpoint = f"tcp/127.0.0.1:{port}"
     procs.start("router", "router", "--listen", endpoint)
     client = ("--mode", "client")
-    serve = procs.start(
-        "serve",
-        "serve",
-        str(SCENARIO),
-        *client,
-        "--connect",
-        endpoint,
-        "--log-dir",
-        str(tmp_path / "logs"),
-        "--keys",
-        procs.keys(SCENARIO),
+    serve = procs.serve(
+        SCENARIO,
+        port,
+        tmp_path / "logs",
         "--time-limit",
         "1",
+        endpoint=(*client, "--connect", endpoint),
     )
     keys = procs.keys(SCENARIO)
     stranger = mc.Codec(ATTACKER, 190)
@@ -198,20 +180,13 @@ def test_without_the_farms_certificate_or_on_anothers_keys_nothing_gets_through(
     make_farm_pki(tls, FARM, ["v1", "v2"])
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
-    serve = procs.start(
-        "serve",
-        "serve",
-        str(SCENARIO),
-        "--listen",
-        endpoint,
-        "--tls",
-        str(tls),
-        "--log-dir",
-        str(tmp_path / "logs"),
-        "--keys",
-        procs.keys(SCENARIO),
+    serve = procs.serve(
+        SCENARIO,
+        port,
+        tmp_path / "logs",
         "--time-limit",
         "1",
+        endpoint=("--listen", endpoint, "--tls", str(tls)),
     )
     for vid in ("v1", "v2"):
         procs.sim(SCENARIO, port, SPEEDUP, vid, extra=("--tls", str(tls)), scheme="tls")

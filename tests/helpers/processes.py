@@ -92,13 +92,21 @@ class Processes:
         self.procs.append(proc)
         return proc
 
-    def serve(self, scenario: Path, port: int, log_dir: Path, *extra: str) -> subprocess.Popen[str]:
+    def serve(
+        self,
+        scenario: Path,
+        port: int,
+        log_dir: Path,
+        *extra: str,
+        endpoint: Sequence[str] | None = None,
+    ) -> subprocess.Popen[str]:
+        """``agrifleet serve`` listening on loopback ``port`` (or with the ``endpoint``
+        options given instead: a router's client, a TLS listener)."""
         return self.start(
             "serve",
             "serve",
             str(scenario),
-            "--listen",
-            f"tcp/127.0.0.1:{port}",
+            *(endpoint if endpoint is not None else ("--listen", f"tcp/127.0.0.1:{port}")),
             "--log-dir",
             str(log_dir),
             "--keys",
