@@ -549,7 +549,9 @@ def add_algorithm_argument(p: argparse.ArgumentParser) -> None:
         "--algorithm",
         choices=ALGORITHMS,
         default=DEFAULT_ALGORITHM,
-        help=f"our solver (default {DEFAULT_ALGORITHM})",
+        help=f"hybrid (IGHOA's shape with moves between routes, Or-opt and an iterated local "
+        f"search, docs/ighoa.md), ighoa (the paper's) or ga (plain genetic algorithm); "
+        f"default {DEFAULT_ALGORITHM}",
     )
 
 
@@ -729,8 +731,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_warm)
 
-    from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
-
     p = sub.add_parser("mtsp", help="solve a TSPLIB instance as a multiple-TSP")
     p.add_argument("instance", type=Path, help="TSPLIB .tsp file; node 1 is the depot")
     p.add_argument(
@@ -742,13 +742,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="minsum",
         help="total distance (minsum, default) or the longest route (minmax)",
     )
-    p.add_argument(
-        "--algorithm",
-        choices=ALGORITHMS,
-        default=DEFAULT_ALGORITHM,
-        help=f"ighoa (the paper's), ga (plain genetic algorithm) or hybrid (ighoa with Or-opt "
-        f"and an iterated local search, docs/ighoa.md); default {DEFAULT_ALGORITHM}",
-    )
+    add_algorithm_argument(p)
     p.add_argument(
         "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
     )
