@@ -87,6 +87,7 @@ def bench_soak(
                 heartbeat_timeout_s=dispatch.scenario.watch.lost_after_s,
                 stall_after_s=dispatch.scenario.watch.stall_after_s,
                 lost_grace_s=dispatch.scenario.watch.lost_grace_s,
+                window_items=dispatch.scenario.watch.window_items,
                 alive_timeout_s=120.0,
                 on_progress=lambda state: None,
                 replanner=replanner_for(dispatch.scenario, dispatch, seconds=1.0),
@@ -178,18 +179,21 @@ def bench_soak(
 
     lines = [
         f"### Soak: {vehicles} tractors ({per_process} per simulator process), {fields} fields, "
-        f"{minutes:g} min wall at {speedup:.0f}x, {100 * loss:g} % frame loss each way",
+        f"{minutes:g} min wall at {speedup:.0f}x, {100 * loss:g} % frame loss each way, "
+        f"missions in windows of {dispatch.scenario.watch.window_items or 'all'} items",
         "",
         "| faults | re-plans | loss → new plan s (median / max) | loss → all acked s "
         "(median / max) | fields not done / lost | segments twice / never (of all) | exit "
-        "| all started after s | dispatcher CPU s | RSS MB start → end |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| all started after s | dispatcher CPU s | RSS MB start → end "
+        "| top-ups (items; waited at a window's end) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         f"| {len(faults)} ({fault_list}) "
         f"| {len(daemon.replans)} | {stat(plan_s)} | {stat(acked_s)} ({len(acked_s)} of "
         f"{len(daemon.replans)}) | {len(not_done)} / {len(lost)} "
         f"| {twice} / {never} ({segments}) | {code} "
         f"| {driving} | {cpu1 - cpu0:.0f} over "
-        f"{took:.0f} s | {rss0:.0f} → {rss1:.0f} |",
+        f"{took:.0f} s | {rss0:.0f} → {rss1:.0f} "
+        f"| {len(daemon.topups)} ({sum(n for _, n in daemon.topups)}; {daemon.window_waits}) |",
         "",
         "Goals: loss → all acked < 3 s; fields lost 0 (not done, and in no working vehicle's "
         "route); segments twice 0. A kill or a stall hits every tractor of one simulator "

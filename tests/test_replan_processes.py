@@ -19,10 +19,21 @@ from helpers.processes import (
 )
 from helpers.review import assert_each_segment_worked_once
 
-from dispatcher.recording.mcap_file import LOG_TOPIC, read_logs
+from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_logs
 from dispatcher.review.report import review_contents, review_table
 
 SCENARIO = Path(__file__).parent / "data" / "restart.toml"  # two tractors of one width
+
+
+def scenario_with(tmp_path: Path, dispatcher: str) -> Path:
+    """SCENARIO with ``dispatcher`` as its [dispatcher] table, in ``tmp_path``."""
+    scenario = tmp_path / "scenario.toml"
+    farm = SCENARIO.parent / "tiny-farm.geojson"
+    scenario.write_text(
+        SCENARIO.read_text().replace('farm = "tiny-farm.geojson"', f'farm = "{farm}"')
+        + f"\n[dispatcher]\n{dispatcher}\n"
+    )
+    return scenario
 
 
 @pytest.fixture
@@ -61,15 +72,39 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     assert {f for f, _, _ in taken} <= set(review.vehicle("v1").fields_done), table
 
 
+def test_missions_in_windows_are_topped_up_and_a_killed_tractors_work_still_done(
+    procs: Processes, tmp_path: Path
+) -> None:
+    # Windows of about 20 items (a field): each tractor gets its mission a field at a time.
+    scenario = scenario_with(tmp_path, "window_items = 20")
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    procs.sim(scenario, port, 20, "v1")
+    v2 = procs.sim(scenario, port, 20, "v2")
+    with status_reader(port, "restart") as status:
+        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
+    os.kill(v2.pid, signal.SIGKILL)
+    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    events = [r.decode_json() for r in log.on(EVENTS_TOPIC)]
+    uploads = [e["items"] for e in events if e["kind"] == "upload_started" and e["vehicle"] == "v1"]
+    plan = log.on("agrifleet/restart/dispatcher/plan")[0].decode_json()
+    planned = len(next(m for m in plan["machines"] if m["id"] == "v1")["items"])
+    assert uploads and uploads[0] < planned, uploads  # a window, not the whole mission
+    topups = [e["items"] for e in events if e["kind"] == "window_extended" and e["vehicle"] == "v1"]
+    assert topups, events
+    review = review_contents(log)
+    table = review_table(review)
+    assert all(f.done for f in review.fields), table
+    assert_each_segment_worked_once(review)
+    assert [x.vehicle for x in review.losses] == ["v2"], table
+
+
 def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     procs: Processes, tmp_path: Path
 ) -> None:
-    scenario = tmp_path / "stall.toml"
-    farm = SCENARIO.parent / "tiny-farm.geojson"
-    scenario.write_text(
-        SCENARIO.read_text().replace('farm = "tiny-farm.geojson"', f'farm = "{farm}"')
-        + "\n[dispatcher]\nstall_after_s = 30\n"
-    )
+    scenario = scenario_with(tmp_path, "stall_after_s = 30")
     port = free_port()
     serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
     procs.sim(scenario, port, 20, "v1")

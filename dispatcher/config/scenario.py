@@ -167,6 +167,13 @@ LIMITS: dict[str, Limit] = {
         "vehicles send a heartbeat once a second",
         "an hour for a lost vehicle to come back",
     ),
+    "window_items": Limit(
+        0,
+        100_000,
+        "",
+        "0 sends each mission whole",
+        "more than any autopilot stores",
+    ),
 }
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 # The keys in other units have the bounds of their parameter, in their unit.
@@ -207,7 +214,7 @@ MACHINE_KEYS = (
 )
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
 SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
-WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s")
+WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items")
 # Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
 _ELSEWHERE_AT_TOP = {
     **dict.fromkeys(MACHINE_KEYS, "in a [[machine]] table"),
@@ -261,6 +268,12 @@ class SolverSettings:
     seed: int = 1
 
 
+WINDOW_ITEMS = 250
+"""Default ``[dispatcher] window_items``: a mission longer than this goes to the vehicle in
+windows of whole fields (dispatcher/mission/window.py). At ~100 items a second over a
+farm radio a window is on board in a few seconds; most autopilots store several hundred."""
+
+
 @dataclass(frozen=True)
 class WatchSettings:
     """When the dispatcher gives a vehicle up as lost (the scenario's ``[dispatcher]``)."""
@@ -268,6 +281,9 @@ class WatchSettings:
     lost_after_s: float = 5.0  # wall seconds without any message from it
     stall_after_s: float = 60.0  # its own seconds driving in AUTO without getting anywhere
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back
+    # Missions are sent in windows of about this many items, topped up as the vehicle
+    # drives (dispatcher/mission/window.py); 0: each mission whole.
+    window_items: int = WINDOW_ITEMS
 
 
 @dataclass(frozen=True)
@@ -700,4 +716,9 @@ def _solver(raw: Any, src: str) -> SolverSettings:
 def _watch(raw: Any, src: str) -> WatchSettings:
     raw = _table(raw, src, "[dispatcher]")
     _check_keys(raw, WATCH_KEYS, src, "[dispatcher]", _ELSEWHERE_IN_DISPATCHER)
-    return WatchSettings(**{k: _number(raw, k, src, f"dispatcher.{k}") for k in raw})
+    values: dict[str, Any] = {
+        k: _number(raw, k, src, f"dispatcher.{k}") for k in raw if k != "window_items"
+    }
+    if "window_items" in raw:
+        values["window_items"] = _integer(raw, "window_items", src, "dispatcher.window_items")
+    return WatchSettings(**values)

@@ -48,8 +48,21 @@ class VehicleStalled(Event):
 
 @dataclass(frozen=True)
 class UploadStarted(Event):
+    """A mission upload begins: its first ``items`` (a window of it, mission/window.py;
+    0: the whole mission)."""
+
     kind: ClassVar[str] = "upload_started"
     attempt: int
+    items: int = 0
+
+
+@dataclass(frozen=True)
+class WindowExtended(Event):
+    """A driving vehicle is given more of its mission (a top-up, or a re-planned route
+    uploaded under way): it is to hold the first ``items`` (mission/window.py)."""
+
+    kind: ClassVar[str] = "window_extended"
+    items: int
 
 
 @dataclass(frozen=True)
@@ -234,6 +247,7 @@ EVENTS: dict[str, type[Event]] = {
         VehicleLost,
         VehicleStalled,
         UploadStarted,
+        WindowExtended,
         UploadFailed,
         UploadAcked,
         SwitchUploaded,

@@ -25,6 +25,7 @@ from typing import Any
 
 import zenoh
 
+from dispatcher.config.scenario import WINDOW_ITEMS
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import ACTIVE, GONE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
 from dispatcher.daemon.store import Store, StoredRun
@@ -47,6 +48,7 @@ from dispatcher.link.mission_protocol import (
 )
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
+from dispatcher.mission.window import window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
@@ -59,6 +61,10 @@ LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
 FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
+TOPUP_LEAD_S = 10.0
+"""Wall seconds before a vehicle reaches the end of the window of its mission it holds
+(dispatcher/mission/window.py) when its next window is sent, plus twice what its last
+upload took."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -94,6 +100,8 @@ class DaemonConfig:
     keys: Mapping[str, bytes] | None = None
     # Serve the run live to Foxglove on (host, port) (dispatcher/recording/live.py); None: not.
     foxglove: tuple[str, int] | None = None
+    # Missions go in windows of about this many items (dispatcher/mission/window.py); 0: whole.
+    window_items: int = WINDOW_ITEMS
 
 
 class _VehicleSender:
@@ -143,6 +151,7 @@ class _Link:
     ready_since: float | None = None  # resuming: when it was first heard booted
     switch_from: int | None = None  # re-planned while driving: the first item of its new route
     join: int | None = None  # and where it went on in it, having driven past the kept part
+    topup_from: int | None = None  # topping up: how many items it held before
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
@@ -206,6 +215,9 @@ class Dispatcher:
         self.replans: list[list[Any]] = []
         self._awaiting_acks: tuple[int, set[str], float] | None = None
         self._adopted_at = 0.0
+        self._upload_took: dict[str, float] = {}  # wall seconds each one's last upload took
+        self.topups: list[tuple[str, int]] = []  # (vehicle, items uploaded) per top-up
+        self.window_waits = 0  # top-ups that came after the vehicle reached its window's end
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self) -> int:
@@ -494,8 +506,7 @@ class Dispatcher:
             return None
         if link.download.outcome is Outcome.FAILED:
             return f"its mission could not be read back ({link.download.reason})"
-        ours = self.job.missions[v.id].to_mavlink(v.system_id)
-        diffs = mission_differences(link.download.items, ours)
+        diffs = self._held_differences(v, link.download)
         return f"holds another mission (differs at {', '.join(diffs)})" if diffs else ""
 
     def _keep_signing_timestamps(self) -> None:
@@ -626,6 +637,7 @@ class Dispatcher:
             if link.upload.outcome is Outcome.DONE:
                 if not v.acked:
                     self._apply(ev.UploadAcked(vid), now)
+                    self._upload_took[vid] = now - link.since
                     self._log("info", f"{vid}: mission acknowledged")
                     if self.all_acknowledged is None and all(
                         lk.upload is not None and lk.upload.outcome is Outcome.DONE
@@ -646,8 +658,7 @@ class Dispatcher:
                     if read.outcome is Outcome.FAILED:
                         self._upload_failed(v, link, f"not read back ({read.reason})", now)
                         return
-                    ours = self.job.missions[vid].to_mavlink(v.system_id)
-                    if diffs := mission_differences(read.items, ours):
+                    if diffs := self._held_differences(v, read):
                         self._upload_failed(
                             v, link, f"read back different ({', '.join(diffs)})", now
                         )
@@ -678,6 +689,93 @@ class Dispatcher:
             link.park = CommandSequence(park_commands(), v.system_id)
             self._log("info", f"{vid}: mission complete; HOLD and disarm")
             self._send(vid, link.park.start(now))
+        elif v.phase is Phase.RUNNING:
+            self._advance_topup(v, link, now)
+
+    def _held_differences(self, v: VehicleState, read: MissionDownload) -> list[str]:
+        """Where what ``read`` read back differs from the part of our mission the vehicle
+        is to hold (empty: the same)."""
+        ours = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
+        return mission_differences(read.items, ours, first=read.first, count=read.count)
+
+    def _topup_due(self, v: VehicleState, link: _Link, now: float) -> bool:
+        """A driving vehicle that holds a window of its mission is to be given the next one
+        (mission/window.py): it will reach the window's end within TOPUP_LEAD_S plus twice
+        its last upload time, at its pace."""
+        if (
+            v.held >= len(v.items)
+            or v.switch
+            or v.resuming
+            or v.needs_restart
+            or v.retired
+            or link.hold is not None
+            or any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges())
+        ):
+            return False
+        if len(v.planned_s) != len(v.items):
+            return True
+        left_s = (v.planned_s[v.held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
+        return left_s <= TOPUP_LEAD_S + 2.0 * self._upload_took.get(v.id, 0.0)
+
+    def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
+        """Give a driving vehicle the next window of its mission: upload the longer prefix
+        under it (it keeps driving the items it holds), read the new items back, and start
+        it again if it reached the end of its old window meanwhile (it stopped there)."""
+        if link.topup_from is None:
+            if not self._topup_due(v, link, now):
+                return
+            link.topup_from = v.held
+            count = window(v.items, v.held, self.config.window_items)
+            self._apply(ev.WindowExtended(v.id, count), now)
+            self._log(
+                "info",
+                f"{v.id}: topping up its mission with items {link.topup_from}..{count - 1} "
+                f"of {len(v.items)}",
+            )
+            self._send_window(v, link, now)
+            return
+        if link.upload is not None:
+            if link.upload.outcome is Outcome.RUNNING:
+                return
+            if link.upload.outcome is Outcome.FAILED:
+                self._log("warning", f"{v.id}: top-up not uploaded ({link.upload.reason}); again")
+                self._send_window(v, link, now)
+                return
+            link.upload = None
+            link.download = MissionDownload(v.system_id, first=link.topup_from)
+            self._send(v.id, link.download.start(now))
+            return
+        if link.download is None or link.download.outcome is Outcome.RUNNING:
+            return
+        read, link.download = link.download, None
+        diffs = (
+            [f"not read back ({read.reason})"]
+            if read.outcome is Outcome.FAILED
+            else self._held_differences(v, read)
+        )
+        if diffs:
+            self._log("warning", f"{v.id}: top-up read back different ({', '.join(diffs)}); again")
+            self._send_window(v, link, now)
+            return
+        old_end, link.topup_from = link.topup_from, None
+        self._upload_took[v.id] = now - link.since
+        self.topups.append((v.id, v.held))
+        if v.reached >= old_end - 1 and v.current < old_end:
+            # It reached the end of what it held before the new items were there: it
+            # stands there, its mission complete; on from the next item.
+            self.window_waits += 1
+            link.start_item = v.resume_item
+            self._log(
+                "info", f"{v.id}: waited at the end of its window; on at item {link.start_item}"
+            )
+            self._start(v, link, now, in_auto=True)
+
+    def _send_window(self, v: VehicleState, link: _Link, now: float) -> None:
+        """Upload the part of its mission the vehicle is to hold (``v.held`` items)."""
+        link.since = now
+        items = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
+        link.upload = MissionUpload(items, v.system_id)
+        self._send(v.id, link.upload.start(now))
 
     def _upload_failed(self, v: VehicleState, link: _Link, reason: str, now: float) -> None:
         """An upload attempt failed: again after a pause, unless it was the last."""
@@ -697,18 +795,27 @@ class Dispatcher:
         self._log("error", f"{v.id}: {error}")
 
     def _upload(self, v: VehicleState, link: _Link, now: float) -> None:
-        self._apply(ev.UploadStarted(v.id, v.upload_attempts + 1), now)
-        link.since = now
-        mission = self.job.missions[v.id]
-        link.upload = MissionUpload(mission.to_mavlink(v.system_id), v.system_id)
-        self._log("info", f"{v.id}: uploading {len(mission)} mission items")
-        self._send(v.id, link.upload.start(now))
+        """Upload the vehicle's mission (a window of it from ``link.start_item``, when it is
+        long: mission/window.py), to be started at ``link.start_item``."""
+        count = window(v.items, link.start_item, self.config.window_items)
+        self._apply(ev.UploadStarted(v.id, v.upload_attempts + 1, count), now)
+        link.topup_from = None
+        part = f" (the first {count} of {len(v.items)})" if count < len(v.items) else ""
+        self._log("info", f"{v.id}: uploading {count} mission items{part}")
+        self._send_window(v, link, now)
 
-    def _start(self, v: VehicleState, link: _Link, now: float) -> None:
+    def _start(self, v: VehicleState, link: _Link, now: float, in_auto: bool = False) -> None:
+        """Start (or resume) its mission at ``link.start_item``; ``in_auto``: it is in AUTO
+        though its last HEARTBEAT may not say so yet (put there less than a second ago)."""
+        if link.start_item >= v.held:
+            # Past the part of its mission it holds (at the end of a window): more first.
+            self._upload(v, link, now)
+            return
+        in_auto = in_auto or v.mode == ROVER_MODE_AUTO
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         link.start = CommandSequence(
-            start_mission_commands(link.start_item, in_auto=v.mode == ROVER_MODE_AUTO),
+            start_mission_commands(link.start_item, in_auto=in_auto),
             v.system_id,
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )
@@ -720,12 +827,12 @@ class Dispatcher:
         upload again first if what it holds is not our mission."""
         v.needs_restart = False
         link.start_item = v.resume_item
-        expected = len(v.items) - 1  # MISSION_CURRENT.total counts the items after home
+        expected = v.held - 1  # MISSION_CURRENT.total counts the items after home
         if v.mission_total is not None and v.mission_total != expected:
             self._log(
                 "warning",
                 f"{v.id}: rebooted holding {v.mission_total + 1} items, not our "
-                f"{len(v.items)}; uploading again, then resuming at item {link.start_item}",
+                f"{v.held}; uploading again, then resuming at item {link.start_item}",
             )
             self._upload(v, link, now)
             return
@@ -756,13 +863,13 @@ class Dispatcher:
         """After a restart, the vehicle has told where it is: keep it driving if it drives
         our mission, catch up with the items it reached meanwhile, go on from there; upload
         again first when what it holds is not our mission (an upload cut by the crash)."""
-        last = len(v.items) - 1
+        last = v.held - 1
         different = ""
         if v.mission_total != last:
             held = "no mission it told" if v.mission_total is None else f"{v.mission_total + 1}"
-            different = f"holds {held} items, not our {len(v.items)}"
+            different = f"holds {held} items, not our {v.held}"
         else:  # the same length: read it back to be sure
-            found = self._read_back(v, link, now, f"holds {len(v.items)} items; reading them back")
+            found = self._read_back(v, link, now, f"holds {v.held} items; reading them back")
             if found is None:
                 return
             different = found
@@ -889,9 +996,12 @@ class Dispatcher:
         return changed
 
     def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:
-        link.since = now
-        link.upload = MissionUpload(self.job.missions[v.id].to_mavlink(v.system_id), v.system_id)
-        self._send(v.id, link.upload.start(now))
+        """Upload a driving vehicle's new mission under it: the part it keeps, then its new
+        route (as much as a window from there: mission/window.py)."""
+        count = window(v.items, v.route_from, self.config.window_items)
+        if count != v.onboard:
+            self._apply(ev.WindowExtended(v.id, count), now)
+        self._send_window(v, link, now)
 
     def _advance_switch(self, v: VehicleState, link: _Link, now: float) -> None:
         """A driving vehicle re-planned: upload, then make sure it drives the new route
@@ -912,11 +1022,11 @@ class Dispatcher:
         if link.download.outcome is Outcome.RUNNING:
             return
         read, link.download = link.download, None
-        ours = self.job.missions[v.id].to_mavlink(v.system_id)
-        if read.outcome is Outcome.FAILED or mission_differences(read.items, ours):
+        if read.outcome is Outcome.FAILED or self._held_differences(v, read):
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
+        self._upload_took[v.id] = now - link.since
         if link.hold is not None or not v.driving:
             # Told to HOLD while it was lost (the order may still be on its way), or stopped:
             # armed and in AUTO again, on its new route.
@@ -955,6 +1065,7 @@ class Dispatcher:
             if exchange is not None and exchange.outcome is Outcome.RUNNING:
                 exchange.outcome, exchange.reason = Outcome.FAILED, "vehicle lost"
         link.start = None
+        link.topup_from = None
         link.hold = CommandSequence(hold_commands(), v.system_id)
         self._send(v.id, link.hold.start(now))
 

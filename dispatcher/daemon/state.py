@@ -160,6 +160,9 @@ class VehicleState:
     mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
     mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
     acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
+    # How many first items of ``items`` the vehicle holds, or is being given (a window of
+    # its mission, dispatcher/mission/window.py); 0 until an upload begins.
+    onboard: int = 0
     started_at: float | None = None  # wall time of the last MissionStarted
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
@@ -189,6 +192,17 @@ class VehicleState:
     def driving(self) -> bool:
         """Armed in AUTO: the autopilot is driving a mission."""
         return self.mode == ROVER_MODE_AUTO and self.armed
+
+    @property
+    def held(self) -> int:
+        """How many first items of its mission the vehicle holds (all until an upload says)."""
+        return self.onboard or len(self.items)
+
+    @property
+    def at_window_end(self) -> bool:
+        """It reached the last item of a window of its mission: it stands there until it
+        is given more (the daemon tops it up, then starts it again)."""
+        return self.held < len(self.items) and self.reached >= self.held - 1
 
     @property
     def resume_item(self) -> int:
@@ -289,11 +303,14 @@ class FleetState:
             case ev.VehicleStalled(seconds=seconds):
                 self._lost(v, f"stalled: in AUTO and not getting anywhere for {seconds:.0f} s", now)
                 v.stalled = True
-            case ev.UploadStarted():
+            case ev.UploadStarted(items=items):
                 v.phase = Phase.UPLOADING
                 v.upload_attempts += 1
                 v.acked = False
                 v.resuming = False
+                v.onboard = items or len(v.items)
+            case ev.WindowExtended(items=items):
+                v.onboard = items
             case ev.UploadAcked():
                 if v.switch:  # it may have stood still meanwhile (stalled_for)
                     v.progress_s, v.progress_wall = v.sim_time_s, now
@@ -364,6 +381,19 @@ class FleetState:
                 self._own_fields(m)
                 continue  # its mission goes on as it is: nothing to upload
             common = _common_prefix(v.items, m.items)
+            if (
+                v.phase is Phase.RUNNING
+                and not v.retired
+                and not v.switch
+                and v.onboard
+                and common >= v.onboard
+            ):
+                # What it holds is unchanged (the new route begins after its window): it
+                # drives on, and its next top-up brings the new route.
+                v.items = m.items
+                v.planned_s = m.planned_times() or []
+                self._own_fields(m)
+                continue
             # Driving its mission, which the new one begins with: it carries on. When it
             # went past that part meanwhile, the items it reached beyond are the new
             # route's now: it is sent back to the route's first item (the daemon). One left
@@ -384,6 +414,7 @@ class FleetState:
             else:
                 v.switch = False
                 v.reached = v.current = 0
+                v.onboard = 0  # its upload says how much of the new mission it holds
                 v.finished_s = None
                 if v.phase in (
                     Phase.DONE,
@@ -430,11 +461,12 @@ class FleetState:
         at a high speedup passes a minute between two reports); else None."""
         if v.phase is not Phase.RUNNING or not v.driving or v.progress_s is None:
             return None
-        if v.switch:
+        if v.switch or v.at_window_end:
             # Its new mission on its way: an autopilot truncates its mission to the new
             # count at MISSION_COUNT, so one that drove past the new mission's length
             # stands still, its mission complete, until it is sent on (the daemon); its
-            # stall clock starts again once the new mission is on board.
+            # stall clock starts again once the new mission is on board. At the end of its
+            # window, it waits for more of its mission (the daemon tops it up).
             return None
         idle = v.sim_time_s - v.progress_s
         if v.progress_wall is None or now - v.progress_wall < STALL_MIN_WALL_S:
@@ -619,7 +651,7 @@ class FleetState:
         if (
             v.phase is not Phase.RUNNING
             or v.old_items is not None  # the new mission on its way: which one it reports?
-            or v.mission_total != len(v.items) - 1
+            or v.mission_total != v.held - 1
             or v.started_at is None
             or now - v.started_at < CURRENT_SETTLE_S
         ):
@@ -628,7 +660,7 @@ class FleetState:
             v.active_seen = True
         if not v.active_seen:
             return []
-        last = len(v.items) - 1
+        last = v.held - 1
         done = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
         if done > v.reached:
             return self._claim(v, done, True, "MISSION_CURRENT", now)
@@ -680,6 +712,7 @@ class FleetState:
                     "armed": v.armed,
                     "reached": v.reached,
                     "items": len(v.items),
+                    "items_held": v.held,
                     "current_field": v.current_field,
                     "share_done": round(v.share_done, 4),
                     "eta_s": round(v.eta_s, 1),

@@ -252,11 +252,13 @@ _MISSION_FRAMES = frozenset(
 
 class MissionDownload(_Transfer):
     """Read a vehicle's mission back: MISSION_REQUEST_LIST, its MISSION_COUNT, then each
-    item with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends it. ``items`` holds
-    the MISSION_ITEM_INT messages once the outcome is DONE."""
+    item from ``first`` on with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends
+    it. ``items`` holds the MISSION_ITEM_INT messages (``first`` on) once the outcome is
+    DONE. A ``first`` past the count reads none (the count says what is held)."""
 
-    def __init__(self, target_system: int, **kw: float) -> None:
+    def __init__(self, target_system: int, first: int = 0, **kw: float) -> None:
         super().__init__(target_system, **kw)
+        self.first = first
         self.count: int | None = None
         self.items: list[mc.MAVLinkMessage] = []
 
@@ -287,7 +289,7 @@ class MissionDownload(_Transfer):
             self._progress(now)
             return self._next(now)
         if kind == "MISSION_ITEM_INT" and self.count is not None:
-            if int(msg.seq) != len(self.items):
+            if int(msg.seq) != self.first + len(self.items):
                 self.stats.stray += 1  # a late answer to a request sent again
                 return []
             self._answered(now)
@@ -308,7 +310,7 @@ class MissionDownload(_Transfer):
 
     def _next(self, now: float) -> list[mc.MAVLinkMessage]:
         assert self.count is not None
-        if len(self.items) == self.count:
+        if self.first + len(self.items) >= self.count:
             self.outcome = Outcome.DONE
             ack = mc.message(
                 "MISSION_ACK",
@@ -322,14 +324,18 @@ class MissionDownload(_Transfer):
             "MISSION_REQUEST_INT",
             target_system=self.target_system,
             target_component=self.target_component,
-            seq=len(self.items),
+            seq=self.first + len(self.items),
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
         return self._send(request, now)
 
 
 def mission_differences(
-    held: Sequence[mc.MAVLinkMessage], ours: Sequence[mc.MAVLinkMessage], limit: int = 3
+    held: Sequence[mc.MAVLinkMessage],
+    ours: Sequence[mc.MAVLinkMessage],
+    limit: int = 3,
+    first: int = 0,
+    count: int | None = None,
 ) -> list[str]:
     """Where a mission read back from a vehicle is not ours (at most ``limit`` places; empty:
     the same). Item 0, home, is left out: the autopilot sets it itself. Compared: command,
@@ -337,11 +343,16 @@ def mission_differences(
     setting) as float32 carries them, and the frame of a navigation item (an integer frame
     and its float twin are one). Not what an autopilot stores in its own way: a DO item's
     frame (ArduPilot returns MAV_FRAME_GLOBAL for our MAV_FRAME_MISSION), param3, param4,
-    altitude."""
+    altitude. ``held`` may be the items from ``first`` on of the ``count`` held (a
+    :class:`MissionDownload` from ``first``), to be set against ``ours[first:]``."""
     out = []
-    if len(held) != len(ours):
-        return [f"{len(held)} items, not {len(ours)}"]
-    for a, b in zip(held[1:], ours[1:], strict=True):
+    count = first + len(held) if count is None else count
+    if count != len(ours):
+        return [f"{count} items, not {len(ours)}"]
+    if first + len(held) != count:
+        return [f"items {first + len(held)}..{count - 1} not read"]
+    skip = 1 if first == 0 else 0
+    for a, b in zip(held[skip:], ours[first + skip :], strict=True):
         same = (
             a.command == b.command
             and (

@@ -510,6 +510,7 @@ def run_demo(
         heartbeat_timeout_s=heartbeat_timeout_s,
         stall_after_s=dispatch.scenario.watch.stall_after_s,
         lost_grace_s=dispatch.scenario.watch.lost_grace_s,
+        window_items=dispatch.scenario.watch.window_items,
         on_progress=printer,
         replanner=replanner_for(dispatch.scenario, dispatch),
         keys=keys,

@@ -12,7 +12,9 @@ A driving vehicle keeps its old mission for a while: up to the first item, from 
 drives to, where a route may end (a segment's end or start, a road point, the garage) and
 that it reaches no sooner than ``lead_s`` wall seconds from now at its pace (its clock's
 speedup times the planned item times): a re-plan, upload and read-back fit in that, so the
-vehicle does not go past the point where its new route begins. Its position is taken
+vehicle does not go past the point where its new route begins. One that holds a window of
+a longer mission (dispatcher/mission/window.py) keeps at least the whole window: its new
+route begins after it, and nothing is uploaded to it before its next top-up. Its position is taken
 there, the time to get there is its ready time, and the segments it works on the way count
 as done. A vehicle gone (lost, failed) is not in the new plan; the segment it was on is not
 done (its rest is worked again by whoever takes the field).
@@ -32,6 +34,7 @@ from dispatcher.mission.build import Mission, Role, Trace
 from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
+from dispatcher.mission.window import ROUTE_ENDS
 from planner.farm import Farm
 from planner.field_plan import Visit, cover_farm
 from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
@@ -39,10 +42,6 @@ from planner.solve import AnyOf, stop_after
 
 ON_SEGMENT = "swath_end"
 """Driving to a segment's end (implement down) is being on that segment."""
-
-ROUTE_ENDS = frozenset({"swath_end", "swath_start", "road", "transit", "return"})
-"""Roles of the items where a driving vehicle's old mission may end and its new route
-begin (not in the middle of a turn or an in-field detour)."""
 
 LEAD_S = 4.0
 """Wall seconds from the fleet state a re-plan reads to the new missions on board, besides
@@ -250,9 +249,12 @@ def _cut(v: VehicleState, lead_s: float) -> int | None:
     if v.phase is not Phase.RUNNING or v.reached == 0 or v.retired:
         return None
     heading = _heading(v)
+    # A window of a longer mission on board is driven whole (mission/window.py): the new
+    # route begins after it, and what the vehicle holds is not uploaded again.
+    first = max(heading, v.held - 1) if v.held < len(v.items) else heading
     planned = v.planned_s if len(v.planned_s) == len(v.items) else None
     ahead = lead_s * v.clock.rate  # in the vehicle's seconds
-    for k in range(heading, len(v.items)):
+    for k in range(first, len(v.items)):
         if v.items[k].role not in ROUTE_ENDS:
             continue
         if planned is None or planned[k] - planned[v.reached] >= ahead:

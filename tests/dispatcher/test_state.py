@@ -4,6 +4,7 @@ import dataclasses
 from pathlib import Path
 
 import pytest
+from helpers.daemon import Pub, daemon_for, feed, heartbeat, mission_current, running_events
 from helpers.messages import command_ack, from_vehicle, position, track
 
 from dispatcher.config.errors import ConfigError
@@ -14,25 +15,6 @@ from dispatcher.link import mavlink as mc
 from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-
-
-def feed(state, vid, msg, now):
-    """A report from a vehicle, and the events it implies, as the daemon does."""
-    for event in state.on_message(vid, msg, now):
-        state.apply(event, now)
-
-
-def heartbeat(sysid):
-    msg = mc.message(
-        "HEARTBEAT",
-        type=mc.MAV_TYPE_GROUND_ROVER,
-        autopilot=mc.MAV_AUTOPILOT_ARDUPILOTMEGA,
-        base_mode=0,
-        custom_mode=10,
-        system_status=4,
-        mavlink_version=3,
-    )
-    return mc.Codec(255, 190).decode_one(mc.Codec(sysid, 1).encode(msg))
 
 
 @pytest.mark.parametrize("phase", [Phase.UPLOADING, Phase.STARTING, Phase.RUNNING])
@@ -94,25 +76,6 @@ def test_ids_that_zenoh_or_files_would_misread_are_refused(tmp_path, key, value)
     with pytest.raises(ConfigError, match="letters, digits") as err:
         load_scenario(path)
     assert str(path) in str(err.value)
-
-
-class Pub:
-    def __init__(self):
-        self.frames = []
-
-    def put(self, frame):
-        self.frames.append(frame)
-
-    def sent(self, system=11):
-        return [mc.Codec(system, 1).decode_one(f) for f in self.frames]
-
-
-def daemon_for(dispatch):
-    from dispatcher.daemon.server import DaemonConfig, Dispatcher
-
-    daemon = Dispatcher(DaemonConfig(job=dispatch.job()))
-    daemon.publishers = {vid: Pub() for vid in dispatch.missions}
-    return daemon
 
 
 def booting(sysid):
@@ -302,22 +265,6 @@ def resumed_daemon(dispatch, tmp_path, stored):
     daemon.publishers = {vid: Pub() for vid in dispatch.missions}
     daemon._resume_run(run)
     return daemon
-
-
-def running_events(vid, reached):
-    return [
-        ev.VehicleSeen(vid),
-        ev.UploadStarted(vid, 1),
-        ev.UploadAcked(vid),
-        ev.StartRequested(vid, 1),
-        ev.MissionStarted(vid, 1),
-        ev.ItemReached(vid, reached, 100.0),
-    ]
-
-
-def mission_current(sysid, seq, total, state):
-    msg = mc.message("MISSION_CURRENT", seq=seq, total=total, mission_state=state, mission_mode=1)
-    return from_vehicle(msg, sysid)
 
 
 def read_back(daemon, vid, sysid, items=None):

@@ -1,0 +1,56 @@
+"""Missions sent in windows: how much of its mission a vehicle holds at a time.
+
+A long mission (a day's work over many fields: hundreds to thousands of items) is not sent
+whole. A vehicle holds a *window*: the first items of its mission, up to just after the end
+of a field, and is given more (the window extended, "topped up") while it drives, well
+before it reaches the end of what it holds. What it holds is always a prefix of its planned
+mission, with the plan's item numbers, so a top-up is an upload that begins with the items
+the vehicle already holds: the autopilot keeps driving the item it is on (ArduPilot replaces
+or appends items in place), and any half-done upload still leaves a prefix of the plan on
+board.
+
+Why: what goes over the radio at a re-plan is bounded by the window, not by the day (a
+re-plan changes the routes *after* each vehicle's window; a driving vehicle's window is not
+uploaded again), and an autopilot with little mission storage can still work a big farm.
+
+:func:`window` says how many items to hold; :data:`ROUTE_ENDS` where a route may end (a
+window, the part of an old mission a vehicle keeps at a re-plan).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from dispatcher.mission.document import PlannedItem
+
+ROUTE_ENDS = frozenset({"swath_end", "swath_start", "road", "transit", "return"})
+"""Roles of the items where a route may end and another begin (not in the middle of a turn
+or an in-field detour)."""
+
+FIELD_ENDS = frozenset({"implement_up", "implement_raise"})
+"""Roles of the items that end a vehicle's work in a field (the implement raised)."""
+
+
+def window(items: Sequence[PlannedItem], held: int, size: int) -> int:
+    """How many first items of ``items`` (a mission, home first) a vehicle that holds
+    ``held`` of them now is to hold: all of them when what is left fits in ``size`` more
+    (or ``size`` is 0: no windows); else up to the first waypoint after the end of a field
+    (where a route may end), as many fields as fit in ``size`` more items, at least one."""
+    held = max(held, 1)
+    if size <= 0 or len(items) - held <= size:
+        return len(items)
+    boundaries = []
+    in_field_end = False
+    for k in range(held, len(items)):
+        role = items[k].role
+        if role in FIELD_ENDS:
+            in_field_end = True
+        elif in_field_end and items[k].is_nav and role in ROUTE_ENDS:
+            in_field_end = False
+            boundaries.append(k + 1)
+            if k + 1 - held >= size:
+                break
+    fits = [b for b in boundaries if b - held <= size]
+    if fits:
+        return fits[-1]
+    return boundaries[0] if boundaries else len(items)

@@ -1,0 +1,143 @@
+"""Missions sent in windows (dispatcher/mission/window.py): how much a vehicle holds, the
+top-up while it drives, and a re-plan that leaves what it holds alone."""
+
+import dataclasses
+
+import pytest
+from helpers.daemon import daemon_for, feed, mission_current, running_events
+from helpers.messages import from_vehicle
+
+from dispatcher.daemon import events as ev
+from dispatcher.daemon.state import FleetState, Phase
+from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_protocol import Outcome
+from dispatcher.mission.window import FIELD_ENDS, ROUTE_ENDS, window
+
+
+@pytest.mark.parametrize("size", [1, 5, 12, 20, 30])
+def test_windows_end_after_a_field_and_cover_the_mission(dispatch, size):
+    for m in dispatch.document.machines:
+        items, held, ends = m.items, 1, []
+        while held < len(items):
+            nxt = window(items, held, size)
+            assert nxt > held
+            ends.append(nxt)
+            held = nxt
+        assert ends[-1] == len(items)
+        for end in ends[:-1]:
+            last = items[end - 1]
+            # the first waypoint after the implement went up: a route may end there
+            assert last.is_nav and last.role in ROUTE_ENDS
+            before = [i.role for i in items[:end] if i.role in FIELD_ENDS or i.is_nav]
+            assert FIELD_ENDS & set(before)
+        # as many whole fields as fit, and never less than one
+        first_field_end = next(k for k, i in enumerate(items) if i.role in FIELD_ENDS)
+        assert ends[0] > first_field_end
+
+
+def test_no_windows_or_a_short_rest_send_the_mission_whole(dispatch):
+    items = dispatch.document.machines[0].items
+    assert window(items, 1, 0) == len(items)
+    assert window(items, 1, len(items)) == len(items)
+    assert window(items, len(items) - 3, 5) == len(items)
+
+
+def windowed(dispatch, size=20):
+    daemon = daemon_for(dispatch)
+    daemon.config.window_items = size
+    return daemon
+
+
+def drive(daemon, vid, reached, now):
+    """The vehicle started on its mission and reached item ``reached``."""
+    v = daemon.state.vehicles[vid]
+    for event in running_events(vid, reached):
+        if isinstance(event, ev.UploadStarted):
+            event = ev.UploadStarted(vid, 1, window(v.items, 1, daemon.config.window_items))
+        daemon.state.apply(event, now)
+    v.mode, v.armed = 10, True
+    return v
+
+
+def answer_read_back(daemon, vid, sysid, now):
+    """The vehicle answers the daemon's read-back with what it holds (ours)."""
+    link = daemon.links[vid]
+    v = daemon.state.vehicles[vid]
+    held = daemon.job.missions[vid].to_mavlink(255)[: v.held]
+    count = mc.message(
+        "MISSION_COUNT", target_system=255, target_component=190, count=len(held), mission_type=0
+    )
+    for msg in link.download.on_message(from_vehicle(count, sysid), now):
+        assert msg.get_type() in ("MISSION_REQUEST_INT", "MISSION_ACK")
+        if msg.get_type() == "MISSION_REQUEST_INT":
+            assert msg.seq == link.download.first  # only what the top-up added is read
+    for item in held[link.download.first :]:
+        link.download.on_message(from_vehicle(item, sysid), now)
+    assert link.download.outcome is Outcome.DONE
+
+
+def test_the_first_upload_sends_a_window(dispatch):
+    daemon = windowed(dispatch)
+    v = daemon.state.vehicles["v1"]
+    for vid, veh in daemon.state.vehicles.items():
+        daemon.state.apply(ev.VehicleSeen(vid), 0.0)
+        feed(daemon.state, vid, from_vehicle(mc.peer_heartbeat(mc.MAV_TYPE_GROUND_ROVER), 11), 0.0)
+        veh.system_status = mc.MAV_STATE_STANDBY
+    daemon._advance("v1", 0.0)
+    count = daemon.publishers["v1"].sent()[-1]
+    assert count.get_type() == "MISSION_COUNT"
+    assert count.count == v.held == window(v.items, 1, 20) < len(v.items)
+
+
+def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_stopped(dispatch):
+    daemon = windowed(dispatch)
+    vid = "v1"
+    v = drive(daemon, vid, 5, 0.0)
+    held = v.held
+    daemon._advance(vid, 1.0)  # planned_s: items 5..held-1 take longer than the lead at 1x
+    assert daemon.links[vid].upload is None
+    v.reached = v.current = held - 1  # at the end of its window: its mission complete
+    feed(daemon.state, vid, mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE), 2.0)
+    assert daemon.state.stalled_for(v, 0.0, 100.0) is None  # waiting, not stalled
+    daemon._advance(vid, 2.0)
+    link = daemon.links[vid]
+    assert link.upload is not None and link.topup_from == held
+    assert v.held == window(v.items, held, 20) > held
+    count = daemon.publishers[vid].sent()[-1]
+    assert count.get_type() == "MISSION_COUNT" and count.count == v.held
+    link.upload.outcome = Outcome.DONE  # every item asked for and sent
+    daemon._advance(vid, 3.0)
+    assert link.download is not None and link.download.first == held
+    answer_read_back(daemon, vid, 11, 3.5)
+    daemon._advance(vid, 4.0)
+    assert link.topup_from is None and daemon.topups == [(vid, v.held)]
+    # it stood at the end of its old window: HOLD (it is in AUTO), then on at the next item
+    commands = [(m.command, m.param1, m.param2) for m in daemon.publishers[vid].sent()[-1:]]
+    assert commands == [(mc.MAV_CMD_DO_SET_MODE, 1.0, 4.0)]
+    assert v.phase is Phase.STARTING and link.start is not None
+    assert daemon.state.vehicles[vid].resume_item == held
+
+
+def test_a_replan_that_leaves_the_window_alone_uploads_nothing_now(dispatch):
+    state = FleetState(dispatch.document)
+    vid = dispatch.document.machines[0].id
+    for event in running_events(vid, 5):
+        state.apply(event, 1.0)
+    v = state.vehicles[vid]
+    state.apply(ev.WindowExtended(vid, 20), 1.0)
+    old = v.items
+    # the new plan changes the route after the window only
+    new_items = tuple(
+        dataclasses.replace(i, x=i.x + 10) if k >= 25 else i for k, i in enumerate(old)
+    )
+    machine = dataclasses.replace(dispatch.document.machines[0], items=new_items)
+    doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "test", doc.to_dict()), 2.0)
+    assert v.phase is Phase.RUNNING and not v.switch and v.reached == 5
+    assert v.items == new_items and v.held == 20
+    # one that changes inside the window is switched (uploaded under way)
+    inside = tuple(dataclasses.replace(i, x=i.x + 10) if k >= 10 else i for k, i in enumerate(old))
+    machine = dataclasses.replace(machine, items=inside)
+    doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "again", doc.to_dict()), 3.0)
+    assert v.switch and v.route_from == 10
