@@ -23,7 +23,7 @@ from helpers.sitl import (
     wait_for,
 )
 
-from dispatcher.recording.mcap_file import LOG_TOPIC, read_log, read_logs
+from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_log, read_logs
 from dispatcher.review.report import Review, review_contents, review_log, review_table
 
 ARDUROVER = find_ardurover()
@@ -224,3 +224,31 @@ def test_a_dispatcher_killed_mid_mission_finds_the_rover_on_its_mission_and_keep
     check_worked_once(review)
     (v,) = review.vehicles
     assert v.distance_m < v.planned_distance_m * 1.2, review_table(review)
+
+
+def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    # Windows of a field: ArduPilot holds the first field's items, then is given the
+    # rest (the longer prefix uploaded while it drives, the new items read back).
+    scenario = tmp_path / "windows.toml"
+    farm = SCENARIO.parent / "sitl-farm.geojson"
+    scenario.write_text(
+        SCENARIO.read_text().replace('farm = "sitl-farm.geojson"', f'farm = "{farm}"')
+        + "\n[dispatcher]\nwindow_items = 10\n"
+    )
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(scenario, port, tmp_path / "logs")
+    procs.bridge(scenario, "r1", sitl, port)
+    assert finished(serve, procs, sitl) == 0, procs.report(sitl)
+    log = read_log(log_of(Processes.output(serve)))
+    events = [r.decode_json() for r in log.on(EVENTS_TOPIC)]
+    plan = log.on("agrifleet/sitl/dispatcher/plan")[0].decode_json()
+    planned = len(plan["machines"][0]["items"])
+    first = [e["items"] for e in events if e["kind"] == "upload_started"]
+    topups = [e["items"] for e in events if e["kind"] == "window_extended"]
+    assert first and first[0] < planned and topups and topups[-1] == planned, events
+    review = review_contents(log)
+    check_worked_once(review)
+    assert not review.vehicles[0].reboots

@@ -63,8 +63,8 @@ FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per v
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
 TOPUP_LEAD_S = 10.0
 """Wall seconds before a vehicle reaches the end of the window of its mission it holds
-(dispatcher/mission/window.py) when its next window is sent, plus twice what its last
-upload took."""
+(dispatcher/mission/window.py) when its next window is sent, plus twice what the top-up is
+expected to take (at the pace of its last upload)."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -215,7 +215,8 @@ class Dispatcher:
         self.replans: list[list[Any]] = []
         self._awaiting_acks: tuple[int, set[str], float] | None = None
         self._adopted_at = 0.0
-        self._upload_took: dict[str, float] = {}  # wall seconds each one's last upload took
+        # Each one's last upload: wall seconds it took, items uploaded and read back.
+        self._upload_took: dict[str, tuple[float, int]] = {}
         self.topups: list[tuple[str, int]] = []  # (vehicle, items uploaded) per top-up
         self.window_waits = 0  # top-ups that came after the vehicle reached its window's end
 
@@ -637,7 +638,7 @@ class Dispatcher:
             if link.upload.outcome is Outcome.DONE:
                 if not v.acked:
                     self._apply(ev.UploadAcked(vid), now)
-                    self._upload_took[vid] = now - link.since
+                    self._upload_took[vid] = (now - link.since, v.held)
                     self._log("info", f"{vid}: mission acknowledged")
                     if self.all_acknowledged is None and all(
                         lk.upload is not None and lk.upload.outcome is Outcome.DONE
@@ -715,7 +716,11 @@ class Dispatcher:
         if len(v.planned_s) != len(v.items):
             return True
         left_s = (v.planned_s[v.held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
-        return left_s <= TOPUP_LEAD_S + 2.0 * self._upload_took.get(v.id, 0.0)
+        # What the next top-up takes, at the pace of its last upload (items a second): the
+        # whole longer prefix, and the new items read back.
+        took_s, items = self._upload_took.get(v.id, (0.0, 1))
+        more = window(v.items, v.held, self.config.window_items)
+        return left_s <= TOPUP_LEAD_S + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
 
     def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
         """Give a driving vehicle the next window of its mission: upload the longer prefix
@@ -758,7 +763,7 @@ class Dispatcher:
             self._send_window(v, link, now)
             return
         old_end, link.topup_from = link.topup_from, None
-        self._upload_took[v.id] = now - link.since
+        self._upload_took[v.id] = (now - link.since, 2 * v.held - old_end)
         self.topups.append((v.id, v.held))
         if v.reached >= old_end - 1 and v.current < old_end:
             # It reached the end of what it held before the new items were there: it
@@ -1026,7 +1031,7 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        self._upload_took[v.id] = now - link.since
+        self._upload_took[v.id] = (now - link.since, 2 * v.held)
         if link.hold is not None or not v.driving:
             # Told to HOLD while it was lost (the order may still be on its way), or stopped:
             # armed and in AUTO again, on its new route.

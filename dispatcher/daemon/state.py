@@ -163,6 +163,7 @@ class VehicleState:
     # How many first items of ``items`` the vehicle holds, or is being given (a window of
     # its mission, dispatcher/mission/window.py); 0 until an upload begins.
     onboard: int = 0
+    held_before: int = 0  # what it held before its last top-up (it may wait at its end)
     started_at: float | None = None  # wall time of the last MissionStarted
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
@@ -201,8 +202,11 @@ class VehicleState:
     @property
     def at_window_end(self) -> bool:
         """It reached the last item of a window of its mission: it stands there until it
-        is given more (the daemon tops it up, then starts it again)."""
-        return self.held < len(self.items) and self.reached >= self.held - 1
+        is given more (the daemon tops it up, then starts it again). Also while the next
+        window is on its way: at the end of the one it held before (not beyond)."""
+        if self.held < len(self.items) and self.reached >= self.held - 1:
+            return True
+        return self.held_before > 0 and self.reached == self.held_before - 1
 
     @property
     def resume_item(self) -> int:
@@ -308,9 +312,9 @@ class FleetState:
                 v.upload_attempts += 1
                 v.acked = False
                 v.resuming = False
-                v.onboard = items or len(v.items)
+                v.onboard, v.held_before = items or len(v.items), 0
             case ev.WindowExtended(items=items):
-                v.onboard = items
+                v.held_before, v.onboard = v.held, items
             case ev.UploadAcked():
                 if v.switch:  # it may have stood still meanwhile (stalled_for)
                     v.progress_s, v.progress_wall = v.sim_time_s, now
@@ -414,7 +418,7 @@ class FleetState:
             else:
                 v.switch = False
                 v.reached = v.current = 0
-                v.onboard = 0  # its upload says how much of the new mission it holds
+                v.onboard = v.held_before = 0  # its upload says how much of it it holds
                 v.finished_s = None
                 if v.phase in (
                     Phase.DONE,

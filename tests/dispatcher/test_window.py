@@ -103,6 +103,7 @@ def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_sto
     link = daemon.links[vid]
     assert link.upload is not None and link.topup_from == held
     assert v.held == window(v.items, held, 20) > held
+    assert daemon.state.stalled_for(v, 0.0, 100.0) is None  # its next window on its way
     count = daemon.publishers[vid].sent()[-1]
     assert count.get_type() == "MISSION_COUNT" and count.count == v.held
     link.upload.outcome = Outcome.DONE  # every item asked for and sent
