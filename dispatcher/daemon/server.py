@@ -705,6 +705,8 @@ class Dispatcher:
         its last upload time, at its pace."""
         if (
             v.held >= len(v.items)
+            or self._replan is not None  # a re-plan under way: its next window may change
+            or bool(self._replan_reason)
             or v.switch
             or v.resuming
             or v.needs_restart

@@ -573,7 +573,8 @@ def _read_events(
         elif kind == "MISSION_CURRENT":
             seq, total = msg.get("seq"), msg.get("total")
             if isinstance(total, int) and total not in (0, 0xFFFF):
-                this_mission = total == len(items) - 1
+                # ours, or a window of ours (dispatcher/mission/window.py)
+                this_mission = total <= len(items) - 1
             if isinstance(seq, int) and 0 < seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq))
         elif kind == "HEARTBEAT":
@@ -786,10 +787,13 @@ def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
 
 
 def _upload_from_frames(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> tuple[int, int]:
-    """(attempts, resends) of mission uploads: a MISSION_COUNT starts an attempt, an
-    upload message identical to the one sent before it is a resend."""
+    """(attempts, resends) of mission uploads: a MISSION_COUNT starts an attempt, unless
+    it counts more items than the one before (the next window of the same mission,
+    dispatcher/mission/window.py); an upload message identical to the one sent before it
+    is a resend."""
     attempts = retries = 0
     previous: tuple[Any, ...] | None = None
+    last_count = -1
     for _ns, msg in to_vehicle:
         kind = msg.get("mavpackettype")
         if kind == "MISSION_COUNT":
@@ -801,7 +805,11 @@ def _upload_from_frames(to_vehicle: Sequence[tuple[int, dict[str, Any]]]) -> tup
         if key == previous:
             retries += 1
         elif kind == "MISSION_COUNT":
-            attempts += 1
+            count = msg.get("count")
+            count = count if isinstance(count, int) else 0
+            if count <= last_count or last_count < 0:
+                attempts += 1
+            last_count = count
         previous = key
     return attempts, retries
 
