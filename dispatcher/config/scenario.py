@@ -269,9 +269,10 @@ class SolverSettings:
 
 
 WINDOW_ITEMS = 250
-"""Default ``[dispatcher] window_items``: a mission longer than this goes to the vehicle in
-windows of whole fields (dispatcher/mission/window.py). At ~100 items a second over a
-farm radio a window is on board in a few seconds; most autopilots store several hundred."""
+"""Default ``[dispatcher] window_items``: missions go to the vehicles in windows of whole
+fields of about this many items, the way home last (dispatcher/mission/window.py). At ~100
+items a second over a farm radio a window is on board in a few seconds; most autopilots
+store several hundred."""
 
 
 @dataclass(frozen=True)
@@ -281,8 +282,8 @@ class WatchSettings:
     lost_after_s: float = 5.0  # wall seconds without any message from it
     stall_after_s: float = 60.0  # its own seconds driving in AUTO without getting anywhere
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back
-    # Missions are sent in windows of about this many items, topped up as the vehicle
-    # drives (dispatcher/mission/window.py); 0: each mission whole.
+    # Missions are sent in windows of whole fields, about this many items, topped up as
+    # the vehicle drives (dispatcher/mission/window.py); 0: each mission whole.
     window_items: int = WINDOW_ITEMS
 
 

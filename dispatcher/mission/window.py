@@ -9,6 +9,9 @@ the vehicle already holds: the autopilot keeps driving the item it is on (ArduPi
 or appends items in place), and any half-done upload still leaves a prefix of the plan on
 board.
 
+The way home from the last field is a window of its own, so a vehicle at work always
+holds up to the end of a field.
+
 Why: what goes over the radio at a re-plan is bounded by the window, not by the day (a
 re-plan changes the routes *after* each vehicle's window; a driving vehicle's window is not
 uploaded again), and an autopilot with little mission storage can still work a big farm.
@@ -33,11 +36,14 @@ FIELD_ENDS = frozenset({"implement_up", "implement_raise"})
 
 def window(items: Sequence[PlannedItem], held: int, size: int) -> int:
     """How many first items of ``items`` (a mission, home first) a vehicle that holds
-    ``held`` of them now is to hold: all of them when what is left fits in ``size`` more
-    (or ``size`` is 0: no windows); else up to the first waypoint after the end of a field
-    (where a route may end), as many fields as fit in ``size`` more items, at least one."""
+    ``held`` of them now is to hold: up to the first waypoint after the end of a field
+    (where a route may end), as many fields as fit in ``size`` more items, at least one;
+    all of them once no field is left (the way home), or when ``size`` is 0 (no windows).
+
+    The way home comes in a window of its own: a vehicle at work always holds up to the
+    end of a field, so a re-plan can send it on from there without changing what it holds."""
     held = max(held, 1)
-    if size <= 0 or len(items) - held <= size:
+    if size <= 0:
         return len(items)
     boundaries = []
     in_field_end = False

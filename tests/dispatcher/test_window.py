@@ -35,11 +35,14 @@ def test_windows_end_after_a_field_and_cover_the_mission(dispatch, size):
         assert ends[0] > first_field_end
 
 
-def test_no_windows_or_a_short_rest_send_the_mission_whole(dispatch):
+def test_the_way_home_comes_last_and_no_windows_send_the_mission_whole(dispatch):
     items = dispatch.document.machines[0].items
     assert window(items, 1, 0) == len(items)
-    assert window(items, 1, len(items)) == len(items)
-    assert window(items, len(items) - 3, 5) == len(items)
+    last_field_end = max(k for k, i in enumerate(items) if i.role in FIELD_ENDS)
+    # a window as big as the mission still ends after the last field, before the way home
+    end = window(items, 1, len(items))
+    assert last_field_end < end < len(items) and items[end - 1].role in ROUTE_ENDS
+    assert window(items, end, 5) == len(items)
 
 
 def windowed(dispatch, size=20):
