@@ -985,12 +985,17 @@ class Dispatcher:
         changed = set()
         for m in job.document.machines:
             v = self.state.vehicles[m.id]
-            if v.phase is Phase.RUNNING and not v.switch:
-                continue  # driving a mission that did not change: it goes on as it is
+            if not v.switch and v.phase is not Phase.ALIVE:
+                # A mission that did not change (or not in what it holds): it goes on as it
+                # is, or stays done.
+                continue
             changed.add(m.id)
             # A driving one told to HOLD while it was lost is started again on its new route.
             held = self.links[m.id].hold if v.switch else None
             link = self.links[m.id] = _Link(hold=held)
+            # From its first item; one that finished while the re-plan ran, whose new
+            # mission goes on after it, from there.
+            link.start_item = v.resume_item
             if v.switch:  # driving: its new mission is uploaded under it
                 link.switch_from = v.route_from
                 self._log(

@@ -381,10 +381,20 @@ class FleetState:
             if m is None:
                 v.retired = True
                 continue
-            if v.phase is Phase.RUNNING and m.items == v.items and not v.retired:
+            if m.items == v.items and not v.retired:
                 self._own_fields(m)
-                continue  # its mission goes on as it is: nothing to upload
+                continue  # its mission goes on as it is (or stays done): nothing to upload
             common = _common_prefix(v.items, m.items)
+            if v.phase is Phase.DONE and not v.retired and common == len(v.items):
+                # It finished while the re-plan ran, which sends it on after its mission:
+                # the new mission is uploaded and started after what it did (never again
+                # from item 1: it would work its fields twice).
+                v.items, v.planned_s = m.items, m.planned_times() or []
+                v.phase, v.acked, v.upload_attempts = Phase.ALIVE, False, 0
+                v.onboard = v.held_before = 0
+                v.finished_s = None
+                self._own_fields(m)
+                continue
             if (
                 v.phase is Phase.RUNNING
                 and not v.retired

@@ -145,3 +145,25 @@ def test_a_replan_that_leaves_the_window_alone_uploads_nothing_now(dispatch):
     doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
     state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "again", doc.to_dict()), 3.0)
     assert v.switch and v.route_from == 10
+
+
+def test_a_vehicle_that_finished_while_re_planning_goes_on_after_its_mission(dispatch):
+    """Done while the re-plan ran: a new plan that sends it on after its mission has it
+    upload and start there, never again from item 1 (it would work its fields twice); one
+    whose mission did not change stays done."""
+    state = FleetState(dispatch.document)
+    vid = dispatch.document.machines[0].id
+    v = state.vehicles[vid]
+    last = len(v.items) - 1
+    for event in running_events(vid, last):
+        state.apply(event, 1.0)
+    assert v.phase is Phase.DONE
+    same = dataclasses.replace(dispatch.document, plan_id="").with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, same.plan_id, "unchanged", same.to_dict()), 2.0)
+    assert v.phase is Phase.DONE and v.reached == last
+    old = v.items
+    more = tuple(dataclasses.replace(i, seq=len(old) + k) for k, i in enumerate(old[1:]))
+    machine = dataclasses.replace(dispatch.document.machines[0], items=old + more)
+    doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
+    state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "more", doc.to_dict()), 3.0)
+    assert v.phase is Phase.ALIVE and v.reached == last and v.resume_item == len(old)
