@@ -33,7 +33,7 @@ from numba import njit
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
 from planner.local_search import allocation_search, optimal_split, past
-from planner.moves import mask
+from planner.moves import mask, ruin_recreate
 from planner.operators import improve_routes, leg, two_opt_neighbours
 from planner.pins import first_fixed, repair_pins
 from planner.population import random_counts
@@ -66,11 +66,15 @@ class HybridParams(IGHOAParams):
     # 2-opt and Or-opt with neighbour lists) cut optimally into routes (route first,
     # cluster second): what the GA's random orders take long to find on a large instance.
     giant_tour: bool = True
+    # Ruin and recreate as the ILS's perturbation (planner.moves.ruin_recreate): this many
+    # tasks around a seed (on the longest route for min-max) taken out and put back where
+    # they cost least; 0: the neighbour moves of ``perturb`` instead.
+    ruin: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.ils_steps < 0 or self.perturb < 1:
-            raise ValueError("ils_steps must be >= 0 and perturb >= 1")
+        if self.ils_steps < 0 or self.perturb < 1 or self.ruin < 0:
+            raise ValueError("ils_steps and ruin must be >= 0 and perturb >= 1")
         mask(self.moves)
 
     @property
@@ -278,6 +282,7 @@ def ils_step(  # type: ignore[no-untyped-def]
     moves,
     lexi,
     accept,
+    ruin,
 ):
     """``steps`` perturb-and-improve attempts from the walk's solution (record-to-record
     travel): a result is the walk's next solution when it costs less than ``1 + accept``
@@ -288,14 +293,21 @@ def ils_step(  # type: ignore[no-untyped-def]
     counts = walk_counts.copy()
     route = walk_route.copy()
     focus = objective == 3 or objective == 4
-    moved = np.empty(strength, dtype=np.int64)
+    moved = np.empty(max(strength, ruin), dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     for _ in range(steps):
         perm[:] = walk_perm
         counts[:] = walk_counts
-        done = perturb(
-            state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours, moved
-        )
+        if ruin > 0:
+            done = ruin_recreate(
+                state, perm, counts, objective, tables, neighbours, ruin, focus, min_count,
+                pins, moved,
+            )  # fmt: skip
+        else:
+            done = perturb(
+                state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours,
+                moved,
+            )  # fmt: skip
         # Only the moved tasks and their neighbours are looked at first.
         dont_look[:] = True
         for q in range(done):

@@ -28,7 +28,8 @@ import time
 import numpy as np
 from numba import njit, objmode
 
-from planner.cost import TIE_BREAK
+from planner.cost import fleet_value as _objective
+from planner.cost import route_value as _route_value
 from planner.moves import (
     EXCHANGE,
     RELOCATE,
@@ -74,26 +75,6 @@ def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
     rows = np.arange(n)[:, None]
     order = np.argsort(d[rows, nn], axis=1, kind="stable")
     return np.ascontiguousarray(nn[rows, order]).astype(np.int64)
-
-
-@njit(cache=True)
-def _route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
-    """A route's share of the objective (see :func:`planner.cost.evaluate`); ``size`` is its
-    number of tasks (an empty route costs nothing, a busy machine's ready time included)."""
-    if objective == 0 or objective == 4:
-        return s
-    if objective == 2:
-        return s * road_h[machine] * road_f[machine] + extra
-    if size == 0:
-        return s * road_h[machine] + extra
-    return s * road_h[machine] + extra + ready[machine]
-
-
-@njit(cache=True)
-def _objective(objective, values, lengths):  # type: ignore[no-untyped-def]
-    if objective == 3 or objective == 4:
-        return values.max() + TIE_BREAK * lengths.sum()
-    return values.sum()
 
 
 @njit(cache=True)

@@ -461,6 +461,7 @@ def solve(
                 params.move_mask,
                 params.lexicographic,
                 params.accept,
+                params.ruin,
             )
             if improved < elite_cost:
                 elite_cost = float(improved)

@@ -77,8 +77,9 @@ def test_perturb_keeps_validity_minimum_and_pins(case, strength, focus, min_coun
     assert pins[moved[:done]].max(initial=-1) < 0  # the pinned task never moves
 
 
+@pytest.mark.parametrize("ruin", [0, 4])
 @pytest.mark.parametrize("objective", list(Objective))
-def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
+def test_ils_step_reports_the_true_cost_and_never_worsens(objective, ruin):
     problem = problem_for(25, 3, 5)
     tables = CostTables.of(problem).kernel_args()
     rng = np.random.default_rng(1)
@@ -89,7 +90,7 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
     nn = nearest_neighbours(problem.dist, 6)
     new, walk = ils_step(
         make_state(2), perm, counts, route, cost, perm.copy(), counts.copy(), route.copy(),
-        cost, int(objective), tables, nn, 1, NO_PINS(25), 10, 3, np.inf, 7, True, 0.01,
+        cost, int(objective), tables, nn, 1, NO_PINS(25), 10, 3, np.inf, 7, True, 0.01, ruin,
     )  # fmt: skip
     assert new <= walk + 1e-9 and walk <= cost * 1.01
     assert_valid(perm, counts, 25, 3)
