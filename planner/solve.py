@@ -346,6 +346,8 @@ def solve(
             min_count,
             pins,
             stop.deadline(),
+            params.tour_kicks * n,
+            _share_of(stop.deadline(), params.tour_share),
         )
     if warm is not None:
         perms[0], counts[0] = warm
@@ -462,6 +464,7 @@ def solve(
                 params.lexicographic,
                 params.accept,
                 params.ruin,
+                params.ils_or_opt,
             )
             if improved < elite_cost:
                 elite_cost = float(improved)
@@ -497,6 +500,12 @@ def solve(
         elapsed_s=elapsed,
         stats=stats,
     )
+
+
+def _share_of(deadline: float, share: float) -> float:
+    """The moment ``share`` of the time from now to ``deadline`` (monotonic) has gone."""
+    now = time.monotonic()
+    return now + share * (deadline - now) if math.isfinite(deadline) else math.inf
 
 
 def _polish(  # type: ignore[no-untyped-def]
