@@ -7,18 +7,21 @@ Beyond ``ighoa`` with its extended local search, each generation:
   reversed, next to one of its nearest neighbours in the same route, each move evaluated
   in O(1) from the four legs it changes;
 - runs an **iterated local search** on the elite (:func:`ils_step`, ``ils_steps`` times):
-  a perturbation (:func:`perturb`: ``perturb`` tasks each moved next to a random one of
-  its nearest neighbours; for the min-max objectives half of them taken from the longest
-  route, the one that sets the cost) followed by the relocate/exchange search between
-  routes with don't-look bits (only the moved tasks and their neighbours are looked at
-  first, so a step costs O(moves), not O(n)), 2-opt and Or-opt; the result is kept when
-  it is better than the elite, and walked on from (record-to-record travel) when it is
+  a perturbation (ruin and recreate of ``ruin`` tasks around a seed, for the min-max
+  objectives on the longest route, :func:`planner.moves.ruin_recreate`; or
+  :func:`perturb`: ``perturb`` tasks each moved next to a random one of its nearest
+  neighbours, half of them from the longest route) followed by the relocate/exchange
+  search between routes with don't-look bits (only the moved tasks and their neighbours
+  are looked at first, so a step costs O(moves), not O(n)) and 2-opt; the result is kept
+  when it is better than the elite, and walked on from (record-to-record travel) when it is
   within ``accept`` of it.
 
 The local search between routes also tries 2-opt* (:mod:`planner.moves`: the moves, by
 name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shorten the
 fleet's total distance without worsening the objective's figure. One individual of the
-first population is a giant tour cut by the optimal split (:func:`giant_tour`).
+first population is a giant tour, improved by an iterated local search of its own
+(:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
+look at), cut by the optimal split (:func:`giant_tour`).
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -67,9 +70,10 @@ class HybridParams(IGHOAParams):
     # cluster second): what the GA's random orders take long to find on a large instance.
     giant_tour: bool = True
     # Ruin and recreate as the ILS's perturbation (planner.moves.ruin_recreate): this many
-    # tasks around a seed (on the longest route for min-max) taken out and put back where
-    # they cost least; 0: the neighbour moves of ``perturb`` instead.
-    ruin: int = 8
+    # tasks around a seed (on the longest route for min-max; at most the seed and its
+    # ``neighbours``) taken out and put back where they cost least; 0: the neighbour moves
+    # of ``perturb`` instead.
+    ruin: int = 11
     # Or-opt over every route in each ILS step too (not only in the polish).
     ils_or_opt: bool = False
     # The giant tour's iterated local search (tour_ils): at most ``tour_kicks`` kicks a task
