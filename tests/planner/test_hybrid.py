@@ -202,3 +202,9 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
     chord = 2 * 100 * np.sin(np.pi / 60)
     assert length == pytest.approx(200 + 59 * chord, rel=1e-9)
     assert paths[0] == paths[1]
+
+
+@pytest.mark.parametrize("bad", [{"ruin": -1}, {"tour_kicks": -1}, {"tour_share": 1.5}])
+def test_hybrid_params_refuse_a_bad_setting(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        HybridParams(**bad)
