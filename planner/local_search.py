@@ -37,6 +37,7 @@ from planner.moves import (
     SEGMENT_RELOCATE,
     TWO_OPT_STAR,
     prefix,
+    rows_back,
     segment_apply,
     segment_lengths,
     two_opt_star_allowed,
@@ -425,12 +426,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
             improved = True
         if late or not improved:
             break
-    begin = 0
-    for r in range(m):
-        for k in range(sizes[r]):
-            perm[begin + k] = routes[r, k]
-        counts[r] = sizes[r]
-        begin += sizes[r]
+    rows_back(routes, sizes, perm, counts)
     if not late:
         improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves

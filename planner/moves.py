@@ -223,17 +223,6 @@ def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf): 
             route_of[t] = r
 
 
-def route_rows(perm: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The chromosome as route rows (for tests and callers outside the kernels)."""
-    m, n = counts.shape[0], perm.shape[0]
-    routes = np.zeros((m, n), dtype=np.int64)
-    begin = 0
-    for r in range(m):
-        routes[r, : counts[r]] = perm[begin : begin + counts[r]]
-        begin += int(counts[r])
-    return routes, counts.astype(np.int64).copy()
-
-
 @njit(cache=True)
 def ruin_recreate(  # type: ignore[no-untyped-def]
     state, perm, counts, objective, tables, neighbours, size, focus_longest, min_count, pins, moved
@@ -253,7 +242,7 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
     moved[:] = -1
     task_x = task_f if objective == 2 else task_h
     use_extra = objective == 1 or objective == 2 or objective == 3
-    routes, sizes = _rows(perm, counts)
+    routes, sizes = route_rows(perm, counts)
     route_of = np.empty(n, dtype=np.int64)
     for r in range(m):
         for k in range(sizes[r]):
@@ -321,17 +310,12 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
         _figures(
             routes, sizes, best_r, objective, tables, task_x, use_extra, lengths, extras, values
         )
-    begin = 0
-    for r in range(m):
-        for k in range(sizes[r]):
-            perm[begin + k] = routes[r, k]
-        counts[r] = sizes[r]
-        begin += sizes[r]
+    rows_back(routes, sizes, perm, counts)
     return done
 
 
 @njit(cache=True)
-def _rows(perm, counts):  # type: ignore[no-untyped-def]
+def route_rows(perm, counts):  # type: ignore[no-untyped-def]
     """The chromosome as route rows: ``routes[r, :sizes[r]]`` machine r's tasks in order."""
     m, n = counts.shape[0], perm.shape[0]
     routes = np.zeros((m, n), dtype=np.int64)
@@ -343,6 +327,17 @@ def _rows(perm, counts):  # type: ignore[no-untyped-def]
         sizes[r] = counts[r]
         begin += counts[r]
     return routes, sizes
+
+
+@njit(cache=True)
+def rows_back(routes, sizes, perm, counts):  # type: ignore[no-untyped-def]
+    """Write route rows back into the chromosome ``perm``/``counts`` (in place)."""
+    begin = 0
+    for r in range(sizes.shape[0]):
+        for k in range(sizes[r]):
+            perm[begin + k] = routes[r, k]
+        counts[r] = sizes[r]
+        begin += sizes[r]
 
 
 @njit(cache=True)
