@@ -64,18 +64,27 @@ def past(deadline: float) -> bool:
     return deadline < np.inf and now() >= deadline
 
 
+NEIGHBOUR_BLOCK = 256  # rows of the distance matrix looked at together (memory: not n x n)
+
+
 def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
-    """The ``k`` nearest other tasks of every task, nearest first."""
+    """The ``k`` nearest other tasks of every task, nearest first. Works on
+    :data:`NEIGHBOUR_BLOCK` rows at a time, so its scratch stays O(n) rows' worth, not a
+    second n x n matrix (and its argpartition) beside ``dist``."""
     n = dist.shape[0]
     k = max(0, min(k, n - 1))
+    out = np.zeros((n, k), dtype=np.int64)
     if k == 0:
-        return np.zeros((n, 0), dtype=np.int64)
-    d = dist.copy()
-    np.fill_diagonal(d, np.inf)
-    nn = np.argpartition(d, k - 1, axis=1)[:, :k]
-    rows = np.arange(n)[:, None]
-    order = np.argsort(d[rows, nn], axis=1, kind="stable")
-    return np.ascontiguousarray(nn[rows, order]).astype(np.int64)
+        return out
+    for lo in range(0, n, NEIGHBOUR_BLOCK):
+        hi = min(lo + NEIGHBOUR_BLOCK, n)
+        d = np.array(dist[lo:hi], dtype=np.float64)
+        rows = np.arange(hi - lo)
+        d[rows, rows + lo] = np.inf
+        nn = np.argpartition(d, k - 1, axis=1)[:, :k]
+        order = np.argsort(d[rows[:, None], nn], axis=1, kind="stable")
+        out[lo:hi] = nn[rows[:, None], order]
+    return out
 
 
 @njit(cache=True)

@@ -228,3 +228,11 @@ def test_ruin_recreate_gives_the_same_answer_for_the_same_seed():
         )  # fmt: skip
         out.append((perm.tolist(), counts.tolist()))
     assert out[0] == out[1]
+
+
+def test_nearest_neighbours_by_blocks_are_every_row_s_nearest_in_order():
+    pts = np.random.default_rng(2).uniform(0, 1000, (300, 2))  # more rows than one block
+    dist = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1))
+    expected = np.argsort(dist + np.diag(np.full(300, np.inf)), axis=1)[:, :7]
+    assert np.array_equal(nearest_neighbours(dist, 7), expected)
+    assert nearest_neighbours(dist[:1, :1], 3).shape == (1, 0)
