@@ -147,6 +147,29 @@ def evaluate_population(perms, counts, objective, tables, costs, route_costs):  
         costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
 
 
+@njit(cache=True)
+def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
+    """A route's share of the objective (as :func:`evaluate` gives it) from its distance
+    ``s`` and ``extra``, the sum of its tasks' in-field figures (hours, or litres for
+    fuel); ``size`` is its number of tasks (an empty route costs nothing, a busy
+    machine's ready time included). For the local search's O(1) move evaluations."""
+    if objective == 0 or objective == 4:
+        return s
+    if objective == 2:
+        return s * road_h[machine] * road_f[machine] + extra
+    if size == 0:
+        return s * road_h[machine] + extra
+    return s * road_h[machine] + extra + ready[machine]
+
+
+@njit(cache=True)
+def fleet_value(objective, values, lengths):  # type: ignore[no-untyped-def]
+    """The objective from every route's share (``values``) and distance (``lengths``)."""
+    if objective == 3 or objective == 4:
+        return values.max() + TIE_BREAK * lengths.sum()
+    return values.sum()
+
+
 @dataclass(frozen=True)
 class RouteFigures:
     """Every figure of one machine's route."""

@@ -7,18 +7,21 @@ Beyond ``ighoa`` with its extended local search, each generation:
   reversed, next to one of its nearest neighbours in the same route, each move evaluated
   in O(1) from the four legs it changes;
 - runs an **iterated local search** on the elite (:func:`ils_step`, ``ils_steps`` times):
-  a perturbation (:func:`perturb`: ``perturb`` tasks each moved next to a random one of
-  its nearest neighbours; for the min-max objectives half of them taken from the longest
-  route, the one that sets the cost) followed by the relocate/exchange search between
-  routes with don't-look bits (only the moved tasks and their neighbours are looked at
-  first, so a step costs O(moves), not O(n)), 2-opt and Or-opt; the result is kept when
-  it is better than the elite, and walked on from (record-to-record travel) when it is
+  a perturbation (ruin and recreate of ``ruin`` tasks around a seed, for the min-max
+  objectives on the longest route, :func:`planner.moves.ruin_recreate`; or
+  :func:`perturb`: ``perturb`` tasks each moved next to a random one of its nearest
+  neighbours, half of them from the longest route) followed by the relocate/exchange
+  search between routes with don't-look bits (only the moved tasks and their neighbours
+  are looked at first, so a step costs O(moves), not O(n)) and 2-opt; the result is kept
+  when it is better than the elite, and walked on from (record-to-record travel) when it is
   within ``accept`` of it.
 
 The local search between routes also tries 2-opt* (:mod:`planner.moves`: the moves, by
 name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shorten the
 fleet's total distance without worsening the objective's figure. One individual of the
-first population is a giant tour cut by the optimal split (:func:`giant_tour`).
+first population is a giant tour, improved by an iterated local search of its own
+(:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
+look at), cut by the optimal split (:func:`giant_tour`).
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -33,8 +36,8 @@ from numba import njit
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
 from planner.local_search import allocation_search, optimal_split, past
-from planner.moves import mask
-from planner.operators import improve_routes, leg, two_opt_neighbours
+from planner.moves import SEGMENT, mask, ruin_recreate
+from planner.operators import edge, improve_routes, leg
 from planner.pins import first_fixed, repair_pins
 from planner.population import random_counts
 from planner.rng import randint
@@ -46,7 +49,7 @@ MAX_SEGMENT = 3  # Or-opt moves segments of 1..MAX_SEGMENT tasks
 class HybridParams(IGHOAParams):
     """IGHOA's settings plus the iterated local search on the elite."""
 
-    ils_steps: int = 5  # perturb-and-improve attempts on the elite per generation
+    ils_steps: int = 200  # perturb-and-improve attempts on the elite per generation
     perturb: int = 3  # tasks moved by one perturbation
     # The ILS runs for the min-max objectives (minmax, makespan); on the sums it did not
     # pay at 10 s (benchmarks/RESULTS.md), unless this is set.
@@ -61,16 +64,29 @@ class HybridParams(IGHOAParams):
     lexicographic: bool = True
     # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
     # elite is walked on from; 0: every step starts from the elite.
-    accept: float = 0.01
+    accept: float = 0.03
     # One individual of the first population is a giant tour (nearest neighbour, then
     # 2-opt and Or-opt with neighbour lists) cut optimally into routes (route first,
     # cluster second): what the GA's random orders take long to find on a large instance.
     giant_tour: bool = True
+    # Ruin and recreate as the ILS's perturbation (planner.moves.ruin_recreate): this many
+    # tasks around a seed (on the longest route for min-max; at most the seed and its
+    # ``neighbours``) taken out and put back where they cost least; 0: the neighbour moves
+    # of ``perturb`` instead.
+    ruin: int = 11
+    # Or-opt over every route in each ILS step too (not only in the polish).
+    ils_or_opt: bool = False
+    # The giant tour's iterated local search (tour_ils): at most ``tour_kicks`` kicks a task
+    # and ``tour_share`` of the time limit; 0 kicks: 2-opt and Or-opt to a local optimum.
+    tour_kicks: int = 100
+    tour_share: float = 0.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.ils_steps < 0 or self.perturb < 1:
-            raise ValueError("ils_steps must be >= 0 and perturb >= 1")
+        if self.ils_steps < 0 or self.perturb < 1 or self.ruin < 0 or self.tour_kicks < 0:
+            raise ValueError("ils_steps, ruin and tour_kicks must be >= 0 and perturb >= 1")
+        if not 0.0 <= self.tour_share <= 1.0:
+            raise ValueError("tour_share must be within [0, 1]")
         mask(self.moves)
 
     @property
@@ -278,6 +294,8 @@ def ils_step(  # type: ignore[no-untyped-def]
     moves,
     lexi,
     accept,
+    ruin,
+    with_or_opt,
 ):
     """``steps`` perturb-and-improve attempts from the walk's solution (record-to-record
     travel): a result is the walk's next solution when it costs less than ``1 + accept``
@@ -288,14 +306,23 @@ def ils_step(  # type: ignore[no-untyped-def]
     counts = walk_counts.copy()
     route = walk_route.copy()
     focus = objective == 3 or objective == 4
-    moved = np.empty(strength, dtype=np.int64)
+    moved = np.empty(max(strength, ruin), dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     for _ in range(steps):
+        if past(deadline):
+            break
         perm[:] = walk_perm
         counts[:] = walk_counts
-        done = perturb(
-            state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours, moved
-        )
+        if ruin > 0:
+            done = ruin_recreate(
+                state, perm, counts, objective, tables, neighbours, ruin, focus, min_count,
+                pins, moved,
+            )  # fmt: skip
+        else:
+            done = perturb(
+                state, perm, counts, walk_route, strength, focus, min_count, pins, neighbours,
+                moved,
+            )  # fmt: skip
         # Only the moved tasks and their neighbours are looked at first.
         dont_look[:] = True
         for q in range(done):
@@ -306,6 +333,8 @@ def ils_step(  # type: ignore[no-untyped-def]
             perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look,
             moves, lexi,
         )  # fmt: skip
+        if with_or_opt:
+            or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
         cost = evaluate(perm, counts, objective, tables, route)
         if cost < walk_cost - 1e-12 or cost < elite_cost * (1.0 + accept) - 1e-12:
             walk_perm[:] = perm
@@ -321,11 +350,14 @@ def ils_step(  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def giant_tour(state, perm, counts, objective, tables, neighbours, min_count, pins, deadline):  # type: ignore[no-untyped-def]
+def giant_tour(  # type: ignore[no-untyped-def]
+    state, perm, counts, objective, tables, neighbours, min_count, pins, deadline, kicks, ils_end
+):
     """A first individual, route first and cluster second: one tour through every task
     (nearest neighbour from machine 0's start, then 2-opt and Or-opt with the neighbour
-    lists until neither pays) cut by :func:`optimal_split` for the objective; when the
-    pins allow no cut, or ``deadline`` passes, a random split repaired for the pins."""
+    lists until neither pays, then :func:`tour_ils` for ``kicks`` kicks or until
+    ``ils_end``) cut by :func:`optimal_split` for the objective; when the pins allow no
+    cut, or ``deadline`` passes, a random split repaired for the pins."""
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     n = perm.shape[0]
     m = counts.shape[0]
@@ -342,13 +374,248 @@ def giant_tour(state, perm, counts, objective, tables, neighbours, min_count, pi
         perm[k] = best
         free[best] = False
         prev = best
-    where = np.full(n, -1, dtype=np.int64)
-    gain = 1.0
-    while gain > 1e-9 and not past(deadline):
-        gain = two_opt_neighbours(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, where, 0)
-        gain += or_opt(perm, 0, n, 0, dist, start_dist, end_dist, neighbours, 0)
+    tour_ils(state, perm, 0, dist, start_dist, end_dist, neighbours, kicks, min(deadline, ils_end))
     random_counts(state, n, m, min_count, counts)
     split = counts.copy()
     if optimal_split(perm, split, objective, tables, min_count, pins, deadline) < np.inf:
         counts[:] = split
     repair_pins(perm, counts, pins, min_count)
+
+
+@njit(cache=True)
+def tour_ils(state, perm, machine, dist, start_dist, end_dist, neighbours, kicks, deadline):  # type: ignore[no-untyped-def]
+    """Iterated local search on one path through every task of ``perm`` (``machine``'s
+    start, the tasks in order, its end), in place; returns the total gain. Each of up to
+    ``kicks`` steps (until ``deadline``, a monotonic instant) is a local double-bridge
+    (three stretches of a window of at most :data:`KICK_WINDOW` places swapped, A B C D to
+    A C B D: what 2-opt and Or-opt cannot undo) and a local search of 2-opt and Or-opt
+    (a segment of 1..:data:`SEGMENT` tasks moved, as it is or reversed) with neighbour
+    lists and a queue of the tasks to look at (don't-look bits: only the kick's ends and
+    the ends of each move are), kept when the path is shorter, else undone; so a step costs
+    O(its moves), not O(n)."""
+    n = perm.shape[0]
+    if n < 8:
+        return 0.0
+    nodes = np.empty(n + 2, dtype=np.int64)
+    nodes[0] = -1
+    nodes[n + 1] = -2
+    pos = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        nodes[k + 1] = perm[k]
+        pos[perm[k]] = k + 1
+    kept = nodes.copy()
+    args = (machine, dist, start_dist, end_dist)
+    queue = np.empty(n, dtype=np.int64)
+    queued = np.zeros(n, dtype=np.bool_)
+    span = np.array([n + 1, 0], dtype=np.int64)  # places changed since the last kept path
+    buf = np.empty(KICK_WINDOW + 1, dtype=np.int64)
+    head = np.zeros(2, dtype=np.int64)  # queue's first place, its length
+    for t in range(n):
+        _push(queue, queued, head, t)
+    total = _path_search(nodes, pos, neighbours, queue, queued, head, span, args)
+    kept[:] = nodes
+    span[0], span[1] = n + 1, 0
+    window = min(KICK_WINDOW, n - 1)
+    for step in range(kicks):
+        if step % CHECK_KICKS == 0 and past(deadline):
+            break
+        p1 = 1 + randint(state, n - window + 1)
+        a = 1 + randint(state, window - 2)
+        b = 1 + randint(state, window - 2)
+        c = 1 + randint(state, window - 2)
+        cuts = np.sort(np.array([a, b, c]))
+        if cuts[0] == cuts[1] or cuts[1] == cuts[2]:
+            continue
+        # A = ..p1+i, B = p1+i+1..p1+j, C = p1+j+1..p1+k, D = p1+k+1..
+        i, j, k = p1 + cuts[0] - 1, p1 + cuts[1] - 1, p1 + cuts[2] - 1
+        if k > n:
+            continue
+        delta = (
+            _e(nodes[i], nodes[j + 1], args)
+            + _e(nodes[k], nodes[i + 1], args)
+            + _e(nodes[j], nodes[k + 1], args)
+            - _e(nodes[i], nodes[i + 1], args)
+            - _e(nodes[j], nodes[j + 1], args)
+            - _e(nodes[k], nodes[k + 1], args)
+        )
+        out = 0
+        for q in range(j + 1, k + 1):
+            buf[out] = nodes[q]
+            out += 1
+        for q in range(i + 1, j + 1):
+            buf[out] = nodes[q]
+            out += 1
+        for q in range(out):
+            nodes[i + 1 + q] = buf[q]
+            pos[buf[q]] = i + 1 + q
+        span[0] = min(span[0], i + 1)
+        span[1] = max(span[1], k)
+        for q in (i, i + 1, j, j + 1, k, k + 1):
+            if 1 <= q <= n:
+                _push(queue, queued, head, nodes[q])
+        gain = _path_search(nodes, pos, neighbours, queue, queued, head, span, args) - delta
+        lo, hi = span[0], span[1]
+        if gain > 1e-7:
+            total += gain
+            kept[lo : hi + 1] = nodes[lo : hi + 1]
+        else:
+            nodes[lo : hi + 1] = kept[lo : hi + 1]
+            for q in range(lo, hi + 1):
+                pos[nodes[q]] = q
+        span[0], span[1] = n + 1, 0
+    for q in range(n):
+        perm[q] = nodes[q + 1]
+    return total
+
+
+KICK_WINDOW = 50  # places a double-bridge kick of tour_ils spans at most
+CHECK_KICKS = 256  # kicks between two looks at the clock
+
+
+@njit(cache=True)
+def _push(queue, queued, head, t):  # type: ignore[no-untyped-def]
+    """Put task t on the circular queue unless it is there."""
+    if queued[t]:
+        return
+    n = queue.shape[0]
+    queue[(head[0] + head[1]) % n] = t
+    head[1] += 1
+    queued[t] = True
+
+
+@njit(cache=True)
+def _reverse_path(nodes, pos, lo, hi):  # type: ignore[no-untyped-def]
+    while lo < hi:
+        nodes[lo], nodes[hi] = nodes[hi], nodes[lo]
+        pos[nodes[lo]] = lo
+        pos[nodes[hi]] = hi
+        lo += 1
+        hi -= 1
+    if lo == hi:
+        pos[nodes[lo]] = lo
+
+
+@njit(cache=True)
+def _path_search(nodes, pos, neighbours, queue, queued, head, span, args):  # type: ignore[no-untyped-def]
+    """2-opt and Or-opt on the path ``nodes`` (start -1, tasks, end -2) from the tasks on
+    the queue until it is empty; returns the gain. ``span`` widens to every place changed."""
+    dist = args[1]
+    n = nodes.shape[0] - 2
+    k = neighbours.shape[1]
+    total = 0.0
+    while head[1] > 0:
+        a = queue[head[0]]
+        head[0] = (head[0] + 1) % n
+        head[1] -= 1
+        queued[a] = False
+        improved = True
+        while improved:
+            improved = False
+            i = pos[a]
+            # 2-opt: a's edge to its successor (step 1) or predecessor (step -1) and the
+            # same edge of a neighbour c become a-c and b-d.
+            for step in (1, -1):
+                b = nodes[i + step]
+                d_ab = _e(a, b, args)
+                for q in range(k):
+                    c = neighbours[a, q]
+                    d_ac = dist[a, c]
+                    if d_ac >= d_ab:
+                        break
+                    j = pos[c]
+                    if j == i + step:
+                        continue
+                    d = nodes[j + step]
+                    delta = d_ac + _e(b, d, args) - d_ab - _e(c, d, args)
+                    if delta < -1e-10:
+                        if step == 1:
+                            lo, hi = (i + 1, j) if j > i else (j + 1, i)
+                        else:
+                            lo, hi = (i, j - 1) if j > i else (j, i - 1)
+                        _reverse_path(nodes, pos, lo, hi)
+                        span[0] = min(span[0], lo)
+                        span[1] = max(span[1], hi)
+                        for t in (a, b, c, d):
+                            if t >= 0:
+                                _push(queue, queued, head, t)
+                        total -= delta
+                        improved = True
+                        break
+                if improved:
+                    break
+            if improved:
+                continue
+            # Or-opt: the segment of 1..SEGMENT tasks from a onwards goes between a
+            # neighbour w of its ends and w's predecessor or successor.
+            for length in range(1, SEGMENT + 1):
+                if i + length - 1 > n:
+                    break
+                s0, s1 = nodes[i], nodes[i + length - 1]
+                before, after = nodes[i - 1], nodes[i + length]
+                removal = _e(before, s0, args) + _e(s1, after, args)
+                removal -= _e(before, after, args)
+                if removal <= 1e-10:
+                    continue
+                best, best_p, best_rev = 1e-10, -1, False
+                for end in range(2):
+                    node = s0 if end == 0 else s1
+                    for q in range(k):
+                        w = neighbours[node, q]
+                        if dist[node, w] >= removal:
+                            break
+                        pw = pos[w]
+                        for p in (pw - 1, pw):
+                            if i - 1 <= p <= i + length - 1 or p < 0 or p > n:
+                                continue
+                            u, v = nodes[p], nodes[p + 1]
+                            base = _e(u, v, args)
+                            fwd = _e(u, s0, args) + _e(s1, v, args) - base
+                            rev = _e(u, s1, args) + _e(s0, v, args) - base
+                            if removal - fwd > best:
+                                best, best_p, best_rev = removal - fwd, p, False
+                            if removal - rev > best:
+                                best, best_p, best_rev = removal - rev, p, True
+                if best_p < 0:
+                    continue
+                _move_segment(nodes, pos, i, length, best_p, best_rev, span)
+                for t in (before, after, s0, s1, nodes[pos[s0] - 1], nodes[pos[s1] + 1]):
+                    if t >= 0:
+                        _push(queue, queued, head, t)
+                for t in (nodes[pos[s0] + 1], nodes[pos[s1] - 1]):
+                    if t >= 0:
+                        _push(queue, queued, head, t)
+                total += best
+                improved = True
+                break
+    return total
+
+
+@njit(cache=True)
+def _move_segment(nodes, pos, i, length, p, rev, span):  # type: ignore[no-untyped-def]
+    """Move nodes[i:i+length] between places p and p+1 (outside it), reversed when ``rev``."""
+    seg = nodes[i : i + length].copy()
+    if rev:
+        seg = seg[::-1].copy()
+    if p >= i + length:
+        for q in range(i + length, p + 1):
+            nodes[q - length] = nodes[q]
+            pos[nodes[q - length]] = q - length
+        at = p - length + 1
+        lo, hi = i, p
+    else:
+        for q in range(i - 1, p, -1):
+            nodes[q + length] = nodes[q]
+            pos[nodes[q + length]] = q + length
+        at = p + 1
+        lo, hi = p + 1, i + length - 1
+    for q in range(length):
+        nodes[at + q] = seg[q]
+        pos[seg[q]] = at + q
+    span[0] = min(span[0], lo)
+    span[1] = max(span[1], hi)
+
+
+@njit(cache=True)
+def _e(u, v, args):  # type: ignore[no-untyped-def]
+    """:func:`planner.operators.edge` with ``args`` = (machine, dist, start_dist, end_dist)."""
+    return edge(u, v, args[0], args[1], args[2], args[3])

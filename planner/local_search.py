@@ -28,7 +28,8 @@ import time
 import numpy as np
 from numba import njit, objmode
 
-from planner.cost import TIE_BREAK
+from planner.cost import fleet_value as _objective
+from planner.cost import route_value as _route_value
 from planner.moves import (
     EXCHANGE,
     RELOCATE,
@@ -36,6 +37,7 @@ from planner.moves import (
     SEGMENT_RELOCATE,
     TWO_OPT_STAR,
     prefix,
+    rows_back,
     segment_apply,
     segment_lengths,
     two_opt_star_allowed,
@@ -62,38 +64,27 @@ def past(deadline: float) -> bool:
     return deadline < np.inf and now() >= deadline
 
 
+NEIGHBOUR_BLOCK = 256  # rows of the distance matrix looked at together (memory: not n x n)
+
+
 def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
-    """The ``k`` nearest other tasks of every task, nearest first."""
+    """The ``k`` nearest other tasks of every task, nearest first. Works on
+    :data:`NEIGHBOUR_BLOCK` rows at a time, so its scratch stays O(n) rows' worth, not a
+    second n x n matrix (and its argpartition) beside ``dist``."""
     n = dist.shape[0]
     k = max(0, min(k, n - 1))
+    out = np.zeros((n, k), dtype=np.int64)
     if k == 0:
-        return np.zeros((n, 0), dtype=np.int64)
-    d = dist.copy()
-    np.fill_diagonal(d, np.inf)
-    nn = np.argpartition(d, k - 1, axis=1)[:, :k]
-    rows = np.arange(n)[:, None]
-    order = np.argsort(d[rows, nn], axis=1, kind="stable")
-    return np.ascontiguousarray(nn[rows, order]).astype(np.int64)
-
-
-@njit(cache=True)
-def _route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
-    """A route's share of the objective (see :func:`planner.cost.evaluate`); ``size`` is its
-    number of tasks (an empty route costs nothing, a busy machine's ready time included)."""
-    if objective == 0 or objective == 4:
-        return s
-    if objective == 2:
-        return s * road_h[machine] * road_f[machine] + extra
-    if size == 0:
-        return s * road_h[machine] + extra
-    return s * road_h[machine] + extra + ready[machine]
-
-
-@njit(cache=True)
-def _objective(objective, values, lengths):  # type: ignore[no-untyped-def]
-    if objective == 3 or objective == 4:
-        return values.max() + TIE_BREAK * lengths.sum()
-    return values.sum()
+        return out
+    for lo in range(0, n, NEIGHBOUR_BLOCK):
+        hi = min(lo + NEIGHBOUR_BLOCK, n)
+        d = np.array(dist[lo:hi], dtype=np.float64)
+        rows = np.arange(hi - lo)
+        d[rows, rows + lo] = np.inf
+        nn = np.argpartition(d, k - 1, axis=1)[:, :k]
+        order = np.argsort(d[rows[:, None], nn], axis=1, kind="stable")
+        out[lo:hi] = nn[rows[:, None], order]
+    return out
 
 
 @njit(cache=True)
@@ -444,12 +435,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
             improved = True
         if late or not improved:
             break
-    begin = 0
-    for r in range(m):
-        for k in range(sizes[r]):
-            perm[begin + k] = routes[r, k]
-        counts[r] = sizes[r]
-        begin += sizes[r]
+    rows_back(routes, sizes, perm, counts)
     if not late:
         improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
     return moves

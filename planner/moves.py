@@ -26,7 +26,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from planner.cost import fleet_value, route_value
 from planner.operators import leg
+from planner.rng import randint, shuffle
 
 MOVES = ("relocate", "exchange", "two_opt_star", "segment_relocate")
 # Bits of the ``moves`` mask, in MOVES' order.
@@ -221,12 +223,137 @@ def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf): 
             route_of[t] = r
 
 
-def route_rows(perm: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The chromosome as route rows (for tests and callers outside the kernels)."""
+@njit(cache=True)
+def ruin_recreate(  # type: ignore[no-untyped-def]
+    state, perm, counts, objective, tables, neighbours, size, focus_longest, min_count, pins, moved
+):
+    """Ruin and recreate (Schrimpf et al. 2000, radial ruin), the ILS's stronger
+    perturbation: a seed task and its nearest neighbours, ``size`` tasks in all, leave
+    their routes; then each, in random order, goes to the place of any route where the
+    objective grows least, ties (a min-max figure that the place leaves as it is) broken
+    by the distance it adds. With ``focus_longest`` the seed is taken from the route of
+    highest share of the objective, the one that sets a min-max figure: its neighbourhood
+    is re-cut between the routes around it. O(size n m) on the chromosome in place. A
+    route is never left below ``min_count`` and a pinned task never moves (nor has one put
+    before it). The tasks moved are written to ``moved`` (the rest -1); returns how many."""
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    n = perm.shape[0]
+    m = counts.shape[0]
+    moved[:] = -1
+    task_x = task_f if objective == 2 else task_h
+    use_extra = objective == 1 or objective == 2 or objective == 3
+    routes, sizes = route_rows(perm, counts)
+    route_of = np.empty(n, dtype=np.int64)
+    for r in range(m):
+        for k in range(sizes[r]):
+            route_of[routes[r, k]] = r
+    values = np.zeros(m)
+    lengths = np.zeros(m)
+    extras = np.zeros(m)
+    for r in range(m):
+        _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values)
+    seed = randint(state, n)
+    if focus_longest:
+        longest = int(np.argmax(values))
+        if sizes[longest] > 0:
+            seed = routes[longest, randint(state, sizes[longest])]
+    done = 0
+    for q in range(-1, neighbours.shape[1]):
+        if done >= size or done >= moved.shape[0]:
+            break
+        t = seed if q < 0 else neighbours[seed, q]
+        r = route_of[t]
+        if pins[t] >= 0 or sizes[r] <= min_count:
+            continue
+        k = 0
+        while routes[r, k] != t:
+            k += 1
+        for j in range(k, sizes[r] - 1):
+            routes[r, j] = routes[r, j + 1]
+        sizes[r] -= 1
+        route_of[t] = -1
+        moved[done] = t
+        done += 1
+    for r in range(m):
+        _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values)
+    order = moved[:done].copy()
+    shuffle(state, order)
+    for t in order:
+        best_obj = np.inf
+        best_add = np.inf
+        best_r = -1
+        best_p = -1
+        for b in range(m):
+            first = 1 if sizes[b] > 0 and pins[routes[b, 0]] >= 0 else 0
+            eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
+            old_value, old_length = values[b], lengths[b]
+            for p in range(first, sizes[b] + 1):
+                u = routes[b, p - 1] if p > 0 else -1
+                v = routes[b, p] if p < sizes[b] else -2
+                add = (
+                    leg(u, t, b, dist, start_dist, end_dist)
+                    + leg(t, v, b, dist, start_dist, end_dist)
+                    - leg(u, v, b, dist, start_dist, end_dist)
+                )
+                lengths[b] = old_length + add
+                values[b] = route_value(objective, b, lengths[b], eb, road_h, road_f, ready, 1)
+                value = fleet_value(objective, values, lengths)
+                eps = 1e-9 * max(1.0, abs(value))
+                if value < best_obj - eps or (value <= best_obj + eps and add < best_add):
+                    best_obj, best_add, best_r, best_p = value, add, b, p
+            values[b], lengths[b] = old_value, old_length
+        for j in range(sizes[best_r], best_p, -1):
+            routes[best_r, j] = routes[best_r, j - 1]
+        routes[best_r, best_p] = t
+        sizes[best_r] += 1
+        route_of[t] = best_r
+        _figures(
+            routes, sizes, best_r, objective, tables, task_x, use_extra, lengths, extras, values
+        )
+    rows_back(routes, sizes, perm, counts)
+    return done
+
+
+@njit(cache=True)
+def route_rows(perm, counts):  # type: ignore[no-untyped-def]
+    """The chromosome as route rows: ``routes[r, :sizes[r]]`` machine r's tasks in order."""
     m, n = counts.shape[0], perm.shape[0]
     routes = np.zeros((m, n), dtype=np.int64)
+    sizes = np.zeros(m, dtype=np.int64)
     begin = 0
     for r in range(m):
-        routes[r, : counts[r]] = perm[begin : begin + counts[r]]
-        begin += int(counts[r])
-    return routes, counts.astype(np.int64).copy()
+        for k in range(counts[r]):
+            routes[r, k] = perm[begin + k]
+        sizes[r] = counts[r]
+        begin += counts[r]
+    return routes, sizes
+
+
+@njit(cache=True)
+def rows_back(routes, sizes, perm, counts):  # type: ignore[no-untyped-def]
+    """Write route rows back into the chromosome ``perm``/``counts`` (in place)."""
+    begin = 0
+    for r in range(sizes.shape[0]):
+        for k in range(sizes[r]):
+            perm[begin + k] = routes[r, k]
+        counts[r] = sizes[r]
+        begin += sizes[r]
+
+
+@njit(cache=True)
+def _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values):  # type: ignore[no-untyped-def]
+    """Route r's distance, in-field figure and share of the objective, into the arrays."""
+    dist, start_dist, end_dist, road_h, road_f, _, _, ready = tables
+    s = 0.0
+    e = 0.0
+    prev = -1
+    for k in range(sizes[r]):
+        t = routes[r, k]
+        s += leg(prev, t, r, dist, start_dist, end_dist)
+        if use_extra:
+            e += task_x[r, t]
+        prev = t
+    s += leg(prev, -2, r, dist, start_dist, end_dist)
+    lengths[r] = s
+    extras[r] = e
+    values[r] = route_value(objective, r, s, e, road_h, road_f, ready, sizes[r])

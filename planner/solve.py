@@ -56,6 +56,8 @@ from planner.sa import AnnealingParams, anneal
 
 log = logging.getLogger(__name__)
 
+ILS_CHUNK = 20  # ILS steps between two looks at the stop criteria (hybrid)
+
 
 class MaxGenerations:
     """Stop after ``limit`` generations (the paper's MAXGEN); 0 returns the best of the
@@ -346,6 +348,8 @@ def solve(
             min_count,
             pins,
             stop.deadline(),
+            params.tour_kicks * n,
+            _share_of(stop.deadline(), params.tour_share),
         )
     if warm is not None:
         perms[0], counts[0] = warm
@@ -440,28 +444,35 @@ def solve(
             if walk_cost > elite_cost * (1.0 + params.accept):
                 walk_perm[:], walk_counts[:] = elite_perm, elite_counts
                 walk_route[:], walk_cost = elite_route, elite_cost
-            improved, walk_cost = hybrid.ils_step(
-                state,
-                elite_perm,
-                elite_counts,
-                elite_route,
-                elite_cost,
-                walk_perm,
-                walk_counts,
-                walk_route,
-                walk_cost,
-                int(obj),
-                tables,
-                neighbours,
-                min_count,
-                pins,
-                params.ils_steps,
-                params.perturb,
-                stop.deadline(),
-                params.move_mask,
-                params.lexicographic,
-                params.accept,
-            )
+            improved = elite_cost
+            # In chunks, so that a stop flag is seen between them.
+            for done in range(0, params.ils_steps, ILS_CHUNK):
+                if stop.interrupted():
+                    break
+                improved, walk_cost = hybrid.ils_step(
+                    state,
+                    elite_perm,
+                    elite_counts,
+                    elite_route,
+                    improved,
+                    walk_perm,
+                    walk_counts,
+                    walk_route,
+                    walk_cost,
+                    int(obj),
+                    tables,
+                    neighbours,
+                    min_count,
+                    pins,
+                    min(ILS_CHUNK, params.ils_steps - done),
+                    params.perturb,
+                    stop.deadline(),
+                    params.move_mask,
+                    params.lexicographic,
+                    params.accept,
+                    params.ruin,
+                    params.ils_or_opt,
+                )
             if improved < elite_cost:
                 elite_cost = float(improved)
                 # The improved elite also enters the population, in place of its worst.
@@ -496,6 +507,12 @@ def solve(
         elapsed_s=elapsed,
         stats=stats,
     )
+
+
+def _share_of(deadline: float, share: float) -> float:
+    """The moment ``share`` of the time from now to ``deadline`` (monotonic) has gone."""
+    now = time.monotonic()
+    return now + share * (deadline - now) if math.isfinite(deadline) else math.inf
 
 
 def _polish(  # type: ignore[no-untyped-def]

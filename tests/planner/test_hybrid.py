@@ -7,7 +7,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from planner.cost import CostTables, Objective, evaluate
-from planner.hybrid import HybridParams, giant_tour, ils_step, or_opt, or_opt_routes, perturb
+from planner.hybrid import (
+    HybridParams,
+    giant_tour,
+    ils_step,
+    or_opt,
+    or_opt_routes,
+    perturb,
+    tour_ils,
+)
 from planner.local_search import nearest_neighbours
 from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
@@ -77,8 +85,9 @@ def test_perturb_keeps_validity_minimum_and_pins(case, strength, focus, min_coun
     assert pins[moved[:done]].max(initial=-1) < 0  # the pinned task never moves
 
 
+@pytest.mark.parametrize("ruin", [0, 4])
 @pytest.mark.parametrize("objective", list(Objective))
-def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
+def test_ils_step_reports_the_true_cost_and_never_worsens(objective, ruin):
     problem = problem_for(25, 3, 5)
     tables = CostTables.of(problem).kernel_args()
     rng = np.random.default_rng(1)
@@ -89,7 +98,8 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective):
     nn = nearest_neighbours(problem.dist, 6)
     new, walk = ils_step(
         make_state(2), perm, counts, route, cost, perm.copy(), counts.copy(), route.copy(),
-        cost, int(objective), tables, nn, 1, NO_PINS(25), 10, 3, np.inf, 7, True, 0.01,
+        cost, int(objective), tables, nn, 1, NO_PINS(25), 10, 3, np.inf, 7, True, 0.01, ruin,
+        ruin > 0,
     )  # fmt: skip
     assert new <= walk + 1e-9 and walk <= cost * 1.01
     assert_valid(perm, counts, 25, 3)
@@ -122,7 +132,9 @@ def test_giant_tour_gives_a_valid_chromosome_with_its_pins(case, objective, min_
     pins = NO_PINS(n)
     pins[int(perm[-1])] = m - 1  # one task pinned to the last machine
     nn = nearest_neighbours(problem.dist, 5)
-    giant_tour(state, perm, counts, int(objective), tables, nn, min_count, pins, np.inf)
+    giant_tour(
+        state, perm, counts, int(objective), tables, nn, min_count, pins, np.inf, 50 * n, np.inf
+    )
     assert_valid(perm, counts, n, m, min_count)
     assert pins_hold(perm, counts, pins)
 
@@ -140,11 +152,59 @@ def test_giant_tour_is_a_good_tour_cut_optimally():
     counts = np.zeros(2, dtype=np.int64)
     nn = nearest_neighbours(problem.dist, 6)
     giant_tour(
-        make_state(1), perm, counts, int(Objective.MINMAX), tables, nn, 1, NO_PINS(40), np.inf
-    )
+        make_state(1), perm, counts, int(Objective.MINMAX), tables, nn, 1, NO_PINS(40), np.inf,
+        4000, np.inf,
+    )  # fmt: skip
     route = np.empty(2)
     evaluate(perm, counts, int(Objective.MINMAX), tables, route)
     # Two half circles: 100 out, 19 chords along the circle, 100 back.
     chord = 2 * 100 * np.sin(np.pi / 40)
     assert counts.tolist() == [20, 20]
     assert route.max() == pytest.approx(200 + 19 * chord, rel=1e-9)
+
+
+@SETTINGS
+@given(chromosomes(), st.integers(0, 300), st.integers(2, 8))
+def test_tour_ils_keeps_a_permutation_and_its_gain_is_the_true_shortening(case, kicks, k):
+    state, perm, _ = case
+    n = perm.size
+    # Machine 1 starts and ends elsewhere than machine 0: the path is machine 1's.
+    problem = problem_for(n, 2, 5 * n + k).starting_at([(100.0, 2900.0), (2900.0, 100.0)])
+    tables = CostTables.of(problem).kernel_args()
+    on_1 = np.array([0, n], dtype=np.int64)
+    before = evaluate(perm, on_1, int(Objective.DISTANCE), tables, np.empty(2))
+    nn = nearest_neighbours(problem.dist, k)
+    gain = tour_ils(state, perm, 1, *tables[:3], nn, kicks, np.inf)
+    assert sorted(perm.tolist()) == list(range(n))
+    after = evaluate(perm, on_1, int(Objective.DISTANCE), tables, np.empty(2))
+    assert gain >= 0.0
+    assert before - after == pytest.approx(gain, rel=1e-9, abs=1e-6)
+
+
+def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
+    # Tasks on a circle, shuffled; the machine starts and ends at the centre: the best
+    # path goes round the circle once. The same seed gives the same path.
+    angles = np.linspace(0.0, 2 * np.pi, 60, endpoint=False)
+    problem = Problem.build(
+        [Machine("m", 1.0, 1.0, 1.0, 0.0, 1.0, 1.0)],
+        [Task(f"t{j}", 100 * np.cos(a), 100 * np.sin(a)) for j, a in enumerate(angles)],
+        (0.0, 0.0),
+    )
+    tables = CostTables.of(problem).kernel_args()
+    nn = nearest_neighbours(problem.dist, 8)
+    paths = []
+    for _ in range(2):
+        perm = np.random.default_rng(3).permutation(60).astype(np.int64)
+        tour_ils(make_state(4), perm, 0, *tables[:3], nn, 5000, np.inf)
+        paths.append(perm.tolist())
+    route = np.empty(1)
+    length = evaluate(np.array(paths[0]), np.array([60]), int(Objective.DISTANCE), tables, route)
+    chord = 2 * 100 * np.sin(np.pi / 60)
+    assert length == pytest.approx(200 + 59 * chord, rel=1e-9)
+    assert paths[0] == paths[1]
+
+
+@pytest.mark.parametrize("bad", [{"ruin": -1}, {"tour_kicks": -1}, {"tour_share": 1.5}])
+def test_hybrid_params_refuse_a_bad_setting(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        HybridParams(**bad)

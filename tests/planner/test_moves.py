@@ -8,7 +8,7 @@ from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, pr
 from hypothesis import given
 from hypothesis import strategies as st
 
-from planner.cost import CostTables, Objective, evaluate
+from planner.cost import CostTables, Objective, evaluate, split_routes
 from planner.local_search import allocation_search, nearest_neighbours
 from planner.moves import (
     MOVES,
@@ -16,12 +16,15 @@ from planner.moves import (
     mask,
     prefix,
     route_rows,
+    ruin_recreate,
     segment_apply,
     segment_lengths,
     two_opt_star_allowed,
     two_opt_star_apply,
     two_opt_star_lengths,
 )
+from planner.pins import pins_hold, repair_pins
+from planner.rng import make_state
 
 
 def lengths_of(routes, sizes, tables):
@@ -144,3 +147,92 @@ def problem_total(perm, counts, tables):
     out = np.empty(counts.size)
     evaluate(perm, counts, int(Objective.MINMAX), tables, out)
     return out.sum()
+
+
+@SETTINGS
+@given(
+    chromosomes(min_count=0),
+    st.sampled_from(list(Objective)),
+    st.integers(1, 8),
+    st.booleans(),
+    st.integers(0, 1),
+)
+def test_ruin_recreate_keeps_validity_minimum_and_pins(case, objective, size, focus, min_count):
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    if min_count and counts.min() < 1:
+        return
+    problem = problem_for(n, m, n + 7 * m)
+    tables = CostTables.of(problem).kernel_args()
+    pins = NO_PINS(n)
+    pins[int(perm[0])] = 0  # the first task of route 0 (or of a later one) pinned there
+    repair_pins(perm, counts, pins, min_count)
+    moved = np.empty(size, dtype=np.int64)
+    nn = nearest_neighbours(problem.dist, 5)
+    done = ruin_recreate(
+        state, perm, counts, int(objective), tables, nn, size, focus, min_count, pins, moved
+    )
+    assert_valid(perm, counts, n, m, min_count)
+    assert pins_hold(perm, counts, pins)
+    assert 0 <= done <= size and len(set(moved[:done])) == done and np.all(moved[done:] == -1)
+    assert pins[moved[:done]].max(initial=-1) < 0  # the pinned task never moves
+
+
+@SETTINGS
+@given(chromosomes(), st.sampled_from(list(Objective)))
+def test_ruin_recreate_puts_a_task_back_where_the_objective_is_least(case, objective):
+    # One task taken out (the seed) goes back at the best of every place of every route:
+    # the objective after it equals the least found by trying each place.
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, 3 * n + m)
+    tables = CostTables.of(problem).kernel_args()
+    moved = np.empty(1, dtype=np.int64)
+    nn = nearest_neighbours(problem.dist, 3)
+    before_perm, before_counts = perm.copy(), counts.copy()
+    done = ruin_recreate(
+        state, perm, counts, int(objective), tables, nn, 1, False, 1, NO_PINS(n), moved
+    )
+    route = np.empty(m)
+    after = evaluate(perm, counts, int(objective), tables, route)
+    if done == 0:  # its route was at the minimum: nothing moves
+        assert perm.tolist() == before_perm.tolist()
+        return
+    t = int(moved[0])
+    rows = split_routes(before_perm, before_counts)
+    for r in rows:
+        if t in r:
+            r.remove(t)
+    best = np.inf
+    for b in range(m):
+        for p in range(len(rows[b]) + 1):
+            trial = [list(r) for r in rows]
+            trial[b].insert(p, t)
+            flat = np.array([j for r in trial for j in r], dtype=np.int64)
+            sizes = np.array([len(r) for r in trial], dtype=np.int64)
+            best = min(best, evaluate(flat, sizes, int(objective), tables, route))
+    assert after == pytest.approx(best, rel=1e-8, abs=1e-9)
+
+
+def test_ruin_recreate_gives_the_same_answer_for_the_same_seed():
+    problem = problem_for(30, 4, 3)
+    tables = CostTables.of(problem).kernel_args()
+    nn = nearest_neighbours(problem.dist, 6)
+    out = []
+    for _ in range(2):
+        perm = np.random.default_rng(4).permutation(30).astype(np.int64)
+        counts = np.array([7, 8, 7, 8], dtype=np.int64)
+        ruin_recreate(
+            make_state(9), perm, counts, int(Objective.MINMAX), tables, nn, 5, True, 1,
+            NO_PINS(30), np.empty(5, dtype=np.int64),
+        )  # fmt: skip
+        out.append((perm.tolist(), counts.tolist()))
+    assert out[0] == out[1]
+
+
+def test_nearest_neighbours_by_blocks_are_every_row_s_nearest_in_order():
+    pts = np.random.default_rng(2).uniform(0, 1000, (300, 2))  # more rows than one block
+    dist = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1))
+    expected = np.argsort(dist + np.diag(np.full(300, np.inf)), axis=1)[:, :7]
+    assert np.array_equal(nearest_neighbours(dist, 7), expected)
+    assert nearest_neighbours(dist[:1, :1], 3).shape == (1, 0)
