@@ -19,7 +19,7 @@ from helpers.processes import (
 )
 from helpers.review import assert_each_segment_worked_once
 
-from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_logs
+from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, LogContents, read_logs
 from dispatcher.review.report import review_contents, review_table
 
 SCENARIO = Path(__file__).parent / "data" / "restart.toml"  # two tractors of one width
@@ -36,6 +36,24 @@ def scenario_with(tmp_path: Path, dispatcher: str) -> Path:
     return scenario
 
 
+def run_with_a_fault(
+    procs: Processes, scenario: Path, tmp_path: Path, fault: signal.Signals
+) -> LogContents:
+    """Serve ``scenario`` with v1 and v2 simulated at 20x; once v2 has done 30 % of its work,
+    send its simulator ``fault`` (SIGKILL: dead; SIGUSR1: stalled); the run's log once
+    ``serve`` ended with exit 0."""
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    procs.sim(scenario, port, 20, "v1")
+    v2 = procs.sim(scenario, port, 20, "v2")
+    with status_reader(port, "restart") as status:
+        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
+        os.kill(v2.pid, fault)
+    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    return read_logs([log_of(Processes.output(serve))])
+
+
 @pytest.fixture
 def procs(tmp_path: Path) -> Iterator[Processes]:
     group = Processes(tmp_path)
@@ -44,16 +62,7 @@ def procs(tmp_path: Path) -> Iterator[Processes]:
 
 
 def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path: Path) -> None:
-    port = free_port()
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(SCENARIO, port, 20, "v1")
-    v2 = procs.sim(SCENARIO, port, 20, "v2")
-    with status_reader(port, "restart") as status:
-        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
-    os.kill(v2.pid, signal.SIGKILL)
-    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
-    assert serve.returncode == 0, procs.report()
-    log = read_logs([log_of(Processes.output(serve))])
+    log = run_with_a_fault(procs, SCENARIO, tmp_path, signal.SIGKILL)
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     assert any("re-planning the rest of the work: v2 lost" in ln for ln in lines), lines
     assert any("the rest of the work over v1; v2 left out" in ln for ln in lines), lines
@@ -77,16 +86,7 @@ def test_missions_in_windows_are_topped_up_and_a_killed_tractors_work_still_done
 ) -> None:
     # Windows of about 20 items (a field): each tractor gets its mission a field at a time.
     scenario = scenario_with(tmp_path, "window_items = 20")
-    port = free_port()
-    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(scenario, port, 20, "v1")
-    v2 = procs.sim(scenario, port, 20, "v2")
-    with status_reader(port, "restart") as status:
-        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
-    os.kill(v2.pid, signal.SIGKILL)
-    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
-    assert serve.returncode == 0, procs.report()
-    log = read_logs([log_of(Processes.output(serve))])
+    log = run_with_a_fault(procs, scenario, tmp_path, signal.SIGKILL)
     events = [r.decode_json() for r in log.on(EVENTS_TOPIC)]
     uploads = [e["items"] for e in events if e["kind"] == "upload_started" and e["vehicle"] == "v1"]
     plan = log.on("agrifleet/restart/dispatcher/plan")[0].decode_json()
@@ -105,16 +105,8 @@ def test_a_stalled_tractor_is_held_and_its_work_done_by_the_other(
     procs: Processes, tmp_path: Path
 ) -> None:
     scenario = scenario_with(tmp_path, "stall_after_s = 30")
-    port = free_port()
-    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
-    procs.sim(scenario, port, 20, "v1")
-    v2 = procs.sim(scenario, port, 20, "v2")
-    with status_reader(port, "restart") as status:
-        wait_for_share(status, ("v2",), 0.3, 120.0, procs.report)
-        os.kill(v2.pid, signal.SIGUSR1)  # it stops moving; its radio and autopilot go on
-    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
-    assert serve.returncode == 0, procs.report()
-    log = read_logs([log_of(Processes.output(serve))])
+    # SIGUSR1: it stops moving; its radio and autopilot go on
+    log = run_with_a_fault(procs, scenario, tmp_path, signal.SIGUSR1)
     lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
     assert any(ln.startswith("v2: stalled") and "HOLD" in ln for ln in lines), lines
     assert any("re-planning the rest of the work: v2 lost (stalled" in ln for ln in lines), lines

@@ -699,10 +699,11 @@ class Dispatcher:
         ours = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
         return mission_differences(read.items, ours, first=read.first, count=read.count)
 
-    def _topup_due(self, v: VehicleState, link: _Link, now: float) -> bool:
-        """A driving vehicle that holds a window of its mission is to be given the next one
-        (mission/window.py): it will reach the window's end within TOPUP_LEAD_S plus twice
-        its last upload time, at its pace."""
+    def _topup_due(self, v: VehicleState, link: _Link) -> int | None:
+        """How many items a driving vehicle that holds a window of its mission is to hold
+        now, when it is due its next window (mission/window.py): it will reach the end of
+        the one it holds, at its pace, within TOPUP_LEAD_S plus twice what the top-up should
+        take at the pace of its last upload. None: not due."""
         if (
             v.held >= len(v.items)
             or self._replan is not None  # a re-plan under way: its next window may change
@@ -714,25 +715,26 @@ class Dispatcher:
             or link.hold is not None
             or any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges())
         ):
-            return False
+            return None
+        more = window(v.items, v.held, self.config.window_items)
         if len(v.planned_s) != len(v.items):
-            return True
+            return more
         left_s = (v.planned_s[v.held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
         # What the next top-up takes, at the pace of its last upload (items a second): the
         # whole longer prefix, and the new items read back.
         took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        more = window(v.items, v.held, self.config.window_items)
-        return left_s <= TOPUP_LEAD_S + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
+        lead_s = TOPUP_LEAD_S + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
+        return more if left_s <= lead_s else None
 
     def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
         """Give a driving vehicle the next window of its mission: upload the longer prefix
         under it (it keeps driving the items it holds), read the new items back, and start
         it again if it reached the end of its old window meanwhile (it stopped there)."""
         if link.topup_from is None:
-            if not self._topup_due(v, link, now):
+            count = self._topup_due(v, link)
+            if count is None:
                 return
             link.topup_from = v.held
-            count = window(v.items, v.held, self.config.window_items)
             self._apply(ev.WindowExtended(v.id, count), now)
             self._log(
                 "info",
