@@ -82,7 +82,7 @@ class CostTables:
         )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def route_distance(perm, begin, count, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-def]
     """Formula (1) for the ``count`` tasks of ``perm`` from ``begin`` done by ``machine``."""
     if count == 0:
@@ -96,7 +96,7 @@ def route_distance(perm, begin, count, machine, dist, start_dist, end_dist):  # 
     return s + end_dist[machine, prev]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-untyped-def]
     """The objective value of one chromosome; fills ``route_cost[i]`` with machine i's share.
 
@@ -140,14 +140,14 @@ def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-un
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def evaluate_population(perms, counts, objective, tables, costs, route_costs):  # type: ignore[no-untyped-def]
     """Evaluate every row of a population in place."""
     for p in range(perms.shape[0]):
         costs[p] = evaluate(perms[p], counts[p], objective, tables, route_costs[p])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
     """A route's share of the objective (as :func:`evaluate` gives it) from its distance
     ``s`` and ``extra``, the sum of its tasks' in-field figures (hours, or litres for
@@ -162,7 +162,7 @@ def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # t
     return s * road_h[machine] + extra + ready[machine]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fleet_value(objective, values, lengths):  # type: ignore[no-untyped-def]
     """The objective from every route's share (``values``) and distance (``lengths``)."""
     if objective == 3 or objective == 4:

@@ -33,7 +33,7 @@ class GAParams:
             raise ValueError("tournament_size must be at least 1")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def generation(  # type: ignore[no-untyped-def]
     state,
     perms,

@@ -21,7 +21,8 @@ name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shor
 fleet's total distance without worsening the objective's figure. One individual of the
 first population is a giant tour, improved by an iterated local search of its own
 (:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
-look at), cut by the optimal split (:func:`giant_tour`).
+look at), cut by the optimal split (:func:`giant_tour`). A warm-started run (a re-plan)
+starts instead from the plan being carried out and variants of it (:func:`warm_population`).
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -95,7 +96,7 @@ class HybridParams(IGHOAParams):
         return mask(self.moves)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def or_opt(perm, begin, count, machine, dist, start_dist, end_dist, neighbours, fixed):  # type: ignore[no-untyped-def]
     """Or-opt on the route ``perm[begin:begin+count]`` of ``machine`` until no move pays:
     a segment of 1..MAX_SEGMENT tasks goes, as it is or reversed, between a nearest
@@ -182,7 +183,7 @@ def or_opt(perm, begin, count, machine, dist, start_dist, end_dist, neighbours, 
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def or_opt_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins):  # type: ignore[no-untyped-def]
     """:func:`or_opt` on every route of a chromosome; returns the total gain."""
     begin = 0
@@ -194,7 +195,7 @@ def or_opt_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins):  
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _route_at(counts, index):  # type: ignore[no-untyped-def]
     """The route that place ``index`` of the task order belongs to."""
     begin = 0
@@ -205,7 +206,7 @@ def _route_at(counts, index):  # type: ignore[no-untyped-def]
     return counts.shape[0] - 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _move_after(perm, counts, src, w):  # type: ignore[no-untyped-def]
     """Move the task at ``perm[src]`` to just after task ``w``, into w's route."""
     n = perm.shape[0]
@@ -223,7 +224,7 @@ def _move_after(perm, counts, src, w):  # type: ignore[no-untyped-def]
     counts[route_w] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def perturb(
     state, perm, counts, route_cost, strength, focus_longest, min_count, pins, neighbours, moved
 ):  # type: ignore[no-untyped-def]
@@ -257,7 +258,7 @@ def perturb(
     return done
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def local_optimum(
     perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look, moves, lexi
 ):  # type: ignore[no-untyped-def]
@@ -272,7 +273,7 @@ def local_optimum(
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ils_step(  # type: ignore[no-untyped-def]
     state,
     elite_perm,
@@ -349,7 +350,24 @@ def ils_step(  # type: ignore[no-untyped-def]
     return elite_cost, walk_cost
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
+def warm_population(  # type: ignore[no-untyped-def]
+    state, perms, counts, first, objective, tables, neighbours, size, min_count, pins
+):
+    """A re-plan's first population: individuals ``first``.. each a variant of individual 0
+    (the plan being carried out, repaired), ``size`` tasks around a random seed ruined and
+    recreated (:func:`planner.moves.ruin_recreate`): near the plan, and diverse."""
+    moved = np.empty(max(size, 1), dtype=np.int64)
+    for p in range(first, perms.shape[0]):
+        perms[p] = perms[0]
+        counts[p] = counts[0]
+        ruin_recreate(
+            state, perms[p], counts[p], objective, tables, neighbours, size, False, min_count,
+            pins, moved,
+        )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
 def giant_tour(  # type: ignore[no-untyped-def]
     state, perm, counts, objective, tables, neighbours, min_count, pins, deadline, kicks, ils_end
 ):
@@ -382,7 +400,7 @@ def giant_tour(  # type: ignore[no-untyped-def]
     repair_pins(perm, counts, pins, min_count)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tour_ils(state, perm, machine, dist, start_dist, end_dist, neighbours, kicks, deadline):  # type: ignore[no-untyped-def]
     """Iterated local search on one path through every task of ``perm`` (``machine``'s
     start, the tasks in order, its end), in place; returns the total gain. Each of up to
@@ -472,7 +490,7 @@ KICK_WINDOW = 50  # places a double-bridge kick of tour_ils spans at most
 CHECK_KICKS = 256  # kicks between two looks at the clock
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _push(queue, queued, head, t):  # type: ignore[no-untyped-def]
     """Put task t on the circular queue unless it is there."""
     if queued[t]:
@@ -483,7 +501,7 @@ def _push(queue, queued, head, t):  # type: ignore[no-untyped-def]
     queued[t] = True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _reverse_path(nodes, pos, lo, hi):  # type: ignore[no-untyped-def]
     while lo < hi:
         nodes[lo], nodes[hi] = nodes[hi], nodes[lo]
@@ -495,7 +513,7 @@ def _reverse_path(nodes, pos, lo, hi):  # type: ignore[no-untyped-def]
         pos[nodes[lo]] = lo
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _path_search(nodes, pos, neighbours, queue, queued, head, span, args):  # type: ignore[no-untyped-def]
     """2-opt and Or-opt on the path ``nodes`` (start -1, tasks, end -2) from the tasks on
     the queue until it is empty; returns the gain. ``span`` widens to every place changed."""
@@ -590,7 +608,7 @@ def _path_search(nodes, pos, neighbours, queue, queued, head, span, args):  # ty
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _move_segment(nodes, pos, i, length, p, rev, span):  # type: ignore[no-untyped-def]
     """Move nodes[i:i+length] between places p and p+1 (outside it), reversed when ``rev``."""
     seg = nodes[i : i + length].copy()
@@ -615,7 +633,7 @@ def _move_segment(nodes, pos, i, length, p, rev, span):  # type: ignore[no-untyp
     span[1] = max(span[1], hi)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _e(u, v, args):  # type: ignore[no-untyped-def]
     """:func:`planner.operators.edge` with ``args`` = (machine, dist, start_dist, end_dist)."""
     return edge(u, v, args[0], args[1], args[2], args[3])

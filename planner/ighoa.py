@@ -83,7 +83,7 @@ def adaptive_tolerance(
     return tol_min + big_r * progress * (tol_max - tol_min)  # (14)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def crossover_probability(route_cost, pc_min, pc_mid, pc_max):  # type: ignore[no-untyped-def]
     """Formula (15)/(16), read as an interpolation between Pcmin and Pcmax by where the
     mean route cost lies between the cheapest and dearest route of the chromosome."""
@@ -95,7 +95,7 @@ def crossover_probability(route_cost, pc_min, pc_mid, pc_max):  # type: ignore[n
     return (pc_max * (hi - mean) + pc_min * (mean - lo)) / (hi - lo)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def overshoot(route_cost):  # type: ignore[no-untyped-def]
     """Formula (11): how far the dearest route exceeds the mean route."""
     mean = route_cost.mean()
@@ -104,7 +104,7 @@ def overshoot(route_cost):  # type: ignore[no-untyped-def]
     return (route_cost.max() - mean) / mean
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def generation(  # type: ignore[no-untyped-def]
     state,
     perms,
@@ -194,7 +194,7 @@ def generation(  # type: ignore[no-untyped-def]
     return crossovers, mutations
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def polish(  # type: ignore[no-untyped-def]
     state, perm, counts, objective, tables, tries, route_cost, neighbours, pins, min_count
 ):

@@ -1,9 +1,11 @@
 """The solver's numba kernels: compiled once per install, and said so while it happens.
 
-The kernels are ``@njit(cache=True)``: numba compiles each on its first call (about half a
-minute for all of them, :data:`COMPILE_ESTIMATE_S`) and keeps the machine code in its
-on-disk cache (``__pycache__`` beside the sources, or under ``NUMBA_CACHE_DIR``), which
-later processes load in a fraction of a second. ``agrifleet warm`` (run by ``make`` after
+The kernels are ``@njit(cache=True, nogil=True)``: numba compiles each on its first call
+(about half a minute for all of them, :data:`COMPILE_ESTIMATE_S`) and keeps the machine code
+in its on-disk cache (``__pycache__`` beside the sources, or under ``NUMBA_CACHE_DIR``),
+which later processes load in a fraction of a second. They release the GIL while they run:
+the dispatcher re-plans in a thread beside its main loop, which goes on reading the fleet's
+telemetry meanwhile (on another core when there is one). ``agrifleet warm`` (run by ``make`` after
 installing) pays the compile at install; otherwise the first plan does.
 
 Whether a process compiles or loads is told by numba's event API: numba broadcasts a

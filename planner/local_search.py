@@ -50,7 +50,7 @@ from planner.operators import improve_routes, leg
 CHECK_EVERY = 64  # tasks (moves tried, or cuts) between two looks at the clock
 
 
-@njit(cache=True)
+@njit(cache=True)  # object mode: holds the GIL for the call (numba warns of nogil here)
 def now() -> float:
     """:func:`time.monotonic`, from compiled code."""
     with objmode(t="float64"):
@@ -58,7 +58,7 @@ def now() -> float:
     return t
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def past(deadline: float) -> bool:
     """Whether ``deadline`` (a monotonic instant; infinite: none) has passed."""
     return deadline < np.inf and now() >= deadline
@@ -87,7 +87,7 @@ def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
     """Route r's node at position p; -1 before the first task, -2 after the last."""
     if p < 0:
@@ -97,7 +97,7 @@ def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
     return routes[r, p]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def improve_allocation(  # type: ignore[no-untyped-def]
     perm, counts, objective, tables, neighbours, min_count, max_passes, pins, deadline=np.inf
 ):
@@ -112,7 +112,7 @@ def improve_allocation(  # type: ignore[no-untyped-def]
     )  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def allocation_search(  # type: ignore[no-untyped-def]
     perm,
     counts,
@@ -441,7 +441,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
     return moves
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _better(gain, gs, best_gain, best_gs, eps, lexi):  # type: ignore[no-untyped-def]
     """Whether a move of ``gain`` in the objective and ``gs`` in total distance beats the
     best so far: by its gain, or (with ``lexi``) by its distance at no smaller gain."""
@@ -450,7 +450,7 @@ def _better(gain, gs, best_gain, best_gs, eps, lexi):  # type: ignore[no-untyped
     return gain > best_gain + eps or (gain >= best_gain and gs > best_gs)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _star_extras(routes, sizes, a, pa, b, pw, variant, task_x):  # type: ignore[no-untyped-def]
     """The in-field figures (``task_x`` per machine) of routes a and b after the 2-opt*
     move (:func:`planner.moves.two_opt_star_lengths`): O(route lengths)."""
@@ -469,14 +469,14 @@ def _star_extras(routes, sizes, a, pa, b, pw, variant, task_x):  # type: ignore[
     return ea, eb
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _wake(dont_look, routes, sizes, r, p):  # type: ignore[no-untyped-def]
     """Clear the don't-look bits of route r's tasks at places p-1..p+1."""
     for k in range(max(p - 1, 0), min(p + 2, sizes[r])):
         dont_look[routes[r, k]] = False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def optimal_split(perm, counts, objective, tables, min_count, pins, deadline=np.inf):  # type: ignore[no-untyped-def]
     """Re-cut the task order into routes optimally for the objective (Prins's Split,
     with machine k taking the k-th stretch): dynamic programming over how many tasks the

@@ -46,7 +46,7 @@ def mask(names: tuple[str, ...] | list[str]) -> int:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def prefix(routes, sizes, r, machine, dist, start_dist, pref):  # type: ignore[no-untyped-def]
     """Fill ``pref[r, :sizes[r]]``: the distance from the start to each task of route r."""
     s = 0.0
@@ -58,7 +58,7 @@ def prefix(routes, sizes, r, machine, dist, start_dist, pref):  # type: ignore[n
         prev = t
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _inner(pref, r, i, j):  # type: ignore[no-untyped-def]
     """Distance along route r from its i-th to its j-th task (0 when i >= j)."""
     if i >= j:
@@ -66,7 +66,7 @@ def _inner(pref, r, i, j):  # type: ignore[no-untyped-def]
     return pref[r, j] - pref[r, i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_opt_star_lengths(  # type: ignore[no-untyped-def]
     routes, sizes, pref, a, pa, b, pw, variant, dist, start_dist, end_dist
 ):
@@ -114,7 +114,7 @@ def two_opt_star_lengths(  # type: ignore[no-untyped-def]
     return new_a, new_b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_opt_star_sizes(sizes, a, pa, b, pw, variant):  # type: ignore[no-untyped-def]
     """How many tasks routes a and b have after the move."""
     if variant == 0:
@@ -122,7 +122,7 @@ def two_opt_star_sizes(sizes, a, pa, b, pw, variant):  # type: ignore[no-untyped
     return pa + 1 + pw + 1, sizes[a] - pa - 1 + sizes[b] - pw - 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_opt_star_allowed(routes, sizes, pins, a, pa, b, pw, variant, min_count):  # type: ignore[no-untyped-def]
     """Whether the move keeps every route at ``min_count`` tasks or more and every pinned
     task (``pins``: always first in its route) first in its machine's route."""
@@ -134,7 +134,7 @@ def two_opt_star_allowed(routes, sizes, pins, a, pa, b, pw, variant, min_count):
     return pins[routes[b, 0]] < 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, pw, variant, buf):  # type: ignore[no-untyped-def]
     """Apply the move (see :func:`two_opt_star_lengths`) to the route rows and the
     ``pos``/``route_of`` index of every task; ``buf`` is scratch of n ints."""
@@ -170,7 +170,7 @@ def two_opt_star_apply(routes, sizes, pos, route_of, a, pa, b, pw, variant, buf)
             route_of[t] = r
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def segment_lengths(  # type: ignore[no-untyped-def]
     routes, sizes, pref, lengths, a, pa, length, b, p, rev, dist, start_dist, end_dist
 ):
@@ -202,7 +202,7 @@ def segment_lengths(  # type: ignore[no-untyped-def]
     return new_a, new_b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf):  # type: ignore[no-untyped-def]
     """Apply the move (see :func:`segment_lengths`) to the route rows and the
     ``pos``/``route_of`` index of every task; ``buf`` is scratch of n ints."""
@@ -223,60 +223,85 @@ def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf): 
             route_of[t] = r
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ruin_recreate(  # type: ignore[no-untyped-def]
     state, perm, counts, objective, tables, neighbours, size, focus_longest, min_count, pins, moved
 ):
     """Ruin and recreate (Schrimpf et al. 2000, radial ruin), the ILS's stronger
     perturbation: a seed task and its nearest neighbours, ``size`` tasks in all, leave
-    their routes; then each, in random order, goes to the place of any route where the
-    objective grows least, ties (a min-max figure that the place leaves as it is) broken
-    by the distance it adds. With ``focus_longest`` the seed is taken from the route of
-    highest share of the objective, the one that sets a min-max figure: its neighbourhood
-    is re-cut between the routes around it. O(size n m) on the chromosome in place. A
-    route is never left below ``min_count`` and a pinned task never moves (nor has one put
-    before it). The tasks moved are written to ``moved`` (the rest -1); returns how many."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    their routes; then :func:`recreate` puts each back where the objective grows least.
+    With ``focus_longest`` the seed is taken from the route of highest share of the
+    objective, the one that sets a min-max figure: its neighbourhood is re-cut between the
+    routes around it. O(size n m) on the chromosome in place. A route is never left below
+    ``min_count`` and a pinned task never moves (nor has one put before it). The tasks
+    moved are written to ``moved`` (the rest -1); returns how many."""
     n = perm.shape[0]
     m = counts.shape[0]
     moved[:] = -1
-    task_x = task_f if objective == 2 else task_h
-    use_extra = objective == 1 or objective == 2 or objective == 3
     routes, sizes = route_rows(perm, counts)
     route_of = np.empty(n, dtype=np.int64)
     for r in range(m):
         for k in range(sizes[r]):
             route_of[routes[r, k]] = r
-    values = np.zeros(m)
-    lengths = np.zeros(m)
-    extras = np.zeros(m)
-    for r in range(m):
-        _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values)
     seed = randint(state, n)
     if focus_longest:
+        task_x = tables[6] if objective == 2 else tables[5]
+        use_extra = objective == 1 or objective == 2 or objective == 3
+        values, lengths, extras = np.zeros(m), np.zeros(m), np.zeros(m)
+        for r in range(m):
+            _figures(
+                routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values
+            )
         longest = int(np.argmax(values))
         if sizes[longest] > 0:
             seed = routes[longest, randint(state, sizes[longest])]
+    left = sizes.copy()  # each route's size once the tasks chosen so far are out
     done = 0
     for q in range(-1, neighbours.shape[1]):
         if done >= size or done >= moved.shape[0]:
             break
         t = seed if q < 0 else neighbours[seed, q]
         r = route_of[t]
-        if pins[t] >= 0 or sizes[r] <= min_count:
+        if pins[t] >= 0 or left[r] <= min_count:
             continue
-        k = 0
-        while routes[r, k] != t:
-            k += 1
-        for j in range(k, sizes[r] - 1):
-            routes[r, j] = routes[r, j + 1]
-        sizes[r] -= 1
-        route_of[t] = -1
+        left[r] -= 1
         moved[done] = t
         done += 1
+    recreate(state, perm, counts, objective, tables, pins, moved[:done])
+    return done
+
+
+@njit(cache=True, nogil=True)
+def recreate(state, perm, counts, objective, tables, pins, tasks):  # type: ignore[no-untyped-def]
+    """Take ``tasks`` out of their routes, then put each back, in random order, at the
+    place of any route where the objective grows least, ties (a min-max figure that the
+    place leaves as it is) broken by the distance it adds; never before a pinned task.
+    The recreate half of :func:`ruin_recreate`, and the repair of a warm start whose
+    tasks were not all in a route (a machine gone: its tasks go where they cost least).
+    O(len(tasks) n m), on the chromosome in place; the caller keeps the routes' minimum
+    sizes and the pinned tasks out of ``tasks``."""
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    n = perm.shape[0]
+    m = counts.shape[0]
+    task_x = task_f if objective == 2 else task_h
+    use_extra = objective == 1 or objective == 2 or objective == 3
+    routes, sizes = route_rows(perm, counts)
+    out = np.zeros(n, dtype=np.bool_)
+    for t in tasks:
+        out[t] = True
+    for r in range(m):
+        kept = 0
+        for k in range(sizes[r]):
+            if not out[routes[r, k]]:
+                routes[r, kept] = routes[r, k]
+                kept += 1
+        sizes[r] = kept
+    values = np.zeros(m)
+    lengths = np.zeros(m)
+    extras = np.zeros(m)
     for r in range(m):
         _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values)
-    order = moved[:done].copy()
+    order = tasks.copy()
     shuffle(state, order)
     for t in order:
         best_obj = np.inf
@@ -306,15 +331,13 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
             routes[best_r, j] = routes[best_r, j - 1]
         routes[best_r, best_p] = t
         sizes[best_r] += 1
-        route_of[t] = best_r
         _figures(
             routes, sizes, best_r, objective, tables, task_x, use_extra, lengths, extras, values
         )
     rows_back(routes, sizes, perm, counts)
-    return done
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def route_rows(perm, counts):  # type: ignore[no-untyped-def]
     """The chromosome as route rows: ``routes[r, :sizes[r]]`` machine r's tasks in order."""
     m, n = counts.shape[0], perm.shape[0]
@@ -329,7 +352,7 @@ def route_rows(perm, counts):  # type: ignore[no-untyped-def]
     return routes, sizes
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rows_back(routes, sizes, perm, counts):  # type: ignore[no-untyped-def]
     """Write route rows back into the chromosome ``perm``/``counts`` (in place)."""
     begin = 0
@@ -340,7 +363,7 @@ def rows_back(routes, sizes, perm, counts):  # type: ignore[no-untyped-def]
         begin += sizes[r]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values):  # type: ignore[no-untyped-def]
     """Route r's distance, in-field figure and share of the objective, into the arrays."""
     dist, start_dist, end_dist, road_h, road_f, _, _, ready = tables

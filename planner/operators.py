@@ -28,7 +28,7 @@ SWAP = 0
 INSERT = 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _segment(state, n):  # type: ignore[no-untyped-def]
     """A random stretch [a, b) with 0 <= a < b <= n."""
     a = randint(state, n)
@@ -38,7 +38,7 @@ def _segment(state, n):  # type: ignore[no-untyped-def]
     return a, b + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def order_crossover(state, first, second, child):  # type: ignore[no-untyped-def]
     """OX: ``child`` keeps a random stretch of ``first`` in place; the other genes follow
     in the order they have in ``second``."""
@@ -59,7 +59,7 @@ def order_crossover(state, first, second, child):  # type: ignore[no-untyped-def
         pos += 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def partially_mapped_crossover(state, first, second, child):  # type: ignore[no-untyped-def]
     """PMX: ``child`` keeps a random stretch of ``first``; outside it, genes of ``second``
     are placed where they are, replaced through the stretch's mapping when taken."""
@@ -81,7 +81,7 @@ def partially_mapped_crossover(state, first, second, child):  # type: ignore[no-
         child[k] = gene
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rotate_counts(state, counts, child_counts):  # type: ignore[no-untyped-def]
     """Second part of a crossover: swap the segments before and after a random breakpoint."""
     m = counts.shape[0]
@@ -90,7 +90,7 @@ def rotate_counts(state, counts, child_counts):  # type: ignore[no-untyped-def]
         child_counts[i] = counts[(i + cut) % m]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def crossover(state, kind, first, second, first_counts, child, child_counts):  # type: ignore[no-untyped-def]
     """One child of ``first`` (with ``second`` as donor) by OX or PMX."""
     if kind == OX:
@@ -100,14 +100,14 @@ def crossover(state, kind, first, second, first_counts, child, child_counts):  #
     rotate_counts(state, first_counts, child_counts)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _swap(arr, i, j):  # type: ignore[no-untyped-def]
     tmp = arr[i]
     arr[i] = arr[j]
     arr[j] = tmp
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _move(arr, src, dst):  # type: ignore[no-untyped-def]
     """Take arr[src] out and insert it so that it lands at index dst."""
     gene = arr[src]
@@ -120,7 +120,7 @@ def _move(arr, src, dst):  # type: ignore[no-untyped-def]
     arr[dst] = gene
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def swap_mutation(state, perm, counts):  # type: ignore[no-untyped-def]
     """§4.4.1: exchange two tasks, and two machines' counts."""
     n, m = perm.shape[0], counts.shape[0]
@@ -129,7 +129,7 @@ def swap_mutation(state, perm, counts):  # type: ignore[no-untyped-def]
         _swap(counts, randint(state, m), randint(state, m))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def insert_mutation(state, perm, counts):  # type: ignore[no-untyped-def]
     """§4.4.2: move one task before another, and one count before another."""
     n, m = perm.shape[0], counts.shape[0]
@@ -138,7 +138,7 @@ def insert_mutation(state, perm, counts):  # type: ignore[no-untyped-def]
         _move(counts, randint(state, m), randint(state, m))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def shift_count(state, counts, min_count):  # type: ignore[no-untyped-def]
     """Ours: move one unit of count from a machine that can spare it to another machine."""
     m = counts.shape[0]
@@ -158,7 +158,7 @@ def shift_count(state, counts, min_count):  # type: ignore[no-untyped-def]
     counts[dst] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def mutate(state, kind, perm, counts, min_count, with_shift):  # type: ignore[no-untyped-def]
     if kind == SWAP:
         swap_mutation(state, perm, counts)
@@ -168,7 +168,7 @@ def mutate(state, kind, perm, counts, min_count, with_shift):  # type: ignore[no
         shift_count(state, counts, min_count)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def reverse(arr, a, b):  # type: ignore[no-untyped-def]
     """Reverse arr[a..b] inclusive."""
     while a < b:
@@ -177,7 +177,7 @@ def reverse(arr, a, b):  # type: ignore[no-untyped-def]
         b -= 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def random_two_opt(state, perm, counts):  # type: ignore[no-untyped-def]
     """§4.5(1): reverse a random stretch of the task order and of the counts."""
     n, m = perm.shape[0], counts.shape[0]
@@ -188,7 +188,7 @@ def random_two_opt(state, perm, counts):  # type: ignore[no-untyped-def]
         reverse(counts, a, b - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def leg(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-def]
     """Distance between route nodes; -1 is the machine's start, -2 its end."""
     if u == -1:
@@ -200,7 +200,7 @@ def leg(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-d
     return dist[u, v]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def circle_modification(perm, begin, count, machine, dist, start_dist, end_dist, fixed):  # type: ignore[no-untyped-def]
     """§4.5(2): improve one route's Hamilton circle (start, tasks, end) by 2-opt exchanges
     until none shortens it. Returns the total gain. Assumes ``dist`` is symmetric.
@@ -238,7 +238,7 @@ def circle_modification(perm, begin, count, machine, dist, start_dist, end_dist,
     return gain
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def edge(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-def]
     """Length of an undirected edge between route nodes (-1 start, -2 end)."""
     if u < 0 and v < 0:
@@ -254,7 +254,7 @@ def edge(u, v, machine, dist, start_dist, end_dist):  # type: ignore[no-untyped-
     return dist[u, v]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_opt_neighbours(  # type: ignore[no-untyped-def]
     perm, begin, count, machine, dist, start_dist, end_dist, neighbours, where, fixed
 ):
@@ -317,7 +317,7 @@ def two_opt_neighbours(  # type: ignore[no-untyped-def]
     return gain
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins):  # type: ignore[no-untyped-def]
     """Improve every route of a chromosome: the paper's circle modification when
     ``neighbours`` has no columns, the neighbour-list 2-opt otherwise; a pinned task

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def pins_hold(perm, counts, pins):  # type: ignore[no-untyped-def]
     """Whether every pinned task is the first of its machine's route."""
     m = counts.shape[0]
@@ -31,7 +31,7 @@ def pins_hold(perm, counts, pins):  # type: ignore[no-untyped-def]
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def repair_pins(perm, counts, pins, min_count):  # type: ignore[no-untyped-def]
     """Move every pinned task to the front of its machine's route (the others keep their
     order), then give a route short of ``min_count`` the last task of the longest route.
@@ -73,7 +73,7 @@ def repair_pins(perm, counts, pins, min_count):  # type: ignore[no-untyped-def]
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def first_fixed(perm, begin, count, machine, pins):  # type: ignore[no-untyped-def]
     """1 when the route's first task is pinned to it (it must stay first), else 0."""
     if count > 0 and pins[perm[begin]] == machine:

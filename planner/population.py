@@ -9,7 +9,7 @@ from numba import njit
 from planner.rng import randint, shuffle
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def random_counts(state, n, m, min_count, counts):  # type: ignore[no-untyped-def]
     """A uniformly random composition of n tasks into m machines, each >= min_count."""
     free = n - m * min_count
@@ -24,7 +24,7 @@ def random_counts(state, n, m, min_count, counts):  # type: ignore[no-untyped-de
     counts[m - 1] = free + m - 1 - prev - 1 + min_count
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tournament(state, costs, size, winners):  # type: ignore[no-untyped-def]
     """§4.2: fill ``winners`` with the index of the fittest (lowest cost, fitness 1/f of
     formula 7) of ``size`` individuals drawn at random, once per slot."""
@@ -38,7 +38,7 @@ def tournament(state, costs, size, winners):  # type: ignore[no-untyped-def]
         winners[k] = best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def positional_similarity(perms, div):  # type: ignore[no-untyped-def]
     """Formula (19) in linear time: ``div[p]`` = mean over the other individuals q of
     sim(p, q), the share of positions where p and q hold the same task.
@@ -61,7 +61,7 @@ def positional_similarity(perms, div):  # type: ignore[no-untyped-def]
             div[p] /= n * (pop - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def keep_elite(
     perms, counts, costs, route_costs, elite_perm, elite_counts, elite_cost, elite_route
 ):  # type: ignore[no-untyped-def]

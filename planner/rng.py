@@ -22,7 +22,7 @@ def make_state(seed: int) -> np.ndarray:
     return np.array([z or 0x2545F4914F6CDD1D], dtype=np.uint64)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def next_u64(state: np.ndarray) -> np.uint64:
     x = state[0]
     x ^= x << np.uint64(13)
@@ -32,19 +32,19 @@ def next_u64(state: np.ndarray) -> np.uint64:
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def uniform(state: np.ndarray) -> float:
     """A float in [0, 1)."""
     return float(next_u64(state) >> np.uint64(11)) * _MASK53
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def randint(state: np.ndarray, n: int) -> int:
     """An int in [0, n)."""
     return int(uniform(state) * n)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def shuffle(state: np.ndarray, arr: np.ndarray) -> None:
     """Fisher-Yates, in place."""
     for i in range(arr.shape[0] - 1, 0, -1):

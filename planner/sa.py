@@ -34,7 +34,7 @@ class AnnealingParams:
             raise ValueError(f"cooling factor alpha must be in (0, 1), not {self.alpha}")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def anneal(state, perm, dist, start_dist, end_dist, t_start, t_end, alpha, chain):  # type: ignore[no-untyped-def]
     """Anneal the giant tour ``perm`` in place (it ends as the best tour seen); returns
     its length."""

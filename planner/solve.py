@@ -9,7 +9,10 @@ answer now) is looked at between generations, between the steps of one, and betw
 individuals of the initial population, so :func:`solve` returns the best solution found so
 far soon after (well under 100 ms on a farm's few dozen fields, once the kernels are
 compiled). A warm start (``initial_routes``, e.g. the remaining routes of the plan being
-carried out) enters the first population, so the result is never worse than it.
+carried out) enters the first population, so the result is never worse than it. With
+``hybrid`` it is a re-plan's starting point: the tasks of no route (a machine gone) are put
+where they cost least, and the rest of the first population are variants of it (ruin and
+recreate) instead of annealed random tours.
 
 A time limit (:class:`MaxRuntime`, or :class:`UntilDeadline`: the rest of a whole plan's
 limit, :func:`planner.field_plan.plan_farm`) is looked at in the same places as the flag,
@@ -48,6 +51,7 @@ from planner.local_search import (
     nearest_neighbours,
     optimal_split,
 )
+from planner.moves import recreate
 from planner.pins import repair_pins
 from planner.population import random_counts
 from planner.problem import Problem
@@ -319,40 +323,56 @@ def solve(
     min_count = problem.min_tasks_per_machine
     perms = np.empty((pop, n), dtype=np.int64)
     counts = np.empty((pop, m), dtype=np.int64)
+    neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
     started = time.perf_counter()
     stop.start()
-    for p in range(pop):
-        # One call per individual, so that a stop flag is seen during a long pre-planning;
-        # once it is set the rest are random orders (cheap), never left empty.
-        _initial_individual(
-            state,
-            perms[p],
-            counts[p],
-            min_count,
-            pins,
-            tables,
-            algorithm in ("ighoa", "hybrid") and not stop.interrupted(),
-            annealing.t_start,
-            annealing.t_end,
-            annealing.alpha,
-            annealing.chain,
-        )
-    if isinstance(params, hybrid.HybridParams) and params.giant_tour and not stop.interrupted():
-        hybrid.giant_tour(
-            state,
-            perms[pop - 1],
-            counts[pop - 1],
-            int(obj),
-            tables,
-            nearest_neighbours(problem.dist, params.neighbours),
-            min_count,
-            pins,
-            stop.deadline(),
-            params.tour_kicks * n,
-            _share_of(stop.deadline(), params.tour_share),
-        )
-    if warm is not None:
+    if warm is not None and isinstance(params, hybrid.HybridParams) and pop > 1:
+        # A re-plan: the plan being carried out, its orphans (tasks of a machine gone) put
+        # where they cost least, is individual 0; the warm start as given (orphans at the
+        # end of the shortest route) individual 1; the rest are variants of individual 0
+        # (ruin and recreate), not annealed random tours, which take most of a re-plan's
+        # second and are far worse than the plan it starts from.
         perms[0], counts[0] = warm
+        perms[1], counts[1] = warm
+        orphans = _orphans(problem, warm, initial_routes)
+        recreate(state, perms[0], counts[0], int(obj), tables, pins, orphans)
+        hybrid.warm_population(
+            state, perms, counts, 2, int(obj), tables, neighbours, max(params.ruin, params.perturb),
+            min_count, pins,
+        )  # fmt: skip
+    else:
+        for p in range(pop):
+            # One call per individual, so that a stop flag is seen during a long
+            # pre-planning; once it is set the rest are random orders (cheap), never empty.
+            _initial_individual(
+                state,
+                perms[p],
+                counts[p],
+                min_count,
+                pins,
+                tables,
+                algorithm in ("ighoa", "hybrid") and not stop.interrupted(),
+                annealing.t_start,
+                annealing.t_end,
+                annealing.alpha,
+                annealing.chain,
+            )
+        if isinstance(params, hybrid.HybridParams) and params.giant_tour and not stop.interrupted():
+            hybrid.giant_tour(
+                state,
+                perms[pop - 1],
+                counts[pop - 1],
+                int(obj),
+                tables,
+                nearest_neighbours(problem.dist, params.neighbours),
+                min_count,
+                pins,
+                stop.deadline(),
+                params.tour_kicks * n,
+                _share_of(stop.deadline(), params.tour_share),
+            )
+        if warm is not None:
+            perms[0], counts[0] = warm
     costs = np.empty(pop)
     route_costs = np.empty((pop, m))
     evaluate_population(perms, counts, int(obj), tables, costs, route_costs)
@@ -365,7 +385,6 @@ def solve(
     walk_perm, walk_counts = elite_perm.copy(), elite_counts.copy()
     walk_route, walk_cost = elite_route.copy(), elite_cost
     history: list[float] = []
-    neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
     stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
     gen = 0
     while not stop.interrupted() and stop.max_generations > 0:
@@ -609,7 +628,25 @@ def warm_chromosome(
     return perm, counts
 
 
-@njit(cache=True)
+def _orphans(
+    problem: Problem, warm: tuple[np.ndarray, np.ndarray], routes: Sequence[Sequence[int]] | None
+) -> np.ndarray:
+    """The tasks of no route of the warm start ``routes`` (:func:`warm_chromosome` put them
+    at the end of the shortest route), as many as can be taken out again: not pinned, and
+    not below a route's minimum size."""
+    given = {int(j) for route in routes or () for j in route}
+    perm, counts = warm
+    out: list[int] = []
+    begin = 0
+    for size in counts.tolist():
+        route = perm[begin : begin + size].tolist()
+        begin += size
+        free = [j for j in route if j not in given and problem.pinned_machine[j] < 0]
+        out += free[: max(size - problem.min_tasks_per_machine, 0)]
+    return np.array(sorted(out), dtype=np.int64)
+
+
+@njit(cache=True, nogil=True)
 def _initial_individual(  # type: ignore[no-untyped-def]
     state, perm, counts, min_count, pins, tables, pre_plan, t_start, t_end, alpha, chain
 ):
@@ -656,3 +693,13 @@ def warm_up() -> None:
             params=params,
             annealing=AnnealingParams(t_start=2.0, t_end=1.0),
         )
+    # A warm start (a re-plan) with a task of no route: hybrid's repair and variants.
+    solve(
+        tiny,
+        Objective.MAKESPAN,
+        "hybrid",
+        stop_after(2),
+        seed=0,
+        params=hybrid.HybridParams(population=4, ils_steps=2),
+        initial_routes=[[0, 1], [2, 3]],
+    )

@@ -12,6 +12,7 @@ import pytest
 
 from planner.cost import figures
 from planner.ga import GAParams
+from planner.hybrid import HybridParams
 from planner.ighoa import IGHOAParams
 from planner.problem import Machine, Problem, Task
 from planner.solve import MaxGenerations, MaxRuntime, StopFlag, solve, stop_after, warm_up
@@ -29,6 +30,19 @@ def small_farm() -> Problem:
         Task(f"f{k}", 200.0 * (k % 4), 180.0 * (k // 4), 9000.0, 120.0, 75.0) for k in range(8)
     ]
     return Problem.build(machines, tasks, (-100.0, -100.0), name="small")
+
+
+def three_machine_farm() -> Problem:
+    """:func:`small_farm` with a third machine."""
+    problem = small_farm()
+    return Problem.build(
+        [*problem.machines, Machine("t3", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)],
+        problem.tasks,
+        (-100.0, -100.0),
+    )
+
+
+HYBRID_SMALL = HybridParams(population=12, ils_steps=20)
 
 
 def valid_routes(result, n):
@@ -177,13 +191,69 @@ def test_warm_start_is_kept_with_no_generation_and_never_beaten_by_worse(objecti
             assert valid_routes(again, 8)
 
 
+def brute_force_insertion(problem, objective, routes, task):
+    """The objective with ``task`` put at the best place of any of ``routes``."""
+    best = float("inf")
+    for b, route in enumerate(routes):
+        for p in range(len(route) + 1):
+            trial = [list(r) for r in routes]
+            trial[b].insert(p, task)
+            best = min(best, figures(problem, trial).value(objective))
+    return best
+
+
+@pytest.mark.parametrize("objective", ["makespan", "minmax", "distance", "time"])
+@pytest.mark.parametrize("lost", ["machine", "task"])
+def test_hybrid_warm_start_puts_the_tasks_of_no_route_where_they_cost_least(objective, lost):
+    problem = three_machine_farm()
+    before = solve(problem, objective, "hybrid", stop_after(5), seed=2, params=HYBRID_SMALL)
+    after = problem.only_machines([0, 2])  # t2 broke down
+    warm = [list(before.routes[0]), list(before.routes[2])]
+    orphans = list(before.routes[1])
+    if lost == "task":  # one task of no route (and t2's in t1's)
+        warm[0] += orphans
+        orphans = [warm[0].pop(0)]
+    naive = [list(r) for r in warm]
+    min(naive, key=len).extend(orphans)  # what the warm start completes itself with
+    runs = [
+        solve(
+            after,
+            objective,
+            "hybrid",
+            MaxGenerations(0),
+            seed=5,
+            params=HYBRID_SMALL,
+            initial_routes=warm,
+        )  # fmt: skip
+        for _ in range(2)
+    ]
+    assert runs[0].routes == runs[1].routes  # same seed, same answer
+    result = runs[0]
+    assert valid_routes(result, problem.num_tasks)
+    assert result.cost <= figures(after, naive).value(result.objective) + 1e-9
+    if lost == "task":  # one task: at its best place, found by trying each
+        best = brute_force_insertion(after, result.objective, warm, orphans[0])
+        assert result.cost <= best + 1e-9
+        # Individuals 0 and 1 alone: the repaired warm start and the one as given.
+        two = solve(
+            after, objective, "hybrid", MaxGenerations(0), seed=5,
+            params=HybridParams(population=2), initial_routes=warm,
+        )  # fmt: skip
+        assert two.cost == pytest.approx(best, rel=1e-9)
+
+
+def test_hybrid_warm_start_keeps_a_pinned_task_first():
+    problem = three_machine_farm().pinned({3: 1})
+    for generations in (0, 3):
+        result = solve(
+            problem, "makespan", "hybrid", stop_after(generations), seed=1,
+            params=HYBRID_SMALL, initial_routes=[[0, 1], [3], [5, 6, 7]],  # 2 and 4 in none
+        )  # fmt: skip
+        assert result.routes[1][0] == 3 and valid_routes(result, problem.num_tasks)
+
+
 def test_warm_start_from_a_plan_with_a_machine_gone():
-    problem = small_farm()
-    three = Problem.build(
-        [*problem.machines, Machine("t3", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)],
-        problem.tasks,
-        (-100.0, -100.0),
-    )
+    three = three_machine_farm()
     before = solve(three, "makespan", "ighoa", stop_after(20), seed=1)
     after = three.only_machines([0, 2])  # t2 broke down; its fields must go somewhere
     warm = [before.routes[0], before.routes[2]]
