@@ -90,7 +90,7 @@ def bench_soak(
                 window_items=dispatch.scenario.watch.window_items,
                 alive_timeout_s=120.0,
                 on_progress=lambda state: None,
-                replanner=replanner_for(dispatch.scenario, dispatch, seconds=1.0),
+                replanner=replanner_for(dispatch.scenario, dispatch),
                 keys=_keys(scenario_path),
             )
         )

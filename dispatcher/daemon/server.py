@@ -92,8 +92,10 @@ class DaemonConfig:
     verify_missions: bool = True  # read each mission back before it is started
     store: Store | None = None  # where events are kept (begun or resumed on ``job``)
     # Plans the rest of the work from a copy of the fleet state, when a vehicle is lost:
-    # the next job (dispatcher.tools.replan); None: a lost vehicle's work waits for it.
-    replanner: Callable[[FleetState], DispatchJob] | None = None
+    # the next job (dispatcher.tools.replan). Its second argument is set when the re-plan
+    # is superseded (another vehicle lost meanwhile): it may stop at once, its result is
+    # not used. None: a lost vehicle's work waits for it.
+    replanner: Callable[[FleetState, threading.Event], DispatchJob] | None = None
     resume: StoredRun | None = None  # the stored run this one continues
     # Each vehicle's MAVLink signing key (dispatcher/link/keys.py): frames to it are
     # signed, frames from it taken only when signed with it. None: no signing.
@@ -207,8 +209,10 @@ class Dispatcher:
         self.upload_started: float | None = None
         self.all_acknowledged: float | None = None
         self._replan_reason = ""  # a re-plan is wanted (why)
-        self._replan_wanted_at = 0.0
+        self._replan_wanted_at = 0.0  # since when (the first ask not yet answered)
         self._replan: threading.Thread | None = None
+        self._replan_cancel = threading.Event()  # the re-plan under way is superseded
+        self._replan_asked: tuple[str, float] = ("", 0.0)  # the one under way: why, since
         self._replanned: tuple[DispatchJob, str, float] | Exception | None = None
         # Per re-plan: reason, seconds from the loss to the new plan, and to every changed
         # mission acknowledged (None until then).
@@ -603,8 +607,7 @@ class Dispatcher:
                 and self._replan is None
             ):
                 link.rejoin_asked = True
-                self._replan_reason = f"{vid} back"
-                self._replan_wanted_at = now
+                self._want_replan(f"{vid} back", now)
                 if link.hold is None or link.hold.outcome is not Outcome.RUNNING:
                     link.hold = CommandSequence(hold_commands(), v.system_id)
                     self._send(vid, link.hold.start(now))
@@ -906,12 +909,43 @@ class Dispatcher:
             self._log("warning", f"{v.id}: stopped; going on at item {link.start_item}")
             self._start(v, link, now)
 
+    def _want_replan(self, reason: str, now: float, supersede: bool = False) -> None:
+        """Ask for a re-plan, for ``reason``; asks made before one starts are answered by
+        it, and it is timed from the first. With ``supersede`` (a vehicle lost), a re-plan
+        under way is given up: its copy of the state still counts on that vehicle, and the
+        next one, asked for at once, is timed from the ask it answered."""
+        if not self._replan_reason:
+            self._replan_wanted_at = now
+        self._replan_reason = f"{self._replan_reason}; {reason}" if self._replan_reason else reason
+        if supersede and self._replan is not None and not self._replan_cancel.is_set():
+            self._replan_cancel.set()
+            why, since = self._replan_asked
+            self._replan_reason = f"{why}; {self._replan_reason}"
+            self._replan_wanted_at = min(self._replan_wanted_at, since)
+            self._log("warning", f"re-plan under way given up: {reason}; planning again")
+
     def _replan_step(self, now: float) -> None:
-        """Start a re-plan when one is wanted (in a thread, on a copy of the state), and
-        take its result on when it is there."""
+        """Take a re-plan's result on when it is there (unless it was superseded), and
+        start the next re-plan when one is wanted (in a thread, on a copy of the state)."""
         replanner = self.config.replanner
         if replanner is None:
             return
+        if self._replan is not None and not self._replan.is_alive():
+            self._replan = None
+            result, self._replanned = self._replanned, None
+            if self._replan_cancel.is_set():
+                pass  # superseded: the next one is wanted already
+            elif isinstance(result, Exception) or result is None:
+                self._log("error", f"re-planning failed: {result}")
+            else:
+                job, reason, since = result
+                self.replans.append([reason, now - since, None])
+                changed = self._adopt(job, reason, now)
+                self._adopted_at = now
+                self._awaiting_acks = (len(self.replans) - 1, changed, since)
+                if not changed:
+                    self.replans[-1][2] = now - since
+                return
         if self._replan is None and self._replan_reason:
             if any(
                 (v.resuming and v.phase not in GONE)
@@ -931,30 +965,18 @@ class Dispatcher:
             reason, self._replan_reason = self._replan_reason, ""
             snapshot = copy.deepcopy(self.state)
             started = self._replan_wanted_at
+            self._replan_asked = (reason, started)
+            cancel = self._replan_cancel = threading.Event()
 
             def work() -> None:
                 try:
-                    self._replanned = (replanner(snapshot), reason, started)
+                    self._replanned = (replanner(snapshot, cancel), reason, started)
                 except Exception as exc:  # noqa: BLE001 - reported in the main loop
                     self._replanned = exc
 
             self._log("warning", f"re-planning the rest of the work: {reason}")
             self._replan = threading.Thread(target=work, name="replan", daemon=True)
             self._replan.start()
-            return
-        if self._replan is not None and not self._replan.is_alive():
-            self._replan = None
-            result, self._replanned = self._replanned, None
-            if isinstance(result, Exception) or result is None:
-                self._log("error", f"re-planning failed: {result}")
-                return
-            job, reason, since = result
-            self.replans.append([reason, now - since, None])
-            changed = self._adopt(job, reason, now)
-            self._adopted_at = now
-            self._awaiting_acks = (len(self.replans) - 1, changed, since)
-            if not changed:
-                self.replans[-1][2] = now - since
 
     def _adopt(self, job: DispatchJob, reason: str, now: float) -> set[str]:
         """Carry on with the next job: the plan replaced (an event), recorded and
@@ -976,8 +998,7 @@ class Dispatcher:
                 # done, is not back: asking for it again would re-plan for ever).
                 self.links[vid] = _Link()
                 self._hold(v, self.links[vid], now)
-                self._replan_reason = self._replan_reason or f"{vid} back"
-                self._replan_wanted_at = now
+                self._want_replan(f"{vid} back", now)
         self._log(
             "warning",
             f"plan {job.plan_id}: the rest of the work over "
@@ -1030,7 +1051,10 @@ class Dispatcher:
             if v.old_items is not None:
                 self._apply(ev.SwitchUploaded(v.id), now)
                 self._join(v, link, now)
-            link.download = MissionDownload(v.system_id)
+            # Read back from the first item of the new route: those before it are the same
+            # in the old mission and the new, so whatever part of the upload the autopilot
+            # took, they are right (the count is read too).
+            link.download = MissionDownload(v.system_id, first=link.switch_from or 1)
             self._send(v.id, link.download.start(now))
             return
         if link.download.outcome is Outcome.RUNNING:
@@ -1040,7 +1064,7 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        self._upload_took[v.id] = (now - link.since, 2 * v.held)
+        self._upload_took[v.id] = (now - link.since, 2 * v.held - read.first)
         if link.hold is not None or not v.driving:
             # Told to HOLD while it was lost (the order may still be on its way), or stopped:
             # armed and in AUTO again, on its new route.
@@ -1057,8 +1081,8 @@ class Dispatcher:
         """The new mission just went on board. A vehicle that went on past the part of its
         old mission the new one keeps now drives the new mission's item at its index,
         another one (an autopilot keeps its current index across an upload): sent at once
-        to where its new route goes on, before the read-back (which takes as long as the
-        upload), so it does not work again what it did meanwhile."""
+        to where its new route goes on, before the read-back (of the new route's items),
+        so it does not work again what it did meanwhile."""
         first = link.switch_from or 1
         if v.current <= first:
             return
@@ -1144,8 +1168,7 @@ class Dispatcher:
             and not self.state.all_fields_done()
         ):
             v = self.state.vehicles[event.vehicle]
-            self._replan_reason = f"{event.vehicle} lost ({v.error})"
-            self._replan_wanted_at = now
+            self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 
@@ -48,6 +49,12 @@ LEAD_S = 4.0
 the solver's time: a driving vehicle keeps at least this much of its old mission (module
 doc)."""
 
+REPLAN_SOLVER_S = 0.5
+"""Wall seconds the solver has in a re-plan. It starts from the plan being carried out (the
+lost vehicles' tasks put where they cost least, planner.solve), so it needs far less than
+a first plan: on the 30-tractor, 200-field re-plan bench, 0.1 s found the makespan that
+1-2 s found, 0.25-0.5 s the road length within 1 % (benchmarks/RESULTS.md)."""
+
 FIRST_REPLAN_S = 2.5
 """What a re-plan is taken to take until one has been timed (the first re-plan of a run):
 coverage of the rest, transit from where the vehicles are, the solver, the missions."""
@@ -60,6 +67,10 @@ class ReplanError(DispatcherError):
     """Nothing to re-plan with: no vehicle left, or no work left."""
 
 
+class ReplanCancelled(ReplanError):
+    """The re-plan was given up before its end (another vehicle lost meanwhile)."""
+
+
 def replan(
     scenario: Scenario,
     current: DispatchPlan | None,
@@ -68,13 +79,16 @@ def replan(
     gone: Collection[str] = (),
     lead_s: float = LEAD_S,
     base: Mapping[str, Visit] | None = None,
+    cancel: threading.Event | None = None,
 ) -> DispatchPlan:
     """The next plan: the remaining work over the vehicles still alive (module doc).
     ``gone`` adds vehicles to leave out whatever their phase; ``lead_s`` as in the module
     doc (:func:`handover` must be given the same); ``base``: each field's first planned
     visit, whose segments ``PlannedItem.segment`` numbers (default: ``current``'s visits,
     right for the first re-plan). Without ``current`` (a run resumed after a restart, whose
-    planner's view is not kept) there is no warm start, and ``base`` is needed."""
+    planner's view is not kept) there is no warm start, and ``base`` is needed. When
+    ``cancel`` is set (it should stop ``stop`` too), :class:`ReplanCancelled` is raised
+    before the missions are built."""
     farm = scenario.farm
     visits = {v.field.id: v for m in current.plan.machines for v in m.visits} if current else {}
     alive = [v for v in state.vehicles.values() if v.phase not in GONE and v.id not in set(gone)]
@@ -132,6 +146,8 @@ def replan(
         seed=solver.seed,
         previous=current.plan if current else None,
     )
+    if cancel is not None and cancel.is_set():
+        raise ReplanCancelled("given up")
     kept = {m.machine.id for m in plan.machines}
     vehicles = tuple(veh for veh in scenario.vehicles if veh.id in kept)
     return dispatch_plan(dataclasses.replace(scenario, vehicles=vehicles), plan)
@@ -237,7 +253,7 @@ def handover(
                 planned, items=tuple(items_doc), fields=tuple(done_here) + planned.fields
             )
         )
-    document = dataclasses.replace(new_doc, machines=tuple(machines), plan_id="").with_id()
+    document = dataclasses.replace(new_doc, machines=tuple(machines), plan_id="")  # new id
     return DispatchJob(document, missions, dict(nxt.job().geojson))
 
 
@@ -283,11 +299,12 @@ def _implement_down(traces: Sequence[Trace]) -> bool:
 
 
 def replanner_for(
-    scenario: Scenario, dispatch: DispatchPlan, seconds: float = 1.5
-) -> Callable[[FleetState], DispatchJob]:
+    scenario: Scenario, dispatch: DispatchPlan, seconds: float = REPLAN_SOLVER_S
+) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
-    returns the job to carry on with; the solver stops after ``seconds``, and driving
+    returns the job to carry on with, or raises :class:`ReplanCancelled` soon after its
+    second argument is set (nothing of it kept); the solver stops after ``seconds``, and driving
     vehicles keep a lead of their old missions: ``LEAD_S``, plus ``seconds`` or twice what
     the last re-plan took when that is more (a big farm on a busy gateway), plus one and a
     half times what getting missions on board took last (``FleetState.upload_s``)."""
@@ -296,8 +313,8 @@ def replanner_for(
 
 
 def replanner_resumed(
-    scenario: Scenario, job: DispatchJob, seconds: float = 1.5
-) -> Callable[[FleetState], DispatchJob]:
+    scenario: Scenario, job: DispatchJob, seconds: float = REPLAN_SOLVER_S
+) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the run's
     first plan document, the missions as last uploaded). The fields' first layouts are laid
     out again from that document (coverage is deterministic; each visit's corner is
@@ -324,20 +341,20 @@ def _replanner(
     job: DispatchJob,
     base: dict[str, Visit] | None,
     seconds: float,
-) -> Callable[[FleetState], DispatchJob]:
+) -> Callable[[FleetState, threading.Event], DispatchJob]:
     current = dispatch
     took_s = (
         FIRST_REPLAN_S  # how long the last re-plan took (wall); the next lead allows twice that
     )
 
-    def plan_rest(state: FleetState) -> DispatchJob:
+    def plan_rest(state: FleetState, cancel: threading.Event) -> DispatchJob:
         nonlocal current, job, base, took_s
         began = time.monotonic()
         if base is None:
             base = first_visits(scenario, job.document)
         lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
-        stop = stop_after(scenario.solver.generations, seconds)
-        nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base)
+        stop = stop_after(scenario.solver.generations, seconds, flag=cancel)
+        nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base, cancel=cancel)
         for m in nxt.plan.machines:  # a field planned whole again is numbered anew
             base.update({v.field.id: v for v in m.visits if not v.original_segments})
         job = handover(job, state, nxt, lead_s)

@@ -2,6 +2,7 @@
 field, the others taking over from where they are (dispatcher/tools/replan.py)."""
 
 import math
+import threading
 from pathlib import Path
 
 import pytest
@@ -129,3 +130,46 @@ def test_a_vehicle_heading_for_an_item_without_a_position_starts_its_route_somew
     farm = current.scenario.farm
     (x, y), ready_h = _where(v, farm, 5.0, cut)
     assert all(math.isfinite(c) for c in (x, y, ready_h)) and ready_h > 0.0
+
+
+def test_a_loss_during_a_re_plan_gives_it_up_and_the_next_one_answers_both():
+    """A vehicle lost while a re-plan runs: that re-plan (whose copy of the state still
+    counts on the vehicle) is told to stop and its result is not used; the next one starts
+    at once, from a state with both losses, and is timed from the first."""
+    from helpers.daemon import Pub
+
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.daemon.state import GONE
+
+    scenario = load_scenario(DATA / "restart3.toml")
+    machines = [v.machine for v in scenario.vehicles]
+    plan = plan_farm(scenario.farm, machines, "makespan", "ighoa", stop_after(5), seed=1)
+    dispatch = dispatch_plan(scenario, plan)
+    calls: list[tuple[list[str], threading.Event]] = []
+
+    def replanner(state: FleetState, cancel: threading.Event):
+        calls.append((sorted(v.id for v in state.vehicles.values() if v.phase in GONE), cancel))
+        if len(calls) == 1:
+            assert cancel.wait(10.0)  # runs until it is given up
+        return daemon.job
+
+    daemon = Dispatcher(DaemonConfig(job=dispatch.job(), replanner=replanner))
+    daemon.publishers = {key: Pub() for key in [*dispatch.missions, "plan"]}
+    for vid in dispatch.missions:
+        started(daemon.state, vid)
+        daemon.state.vehicles[vid].clock.update(0.0, 0.0)
+        daemon.state.vehicles[vid].clock.update(2.0, 2.0)  # its clock's rate is known
+    daemon._apply(ev.VehicleLost("v1", "liveliness token dropped"), 10.0)
+    daemon._replan_step(10.1)
+    assert len(calls) == 1 and calls[0][0] == ["v1"]
+    daemon._apply(ev.VehicleLost("v2", "liveliness token dropped"), 11.0)
+    assert calls[0][1].is_set()
+    daemon._replan.join(10.0)
+    daemon._replan_step(11.5)  # the first one's result is dropped; the next one starts
+    assert daemon.replans == [] and len(calls) == 2 and calls[1][0] == ["v1", "v2"]
+    daemon._replan.join(10.0)
+    daemon._replan_step(12.0)
+    assert len(daemon.replans) == 1
+    reason, to_plan, _ = daemon.replans[0]
+    assert "v1 lost" in reason and "v2 lost" in reason
+    assert to_plan == pytest.approx(2.0)  # from the first loss
