@@ -939,12 +939,14 @@ class Dispatcher:
                 self._log("error", f"re-planning failed: {result}")
             else:
                 job, reason, since = result
-                self.replans.append([reason, now - since, None])
+                # Timed on a clock read now: ``now`` was read before this loop's messages
+                # were handled, which can take a while on a busy gateway.
+                self.replans.append([reason, time.monotonic() - since, None])
                 changed = self._adopt(job, reason, now)
                 self._adopted_at = now
                 self._awaiting_acks = (len(self.replans) - 1, changed, since)
                 if not changed:
-                    self.replans[-1][2] = now - since
+                    self.replans[-1][2] = time.monotonic() - since
                 return
         if self._replan is None and self._replan_reason:
             if any(
@@ -1159,7 +1161,7 @@ class Dispatcher:
                 self.state.upload_s = max(self.state.upload_s, now - self._adopted_at)
             waiting.discard(event.vehicle)
             if not waiting:
-                self.replans[index][2] = now - since
+                self.replans[index][2] = time.monotonic() - since
                 self._awaiting_acks = None
         if (
             isinstance(event, ev.VehicleLost | ev.VehicleStalled)

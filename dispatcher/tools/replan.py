@@ -27,10 +27,12 @@ import math
 import threading
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
+from typing import TypeVar
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import GONE, FleetState, Phase, VehicleState
+from dispatcher.link.mission_item import MissionItem
 from dispatcher.mission.build import Mission, Role, Trace
 from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
@@ -61,6 +63,9 @@ coverage of the rest, transit from where the vehicles are, the solver, the missi
 
 IMPLEMENT_DOWN = frozenset({"implement_down", "implement_lower"})
 IMPLEMENT_UP = frozenset({"implement_raise", "implement_up"})
+
+
+_Seq = TypeVar("_Seq", MissionItem, PlannedItem)
 
 
 class ReplanError(DispatcherError):
@@ -244,8 +249,8 @@ def handover(
             items.append(item)
             traces.append(trace)
             items_doc.append(planned_item)
-        items = [dataclasses.replace(it, seq=k) for k, it in enumerate(items)]
-        items_doc = [dataclasses.replace(it, seq=k) for k, it in enumerate(items_doc)]
+        items = _numbered(items)
+        items_doc = _numbered(items_doc)
         missions[planned.id] = Mission(planned.id, tuple(items), tuple(traces))
         done_here = [f for f in v.fields_done if f not in planned.fields]
         machines.append(
@@ -255,6 +260,12 @@ def handover(
         )
     document = dataclasses.replace(new_doc, machines=tuple(machines), plan_id="")  # new id
     return DispatchJob(document, missions, dict(nxt.job().geojson))
+
+
+def _numbered(items: Sequence[_Seq]) -> list[_Seq]:
+    """``items`` with ``seq`` their index (the kept part has it already: only the new
+    route's items are copied, a few hundred where a whole day's mission has thousands)."""
+    return [it if it.seq == k else dataclasses.replace(it, seq=k) for k, it in enumerate(items)]
 
 
 def _cut(v: VehicleState, lead_s: float) -> int | None:

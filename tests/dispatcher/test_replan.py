@@ -3,6 +3,7 @@ field, the others taking over from where they are (dispatcher/tools/replan.py)."
 
 import math
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -159,17 +160,18 @@ def test_a_loss_during_a_re_plan_gives_it_up_and_the_next_one_answers_both():
         started(daemon.state, vid)
         daemon.state.vehicles[vid].clock.update(0.0, 0.0)
         daemon.state.vehicles[vid].clock.update(2.0, 2.0)  # its clock's rate is known
-    daemon._apply(ev.VehicleLost("v1", "liveliness token dropped"), 10.0)
-    daemon._replan_step(10.1)
+    first = time.monotonic() - 5.0  # v1 was lost 5 s ago
+    daemon._apply(ev.VehicleLost("v1", "liveliness token dropped"), first)
+    daemon._replan_step(first + 0.1)
     assert len(calls) == 1 and calls[0][0] == ["v1"]
-    daemon._apply(ev.VehicleLost("v2", "liveliness token dropped"), 11.0)
+    daemon._apply(ev.VehicleLost("v2", "liveliness token dropped"), time.monotonic())
     assert calls[0][1].is_set()
     daemon._replan.join(10.0)
-    daemon._replan_step(11.5)  # the first one's result is dropped; the next one starts
+    daemon._replan_step(time.monotonic())  # the first one's result is dropped; the next starts
     assert daemon.replans == [] and len(calls) == 2 and calls[1][0] == ["v1", "v2"]
     daemon._replan.join(10.0)
-    daemon._replan_step(12.0)
+    daemon._replan_step(time.monotonic())
     assert len(daemon.replans) == 1
     reason, to_plan, _ = daemon.replans[0]
     assert "v1 lost" in reason and "v2 lost" in reason
-    assert to_plan == pytest.approx(2.0)  # from the first loss
+    assert 5.0 <= to_plan < 15.0  # from the first loss
