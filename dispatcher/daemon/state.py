@@ -661,11 +661,17 @@ class FleetState:
         (lost on the link): the items before the current one are reached, all of them once
         the mission is complete. Only once the vehicle has said its mission is active,
         CURRENT_SETTLE_S after the start: a report still on its way from before the start
-        (of an earlier mission, complete) says nothing of this one."""
+        (of an earlier mission, complete) says nothing of this one. While its next window is
+        on its way, a report of the window it holds counts too (both are first items of the
+        same mission): one that reached the end of its window, whose MISSION_ITEM_REACHED
+        was lost, is known to wait there, not taken for stalled (20 %-loss soak)."""
+        windows = (v.held - 1, v.held_before - 1) if v.held_before else (v.held - 1,)
+        last = v.mission_total  # the last item of what it holds
         if (
             v.phase is not Phase.RUNNING
             or v.old_items is not None  # the new mission on its way: which one it reports?
-            or v.mission_total != v.held - 1
+            or last is None
+            or last not in windows
             or v.started_at is None
             or now - v.started_at < CURRENT_SETTLE_S
         ):
@@ -674,7 +680,6 @@ class FleetState:
             v.active_seen = True
         if not v.active_seen:
             return []
-        last = v.held - 1
         done = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
         if done > v.reached:
             return self._claim(v, done, True, "MISSION_CURRENT", now)

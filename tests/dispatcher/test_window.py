@@ -167,3 +167,29 @@ def test_a_vehicle_that_finished_while_re_planning_goes_on_after_its_mission(dis
     doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
     state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "more", doc.to_dict()), 3.0)
     assert v.phase is Phase.ALIVE and v.reached == last and v.resume_item == len(old)
+
+
+def test_the_end_of_the_window_held_is_read_from_mission_current_while_the_next_is_on_its_way(
+    dispatch,
+):
+    """Its MISSION_ITEM_REACHED for the last item of its window lost, and the next window
+    on its way (the vehicle still holds the old one): MISSION_CURRENT of the window it
+    holds says it reached its end, so it waits there, not taken for stalled."""
+    daemon = windowed(dispatch)
+    vid = "v1"
+    v = drive(daemon, vid, 5, 0.0)
+    held = v.held
+    daemon.state.apply(ev.WindowExtended(vid, window(v.items, held, 20)), 1.0)
+    assert v.held > held and v.held_before == held
+    feed(daemon.state, vid, mission_current(11, held - 2, held - 1, mc.MISSION_STATE_ACTIVE), 5.0)
+    for k in range(5, held):  # its track along the window, to its last item
+        fix = mc.message(
+            "GLOBAL_POSITION_INT", time_boot_ms=1000 * k, lat=v.items[k].x, lon=v.items[k].y,
+            alt=0, relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
+        )  # fmt: skip
+        feed(daemon.state, vid, from_vehicle(fix, 11), 5.0 + 0.1 * k)
+    assert v.reached < held - 1  # no MISSION_ITEM_REACHED of its last item
+    complete = mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE)
+    feed(daemon.state, vid, complete, 9.0)
+    assert v.reached == held - 1 and v.at_window_end
+    assert daemon.state.stalled_for(v, 0.0, 100.0) is None
