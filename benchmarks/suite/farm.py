@@ -33,7 +33,7 @@ Any weights lambda on the machines (summing to one) give a bound sum_j min_i lam
 (the makespan is at least every lambda-weighted mean of the machines' loads, and each
 field adds at least its lambda-cheapest cost to it). The weights are the optimal duals of
 the relaxation, solved by OR-Tools' LP solver (GLOP); the bound is evaluated from them in
-numpy, so it is valid whatever the LP solver's tolerance (until 2026-11-24 the weights
+numpy, so it is valid whatever the LP solver's tolerance (before 2026-11-25 the weights
 came from 400 multiplicative steps, which stopped 0.8 % short of the LP at 500 x 30:
 52.14 h, now 52.54 h).
 """
