@@ -26,10 +26,10 @@ look at), cut by the optimal split (:func:`giant_tour`).
 Under the makespan (the farm), a plan whose routes all end within minutes of the
 makespan leaves no move that keeps the makespan and shortens the roads (at 500 x 30 a full
 lexicographic pass finds none), so the total road distance, the second objective, is
-short of room. In the last ``distance_share`` of the time a makespan up to
-``1 + distance_slack`` times the best found by then counts as equal to it (a cap,
-:func:`planner.cost.fleet_value`), the ILS's ruin starts on any route, and the road
-distance decides below the cap (docs/ighoa.md, "fourth round").
+short of room. With ``distance_share`` > 0 (off by default), in that last share of the
+time a makespan up to ``1 + distance_slack`` times the best found by then counts as
+equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin starts on any route,
+and the road distance decides below the cap (docs/ighoa.md, "fourth round").
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -70,12 +70,13 @@ class HybridParams(IGHOAParams):
     # Total distance as the local search's second objective, after the objective's own
     # figure (lexicographic): routes that do not set a min-max figure are shortened too.
     lexicographic: bool = True
-    # Under the makespan, the last ``distance_share`` of the time limit takes the total
-    # road distance as the second objective, and the ILS's ruin starts on any route (not
-    # only the longest); a makespan up to ``1 + distance_slack`` times the best found by
-    # then counts as equal to it (the road distance decides below that cap). 0.3 %: at
-    # 500 x 30, 60 s, 2.5 % less road for 0.23 % more makespan (benchmarks/RESULTS.md).
-    distance_share: float = 0.2
+    # Under the makespan, the last ``distance_share`` of the time limit (0: never) lets a
+    # makespan up to ``1 + distance_slack`` times the best found by then count as equal
+    # to it (the road distance decides below that cap), and the ILS's ruin starts on any
+    # route. Off by default: 0.2 and 0.003 gave 1.9 % less road for 0.29 % more makespan
+    # at 500 x 30 (60 s) and cost the 100 x 10 makespan its lead over OR-Tools
+    # (benchmarks/RESULTS.md, 2026-11-25).
+    distance_share: float = 0.0
     distance_slack: float = 0.003
     # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
     # elite is walked on from; 0: every step starts from the elite.

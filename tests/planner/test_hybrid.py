@@ -119,7 +119,9 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective, ruin, focus
 @pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
 def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objective):
     problem = problem_for(20, 3, 11)
-    params = HybridParams(population=20, ils_steps=3, ils_on_sums=True, moves=MOVES)
+    params = HybridParams(
+        population=20, ils_steps=3, ils_on_sums=True, moves=MOVES, distance_share=0.2
+    )
     a, b = (
         solve(problem, objective, "hybrid", stop_after(15), seed=3, params=params) for _ in range(2)
     )
