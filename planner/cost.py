@@ -163,10 +163,12 @@ def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # t
 
 
 @njit(cache=True, nogil=True)
-def fleet_value(objective, values, lengths):  # type: ignore[no-untyped-def]
-    """The objective from every route's share (``values``) and distance (``lengths``)."""
+def fleet_value(objective, values, lengths, cap=0.0):  # type: ignore[no-untyped-def]
+    """The objective from every route's share (``values``) and distance (``lengths``);
+    a min-max figure is taken as at least ``cap`` (0: as it is), so that below the cap
+    only the tie-breaker, the total distance, counts."""
     if objective == 3 or objective == 4:
-        return values.max() + TIE_BREAK * lengths.sum()
+        return max(values.max(), cap) + TIE_BREAK * lengths.sum()
     return values.sum()
 
 

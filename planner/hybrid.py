@@ -24,6 +24,14 @@ first population is a giant tour, improved by an iterated local search of its ow
 look at), cut by the optimal split (:func:`giant_tour`). A warm-started run (a re-plan)
 starts instead from the plan being carried out and variants of it (:func:`warm_population`).
 
+Under the makespan (the farm), a plan whose routes all end within minutes of the
+makespan leaves no move that keeps the makespan and shortens the roads (at 500 x 30 a full
+lexicographic pass finds none), so the total road distance, the second objective, is
+short of room. With ``distance_share`` > 0 (off by default), in that last share of the
+time a makespan up to ``1 + distance_slack`` times the best found by then counts as
+equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin starts on any route,
+and the road distance decides below the cap (docs/ighoa.md, "fourth round").
+
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
 
@@ -63,6 +71,14 @@ class HybridParams(IGHOAParams):
     # Total distance as the local search's second objective, after the objective's own
     # figure (lexicographic): routes that do not set a min-max figure are shortened too.
     lexicographic: bool = True
+    # Under the makespan, the last ``distance_share`` of the time limit (0: never) lets a
+    # makespan up to ``1 + distance_slack`` times the best found by then count as equal
+    # to it (the road distance decides below that cap), and the ILS's ruin starts on any
+    # route. Off by default: 0.2 and 0.003 gave 1.9 % less road for 0.29 % more makespan
+    # at 500 x 30 (60 s) and cost the 100 x 10 makespan its lead over OR-Tools
+    # (benchmarks/RESULTS.md, 2026-11-25).
+    distance_share: float = 0.0
+    distance_slack: float = 0.003
     # Record-to-record travel in the ILS: a result within ``accept`` (relative) of the
     # elite is walked on from; 0: every step starts from the elite.
     accept: float = 0.03
@@ -86,8 +102,10 @@ class HybridParams(IGHOAParams):
         super().__post_init__()
         if self.ils_steps < 0 or self.perturb < 1 or self.ruin < 0 or self.tour_kicks < 0:
             raise ValueError("ils_steps, ruin and tour_kicks must be >= 0 and perturb >= 1")
-        if not 0.0 <= self.tour_share <= 1.0:
-            raise ValueError("tour_share must be within [0, 1]")
+        if not (0.0 <= self.tour_share <= 1.0 and 0.0 <= self.distance_share <= 1.0):
+            raise ValueError("tour_share and distance_share must be within [0, 1]")
+        if self.distance_slack < 0.0:
+            raise ValueError(f"distance_slack must be >= 0, not {self.distance_slack}")
         mask(self.moves)
 
     @property
@@ -260,7 +278,18 @@ def perturb(
 
 @njit(cache=True, nogil=True)
 def local_optimum(
-    perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look, moves, lexi
+    perm,
+    counts,
+    objective,
+    tables,
+    neighbours,
+    min_count,
+    pins,
+    deadline,
+    dont_look,
+    moves,
+    lexi,
+    cap=0.0,
 ):  # type: ignore[no-untyped-def]
     """The ``moves`` between routes from the tasks whose don't-look bit is clear, then
     the neighbour-list 2-opt inside the routes, in place. (Or-opt is left to the
@@ -268,7 +297,7 @@ def local_optimum(
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     allocation_search(
         perm, counts, objective, tables, neighbours, min_count, 50, pins, deadline, dont_look,
-        True, moves, lexi,
+        True, moves, lexi, cap,
     )  # fmt: skip
     improve_routes(perm, counts, dist, start_dist, end_dist, neighbours, pins)
 
@@ -297,16 +326,21 @@ def ils_step(  # type: ignore[no-untyped-def]
     accept,
     ruin,
     with_or_opt,
+    focus,
+    cap=0.0,
 ):
     """``steps`` perturb-and-improve attempts from the walk's solution (record-to-record
     travel): a result is the walk's next solution when it costs less than ``1 + accept``
     times the elite, and the new elite when it costs less than the elite (both sets of
-    arrays are updated in place). With ``accept`` = 0 the walk is the elite.
+    arrays are updated in place). With ``accept`` = 0 the walk is the elite. With
+    ``focus`` the perturbation starts on the route of highest share (the min-max
+    objectives' longest), else anywhere. ``cap`` (min-max objectives; 0: none): every cost,
+    the elite's and the walk's given too, takes the min-max figure as at least ``cap``
+    (:func:`planner.cost.fleet_value`), so that below it the distance decides.
     Returns the new elite cost and walk cost."""
     perm = walk_perm.copy()
     counts = walk_counts.copy()
     route = walk_route.copy()
-    focus = objective == 3 or objective == 4
     moved = np.empty(max(strength, ruin), dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     for _ in range(steps):
@@ -317,7 +351,7 @@ def ils_step(  # type: ignore[no-untyped-def]
         if ruin > 0:
             done = ruin_recreate(
                 state, perm, counts, objective, tables, neighbours, ruin, focus, min_count,
-                pins, moved,
+                pins, moved, cap,
             )  # fmt: skip
         else:
             done = perturb(
@@ -332,11 +366,13 @@ def ils_step(  # type: ignore[no-untyped-def]
                 dont_look[w] = False
         local_optimum(
             perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look,
-            moves, lexi,
+            moves, lexi, cap,
         )  # fmt: skip
         if with_or_opt:
             or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
         cost = evaluate(perm, counts, objective, tables, route)
+        if cap > 0.0:
+            cost += max(0.0, cap - route.max())
         if cost < walk_cost - 1e-12 or cost < elite_cost * (1.0 + accept) - 1e-12:
             walk_perm[:] = perm
             walk_counts[:] = counts

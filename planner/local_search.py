@@ -127,6 +127,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
     use_bits,
     move_mask,
     lexi,
+    cap=0.0,
 ):
     """:func:`improve_allocation`, with don't-look bits when ``use_bits``: a task whose
     bit is set is not looked at; a task in which no move pays gets its bit set, and a move
@@ -137,7 +138,10 @@ def allocation_search(  # type: ignore[no-untyped-def]
     ``move_mask`` is the mask of the moves tried (:mod:`planner.moves`). With ``lexi``, the
     total distance is a second objective, compared lexicographically after the
     objective's own figure: a move that leaves the figure as it is (the longest route of
-    a min-max objective untouched) but shortens the fleet's total distance is taken."""
+    a min-max objective untouched) but shortens the fleet's total distance is taken.
+    ``cap`` (min-max objectives; 0: none): the figure counts as at least ``cap``
+    (:func:`planner.cost.fleet_value`), so a move may lengthen any route up to it when
+    it shortens the fleet's total distance."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]
@@ -174,7 +178,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
     for r in range(m):
         prefix(routes, sizes, r, r, dist, start_dist, pref)
     buf = np.empty(n, dtype=np.int64)
-    current = _objective(objective, values, lengths)
+    current = _objective(objective, values, lengths, cap)
     total = lengths.sum()
     trial_values = values.copy()
     trial_lengths = lengths.copy()
@@ -234,7 +238,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         trial_values[b] = _route_value(
                             objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b] + 1
                         )
-                        gain = current - _objective(objective, trial_values, trial_lengths)
+                        gain = current - _objective(objective, trial_values, trial_lengths, cap)
                         gs = total - trial_lengths.sum()
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
@@ -265,7 +269,9 @@ def allocation_search(  # type: ignore[no-untyped-def]
                                 trial_values[b] = _route_value(
                                     objective, b, lb, eb, road_h, road_f, ready, sizes[b] + length
                                 )
-                                gain = current - _objective(objective, trial_values, trial_lengths)
+                                gain = current - _objective(
+                                    objective, trial_values, trial_lengths, cap
+                                )
                                 gs = total - trial_lengths.sum()
                                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
                                     best_gain, best_gs = gain, gs
@@ -293,7 +299,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         trial_values[b] = _route_value(
                             objective, b, lb, eb, road_h, road_f, ready, nb
                         )
-                        gain = current - _objective(objective, trial_values, trial_lengths)
+                        gain = current - _objective(objective, trial_values, trial_lengths, cap)
                         gs = total - trial_lengths.sum()
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
@@ -327,7 +333,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                 trial_values[b] = _route_value(
                     objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b]
                 )
-                gain = current - _objective(objective, trial_values, trial_lengths)
+                gain = current - _objective(objective, trial_values, trial_lengths, cap)
                 gs = total - trial_lengths.sum()
                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
                     best_gain, best_gs = gain, gs
@@ -425,7 +431,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
             prefix(routes, sizes, b, b, dist, start_dist, pref)
             trial_values[:] = values
             trial_lengths[:] = lengths
-            current = _objective(objective, values, lengths)
+            current = _objective(objective, values, lengths, cap)
             total = lengths.sum()
             if use_bits and (objective == 3 or objective == 4):
                 longest = np.argmax(values)

@@ -225,14 +225,27 @@ def segment_apply(routes, sizes, pos, route_of, a, pa, length, b, p, rev, buf): 
 
 @njit(cache=True, nogil=True)
 def ruin_recreate(  # type: ignore[no-untyped-def]
-    state, perm, counts, objective, tables, neighbours, size, focus_longest, min_count, pins, moved
+    state,
+    perm,
+    counts,
+    objective,
+    tables,
+    neighbours,
+    size,
+    focus_longest,
+    min_count,
+    pins,
+    moved,
+    cap=0.0,
 ):
     """Ruin and recreate (Schrimpf et al. 2000, radial ruin), the ILS's stronger
     perturbation: a seed task and its nearest neighbours, ``size`` tasks in all, leave
-    their routes; then :func:`recreate` puts each back where the objective grows least.
-    With ``focus_longest`` the seed is taken from the route of highest share of the
-    objective, the one that sets a min-max figure: its neighbourhood is re-cut between the
-    routes around it. O(size n m) on the chromosome in place. A route is never left below
+    their routes; then :func:`recreate` puts each back where the objective grows least
+    (with ``cap`` > 0 a min-max figure counts as at least ``cap``,
+    :func:`planner.cost.fleet_value`: below it the distance decides). With
+    ``focus_longest`` the seed is taken from the route of highest share of the objective,
+    the one that sets a min-max figure: its neighbourhood is re-cut between the routes
+    around it. O(size n m) on the chromosome in place. A route is never left below
     ``min_count`` and a pinned task never moves (nor has one put before it). The tasks
     moved are written to ``moved`` (the rest -1); returns how many."""
     n = perm.shape[0]
@@ -267,15 +280,16 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
         left[r] -= 1
         moved[done] = t
         done += 1
-    recreate(state, perm, counts, objective, tables, pins, moved[:done])
+    recreate(state, perm, counts, objective, tables, pins, moved[:done], cap)
     return done
 
 
 @njit(cache=True, nogil=True)
-def recreate(state, perm, counts, objective, tables, pins, tasks):  # type: ignore[no-untyped-def]
+def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # type: ignore[no-untyped-def]
     """Take ``tasks`` out of their routes, then put each back, in random order, at the
     place of any route where the objective grows least, ties (a min-max figure that the
-    place leaves as it is) broken by the distance it adds; never before a pinned task.
+    place leaves as it is, or that stays under ``cap``: :func:`planner.cost.fleet_value`)
+    broken by the distance it adds; never before a pinned task.
     The recreate half of :func:`ruin_recreate`, and the repair of a warm start whose
     tasks were not all in a route (a machine gone: its tasks go where they cost least).
     O(len(tasks) n m), on the chromosome in place; the caller keeps the routes' minimum
@@ -322,7 +336,7 @@ def recreate(state, perm, counts, objective, tables, pins, tasks):  # type: igno
                 )
                 lengths[b] = old_length + add
                 values[b] = route_value(objective, b, lengths[b], eb, road_h, road_f, ready, 1)
-                value = fleet_value(objective, values, lengths)
+                value = fleet_value(objective, values, lengths, cap)
                 eps = 1e-9 * max(1.0, abs(value))
                 if value < best_obj - eps or (value <= best_obj + eps and add < best_add):
                     best_obj, best_add, best_r, best_p = value, add, b, p

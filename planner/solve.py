@@ -255,7 +255,9 @@ class Result:
     seed: int
     routes: tuple[tuple[int, ...], ...]  # task indices per machine, in driving order
     figures: Figures
-    history: tuple[float, ...]  # best objective value after each generation
+    # Best objective value after each generation (hybrid under the makespan: in the last
+    # distance_share of the time up to distance_slack above the best before, for distance).
+    history: tuple[float, ...]
     generations: int
     elapsed_s: float
     stats: dict[str, float] = field(default_factory=dict)
@@ -387,8 +389,19 @@ def solve(
     history: list[float] = []
     stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
     gen = 0
+    cap = 0.0  # hybrid's makespan cap in the last share of the time (0: none yet)
     while not stop.interrupted() and stop.max_generations > 0:
         gen += 1
+        # hybrid under the makespan: the last distance_share of the time shortens the roads,
+        # a makespan up to the cap (distance_slack over the best by then) counting as equal.
+        late = (
+            isinstance(params, hybrid.HybridParams)
+            and obj == Objective.MAKESPAN
+            and stop.progress() >= 1.0 - params.distance_share
+        )
+        if late and cap == 0.0:
+            assert isinstance(params, hybrid.HybridParams)
+            cap = float(elite_route.max()) * (1.0 + params.distance_slack)
         if isinstance(params, ighoa.IGHOAParams):
             sp = ighoa.adaptive_tolerance(
                 stop.progress(), pop, stop.max_generations, params.tol_min, params.tol_max
@@ -431,6 +444,7 @@ def solve(
                 min_count,
                 pins,
                 stats,
+                cap,
             )
         else:
             ga.generation(
@@ -452,7 +466,7 @@ def solve(
                 elite_cost,
             )
         best = int(np.argmin(costs))
-        if costs[best] < elite_cost:
+        if _capped(costs[best], route_costs[best], cap) < _capped(elite_cost, elite_route, cap):
             elite_perm[:], elite_counts[:] = perms[best], counts[best]
             elite_route[:], elite_cost = route_costs[best], float(costs[best])
         if (
@@ -463,7 +477,8 @@ def solve(
             if walk_cost > elite_cost * (1.0 + params.accept):
                 walk_perm[:], walk_counts[:] = elite_perm, elite_counts
                 walk_route[:], walk_cost = elite_route, elite_cost
-            improved = elite_cost
+            before = improved = _capped(elite_cost, elite_route, cap)
+            walk_cost = _capped(walk_cost, walk_route, cap)
             # In chunks, so that a stop flag is seen between them.
             for done in range(0, params.ils_steps, ILS_CHUNK):
                 if stop.interrupted():
@@ -491,9 +506,12 @@ def solve(
                     params.accept,
                     params.ruin,
                     params.ils_or_opt,
+                    obj in (Objective.MINMAX, Objective.MAKESPAN) and not late,
+                    cap,
                 )
-            if improved < elite_cost:
-                elite_cost = float(improved)
+            walk_cost -= _capped(0.0, walk_route, cap)
+            if improved < before:
+                elite_cost = float(improved) - _capped(0.0, elite_route, cap)
                 # The improved elite also enters the population, in place of its worst.
                 worst = int(np.argmax(costs))
                 perms[worst], counts[worst] = elite_perm, elite_counts
@@ -528,6 +546,12 @@ def solve(
     )
 
 
+def _capped(cost: float, route_cost: np.ndarray, cap: float) -> float:
+    """A min-max ``cost`` with its figure (``route_cost.max()``) taken as at least ``cap``
+    (:func:`planner.cost.fleet_value`); 0: the cost as it is."""
+    return float(cost) + max(0.0, cap - float(route_cost.max())) if cap > 0.0 else float(cost)
+
+
 def _share_of(deadline: float, share: float) -> float:
     """The moment ``share`` of the time from now to ``deadline`` (monotonic) has gone."""
     now = time.monotonic()
@@ -548,10 +572,13 @@ def _polish(  # type: ignore[no-untyped-def]
     min_count,
     pins,
     stats,
+    cap=0.0,
 ) -> None:
     """§4.5 on the generation's best (and, with the extended local search, on
     ``params.memetic`` random others); a polished chromosome replaces its original.
-    Skipped as soon as ``stop`` is interrupted."""
+    Skipped as soon as ``stop`` is interrupted. ``cap``: hybrid's makespan cap in the last
+    share of the time (:attr:`planner.hybrid.HybridParams.distance_share`; 0: none), up
+    to which a makespan counts as equal."""
     targets = [int(np.argmin(costs))]
     if params.local_search == "extended" and params.memetic:
         targets += [randint(state, len(costs)) for _ in range(params.memetic)]
@@ -580,7 +607,7 @@ def _polish(  # type: ignore[no-untyped-def]
                 allocation_search(
                     perm, cnt, objective, tables, neighbours, min_count, 50, pins, deadline,
                     np.zeros(len(perm), dtype=np.bool_), False, params.move_mask,
-                    params.lexicographic,
+                    params.lexicographic, cap,
                 )  # fmt: skip
             else:
                 improve_allocation(
@@ -589,7 +616,7 @@ def _polish(  # type: ignore[no-untyped-def]
             if isinstance(params, hybrid.HybridParams) and params.or_opt:
                 hybrid.or_opt_routes(perm, cnt, tables[0], tables[1], tables[2], neighbours, pins)
             cost = evaluate(perm, cnt, objective, tables, route)
-        if cost < costs[idx] - 1e-12:
+        if _capped(cost, route, cap) < _capped(costs[idx], route_costs[idx], cap) - 1e-12:
             stats["polish_gains"] += 1
             perms[idx], counts[idx], route_costs[idx], costs[idx] = perm, cnt, route, cost
 

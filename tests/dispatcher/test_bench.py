@@ -1,12 +1,28 @@
 """`agrifleet bench mtsp|farm`: arguments, the BKS table, the farm generator and bound, peers."""
 
+import itertools
+
 import numpy as np
 import pytest
-from agrifleet_bench.farm import generate_farm, makespan_lower_bound, service_hours
+from agrifleet_bench.farm import (
+    generate_farm,
+    incident_legs_m,
+    makespan_lower_bound,
+    service_hours,
+    travel_lower_bound,
+)
 
 from dispatcher.cli.main import EXIT_BAD_INPUT, main
-from dispatcher.tools.bench import BenchError, Cell, Runs, bench_mtsp, parse_cells, parse_farms
-from planner.cost import figures
+from dispatcher.tools.bench import (
+    BenchError,
+    Cell,
+    Runs,
+    bench_farm,
+    bench_mtsp,
+    parse_cells,
+    parse_farms,
+)
+from planner.cost import CostTables, evaluate, figures
 from planner.paper import BKS_MINSUM, TSPLIB_DIR, best_known
 from planner.problem import Machine, Problem, Task
 from planner.tsplib import read_instance
@@ -64,10 +80,87 @@ def test_the_lower_bound_is_exact_on_related_machines_and_below_any_schedule():
     assert hours.min(axis=0).max() <= bound <= load.max()
 
 
+def _optimal_makespan(problem: Problem) -> float:
+    """The optimum by brute force: every field's machine, every route's order (our cost
+    model, planner.cost.evaluate). For a handful of fields only."""
+    n, m = problem.num_tasks, problem.num_machines
+    tables = CostTables.of(problem).kernel_args()
+    best_route = {}  # (machine, fields) -> the fastest route's time
+    for i in range(m):
+        for size in range(1, n + 1):
+            for fields in itertools.combinations(range(n), size):
+                rest = [j for j in range(n) if j not in fields]
+                counts = np.zeros(m, dtype=np.int64)
+                counts[i] = size
+                times = np.zeros(m)
+                fastest = np.inf
+                for order in itertools.permutations(fields):
+                    # The machines before i take nothing: its stretch is the order.
+                    perm = np.array(list(order) + rest, dtype=np.int64)
+                    evaluate(perm, counts, 3, tables, times)
+                    fastest = min(fastest, times[i])
+                best_route[i, fields] = fastest
+    best = np.inf
+    for owners in itertools.product(range(m), repeat=n):
+        span = max(
+            best_route[i, tuple(j for j in range(n) if owners[j] == i)]
+            for i in range(m)
+            if i in owners
+        )
+        best = min(best, span)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(1, 7))
+def test_both_bounds_are_below_the_optimum_of_a_tiny_farm(seed):
+    pytest.importorskip("ortools")
+    problem = generate_farm(6, 2 + seed % 2, seed=seed)
+    optimum = _optimal_makespan(problem)
+    free, travel = makespan_lower_bound(problem), travel_lower_bound(problem)
+    assert free < travel <= optimum + 1e-9
+
+
+def test_a_route_is_at_least_the_legs_its_fields_cannot_avoid():
+    problem = generate_farm(30, 3, seed=5)
+    legs = incident_legs_m(problem)
+    rng = np.random.default_rng(0)
+    for size in (1, 2, 3, 10, 30):
+        for _ in range(20):
+            route = [int(j) for j in rng.permutation(30)[:size]]
+            i = int(rng.integers(3))
+            routes = [route if k == i else [] for k in range(3)]
+            driven = figures(problem, routes).routes[i].distance_m
+            assert legs[i, route].sum() <= driven + 1e-6
+
+
+def test_the_travel_bound_counts_travel_where_the_other_does_not():
+    pytest.importorskip("ortools")
+    farm = generate_farm(60, 6, seed=1)
+    free, travel = makespan_lower_bound(farm), travel_lower_bound(farm)
+    # Fields ~2 km apart at 15-40 km/h, a few hours' work each: travel is a few per cent.
+    assert free * 1.005 < travel < free * 1.10
+
+
 def test_bench_mtsp_without_a_peer_reports_ours_beside_the_bks():
     report = bench_mtsp([Cell("eil51", 3)], None, "minmax", Runs(0.3, 1, 1, "ighoa"))
     row = next(line for line in report.splitlines() if line.startswith("| eil51"))
     assert "| 159.57 |" in row  # the BKS column
+
+
+def test_bench_farm_reports_both_bounds_and_both_gaps():
+    pytest.importorskip("ortools")
+    report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
+    header = next(line for line in report.splitlines() if line.startswith("| farm"))
+    row = next(line for line in report.splitlines() if line.startswith("| 12x3"))
+    cells = dict(zip(header.strip("|").split(" | "), row.strip("|").split(" | "), strict=True))
+    farm = generate_farm(12, 3, seed=1)
+    assert float(cells["LB"]) == pytest.approx(makespan_lower_bound(farm), abs=0.005)
+    assert float(cells["LBt"]) == pytest.approx(travel_lower_bound(farm), abs=0.005)
+    ours = float(cells["ours mean"])
+    lbt = travel_lower_bound(farm)
+    gap = float(cells["ours gap to LBt"].removesuffix(" %"))
+    assert gap == pytest.approx(100.0 * (ours / lbt - 1.0), abs=0.05)  # ours is rounded
+    assert float(cells["LB"]) < float(cells["LBt"]) <= ours
 
 
 @pytest.mark.parametrize("peer", ["ortools", "pyvrp"])

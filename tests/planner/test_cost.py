@@ -9,7 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.cost import CostTables, Objective, evaluate, figures, split_routes
+from planner.cost import (
+    TIE_BREAK,
+    CostTables,
+    Objective,
+    evaluate,
+    figures,
+    fleet_value,
+    split_routes,
+)
 from planner.errors import ProblemError
 from planner.problem import Machine, Problem, Task, rectangle_turns
 
@@ -248,3 +256,13 @@ def test_starting_at_with_a_distance_function_and_bad_input():
         problem.starting_at([None], ready_h=[-1.0])
     with pytest.raises(ProblemError, match="start x must be a finite number"):
         problem.starting_at([(math.nan, 0.0)])
+
+
+def test_a_min_max_figure_counts_as_at_least_the_cap():
+    values, lengths = np.array([3.0, 5.0]), np.array([100.0, 200.0])
+    for objective in (3, 4):
+        plain = fleet_value(objective, values, lengths)
+        assert plain == pytest.approx(5.0 + TIE_BREAK * 300.0)
+        assert fleet_value(objective, values, lengths, 4.0) == plain  # below the figure
+        assert fleet_value(objective, values, lengths, 7.0) == pytest.approx(plain + 2.0)
+    assert fleet_value(0, values, lengths, 7.0) == 8.0  # the sums have no cap

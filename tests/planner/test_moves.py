@@ -121,25 +121,38 @@ def test_moves_are_chosen_by_name():
 
 
 @SETTINGS
-@given(chromosomes(), st.sampled_from(list(Objective)), st.booleans(), st.integers(1, 15))
-def test_allocation_search_with_every_move_never_worsens(case, objective, lexi, moves):
+@given(
+    chromosomes(),
+    st.sampled_from(list(Objective)),
+    st.booleans(),
+    st.integers(1, 15),
+    st.sampled_from([0.0, 1.0, 1.05]),
+)
+def test_allocation_search_with_every_move_never_worsens(case, objective, lexi, moves, over):
     _, perm, counts = case
     n, m = perm.size, counts.size
     problem = problem_for(n, m, int(perm[0]) + 5 * n)
     tables = CostTables.of(problem).kernel_args()
     route = np.empty(m)
     before = evaluate(perm, counts, int(objective), tables, route)
+    # A cap (min-max objectives): a figure up to it counts as equal (0: none).
+    minmax = objective in (Objective.MAKESPAN, Objective.MINMAX)
+    cap = over * route.max() if minmax else 0.0
+    before += max(0.0, cap - route.max())
     total_before = problem_total(perm, counts, tables)
     nn = nearest_neighbours(problem.dist, 5)
     allocation_search(
         perm, counts, int(objective), tables, nn, 1, 20, NO_PINS(n), np.inf,
-        np.zeros(n, dtype=np.bool_), False, moves, lexi,
+        np.zeros(n, dtype=np.bool_), False, moves, lexi, cap,
     )  # fmt: skip
     assert_valid(perm, counts, n, m)
     after = evaluate(perm, counts, int(objective), tables, route)
+    if minmax:
+        assert route.max() <= max(cap, before) * (1 + 1e-9)  # never above the cap
+    after += max(0.0, cap - route.max())
     assert after <= before + 1e-9 * max(1.0, before)
     if lexi and after >= before - 1e-9 * max(1.0, before):
-        # The objective's figure unchanged: the total distance did not grow.
+        # The objective's figure (or the cap) unchanged: the total distance did not grow.
         assert problem_total(perm, counts, tables) <= total_before + 1e-6
 
 
@@ -212,6 +225,45 @@ def test_ruin_recreate_puts_a_task_back_where_the_objective_is_least(case, objec
             sizes = np.array([len(r) for r in trial], dtype=np.int64)
             best = min(best, evaluate(flat, sizes, int(objective), tables, route))
     assert after == pytest.approx(best, rel=1e-8, abs=1e-9)
+
+
+@SETTINGS
+@given(chromosomes(), st.sampled_from([Objective.MAKESPAN, Objective.MINMAX]))
+def test_ruin_recreate_below_a_cap_puts_a_task_where_it_adds_least_distance(case, objective):
+    # Far below the cap the figure counts as the cap wherever the task goes: the distance
+    # (the tie-breaker) decides, and the task goes where the fleet drives least.
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, 5 * n + m)
+    tables = CostTables.of(problem).kernel_args()
+    route = np.empty(m)
+    evaluate(perm, counts, int(objective), tables, route)
+    cap = 10.0 * route.sum() + 1.0
+    moved = np.empty(1, dtype=np.int64)
+    nn = nearest_neighbours(problem.dist, 3)
+    rows = split_routes(perm, counts)
+    done = ruin_recreate(
+        state, perm, counts, int(objective), tables, nn, 1, False, 1, NO_PINS(n), moved, cap
+    )
+    assert_valid(perm, counts, n, m)
+    if done == 0:
+        return
+    t = int(moved[0])
+    rows = [[j for j in r if j != t] for r in rows]
+    least = np.inf
+    for b in range(m):
+        for p in range(len(rows[b]) + 1):
+            trial = [list(r) for r in rows]
+            trial[b].insert(p, t)
+            least = min(least, problem_total(*chromosome_of(trial), tables))
+    assert problem_total(perm, counts, tables) == pytest.approx(least, rel=1e-9)
+    evaluate(perm, counts, int(objective), tables, route)
+    assert route.max() <= cap
+
+
+def chromosome_of(rows):
+    perm = np.array([j for r in rows for j in r], dtype=np.int64)
+    return perm, np.array([len(r) for r in rows], dtype=np.int64)
 
 
 def test_ruin_recreate_gives_the_same_answer_for_the_same_seed():
