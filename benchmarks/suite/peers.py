@@ -57,6 +57,10 @@ class PeerUnavailable(RuntimeError):
     """The peer solver is not installed (``pip install agrifleet[bench]``)."""
 
 
+class PeerNoSolution(RuntimeError):
+    """The peer found no solution within the time limit (its row says so; ours stands)."""
+
+
 def _full_matrix(problem: Problem) -> np.ndarray:
     """Depot (index 0) and tasks (1..n) as one matrix of machine 0's legs."""
     n = problem.num_tasks
@@ -114,7 +118,7 @@ def ortools_mtsp(problem: Problem, minmax: bool, time_limit: float) -> list[list
         routing.GetDimensionOrDie("distance").SetGlobalSpanCostCoefficient(100)
     solution = routing.SolveWithParameters(_search(pywrapcp, enums, time_limit))
     if solution is None:
-        raise RuntimeError(f"OR-Tools found no solution to {problem.name} in {time_limit:g} s")
+        raise PeerNoSolution(f"OR-Tools found no solution to {problem.name} in {time_limit:g} s")
     return _routes_from_ortools(manager, routing, solution, m)
 
 
@@ -160,7 +164,7 @@ def ortools_farm(problem: Problem, time_limit: float) -> list[list[int]]:
         log.warning("OR-Tools: no farm plan under the time cap; running without it")
         routes = _ortools_farm(problem, time_limit, None)
     if routes is None:
-        raise RuntimeError(f"OR-Tools found no solution to {problem.name} in {time_limit:g} s")
+        raise PeerNoSolution(f"OR-Tools found no solution to {problem.name} in {time_limit:g} s")
     return routes
 
 

@@ -167,18 +167,24 @@ def bench_mtsp(
             for s in runs.seeds
         ]
         peer_cost = None
-        if peer == "ortools":
-            routes = peers.ortools_mtsp(problem, minmax, runs.time_limit)
-        elif peer == "pyvrp":
-            routes = peers.pyvrp_mtsp(problem, runs.time_limit, runs.seed)
-        if peer is not None:
+        peer_text = "–"  # no peer, or one found no solution (said in the row)
+        try:
+            routes = None
+            if peer == "ortools":
+                routes = peers.ortools_mtsp(problem, minmax, runs.time_limit)
+            elif peer == "pyvrp":
+                routes = peers.pyvrp_mtsp(problem, runs.time_limit, runs.seed)
+        except peers.PeerNoSolution:
+            peer_text = f"none in {runs.time_limit:g} s"
+        if routes is not None:
             peer_cost = figures(problem, routes).value(Objective.parse(objective))
+            peer_text = _num(peer_cost)
         bks = bks_table.get((cell.instance, objective, cell.salesmen))
         bks_value = bks.value if bks else None
         mean = statistics.fmean(r.cost for r in ours)
         row = (
             f"| {cell.instance} | {cell.salesmen} | {mean:.2f} | {min(r.cost for r in ours):.2f} "
-            f"| {_num(peer_cost)} | {_num(bks_value)} | {_gap(mean, bks_value)} "
+            f"| {peer_text} | {_num(bks_value)} | {_gap(mean, bks_value)} "
             f"| {_gap(peer_cost, bks_value)} | {_ratio(mean, peer_cost)} |"
         )
         lines.append(row)

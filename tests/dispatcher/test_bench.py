@@ -147,6 +147,20 @@ def test_bench_mtsp_without_a_peer_reports_ours_beside_the_bks():
     assert "| 159.57 |" in row  # the BKS column
 
 
+def test_a_peer_that_finds_nothing_in_time_is_said_so_and_ours_stands(monkeypatch):
+    from agrifleet_bench import peers
+
+    def nothing(problem, minmax, time_limit):
+        raise peers.PeerNoSolution(f"no solution to {problem.name} in {time_limit:g} s")
+
+    monkeypatch.setattr(peers, "ortools_mtsp", nothing)
+    cells = [Cell("eil51", 3), Cell("eil51", 4)]
+    report = bench_mtsp(cells, "ortools", "minmax", Runs(0.3, 1, 1, "ighoa"))
+    rows = [line for line in report.splitlines() if line.startswith("| eil51")]
+    assert len(rows) == 2
+    assert all("| none in 0.3 s |" in row and "| 159.57 |" in rows[0] for row in rows)
+
+
 def test_bench_farm_reports_both_bounds_and_both_gaps():
     pytest.importorskip("ortools")
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
