@@ -9,17 +9,26 @@ telemetry meanwhile (on another core when there is one). ``agrifleet warm`` (run
 installing) pays the compile at install; otherwise the first plan does.
 
 Whether a process compiles or loads is told by numba's event API: numba broadcasts a
-``numba:compile`` event for a real compile only, never for a load from its cache. Nothing
-here reads numba's cache files, whose layout is not numba's public API.
+``numba:compile`` event for a real compile only, never for a load from its cache.
+
+numba keys each cached kernel on its own source file only: a kernel whose callee in another
+file changed (an upgrade, an edit) would load from the cache with the old callee compiled
+in. :func:`drop_stale_kernels` (at the first solve of a process, and by ``agrifleet warm``)
+empties the planner's cache when the planner's sources differ from those it was filled
+from (a hash kept beside it, :data:`SOURCES_STAMP`); the cache's files are only deleted,
+never read.
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import logging
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 from numba.core import event
 
@@ -77,6 +86,42 @@ def cache_dir() -> str | None:
 
     stats = getattr(cost.evaluate, "stats", None)  # none under NUMBA_DISABLE_JIT
     return getattr(stats, "cache_path", None)
+
+
+SOURCES_STAMP = "agrifleet-sources.sha256"
+"""The file, in the kernels' cache folder, that holds the hash of the sources it was filled
+from."""
+
+
+def drop_stale(cache: Path, sources: Path) -> bool:
+    """Delete numba's cached kernels in ``cache`` (``*.nbi``, ``*.nbc``) when the ``*.py``
+    files of ``sources`` are not those the stamp in ``cache`` names, and stamp it with them;
+    True when it did. Under a lock, so that processes starting together agree."""
+    digest = hashlib.sha256()
+    for path in sorted(sources.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    now = digest.hexdigest()
+    cache.mkdir(parents=True, exist_ok=True)
+    stamp = cache / SOURCES_STAMP
+    with open(cache / (SOURCES_STAMP + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if stamp.exists() and stamp.read_text() == now:
+            return False
+        for path in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            path.unlink(missing_ok=True)
+        stamp.write_text(now)
+    return True
+
+
+def drop_stale_kernels() -> bool:
+    """:func:`drop_stale` on the planner's kernels (nothing without a cache: no JIT)."""
+    where = cache_dir()
+    if where is None:
+        return False
+    dropped = drop_stale(Path(where), Path(__file__).parent)
+    if dropped:
+        log.info("the planner's sources changed: its compiled kernels are compiled again")
+    return dropped
 
 
 def compile_kernels(on_compile: Callable[[], None] | None = None) -> Compilation:

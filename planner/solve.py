@@ -700,7 +700,10 @@ def warm_up() -> None:
     global _warmed
     if _warmed:
         return
+    from planner.kernels import drop_stale_kernels
     from planner.problem import Machine, Task
+
+    drop_stale_kernels()  # before any kernel of this process is loaded from the cache
 
     machines = [Machine(f"w{i}", 2.0, 10.0, 5.0, 0.01, 1.0, 2.0) for i in range(2)]
     tasks = [Task(f"t{j}", float(j), float(j % 2), 10.0, 4.0, 2.5) for j in range(5)]

@@ -4,7 +4,7 @@
 import importlib.util
 import textwrap
 
-from planner.kernels import Compilation, watch_compiles
+from planner.kernels import Compilation, drop_stale, watch_compiles
 
 TINY = textwrap.dedent(
     """
@@ -48,3 +48,25 @@ def test_the_api_offers_it():
     from planner.kernels import compile_kernels
 
     assert agrifleet.compile_kernels is compile_kernels
+
+
+def test_a_cache_filled_from_other_sources_is_emptied_once(tmp_path):
+    sources, cache = tmp_path / "src", tmp_path / "src" / "__pycache__"
+    sources.mkdir()
+    (sources / "a.py").write_text("def inner(): return 1\n")
+    (sources / "b.py").write_text("from a import inner\n")
+    cache.mkdir()
+    kept = cache / "b.cpython-311.pyc"
+    for name in ("b.outer-1.py311.nbi", "b.outer-1.py311.1.nbc", kept.name):
+        (cache / name).write_text("x")
+    assert drop_stale(cache, sources)  # no stamp yet: filled from sources unknown
+    assert [p.name for p in cache.iterdir() if p.suffix in (".nbi", ".nbc")] == []
+    assert kept.exists()
+    (cache / "b.outer-1.py311.nbi").write_text("x")  # filled again from these sources
+    assert not drop_stale(cache, sources)
+    assert (cache / "b.outer-1.py311.nbi").exists()
+    # b's kernel calls a's: numba would load b's stale, a's file alone having changed.
+    (sources / "a.py").write_text("def inner(): return 2\n")
+    assert drop_stale(cache, sources)
+    assert not (cache / "b.outer-1.py311.nbi").exists()
+    assert not drop_stale(cache, sources)
