@@ -62,20 +62,20 @@ def finished(proc, procs: Processes, sitl: Sitl, timeout_s: float = RUN_TIMEOUT_
     return int(proc.returncode)
 
 
-def check_worked_once(
-    review: Review, swath_median_m: float = 0.3, swath_p95_m: float = 1.0
-) -> None:
-    """Every field done, each exactly once, on swaths driven as planned (cross-track error
-    on the swaths within the limits given)."""
+def check_worked_once(review: Review, driven_as_planned: bool = True) -> None:
+    """Every field done, each exactly once, the implement never down outside a field; with
+    ``driven_as_planned``, on swaths driven as planned and turns without a loop."""
     (vehicle,) = review.vehicles
     assert sorted(vehicle.fields_done) == sorted(vehicle.fields_planned), review_table(review)
     assert len(set(vehicle.fields_done)) == len(vehicle.fields_done)
     assert vehicle.mission_complete
     q = vehicle.quality
     assert q is not None and q.swath_median_m is not None, review_table(review)
-    assert q.swath_median_m < swath_median_m, review_table(review)
-    assert q.swath_p95_m is not None and q.swath_p95_m < swath_p95_m, review_table(review)
     assert q.outside_down_s == 0.0, review_table(review)
+    if not driven_as_planned:
+        return
+    assert q.swath_median_m < 0.3, review_table(review)
+    assert q.swath_p95_m is not None and q.swath_p95_m < 1.0, review_table(review)
     assert q.loops == 0, review_table(review)
 
 
@@ -253,10 +253,11 @@ def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
     topups = [e["items"] for e in events if e["kind"] == "window_extended"]
     assert first and first[0] < planned and topups and topups[-1] == planned, events
     review = review_contents(log)
-    # Looser on the swaths: ArduPilot restarts the command it drives when an upload changes
-    # the commands its mission change detector looks ahead at ("Auto mission changed,
+    # Not how it drove: ArduPilot restarts the command it drives when an upload changes the
+    # commands its mission change detector looks ahead at ("Auto mission changed,
     # restarted command"), and a rover whose next window comes late slows to a stop at the
-    # end of the one it holds and sets off again: 0.33 m median and 2.1 m p95 seen in 1 run
-    # of 3 (benchmarks/RESULTS.md, issue 10). Every field once is what this test is for.
-    check_worked_once(review, swath_median_m=0.5, swath_p95_m=2.5)
+    # end of the one it holds and sets off again: 0.33 m swath median, 2.1 m p95, a turn
+    # with a loop, each in some runs (benchmarks/RESULTS.md, issue 10). Every field once,
+    # in windows, is what this test is for; the other SITL tests check the driving.
+    check_worked_once(review, driven_as_planned=False)
     assert not review.vehicles[0].reboots
