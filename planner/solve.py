@@ -366,7 +366,7 @@ def solve(
                 counts[pop - 1],
                 int(obj),
                 tables,
-                nearest_neighbours(problem.dist, params.neighbours),
+                neighbours,  # the same lists (params.neighbours of hybrid)
                 min_count,
                 pins,
                 stop.deadline(),
