@@ -85,6 +85,9 @@ class DaemonConfig:
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back before we give up
     upload_attempts: int = 3  # whole uploads tried before a vehicle is failed
     upload_backoff_s: float = 2.0  # pause before the second upload, doubled for each next
+    # Whole starts tried on a vehicle still heard whose answers were all lost (a bad radio:
+    # 9 tries of one command each time), before it is failed.
+    start_attempts: int = 3
     status_period_s: float = 1.0
     shutdown_timeout_s: float = 5.0
     exit_when_done: bool = True
@@ -155,6 +158,7 @@ class _Link:
     join: int | None = None  # and where it went on in it, having driven past the kept part
     topup_from: int | None = None  # topping up: how many items it held before
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
+    starts: int = 0  # start attempts unanswered in a row
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
@@ -676,11 +680,15 @@ class Dispatcher:
                 self._upload(v, link, now)
         elif v.phase is Phase.STARTING and link.start is not None:
             if link.start.outcome is Outcome.DONE:
+                link.starts = 0
                 self._apply(ev.MissionStarted(vid, link.start_item), now)
                 self._log(
                     "info", f"{vid}: armed and in AUTO, mission started at item {link.start_item}"
                 )
             elif link.start.outcome is Outcome.FAILED:
+                if self._start_again(v, link, now):
+                    return
+                link.starts = 0
                 error = f"start failed: {v.explain(link.start.reason, link.since - 1.0)}"
                 self._apply(ev.StartFailed(vid, error), now)
                 self._log("error", f"{vid}: {error}")
@@ -832,6 +840,24 @@ class Dispatcher:
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )
         self._send(v.id, link.start.start(now))
+
+    def _start_again(self, v: VehicleState, link: _Link, now: float) -> bool:
+        """A start whose commands went unanswered, of a vehicle heard since it began: the
+        radio lost the commands or their answers, not the vehicle. Start again (from the
+        first command: the vehicle may have taken some), unless that was the last attempt."""
+        start = link.start
+        assert start is not None
+        link.starts += 1
+        heard = v.last_seen is not None and v.last_seen > link.since
+        if not (start.unanswered and heard and link.starts < self.config.start_attempts):
+            return False
+        self._log(
+            "warning",
+            f"{v.id}: start unanswered ({start.reason}), though it is heard; starting again "
+            f"(attempt {link.starts + 1} of {self.config.start_attempts})",
+        )
+        self._start(v, link, now)
+        return True
 
     def _restart(self, v: VehicleState, link: _Link, now: float) -> None:
         """The autopilot rebooted while driving: it holds its mission (stored on board) but

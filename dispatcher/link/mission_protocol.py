@@ -397,6 +397,7 @@ class CommandSequence(_Exchange):
         self._index = 0
         self._confirmation = 0
         self._deadline = 0.0
+        self.unanswered = False  # failed for want of an answer (not refused)
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
         if not self.commands:  # nothing to send: done
@@ -442,6 +443,7 @@ class CommandSequence(_Exchange):
             return []
         if self._confirmation >= self.max_retries:
             name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
+            self.unanswered = True
             return self._fail(f"no COMMAND_ACK for {name} after {self.max_retries} retries")
         self._confirmation += 1
         self.stats.retries += 1

@@ -12,6 +12,7 @@ from dispatcher.config.scenario import load_scenario
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
+from dispatcher.link.mission_protocol import Outcome
 from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -161,6 +162,79 @@ def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
     start.outcome, start.reason = Outcome.FAILED, "MAV_CMD_COMPONENT_ARM_DISARM refused"
     daemon._advance("v1", 70.0)
     assert v.phase is Phase.FAILED and text in v.error
+
+
+def test_a_start_unanswered_on_a_vehicle_still_heard_is_tried_again_then_failed(dispatch):
+    """A bad radio loses every copy of a start command or of its answer: the vehicle is
+    still heard, so the start is tried again (3 attempts in all), then failed."""
+    daemon, v, link = starting_v1(dispatch, 0.0)
+    now = 0.0
+    for attempt in (1, 2, 3):
+        start = link.start
+        start.on_message(ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, mc.MAV_RESULT_ACCEPTED), now)
+        now = unanswered(daemon, start, now)  # every ARM and every answer lost
+        assert start.outcome is Outcome.FAILED and start.unanswered
+        feed(daemon.state, "v1", held(11), now)  # but the vehicle is heard
+        daemon._advance("v1", now)
+        if attempt < 3:
+            assert link.start is not start and v.phase is Phase.STARTING, attempt
+    assert v.phase is Phase.FAILED and "no COMMAND_ACK for MAV_CMD_COMPONENT_ARM_DISARM" in v.error
+    firsts = [
+        m
+        for m in daemon.publishers["v1"].sent()
+        if m.get_type() == "COMMAND_LONG" and m.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    ]
+    assert len(firsts) == 3  # each attempt from the first command
+
+
+def test_a_start_unanswered_on_a_vehicle_not_heard_since_fails_at_once(dispatch):
+    daemon, v, link = starting_v1(dispatch, 1.0)
+    now = unanswered(daemon, link.start, 1.0)
+    daemon._advance("v1", now)
+    assert v.phase is Phase.FAILED and "no COMMAND_ACK" in v.error
+
+
+def test_a_started_mission_gives_the_next_start_its_attempts_again(dispatch):
+    daemon, v, link = starting_v1(dispatch, 0.0)
+    link.start._fail("no COMMAND_ACK")
+    link.start.unanswered = True
+    feed(daemon.state, "v1", held(11), 0.5)
+    daemon._advance("v1", 0.5)
+    assert link.starts == 1 and v.phase is Phase.STARTING
+    for cmd in (
+        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
+        mc.MAV_CMD_COMPONENT_ARM_DISARM,
+        mc.MAV_CMD_DO_SET_MODE,
+    ):
+        link.start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.6)
+    daemon._advance("v1", 0.7)
+    assert v.phase is Phase.RUNNING and link.starts == 0
+
+
+def starting_v1(dispatch, now):
+    """A daemon that has just asked v1, in HOLD and disarmed, to start its mission."""
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    daemon.state.apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", held(11), 0.0)
+    link = daemon.links["v1"]
+    daemon._start(v, link, now)
+    return daemon, v, link
+
+
+def unanswered(daemon, start, now):
+    """Every resend of ``start``'s current command goes unanswered: the time it fails."""
+    for _ in range(start.max_retries + 1):
+        now += start.timeout_s
+        daemon._send("v1", start.on_tick(now))
+    return now
+
+
+def held(sysid):
+    """A HEARTBEAT of a vehicle in HOLD, disarmed."""
+    msg = heartbeat(sysid)
+    msg.custom_mode = 4
+    return msg
 
 
 def ack(command, result):
