@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -36,6 +37,9 @@ each way, 0.51^9 ≈ 0.2 % of the commands)."""
 TRANSFER_RETRIES = 12
 """The same for one step of a mission upload or download: each item is a round trip of its
 own, and with 30 % of the frames lost each way about half of them fail (0.51^13 ≈ 1e-4)."""
+UPLOAD_PIPELINE = 8
+"""Mission items an upload sends ahead of the vehicle's requests on a clean link
+(:class:`MissionUpload`)."""
 TRANSFER_STALL_S = 10.0
 """A transfer also needs this long without progress before it fails (its retries may come
 faster than the vehicle's own one-second re-requests; ArduPilot gives up after 8 s)."""
@@ -148,18 +152,51 @@ class _Transfer(_Exchange):
 
 
 class MissionUpload(_Transfer):
-    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle."""
+    """Upload ``items`` (MISSION_ITEM_INT messages, seq 0..n-1) to one vehicle.
 
-    def __init__(self, items: Sequence[mc.MAVLinkMessage], target_system: int, **kw: float) -> None:
+    The items go out ``pipeline`` at a time ahead of the vehicle's requests, a sliding
+    window: ArduPilot takes the item it expects whether it asked for it or not and answers
+    MAV_MISSION_INVALID_SEQUENCE to any other (``MissionItemProtocol::handle_mission_item``),
+    so a window costs one round trip, not one per item, and a mission of hundreds of items
+    goes up in a fraction of the time over a busy link. A request for item k says the
+    vehicle holds every item before k. When the vehicle stops asking (an item or its
+    request lost), the timeout sends the window again from the item it asked for last
+    (go-back-N) and halves the window; each item taken in order grows it back (one more
+    per window's worth), so a radio that loses or reorders frames works near one item per
+    round trip, as the protocol was written, and a clean link at the full window. The
+    first INVALID_SEQUENCE after a request also resends the requested item, once, without
+    waiting for the timeout (TCP's fast retransmit). ``pipeline=1``: one item per request.
+    """
+
+    def __init__(
+        self,
+        items: Sequence[mc.MAVLinkMessage],
+        target_system: int,
+        pipeline: int = UPLOAD_PIPELINE,
+        **kw: float,
+    ) -> None:
         super().__init__(target_system, **kw)
         self.items = list(items)
         self.last_refusal = ""
-        self._highest = -1  # the highest item asked for
-        self._sent_seqs: set[int] = set()
+        self.pipeline = max(1, int(pipeline))
+        self.unconfirmed = False  # done on the vehicle's word that it is no longer receiving
+        self._restart()
+
+    def _restart(self) -> None:
+        """Back to the count: nothing asked for yet."""
+        self._window = float(self.pipeline)  # items sent ahead of the request
+        self._highest = -1  # the highest item asked for: the vehicle holds those before it
+        self._next = 0  # the first item not yet sent since the last go-back
+        self._item_at: dict[int, float] = {}  # when each item was last sent
+        self._order: dict[int, int] = {}  # and in which place (items of one tick share a time)
+        self._sends = 0
+        self._sent_twice: set[int] = set()  # (no round trip is measured on those)
+        self._fast_for = -1  # the request whose item was resent on an INVALID_SEQUENCE
+        self._refused_at = -1  # the place of the last send when an item was last refused
 
     @property
     def progress(self) -> float:
-        return len(self._sent_seqs) / max(len(self.items), 1)
+        return max(self._highest, 0) / max(len(self.items), 1)
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
         self._progress(now)
@@ -186,55 +223,126 @@ class MissionUpload(_Transfer):
         # On a lossy link frames come late, twice or from an earlier attempt: what fits no
         # step of this transfer is counted and ignored; only the timeouts end it.
         if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
-            seq = int(msg.seq)
-            if not 0 <= seq < len(self.items):
-                self.stats.stray += 1
-                return []
-            if seq in self._sent_seqs and seq != self._highest:
-                # A late duplicate of an earlier request, or the vehicle started the transfer
-                # again (a duplicated MISSION_COUNT): answered all the same; the vehicle says
-                # MAV_MISSION_INVALID_SEQUENCE to an item it did not ask for.
-                self.stats.stray += 1
-            self._highest = max(self._highest, seq)
-            self._answered(now)
-            self._sent_seqs.add(seq)
-            self._progress(now)
-            return self._send(self.items[seq], now)
+            return self._on_request(int(msg.seq), now)
         if kind == "MISSION_ACK":
             result = int(msg.type)
-            if result == mc.MAV_MISSION_ACCEPTED and len(self._sent_seqs) == len(self.items):
+            n = len(self.items)
+            if (
+                result == mc.MAV_MISSION_ACCEPTED
+                and self._highest == n - 1
+                and n - 1 in self._item_at
+            ):
                 self.outcome = Outcome.DONE
                 return []
-            if result not in (mc.MAV_MISSION_ACCEPTED, mc.MAV_MISSION_INVALID_SEQUENCE):
+            if (
+                result == mc.MAV_MISSION_ERROR
+                and self._highest == n - 1
+                and n - 1 in self._sent_twice
+            ):
+                # The last item sent again because no ACK came, and ArduPilot, done
+                # receiving, answers an item with MAV_MISSION_ERROR: its ACCEPTED was what
+                # was lost. Taken as done, unconfirmed (the daemon reads the mission back).
+                self.unconfirmed = True
+                self.outcome = Outcome.DONE
+                return []
+            self.stats.stray += 1
+            if result == mc.MAV_MISSION_INVALID_SEQUENCE:
+                self._refused_at = self._sends
+                return self._fast_retransmit(now)
+            if result != mc.MAV_MISSION_ACCEPTED:
                 # The vehicle gave up this transfer (or an earlier one): start it again
                 # from the count at the next timeout, and say why if it never goes through.
                 self.last_refusal = mc.constant_name("MAV_MISSION_", result)
                 self._last = self._count()
-                self._sent_seqs.clear()
-                self._highest = -1
-            self.stats.stray += 1
+                self._restart()
             return []
         return []
 
+    def _on_request(self, seq: int, now: float) -> list[mc.MAVLinkMessage]:
+        if not 0 <= seq < len(self.items):
+            self.stats.stray += 1
+            return []
+        if seq < self._highest:
+            # A late duplicate of an earlier request, or the vehicle started the transfer
+            # again (a duplicated MISSION_COUNT): answered all the same, alone; the vehicle
+            # says MAV_MISSION_INVALID_SEQUENCE to an item it did not ask for.
+            self.stats.stray += 1
+            return [self._item(seq, now)]
+        out = []
+        if seq > self._highest:  # the vehicle took every item before ``seq``
+            before = seq - 1
+            if before in self._item_at and before not in self._sent_twice:
+                self._answered_item(now - self._item_at[before])
+            self._highest = seq
+            self._progress(now)
+            self._window = min(float(self.pipeline), self._window + 1.0 / self._window)
+            self._deadline = now + self.timeout_s
+        if self._lost(seq, now):
+            out.append(self._item(seq, now))
+        last = min(len(self.items), seq + int(self._window))
+        for k in range(max(self._next, seq + 1), last):
+            out.append(self._item(k, now))
+        return out
+
+    def _lost(self, seq: int, now: float) -> bool:
+        """Whether item ``seq``, asked for, is to be sent (again): never sent; sent long
+        enough ago to be lost; sent before the item the vehicle took last (then it came
+        first and was refused, or was lost); or refused items were reported since it went
+        (it may be one: the link reorders)."""
+        order = self._order.get(seq)
+        if order is None or now - self._item_at[seq] >= self.timeout_s:
+            return True
+        return order < self._order.get(seq - 1, -1) or self._refused_at > order
+
+    def _fast_retransmit(self, now: float) -> list[mc.MAVLinkMessage]:
+        """The vehicle refused an item it did not expect: the one it asked for last may be
+        lost. Sent again, once a request, if it went out half a round trip ago or more;
+        the window halves, once a request (a loss or a reordering link: fewer ahead)."""
+        seq = self._highest
+        if seq < 0 or self._fast_for == seq:
+            return []
+        if now - self._item_at.get(seq, -math.inf) < 0.5 * (self._srtt or 0.0):
+            return []
+        self._fast_for = seq
+        self._window = max(1.0, self._window / 2.0)
+        self.stats.retries += 1
+        return [self._item(seq, now)]
+
+    def _item(self, seq: int, now: float) -> mc.MAVLinkMessage:
+        if seq in self._item_at:
+            self._sent_twice.add(seq)
+        self._item_at[seq] = now
+        self._sends += 1
+        self._order[seq] = self._sends
+        self._next = max(self._next, seq + 1)
+        return self.items[seq]
+
+    def _answered_item(self, sample: float) -> None:
+        """A round trip measured on an item sent once (Karn's rule)."""
+        self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
+        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
+
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
-        if not self._due(now) or self._last is None:
+        if self.outcome is not Outcome.RUNNING or now < self._deadline:
             return []
         if self._given_up(now):
             if self.last_refusal:
                 return self._fail(f"vehicle refused the mission: {self.last_refusal}")
-            return self._fail(
-                f"no answer to {self._last.get_type()} after {self.max_retries} retries"
-            )
-        log.debug("resending %s to system %d", self._last.get_type(), self.target_system)
-        out = self._send(self._last, now, again=True)
-        if self._last.get_type() != "MISSION_COUNT" and int(self._last.seq) + 1 < len(self.items):
-            # The vehicle may hold that item and its request for the next be what was lost:
-            # the next one too (the vehicle takes the item it expects whether it asked for
-            # it or not, and answers MAV_MISSION_INVALID_SEQUENCE to the other): a lost
-            # request costs one timeout of ours, not the vehicle's one-second re-request.
-            out.append(self.items[int(self._last.seq) + 1])
-            self._sent_seqs.add(int(self._last.seq) + 1)
-        return out
+            asked = "MISSION_COUNT" if self._highest < 0 else "MISSION_ITEM_INT"
+            return self._fail(f"no answer to {asked} after {self.max_retries} retries")
+        if self._highest < 0:
+            log.debug("resending MISSION_COUNT to system %d", self.target_system)
+            return self._send(self._count(), now, again=True)
+        self._retries_left -= 1
+        self.stats.retries += 1
+        self._deadline = now + self.timeout_s
+        self._window = max(1.0, self._window / 2.0)
+        # Go back to the item asked for last. The vehicle may hold it and its request for
+        # the next be what was lost: the next one goes too (a lost request then costs one
+        # timeout of ours, not the vehicle's one-second re-request).
+        self._next = self._highest
+        last = min(len(self.items), self._highest + max(2, int(self._window)))
+        return [self._item(k, now) for k in range(self._highest, last)]
 
 
 _MISSION_FRAMES = frozenset(
@@ -254,13 +362,25 @@ class MissionDownload(_Transfer):
     """Read a vehicle's mission back: MISSION_REQUEST_LIST, its MISSION_COUNT, then each
     item from ``first`` on with MISSION_REQUEST_INT(seq) until all are in; MISSION_ACK ends
     it. ``items`` holds the MISSION_ITEM_INT messages (``first`` on) once the outcome is
-    DONE. A ``first`` past the count reads none (the count says what is held)."""
+    DONE. A ``first`` past the count reads none (the count says what is held).
 
-    def __init__(self, target_system: int, first: int = 0, **kw: float) -> None:
+    Up to ``pipeline`` requests are out at once: ArduPilot answers each on its own
+    (``handle_mission_request_int``), so the items come in one round trip per window, in
+    any order; each that comes in asks for the next one not yet asked for. When none comes
+    for a timeout, the missing ones asked for are asked for again (selective repeat)."""
+
+    def __init__(
+        self, target_system: int, first: int = 0, pipeline: int = UPLOAD_PIPELINE, **kw: float
+    ) -> None:
         super().__init__(target_system, **kw)
         self.first = first
+        self.pipeline = max(1, int(pipeline))
         self.count: int | None = None
         self.items: list[mc.MAVLinkMessage] = []
+        self._got: dict[int, mc.MAVLinkMessage] = {}
+        self._asked_at: dict[int, float] = {}
+        self._asked_twice: set[int] = set()
+        self._next = first  # the first item not yet asked for
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
         self._progress(now)
@@ -287,31 +407,46 @@ class MissionDownload(_Transfer):
             self._answered(now)
             self.count = int(msg.count)
             self._progress(now)
-            return self._next(now)
+            self._deadline = now + self.timeout_s
+            return self._ask(now, self.pipeline)
         if kind == "MISSION_ITEM_INT" and self.count is not None:
-            if int(msg.seq) != self.first + len(self.items):
+            seq = int(msg.seq)
+            if seq not in self._asked_at or seq in self._got:
                 self.stats.stray += 1  # a late answer to a request sent again
                 return []
-            self._answered(now)
-            self.items.append(msg)
+            if seq not in self._asked_twice:
+                self._resent, self._sent_at = False, self._asked_at[seq]
+                self._answered(now)
+            self._got[seq] = msg
             self._progress(now)
-            return self._next(now)
+            self._deadline = now + self.timeout_s
+            return self._ask(now, 1)
         self.stats.stray += 1  # a second count, an ACK (an error: asked again at the timeout)
         return []
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
-        if not self._due(now) or self._last is None:
+        if self.outcome is not Outcome.RUNNING or now < self._deadline:
             return []
         if self._given_up(now):
-            return self._fail(
-                f"no answer to {self._last.get_type()} after {self.max_retries} retries"
-            )
-        return self._send(self._last, now, again=True)
+            asked = "MISSION_REQUEST_LIST" if self.count is None else "MISSION_REQUEST_INT"
+            return self._fail(f"no answer to {asked} after {self.max_retries} retries")
+        if self.count is None:
+            return self._send(self._last, now, again=True) if self._last is not None else []
+        self._retries_left -= 1
+        self.stats.retries += 1
+        self._deadline = now + self.timeout_s
+        missing = [k for k in sorted(self._asked_at) if k not in self._got][: self.pipeline]
+        for k in missing:
+            self._asked_twice.add(k)
+        return [self._request(k, now) for k in missing]
 
-    def _next(self, now: float) -> list[mc.MAVLinkMessage]:
+    def _ask(self, now: float, more: int) -> list[mc.MAVLinkMessage]:
+        """Up to ``more`` requests for items not yet asked for; the final ACK when all are
+        in."""
         assert self.count is not None
-        if self.first + len(self.items) >= self.count:
+        if all(k in self._got for k in range(self.first, self.count)):
             self.outcome = Outcome.DONE
+            self.items = [self._got[k] for k in range(self.first, self.count)]
             ack = mc.message(
                 "MISSION_ACK",
                 target_system=self.target_system,
@@ -320,14 +455,22 @@ class MissionDownload(_Transfer):
                 mission_type=mc.MAV_MISSION_TYPE_MISSION,
             )
             return [ack]
-        request = mc.message(
+        out = []
+        while more > 0 and self._next < self.count:
+            out.append(self._request(self._next, now))
+            self._next += 1
+            more -= 1
+        return out
+
+    def _request(self, seq: int, now: float) -> mc.MAVLinkMessage:
+        self._asked_at[seq] = now
+        return mc.message(
             "MISSION_REQUEST_INT",
             target_system=self.target_system,
             target_component=self.target_component,
-            seq=self.first + len(self.items),
+            seq=seq,
             mission_type=mc.MAV_MISSION_TYPE_MISSION,
         )
-        return self._send(request, now)
 
 
 def mission_differences(

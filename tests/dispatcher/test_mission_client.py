@@ -58,7 +58,8 @@ def wire(msg):
 
 
 def test_full_upload():
-    up = MissionUpload(items(3), VEHICLE)
+    """One item per request, as the protocol was written (``pipeline=1``)."""
+    up = MissionUpload(items(3), VEHICLE, pipeline=1)
     (count,) = up.start(0.0)
     assert count.get_type() == "MISSION_COUNT" and count.count == 3
     assert count.target_system == VEHICLE
@@ -70,23 +71,25 @@ def test_full_upload():
 
 
 def test_vehicle_asks_again_for_an_item_and_flags_an_out_of_sequence_one():
-    up = MissionUpload(items(3), VEHICLE)
+    up = MissionUpload(items(3), VEHICLE, pipeline=1)
     up.start(0.0)
     up.on_message(request(0), 0.0)
     up.on_message(request(1), 0.1)
-    # ArduPilot re-requests an item it did not get ...
-    (again,) = up.on_message(request(1), 0.2)
+    # A duplicate of the request, soon after: the item is on its way, not sent twice ...
+    assert up.on_message(request(1), 0.15) == []
+    # ... but ArduPilot re-requests an item it did not get, a second later: sent again ...
+    (again,) = up.on_message(request(1), 1.1)
     assert again.seq == 1
     # ... and answers an item it did not ask for with INVALID_SEQUENCE, going on.
-    assert up.on_message(ack(mc.MAV_MISSION_INVALID_SEQUENCE), 0.3) == []
+    up.on_message(ack(mc.MAV_MISSION_INVALID_SEQUENCE), 1.2)
     assert up.outcome is Outcome.RUNNING
-    up.on_message(request(2), 0.4)
-    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.5)
+    up.on_message(request(2), 1.3)
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 1.4)
     assert up.outcome is Outcome.DONE
 
 
 def test_timeout_then_retry_then_success():
-    up = MissionUpload(items(2), VEHICLE)
+    up = MissionUpload(items(2), VEHICLE, pipeline=1)
     up.start(0.0)
     assert up.on_tick(1.0) == []  # not yet 1.5 s
     (resent,) = up.on_tick(1.6)  # no request came: resend the count
@@ -127,7 +130,7 @@ def test_a_refusal_is_asked_again_from_the_count_and_named_when_it_never_goes_th
 
 
 def test_stray_frames_are_counted_and_ignored():
-    up = MissionUpload(items(3), VEHICLE)
+    up = MissionUpload(items(3), VEHICLE, pipeline=1)
     up.start(0.0)
     assert up.on_message(request(7), 0.05) == []  # no such item
     up.on_message(request(0), 0.1)
@@ -141,7 +144,7 @@ def test_stray_frames_are_counted_and_ignored():
 
 
 def test_the_timeout_follows_the_round_trip():
-    up = MissionUpload(items(40), VEHICLE)
+    up = MissionUpload(items(40), VEHICLE, pipeline=1)
     up.start(0.0)
     for k in range(40):
         up.on_message(request(k), 0.02 * (k + 1))  # 20 ms round trips
@@ -186,3 +189,94 @@ def test_a_refused_arm_is_asked_again_within_the_window():
     seq.on_message(refused, 30.0)
     seq.on_message(refused, 61.0)  # refused for longer than the window: give up
     assert seq.outcome is Outcome.FAILED and "MAV_RESULT_FAILED" in seq.reason
+
+
+def seqs(msgs):
+    return [m.seq for m in msgs]
+
+
+def asked_in_turn(up, *times):
+    """The vehicle asks for items 0, 1, ... at ``times``."""
+    for k, t in enumerate(times):
+        up.on_message(request(k), t)
+
+
+def test_a_pipelined_upload_sends_a_window_ahead_and_each_item_once():
+    up = MissionUpload(items(20), VEHICLE, pipeline=8)
+    up.start(0.0)
+    sent = seqs(up.on_message(request(0), 0.01))
+    assert sent == list(range(8))  # the window goes out at the first request
+    for k in range(1, 20):  # ArduPilot asks for each next one as it takes an item
+        new = seqs(up.on_message(request(k), 0.01 + 0.001 * k))
+        assert new == ([k + 7] if k + 7 < 20 else []), k
+        sent += new
+    assert sorted(sent) == list(range(20))  # each item once
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.05)
+    assert up.outcome is Outcome.DONE and up.stats.retries == 0 and not up.unconfirmed
+
+
+def test_a_lost_item_goes_again_at_the_first_refusal_then_the_refused_ones_as_asked():
+    up = MissionUpload(items(20), VEHICLE, pipeline=8)
+    up.start(0.0)
+    asked_in_turn(up, 0.1, 0.2, 0.3)  # items 0..9 sent, round trips of 0.1 s
+    # Item 2 was lost: the vehicle asked for it (it was sent after item 1: on its way, not
+    # sent again) and refuses items 3.. as they come.
+    assert seqs(up.on_message(request(2), 0.31)) == []
+    assert seqs(up.on_message(ack(mc.MAV_MISSION_INVALID_SEQUENCE), 0.35)) == [2]
+    assert seqs(up.on_message(ack(mc.MAV_MISSION_INVALID_SEQUENCE), 0.36)) == []  # once
+    # Item 3 went before the resent item 2 and was refused: asked for, it goes again.
+    assert 3 in seqs(up.on_message(request(3), 0.45))
+    assert up.stats.retries == 1 and up.outcome is Outcome.RUNNING
+
+
+def test_silence_sends_the_window_again_from_the_item_asked_for_last():
+    up = MissionUpload(items(20), VEHICLE, pipeline=8)
+    up.start(0.0)
+    up.on_message(request(0), 0.1)
+    up.on_message(request(1), 0.2)  # then nothing: item 1 or 2, or the requests, lost
+    assert up.on_tick(0.2 + up.timeout_s - 0.01) == []
+    again = seqs(up.on_tick(0.2 + up.timeout_s))
+    assert again == [1, 2, 3, 4]  # from the one asked for, half the window
+    assert up.stats.retries == 1
+
+
+def test_an_accepted_ack_before_the_last_item_is_asked_for_is_stale():
+    up = MissionUpload(items(10), VEHICLE, pipeline=8)
+    up.start(0.0)
+    asked_in_turn(up, 0.1, 0.2, 0.3)  # every item sent, the vehicle holds 0..1
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 0.35)  # of an earlier upload
+    assert up.outcome is Outcome.RUNNING and up.stats.stray == 1
+
+
+def test_a_lost_final_ack_then_mission_error_to_the_last_item_sent_again_is_done_unconfirmed():
+    up = MissionUpload(items(3), VEHICLE, pipeline=8)
+    up.start(0.0)
+    asked_in_turn(up, 0.1, 0.11, 0.12)  # the ACCEPTED after item 2 is lost
+    assert seqs(up.on_tick(0.12 + up.timeout_s)) == [2]
+    # ArduPilot, no longer receiving, answers an item with MAV_MISSION_ERROR.
+    up.on_message(ack(mc.MAV_MISSION_ERROR), 0.2 + up.timeout_s)
+    assert up.outcome is Outcome.DONE and up.unconfirmed
+
+
+def test_a_pipelined_read_back_asks_for_a_window_takes_items_in_any_order_and_asks_again():
+    from dispatcher.link.mission_protocol import MissionDownload
+
+    down = MissionDownload(VEHICLE, first=2, pipeline=4)
+    (ask,) = down.start(0.0)
+    assert ask.get_type() == "MISSION_REQUEST_LIST"
+    count = mc.message(
+        "MISSION_COUNT", target_system=255, target_component=190, count=9, mission_type=0
+    )
+    assert seqs(down.on_message(wire(count), 0.1)) == [2, 3, 4, 5]
+    held = items(9)
+    assert seqs(down.on_message(wire(held[4]), 0.2)) == [6]  # out of order: taken
+    assert down.on_message(wire(held[4]), 0.21) == []  # twice: stray
+    for k in (2, 5, 6):
+        down.on_message(wire(held[k]), 0.3)
+    # Item 3 was lost (7 and 8 asked for meanwhile): asked again at the timeout.
+    assert 3 in seqs(down.on_tick(0.3 + down.timeout_s))
+    for k in (7, 8):
+        down.on_message(wire(held[k]), 0.9)
+    (end,) = down.on_message(wire(held[3]), 1.0)
+    assert end.get_type() == "MISSION_ACK" and down.outcome is Outcome.DONE
+    assert seqs(down.items) == list(range(2, 9)) and down.stats.stray == 1
