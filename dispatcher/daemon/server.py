@@ -780,11 +780,13 @@ class Dispatcher:
         old_end, link.topup_from = link.topup_from, None
         self._upload_took[v.id] = (now - link.since, 2 * v.held - old_end)
         self.topups.append((v.id, v.held))
-        if v.reached >= old_end - 1 and v.current < old_end:
+        complete = v.mission_state == mc.MISSION_STATE_COMPLETE
+        if (v.reached >= old_end - 1 and v.current < old_end) or complete:
             # It reached the end of what it held before the new items were there: it
-            # stands there, its mission complete; on from the next item.
+            # stands there, its mission complete; on from the next item (the first new one
+            # when its autopilot says so and what said it reached the last is lost).
             self.window_waits += 1
-            link.start_item = v.resume_item
+            link.start_item = max(v.resume_item, old_end) if complete else v.resume_item
             self._log(
                 "info", f"{v.id}: waited at the end of its window; on at item {link.start_item}"
             )
@@ -1093,8 +1095,10 @@ class Dispatcher:
             return
         self._apply(ev.UploadAcked(v.id), now)
         self._upload_took[v.id] = (now - link.since, 2 * v.held - read.first)
-        if link.hold is not None or not v.driving:
-            # Told to HOLD while it was lost (the order may still be on its way), or stopped:
+        starting = link.start is not None and link.start.outcome is Outcome.RUNNING
+        if link.hold is not None or not v.driving or (v.mission_stopped and not starting):
+            # Told to HOLD while it was lost (the order may still be on its way), or stopped
+            # (disarmed, out of AUTO, or its mission complete at the end of what it held):
             # armed and in AUTO again, on its new route.
             link.hold = None
             link.start_item = link.join if link.join is not None else v.resume_item
@@ -1121,7 +1125,12 @@ class Dispatcher:
             f"{v.id}: went past the part of its old mission the new one keeps; "
             f"on at item {link.join} of its new route (item {first} begins it)",
         )
-        if link.hold is None and v.driving:
+        if link.hold is None and v.driving and v.mission_stopped:
+            # It had stopped (at the end of the window it held): the item set current, it
+            # would stand there still. Started again at the item, at once.
+            link.start_item = link.join
+            self._start(v, link, now, in_auto=True)
+        elif link.hold is None and v.driving:
             link.start = CommandSequence([set_current_command(link.join)], v.system_id)
             self._send(v.id, link.start.start(now))
 

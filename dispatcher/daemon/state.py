@@ -195,6 +195,18 @@ class VehicleState:
         return self.mode == ROVER_MODE_AUTO and self.armed
 
     @property
+    def mission_stopped(self) -> bool:
+        """Its autopilot says its mission is not running (MISSION_CURRENT.mission_state):
+        complete, or not started (an item set current on a mission that had completed), or
+        paused. In AUTO and armed it then stands still until it is started again: setting
+        the current item alone does not move it (``AP_Mission::set_current_cmd``)."""
+        return self.mission_state in (
+            mc.MISSION_STATE_COMPLETE,
+            mc.MISSION_STATE_NOT_STARTED,
+            mc.MISSION_STATE_PAUSED,
+        )
+
+    @property
     def held(self) -> int:
         """How many first items of its mission the vehicle holds (all until an upload says)."""
         return self.onboard or len(self.items)

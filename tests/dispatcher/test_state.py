@@ -564,27 +564,48 @@ def test_a_tractor_past_its_kept_part_is_sent_on_as_soon_as_its_new_mission_is_o
     # at 5; the upload done, it has driven on to item 9 of the old mission meanwhile. It
     # now drives item 9 of the new mission (an autopilot keeps its index): it is sent to
     # where its new route goes on before the read-back, not after.
-    from dispatcher.link.mission_protocol import MissionUpload, Outcome
-
-    daemon = daemon_for(dispatch)
-    vid = "v1"
-    v = daemon.state.vehicles[vid]
-    for event in running_events(vid, 8):
-        daemon.state.apply(event, 0.0)
-    v.mode, v.armed = 10, True  # AUTO, armed: driving
-    v.current, v.switch, v.old_items, v.route_from = 9, True, v.items, 5
-    link = daemon.links[vid]
-    link.switch_from = 5
-    link.upload = MissionUpload(daemon.job.missions[vid].to_mavlink(v.system_id), v.system_id)
-    link.upload.outcome = Outcome.DONE
-    daemon._advance(vid, 1.0)
-    sent = daemon.publishers[vid].sent()
+    daemon, sent = switched_past_its_kept_part(dispatch, mc.MISSION_STATE_ACTIVE)
+    link, v = daemon.links["v1"], daemon.state.vehicles["v1"]
     kinds = [m.get_type() for m in sent]
     assert kinds[:2] == ["COMMAND_LONG", "MISSION_REQUEST_LIST"], kinds
     assert sent[0].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
     assert sent[0].param1 == link.join and link.join >= 5
     assert v.reached == link.join - 1
     assert v.old_items is None  # the new mission is on board
+
+
+def switched_past_its_kept_part(dispatch, mission_state):
+    """v1 re-planned while driving (its new route begins at item 5), on at item 9 of its
+    old mission, its MISSION_CURRENT state ``mission_state``; its new mission uploaded:
+    the daemon and the frames it sent."""
+    from dispatcher.link.mission_protocol import MissionUpload, Outcome
+
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    for event in running_events("v1", 8):
+        daemon.state.apply(event, 0.0)
+    v.mode, v.armed, v.mission_state = 10, True, mission_state  # AUTO, armed
+    v.current, v.switch, v.old_items, v.route_from = 9, True, v.items, 5
+    link = daemon.links["v1"]
+    link.switch_from = 5
+    link.upload = MissionUpload(daemon.job.missions["v1"].to_mavlink(v.system_id), v.system_id)
+    link.upload.outcome = Outcome.DONE
+    daemon._advance("v1", 1.0)
+    return daemon, daemon.publishers["v1"].sent()
+
+
+def test_a_tractor_stopped_at_the_end_of_its_window_is_started_again_at_its_join(dispatch):
+    # It had reached the end of the window it held and stood there, mission complete (a
+    # soak: the item set current alone left it standing, taken for stalled 12 s later).
+    daemon, sent = switched_past_its_kept_part(dispatch, mc.MISSION_STATE_COMPLETE)
+    link = daemon.links["v1"]
+    commands = [(m.command, m.param1, m.param2) for m in sent if m.get_type() == "COMMAND_LONG"]
+    assert [c[0] for c in commands] == [mc.MAV_CMD_DO_SET_MODE]  # HOLD first, then the rest
+    assert commands[0][2] == 4  # Rover HOLD
+    assert link.start.commands[1].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    assert link.start.commands[1].params[0] == link.join and link.join >= 5
+    assert link.start.commands[-1].params[1] == 10  # then AUTO
+    assert daemon.state.vehicles["v1"].phase is Phase.STARTING
 
 
 def test_a_tractor_standing_still_while_its_new_mission_comes_is_not_stalled(dispatch):

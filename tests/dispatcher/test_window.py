@@ -92,7 +92,12 @@ def test_the_first_upload_sends_a_window(dispatch):
     assert count.count == v.held == window(v.items, 1, 20) < len(v.items)
 
 
-def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_stopped(dispatch):
+@pytest.mark.parametrize("reached_lost", [0, 2])
+def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_stopped(
+    dispatch, reached_lost
+):
+    """``reached_lost``: the last items' MISSION_ITEM_REACHED lost on the way; its autopilot
+    says its mission is complete all the same, and it goes on at the first new item."""
     daemon = windowed(dispatch)
     vid = "v1"
     v = drive(daemon, vid, 5, 0.0)
@@ -101,6 +106,7 @@ def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_sto
     assert daemon.links[vid].upload is None
     v.reached = v.current = held - 1  # at the end of its window: its mission complete
     feed(daemon.state, vid, mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE), 2.0)
+    v.reached -= reached_lost
     assert daemon.state.stalled_for(v, 0.0, 100.0) is None  # waiting, not stalled
     daemon._advance(vid, 2.0)
     link = daemon.links[vid]
@@ -119,7 +125,7 @@ def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_sto
     commands = [(m.command, m.param1, m.param2) for m in daemon.publishers[vid].sent()[-1:]]
     assert commands == [(mc.MAV_CMD_DO_SET_MODE, 1.0, 4.0)]
     assert v.phase is Phase.STARTING and link.start is not None
-    assert daemon.state.vehicles[vid].resume_item == held
+    assert link.start_item == held
 
 
 def test_a_replan_that_leaves_the_window_alone_uploads_nothing_now(dispatch):
