@@ -185,7 +185,8 @@ class MissionUpload(_Transfer):
     def _restart(self) -> None:
         """Back to the count: nothing asked for yet."""
         self._window = float(self.pipeline)  # items sent ahead of the request
-        self._highest = -1  # the highest item asked for: the vehicle holds those before it
+        self._highest = -1  # the item asked for last: the vehicle holds those before it
+        self._asked_last = False  # the vehicle has asked for the last item
         self._next = 0  # the first item not yet sent since the last go-back
         self._item_at: dict[int, float] = {}  # when each item was last sent
         self._order: dict[int, int] = {}  # and in which place (items of one tick share a time)
@@ -227,18 +228,10 @@ class MissionUpload(_Transfer):
         if kind == "MISSION_ACK":
             result = int(msg.type)
             n = len(self.items)
-            if (
-                result == mc.MAV_MISSION_ACCEPTED
-                and self._highest == n - 1
-                and n - 1 in self._item_at
-            ):
+            if result == mc.MAV_MISSION_ACCEPTED and self._asked_last and n - 1 in self._item_at:
                 self.outcome = Outcome.DONE
                 return []
-            if (
-                result == mc.MAV_MISSION_ERROR
-                and self._highest == n - 1
-                and n - 1 in self._sent_twice
-            ):
+            if result == mc.MAV_MISSION_ERROR and self._asked_last and n - 1 in self._sent_twice:
                 # The last item sent again because no ACK came, and ArduPilot, done
                 # receiving, answers an item with MAV_MISSION_ERROR: its ACCEPTED was what
                 # was lost. Taken as done, unconfirmed (the daemon reads the mission back).
@@ -262,18 +255,23 @@ class MissionUpload(_Transfer):
         if not 0 <= seq < len(self.items):
             self.stats.stray += 1
             return []
+        out = []
         if seq < self._highest:
             # A late duplicate of an earlier request, or the vehicle started the transfer
-            # again (a duplicated MISSION_COUNT): answered all the same, alone; the vehicle
-            # says MAV_MISSION_INVALID_SEQUENCE to an item it did not ask for.
+            # again (a duplicated MISSION_COUNT): either way what it asks for now. Answered,
+            # alone until it is back where it was (a late duplicate costs an item or two
+            # that the vehicle refuses; a restart followed from the last item asked for
+            # would never go on).
             self.stats.stray += 1
-            return [self._item(seq, now)]
-        out = []
-        if seq > self._highest:  # the vehicle took every item before ``seq``
+            self._highest = seq
+            self._progress(now)
+            self._deadline = now + self.timeout_s
+        elif seq > self._highest:  # the vehicle took every item before ``seq``
             before = seq - 1
             if before in self._item_at and before not in self._sent_twice:
                 self._answered_item(now - self._item_at[before])
             self._highest = seq
+            self._asked_last = self._asked_last or seq == len(self.items) - 1
             self._progress(now)
             self._window = min(float(self.pipeline), self._window + 1.0 / self._window)
             self._deadline = now + self.timeout_s
