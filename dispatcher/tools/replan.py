@@ -219,6 +219,18 @@ def handover(
         v = state.vehicles[planned.id]
         new_mission = nxt.missions[planned.id]
         cut = _cut(v, lead_s) if planned.id in current.missions else None
+        if (
+            cut is None
+            and v.phase is Phase.DONE
+            and not planned.fields
+            and planned.id in current.missions
+        ):
+            # Finished, parked, and nothing more for it: its mission stays (a "route" from
+            # the garage to the garage, uploaded and started, completed at once: no report
+            # of it active, no progress, and it was taken for stalled; 20 %-loss soak).
+            machines.append(dataclasses.replace(planned, items=v.items, fields=_fields(v.items)))
+            missions[planned.id] = current.missions[planned.id]
+            continue
         if cut is None:
             machines.append(planned)
             missions[planned.id] = new_mission

@@ -175,3 +175,33 @@ def test_a_loss_during_a_re_plan_gives_it_up_and_the_next_one_answers_both():
     reason, to_plan, _ = daemon.replans[0]
     assert "v1 lost" in reason and "v2 lost" in reason
     assert 5.0 <= to_plan < 15.0  # from the first loss
+
+
+def test_a_finished_vehicle_given_no_more_work_keeps_its_mission(current):
+    # Garage to garage, uploaded and started, it completed at once, never said its mission
+    # was active, made no progress and was taken for stalled (20 %-loss soak).
+    import dataclasses
+
+    from dispatcher.tools.replan import handover
+
+    state = FleetState(current.document)
+    v1 = state.vehicles["v1"]
+    started(state, "v1")
+    state.apply(ev.ItemReached("v1", len(v1.items) - 1, 100.0), 1.0)
+    assert v1.phase is Phase.DONE
+    idle = dataclasses.replace(current.document.machine("v1"), fields=())
+    machines = tuple(idle if m.id == "v1" else m for m in current.document.machines)
+    short = dataclasses.replace(
+        current.missions["v1"],
+        items=current.missions["v1"].items[:3],
+        traces=current.missions["v1"].traces[:3],
+    )
+    nxt = dataclasses.replace(
+        current,
+        document=dataclasses.replace(current.document, machines=machines),
+        missions={**current.missions, "v1": short},
+    )
+    job = handover(current.job(), state, nxt)
+    assert job.missions["v1"] is current.missions["v1"]  # nothing to upload
+    assert job.document.machine("v1").items == v1.items
+    assert job.missions["v2"] is nxt.missions["v2"]  # not started: the new one, whole
