@@ -786,7 +786,7 @@ class Dispatcher:
             # stands there, its mission complete; on from the next item (the first new one
             # when its autopilot says so and what said it reached the last is lost).
             self.window_waits += 1
-            link.start_item = max(v.resume_item, old_end) if complete else v.resume_item
+            link.start_item = max(v.go_on_item, old_end) if complete else v.resume_item
             self._log(
                 "info", f"{v.id}: waited at the end of its window; on at item {link.start_item}"
             )
@@ -1101,7 +1101,7 @@ class Dispatcher:
             # (disarmed, out of AUTO, or its mission complete at the end of what it held):
             # armed and in AUTO again, on its new route.
             link.hold = None
-            link.start_item = link.join if link.join is not None else v.resume_item
+            link.start_item = link.join if link.join is not None else v.go_on_item
             self._log(
                 "info", f"{v.id}: not driving; on with its new route at item {link.start_item}"
             )

@@ -207,6 +207,16 @@ class VehicleState:
         )
 
     @property
+    def go_on_item(self) -> int:
+        """Where a stopped mission goes on: after the last item reached, or after the item
+        its autopilot says it completed its mission at when that is further (the reports of
+        the last items reached may be lost; MISSION_CURRENT is sent every second)."""
+        item = self.resume_item
+        if self.mission_state == mc.MISSION_STATE_COMPLETE:
+            item = max(item, min(self.current + 1, len(self.items) - 1))
+        return item
+
+    @property
     def held(self) -> int:
         """How many first items of its mission the vehicle holds (all until an upload says)."""
         return self.onboard or len(self.items)

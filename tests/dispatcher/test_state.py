@@ -640,3 +640,17 @@ def test_a_left_out_tractor_asks_to_rejoin_when_it_is_back_not_when_it_failed(di
     v.phase = Phase.RUNNING  # heard again after it was lost
     daemon._advance("v1", 2.0)
     assert daemon._replan_reason == "v1 back"
+
+
+def test_a_stopped_mission_goes_on_after_what_its_autopilot_says_it_completed(dispatch):
+    # The last items' MISSION_ITEM_REACHED lost: going on after the last one counted would
+    # work those items again; MISSION_CURRENT (complete at item 9) says where it stands.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    for event in running_events("v1", 5):
+        state.apply(event, 0.0)
+    assert v.go_on_item == v.resume_item == 6
+    v.current, v.mission_state = 9, mc.MISSION_STATE_COMPLETE
+    assert v.go_on_item == 10
+    v.mission_state = mc.MISSION_STATE_ACTIVE  # driving to item 9: nothing said of it yet
+    assert v.go_on_item == 6
