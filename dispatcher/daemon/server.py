@@ -159,6 +159,7 @@ class _Link:
     topup_from: int | None = None  # topping up: how many items it held before
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     starts: int = 0  # start attempts unanswered in a row
+    heard_at: float | None = None  # when this process first heard the vehicle
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
@@ -637,6 +638,12 @@ class Dispatcher:
         if v.phase is Phase.ALIVE and link.upload is None and self._fleet_ready():
             if not v.ready:
                 return  # still booting: it would refuse the mission (MAV_MISSION_NO_SPACE)
+            if link.heard_at is not None and now - link.heard_at < GCS_HEARTBEAT_PERIOD_S:
+                # Not before it has had a HEARTBEAT of ours: an ArduPilot whose ground
+                # station was away (FS_GCS_ENABLE) clears its GCS failsafe only then, and
+                # one put in AUTO before that falls back to HOLD at once (SITL, a second
+                # job without a reboot: its mission went up and started in 0.3 s).
+                return
             if self.upload_started is None:
                 self.upload_started = now
             self._upload(v, link, now)
@@ -1188,6 +1195,9 @@ class Dispatcher:
             else None
         )
         self.state.apply(event, now)
+        if isinstance(event, ev.VehicleSeen) and event.vehicle in self.links:
+            link = self.links[event.vehicle]
+            link.heard_at = now if link.heard_at is None else link.heard_at
         if self.store is not None:
             self.store.append(event, time.time())
         if isinstance(event, ev.UploadAcked) and self._awaiting_acks is not None:
