@@ -37,9 +37,9 @@ each way, 0.51^9 ≈ 0.2 % of the commands)."""
 TRANSFER_RETRIES = 12
 """The same for one step of a mission upload or download: each item is a round trip of its
 own, and with 30 % of the frames lost each way about half of them fail (0.51^13 ≈ 1e-4)."""
-UPLOAD_PIPELINE = 8
-"""Mission items an upload sends ahead of the vehicle's requests on a clean link
-(:class:`MissionUpload`)."""
+TRANSFER_PIPELINE = 8
+"""Mission items in flight on a clean link: sent ahead of the vehicle's requests by an upload
+(:class:`MissionUpload`), asked for at once by a read-back (:class:`MissionDownload`)."""
 TRANSFER_STALL_S = 10.0
 """A transfer also needs this long without progress before it fails (its retries may come
 faster than the vehicle's own one-second re-requests; ArduPilot gives up after 8 s)."""
@@ -108,7 +108,11 @@ class _Exchange:
         again: the answer may be to either copy, Karn's rule) and adapt the timeout."""
         if self._resent:
             return
-        sample = max(now - self._sent_at, 0.0)
+        self._sample(now - self._sent_at)
+
+    def _sample(self, round_trip: float) -> None:
+        """A round trip measured on a message sent once (Karn's rule): the timeout adapts."""
+        sample = max(round_trip, 0.0)
         self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
         self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
 
@@ -172,7 +176,7 @@ class MissionUpload(_Transfer):
         self,
         items: Sequence[mc.MAVLinkMessage],
         target_system: int,
-        pipeline: int = UPLOAD_PIPELINE,
+        pipeline: int = TRANSFER_PIPELINE,
         **kw: float,
     ) -> None:
         super().__init__(target_system, **kw)
@@ -269,7 +273,7 @@ class MissionUpload(_Transfer):
         elif seq > self._highest:  # the vehicle took every item before ``seq``
             before = seq - 1
             if before in self._item_at and before not in self._sent_twice:
-                self._answered_item(now - self._item_at[before])
+                self._sample(now - self._item_at[before])
             self._highest = seq
             self._asked_last = self._asked_last or seq == len(self.items) - 1
             self._progress(now)
@@ -314,11 +318,6 @@ class MissionUpload(_Transfer):
         self._order[seq] = self._sends
         self._next = max(self._next, seq + 1)
         return self.items[seq]
-
-    def _answered_item(self, sample: float) -> None:
-        """A round trip measured on an item sent once (Karn's rule)."""
-        self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
-        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
 
     def on_tick(self, now: float) -> list[mc.MAVLinkMessage]:
         if self.outcome is not Outcome.RUNNING or now < self._deadline:
@@ -368,7 +367,7 @@ class MissionDownload(_Transfer):
     for a timeout, the missing ones asked for are asked for again (selective repeat)."""
 
     def __init__(
-        self, target_system: int, first: int = 0, pipeline: int = UPLOAD_PIPELINE, **kw: float
+        self, target_system: int, first: int = 0, pipeline: int = TRANSFER_PIPELINE, **kw: float
     ) -> None:
         super().__init__(target_system, **kw)
         self.first = first
@@ -413,8 +412,7 @@ class MissionDownload(_Transfer):
                 self.stats.stray += 1  # a late answer to a request sent again
                 return []
             if seq not in self._asked_twice:
-                self._resent, self._sent_at = False, self._asked_at[seq]
-                self._answered(now)
+                self._sample(now - self._asked_at[seq])
             self._got[seq] = msg
             self._progress(now)
             self._deadline = now + self.timeout_s
@@ -442,7 +440,7 @@ class MissionDownload(_Transfer):
         """Up to ``more`` requests for items not yet asked for; the final ACK when all are
         in."""
         assert self.count is not None
-        if all(k in self._got for k in range(self.first, self.count)):
+        if len(self._got) >= self.count - self.first:  # only items asked for are taken
             self.outcome = Outcome.DONE
             self.items = [self._got[k] for k in range(self.first, self.count)]
             ack = mc.message(
