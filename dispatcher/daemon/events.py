@@ -174,6 +174,16 @@ class RouteJoined(Event):
 
 
 @dataclass(frozen=True)
+class HeldForRoute(Event):
+    """A re-planned vehicle reached the end of the part of its old mission its new one
+    keeps before the new one was on board: it is told to HOLD there (beyond it, its old
+    mission goes on to work the new plan may have given to another) and started on its new
+    route once that is on board. Out of AUTO meanwhile by our doing, not a failsafe."""
+
+    kind: ClassVar[str] = "held_for_route"
+
+
+@dataclass(frozen=True)
 class ProgressDoubted(Event):
     """An alarm: the vehicle said it reached item ``seq`` (MISSION_ITEM_REACHED, or
     MISSION_CURRENT past it) but its reported positions never came within reach of
@@ -252,6 +262,7 @@ EVENTS: dict[str, type[Event]] = {
         UploadAcked,
         SwitchUploaded,
         RouteJoined,
+        HeldForRoute,
         Resumed,
         StartRequested,
         MissionStarted,

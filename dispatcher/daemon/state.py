@@ -157,6 +157,7 @@ class VehicleState:
     clock: RunClock = field(default_factory=RunClock)  # the vehicle's clock, continuous
     reboots: int = 0
     needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
+    held_for_route: bool = False  # told to HOLD until its new route is on board (events)
     mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
     mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
     acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
@@ -351,6 +352,9 @@ class FleetState:
                 v.started_at, v.active_seen = now, False
             case ev.RouteJoined(item=item):
                 v.reached = min(max(item - 1, 0), len(v.items) - 1)
+            case ev.HeldForRoute():
+                v.held_for_route = True
+                v.off_auto_since = None
             case ev.UploadFailed(reason=reason, final=final):
                 v.acked = False
                 if final:
@@ -361,6 +365,7 @@ class FleetState:
                 v.resuming = False
             case ev.MissionStarted():
                 v.phase = Phase.RUNNING
+                v.held_for_route = False
                 v.resuming = False
                 v.error = ""
                 v.started_at, v.active_seen = now, False
@@ -549,6 +554,11 @@ class FleetState:
         old = v.old_items
         if v.switch and old is not None and seq >= v.route_from:
             # Past the kept part, on the mission still on board: its items, not the new.
+            # The end of the kept part first (reports lost: it went on from there).
+            for s in range(v.reached + 1, v.route_from):
+                self._item_done(v, s, clock_s, reported=False)
+            v.reached = max(v.reached, v.route_from - 1)
+            v.old_reached = max(v.old_reached, v.route_from - 1)
             for s in range(max(v.old_reached + 1, v.route_from), min(seq + 1, len(old))):
                 self._item_done(v, s, clock_s, reported=s == seq, item=old[s])
             v.old_reached = max(v.old_reached, seq)
@@ -616,7 +626,7 @@ class FleetState:
                 out.append(ev.Rebooted(vid))  # booting again (before its clock tells)
             else:
                 v.system_status = status
-            if v.needs_restart:
+            if v.needs_restart or v.held_for_route:
                 v.off_auto_since = None  # expected: the daemon starts it again
             elif v.phase is Phase.RUNNING and (v.mode != ROVER_MODE_AUTO or not v.armed):
                 if v.off_auto_since is None:

@@ -654,3 +654,53 @@ def test_a_stopped_mission_goes_on_after_what_its_autopilot_says_it_completed(di
     assert v.go_on_item == 10
     v.mission_state = mc.MISSION_STATE_ACTIVE  # driving to item 9: nothing said of it yet
     assert v.go_on_item == 6
+
+
+def test_a_tractor_at_the_end_of_its_kept_part_holds_until_its_new_route_is_on_board(dispatch):
+    # Two 20 %-loss soaks: a switch upload of ~750 items took over a minute; meanwhile the
+    # tractor drove its old mission past the kept part into a field the re-plan had given
+    # to another, and the field was worked twice.
+    from dispatcher.link.mission_protocol import MissionUpload
+
+    daemon = daemon_for(dispatch)
+    v, link = daemon.state.vehicles["v1"], daemon.links["v1"]
+    for event in running_events("v1", 3):
+        daemon.state.apply(event, 0.0)
+    v.mode, v.armed, v.mission_state = 10, True, mc.MISSION_STATE_ACTIVE
+    v.current, v.switch, v.old_items, v.old_reached, v.route_from = 4, True, v.items, 3, 5
+    link.switch_from = 5
+    link.upload = MissionUpload(daemon.job.missions["v1"].to_mavlink(v.system_id), v.system_id)
+    daemon._advance("v1", 1.0)
+    assert link.hold is None  # still on its kept part
+    feed(daemon.state, "v1", mission_current(11, 5, len(v.items) - 1, 2), 1.1)
+    daemon._advance("v1", 1.2)
+    commands = [m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG"]
+    assert (commands[-1].command, commands[-1].param2) == (mc.MAV_CMD_DO_SET_MODE, 4)  # HOLD
+    assert v.held_for_route
+    holding = heartbeat(11)
+    holding.custom_mode, holding.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED
+    feed(daemon.state, "v1", holding, 1.3)
+    assert v.off_auto_since is None  # our doing: not a failsafe
+    link.upload.outcome = Outcome.DONE
+    read_back(daemon, "v1", 11)
+    assert v.phase is Phase.STARTING and not v.switch
+    first = link.start.commands[0]
+    assert (first.command, first.params[0]) == (mc.MAV_CMD_DO_SET_MISSION_CURRENT, 5)
+    daemon._apply(ev.MissionStarted("v1", 5), 2.0)
+    assert not v.held_for_route
+
+
+def test_the_end_of_the_kept_part_counts_when_the_first_report_is_beyond_it(dispatch):
+    # A soak: the reports of the kept part's last items lost, the first one heard was of
+    # the old mission past it; those last items (three swaths) were counted by neither.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    for event in running_events("v1", 2):
+        state.apply(event, 0.0)
+    v.switch, v.old_items, v.old_reached, v.route_from = True, v.items, 2, 6
+    state.apply(ev.ItemReached("v1", 7, 200.0), 1.0)
+    assert v.reached == 5 and v.old_reached == 7
+    ends = [k for k in range(3, 6) if v.items[k].role == "swath_end"]
+    for k in ends:
+        item = v.items[k]
+        assert state.fields[item.field_id].passes.get(item.segment) == 1
