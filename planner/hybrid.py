@@ -21,7 +21,8 @@ name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shor
 fleet's total distance without worsening the objective's figure. One individual of the
 first population is a giant tour, improved by an iterated local search of its own
 (:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
-look at), cut by the optimal split (:func:`giant_tour`). A warm-started run (a re-plan)
+look at), cut by the optimal split (:func:`giant_tour`); the same ILS orders the elite's
+longest route again each generation (:func:`route_ils`). A warm-started run (a re-plan)
 starts instead from the plan being carried out and variants of it (:func:`warm_population`).
 
 Under the makespan (the farm), a plan whose routes all end within minutes of the
@@ -97,11 +98,19 @@ class HybridParams(IGHOAParams):
     # and ``tour_share`` of the time limit; 0 kicks: 2-opt and Or-opt to a local optimum.
     tour_kicks: int = 100
     tour_share: float = 0.5
+    # Each generation, the elite's longest route (min-max) or its routes in turn (the sums)
+    # get that ILS too (route_ils), for this many kicks a task of the route; 0: never.
+    route_kicks: int = 10
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.ils_steps < 0 or self.perturb < 1 or self.ruin < 0 or self.tour_kicks < 0:
-            raise ValueError("ils_steps, ruin and tour_kicks must be >= 0 and perturb >= 1")
+        if (
+            min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
+            or self.perturb < 1
+        ):
+            raise ValueError(
+                "ils_steps, ruin, tour_kicks and route_kicks must be >= 0 and perturb >= 1"
+            )
         if not (0.0 <= self.tour_share <= 1.0 and 0.0 <= self.distance_share <= 1.0):
             raise ValueError("tour_share and distance_share must be within [0, 1]")
         if self.distance_slack < 0.0:
@@ -438,8 +447,10 @@ def giant_tour(  # type: ignore[no-untyped-def]
 
 @njit(cache=True, nogil=True)
 def tour_ils(state, perm, machine, dist, start_dist, end_dist, neighbours, kicks, deadline):  # type: ignore[no-untyped-def]
-    """Iterated local search on one path through every task of ``perm`` (``machine``'s
-    start, the tasks in order, its end), in place; returns the total gain. Each of up to
+    """Iterated local search on one path through the tasks of ``perm`` (``machine``'s
+    start, the tasks in order, its end), in place; returns the total gain. ``perm`` may
+    hold some of the tasks only (one route: :func:`route_ils`); the neighbours of a task
+    that are not on the path are passed over. Each of up to
     ``kicks`` steps (until ``deadline``, a monotonic instant) is a local double-bridge
     (three stretches of a window of at most :data:`KICK_WINDOW` places swapped, A B C D to
     A C B D: what 2-opt and Or-opt cannot undo) and a local search of 2-opt and Or-opt
@@ -453,19 +464,19 @@ def tour_ils(state, perm, machine, dist, start_dist, end_dist, neighbours, kicks
     nodes = np.empty(n + 2, dtype=np.int64)
     nodes[0] = -1
     nodes[n + 1] = -2
-    pos = np.empty(n, dtype=np.int64)
+    pos = np.full(dist.shape[0], -1, dtype=np.int64)  # -1: not on the path
     for k in range(n):
         nodes[k + 1] = perm[k]
         pos[perm[k]] = k + 1
     kept = nodes.copy()
     args = (machine, dist, start_dist, end_dist)
     queue = np.empty(n, dtype=np.int64)
-    queued = np.zeros(n, dtype=np.bool_)
+    queued = np.zeros(dist.shape[0], dtype=np.bool_)
     span = np.array([n + 1, 0], dtype=np.int64)  # places changed since the last kept path
     buf = np.empty(KICK_WINDOW + 1, dtype=np.int64)
     head = np.zeros(2, dtype=np.int64)  # queue's first place, its length
-    for t in range(n):
-        _push(queue, queued, head, t)
+    for k in range(n):
+        _push(queue, queued, head, perm[k])
     total = _path_search(nodes, pos, neighbours, queue, queued, head, span, args)
     kept[:] = nodes
     span[0], span[1] = n + 1, 0
@@ -520,6 +531,25 @@ def tour_ils(state, perm, machine, dist, start_dist, end_dist, neighbours, kicks
     for q in range(n):
         perm[q] = nodes[q + 1]
     return total
+
+
+@njit(cache=True, nogil=True)
+def route_ils(state, perm, counts, route, tables, neighbours, pins, kicks, deadline):  # type: ignore[no-untyped-def]
+    """:func:`tour_ils` on route ``route`` of a chromosome, in place, for ``kicks`` kicks
+    (or until ``deadline``); returns the route's distance saved. Only the order of its tasks
+    changes, and every objective grows with a route's distance, so the chromosome is never
+    worse. A route whose first task is pinned to it (a field in progress, planner/pins.py)
+    is left as it is."""
+    begin = 0
+    for i in range(route):
+        begin += counts[i]
+    end = begin + counts[route]
+    if end - begin < 8 or first_fixed(perm, begin, end - begin, route, pins):
+        return 0.0
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    return tour_ils(
+        state, perm[begin:end], route, dist, start_dist, end_dist, neighbours, kicks, deadline
+    )
 
 
 KICK_WINDOW = 50  # places a double-bridge kick of tour_ils spans at most
@@ -577,7 +607,7 @@ def _path_search(nodes, pos, neighbours, queue, queued, head, span, args):  # ty
                     if d_ac >= d_ab:
                         break
                     j = pos[c]
-                    if j == i + step:
+                    if j < 0 or j == i + step:
                         continue
                     d = nodes[j + step]
                     delta = d_ac + _e(b, d, args) - d_ab - _e(c, d, args)
@@ -618,6 +648,8 @@ def _path_search(nodes, pos, neighbours, queue, queued, head, span, args):  # ty
                         if dist[node, w] >= removal:
                             break
                         pw = pos[w]
+                        if pw < 0:
+                            continue
                         for p in (pw - 1, pw):
                             if i - 1 <= p <= i + length - 1 or p < 0 or p > n:
                                 continue

@@ -387,7 +387,7 @@ def solve(
     walk_perm, walk_counts = elite_perm.copy(), elite_counts.copy()
     walk_route, walk_cost = elite_route.copy(), elite_cost
     history: list[float] = []
-    stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0}
+    stats = {"crossovers": 0.0, "mutations": 0.0, "polish_gains": 0.0, "route_gains": 0.0}
     gen = 0
     cap = 0.0  # hybrid's makespan cap in the last share of the time (0: none yet)
     while not stop.interrupted() and stop.max_generations > 0:
@@ -514,6 +514,27 @@ def solve(
                 elite_cost = float(improved) - _capped(0.0, elite_route, cap)
                 # The improved elite also enters the population, in place of its worst.
                 worst = int(np.argmax(costs))
+                perms[worst], counts[worst] = elite_perm, elite_counts
+                route_costs[worst], costs[worst] = elite_route, elite_cost
+        if (
+            isinstance(params, hybrid.HybridParams)
+            and params.route_kicks > 0
+            and not stop.interrupted()
+        ):
+            # The elite's longest route (min-max: the one that sets the cost), or each in
+            # turn (the sums), ordered again by the giant tour's ILS.
+            minmax = obj in (Objective.MINMAX, Objective.MAKESPAN)
+            route = int(np.argmax(elite_route)) if minmax else (gen - 1) % m
+            kicks = params.route_kicks * int(elite_counts[route])
+            if hybrid.route_ils(
+                state, elite_perm, elite_counts, route, tables, neighbours, pins, kicks,
+                stop.deadline(),
+            ) > 0.0:  # fmt: skip
+                elite_cost = float(
+                    evaluate(elite_perm, elite_counts, int(obj), tables, elite_route)
+                )
+                stats["route_gains"] += 1.0
+                worst = int(np.argmax(costs))  # the GA gets it too, as with the ILS
                 perms[worst], counts[worst] = elite_perm, elite_counts
                 route_costs[worst], costs[worst] = elite_route, elite_cost
         history.append(elite_cost)

@@ -14,6 +14,7 @@ from planner.hybrid import (
     or_opt,
     or_opt_routes,
     perturb,
+    route_ils,
     tour_ils,
 )
 from planner.local_search import nearest_neighbours
@@ -194,6 +195,48 @@ def test_tour_ils_keeps_a_permutation_and_its_gain_is_the_true_shortening(case, 
     assert before - after == pytest.approx(gain, rel=1e-9, abs=1e-6)
 
 
+@SETTINGS
+@given(chromosomes(), st.integers(0, 300), st.integers(2, 8), st.sampled_from(list(Objective)))
+def test_route_ils_orders_one_route_again_and_its_gain_is_the_true_shortening(
+    case, kicks, k, objective
+):
+    # One route's tasks in another order; the other routes as they were, every objective
+    # no worse (each grows with a route's distance).
+    state, perm, counts = case
+    n, m = perm.size, counts.size
+    problem = problem_for(n, m, 7 * n + k)
+    tables = CostTables.of(problem).kernel_args()
+    route = int(np.argmax(counts))
+    begin, end = int(counts[:route].sum()), int(counts[: route + 1].sum())
+    others = np.concatenate([perm[:begin], perm[end:]])
+    before = route_lengths(perm, counts, tables)
+    cost = evaluate(perm, counts, int(objective), tables, np.empty(m))
+    gain = route_ils(
+        state, perm, counts, route, tables, nearest_neighbours(problem.dist, k), NO_PINS(n),
+        kicks, np.inf,
+    )  # fmt: skip
+    assert_valid(perm, counts, n, m)
+    after = route_lengths(perm, counts, tables)
+    assert np.array_equal(np.concatenate([perm[:begin], perm[end:]]), others)
+    assert before[route] - after[route] == pytest.approx(gain, rel=1e-9, abs=1e-6)
+    assert gain >= 0.0 and (gain == 0.0 or end - begin >= 8)
+    assert evaluate(perm, counts, int(objective), tables, np.empty(m)) <= cost + 1e-6
+
+
+def test_route_ils_leaves_a_route_whose_first_task_is_pinned():
+    problem = problem_for(20, 2, 3)
+    tables = CostTables.of(problem).kernel_args()
+    perm = np.random.default_rng(1).permutation(20).astype(np.int64)
+    counts = np.array([10, 10], dtype=np.int64)
+    pins = NO_PINS(20)
+    pins[perm[10]] = 1
+    kept = perm.copy()
+    nn = nearest_neighbours(problem.dist, 5)
+    assert route_ils(make_state(1), perm, counts, 1, tables, nn, pins, 100, np.inf) == 0.0
+    assert np.array_equal(perm, kept)
+    assert route_ils(make_state(1), perm, counts, 0, tables, nn, pins, 100, np.inf) > 0.0
+
+
 def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
     # Tasks on a circle, shuffled; the machine starts and ends at the centre: the best
     # path goes round the circle once. The same seed gives the same path.
@@ -222,6 +265,7 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
     [
         {"ruin": -1},
         {"tour_kicks": -1},
+        {"route_kicks": -1},
         {"tour_share": 1.5},
         {"distance_share": -0.1},
         {"distance_slack": -0.1},
