@@ -1416,10 +1416,14 @@ class _TurnsInside:
                     return fitting
             point, tangent = points[k], edges[edge[k]]
             forward = math.atan2(tangent[1], tangent[0])
+            # Driven reversed from a vertex, the ring goes on along the edge before it
+            # (a headland ring's sharp corner: the way in joined it at the wrong angle).
+            back = edges[edge[k] - 1] if into[k] == 0.0 else tangent
+            backward = math.atan2(-back[1], -back[0])
             target = (float(point[0]), float(point[1]))
             paths = [
                 (reverse, path)
-                for reverse, h in ((False, forward), (True, forward + math.pi))
+                for reverse, h in ((False, forward), (True, backward))
                 for path in dubins_paths(start, head, target, h, r)[:2]
             ]
             for n, (reverse, path) in enumerate(paths):

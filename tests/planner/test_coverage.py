@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 import shapely
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiPoint, MultiPolygon, Point, Polygon
 
@@ -564,6 +564,12 @@ NOTCHED = [
     widths_across=st.floats(12.0, 30.0),
     angle=st.none() | st.floats(0, 180),
 )
+# A sharp corner: the way onto the outer ring joined it at a vertex, driven reversed, at the
+# heading of the edge after the vertex instead of the one before (a 2.4 m bend for 3.6 m).
+@example(
+    points=[(0.0, 0.004), (0.408, 0.0), (0.776, 0.82)], w=6.9, r=3.625, widths_across=12.5,
+    angle=None,
+)  # fmt: skip
 def test_random_convex_fields_turn_drivably_inside(
     points: list[tuple[float, float]], w: float, r: float, widths_across: float, angle: float | None
 ) -> None:
