@@ -53,6 +53,7 @@ from planner.population import random_counts
 from planner.rng import randint
 
 MAX_SEGMENT = 3  # Or-opt moves segments of 1..MAX_SEGMENT tasks
+MIN_POPULATION = 50  # the fewest individuals HybridParams.population_tasks leaves
 
 
 @dataclass(frozen=True)
@@ -101,21 +102,37 @@ class HybridParams(IGHOAParams):
     # Each generation, the elite's longest route (min-max) or its routes in turn (the sums)
     # get that ILS too (route_ils), for this many kicks a task of the route; 0: never.
     route_kicks: int = 10
+    # At most this many tasks over the whole population (its size times n; 0: no bound),
+    # and never fewer than MIN_POPULATION individuals: a generation's crossovers and
+    # evaluations cost O(population x n), and at n = 3038 the 200 of the paper left few
+    # generations to the ILS (benchmarks/RESULTS.md, 2026-11-25: 50 individuals were ahead
+    # on pcb3038 min-max and min-sum). Up to n = 760 the population stays at 200.
+    population_tasks: int = 152_000
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if (
             min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
+            or self.population_tasks < 0
             or self.perturb < 1
         ):
             raise ValueError(
-                "ils_steps, ruin, tour_kicks and route_kicks must be >= 0 and perturb >= 1"
+                "ils_steps, ruin, tour_kicks, route_kicks and population_tasks must be >= 0 "
+                "and perturb >= 1"
             )
         if not (0.0 <= self.tour_share <= 1.0 and 0.0 <= self.distance_share <= 1.0):
             raise ValueError("tour_share and distance_share must be within [0, 1]")
         if self.distance_slack < 0.0:
             raise ValueError(f"distance_slack must be >= 0, not {self.distance_slack}")
         mask(self.moves)
+
+    def population_for(self, n: int) -> int:
+        """The population for ``n`` tasks: :attr:`population`, fewer for a large instance
+        (:attr:`population_tasks`), but not below MIN_POPULATION (nor above it asked)."""
+        if self.population_tasks <= 0 or n <= 0:
+            return self.population
+        fits = self.population_tasks // n
+        return max(min(self.population, fits), min(self.population, MIN_POPULATION))
 
     @property
     def move_mask(self) -> int:

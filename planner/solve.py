@@ -322,6 +322,8 @@ def solve(
     pins = cost_tables.pinned_machine
     state = make_state(seed)
     n, m, pop = problem.num_tasks, problem.num_machines, params.population
+    if isinstance(params, hybrid.HybridParams):
+        pop = params.population_for(n)
     min_count = problem.min_tasks_per_machine
     perms = np.empty((pop, n), dtype=np.int64)
     counts = np.empty((pop, m), dtype=np.int64)

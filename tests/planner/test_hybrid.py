@@ -237,6 +237,15 @@ def test_route_ils_leaves_a_route_whose_first_task_is_pinned():
     assert route_ils(make_state(1), perm, counts, 0, tables, nn, pins, 100, np.inf) > 0.0
 
 
+def test_a_large_instance_gets_a_smaller_population_never_below_the_floor():
+    params = HybridParams()
+    assert [params.population_for(n) for n in (51, 200, 760, 1002, 3038, 100_000)] == [
+        200, 200, 200, 151, 50, 50,
+    ]  # fmt: skip
+    assert HybridParams(population=20).population_for(3038) == 20  # asked for fewer
+    assert HybridParams(population_tasks=0).population_for(3038) == 200
+
+
 def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
     # Tasks on a circle, shuffled; the machine starts and ends at the centre: the best
     # path goes round the circle once. The same seed gives the same path.
@@ -266,6 +275,7 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"ruin": -1},
         {"tour_kicks": -1},
         {"route_kicks": -1},
+        {"population_tasks": -1},
         {"tour_share": 1.5},
         {"distance_share": -0.1},
         {"distance_slack": -0.1},
