@@ -733,3 +733,24 @@ def test_a_re_plan_that_gives_a_tractor_the_mission_on_its_way_leaves_that_uploa
     changed = dataclasses.replace(job.document, machines=(machine,), plan_id="").with_id()
     daemon._adopt(DispatchJob(changed, job.missions, {}), "v3 lost", 2.0)
     assert daemon.links["v1"] is not link  # a new mission: uploaded anew
+
+
+def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(dispatch):
+    # The demo at 2367x through a 10 %-loss radio: the report of the window's last item was
+    # lost, and MISSION_CURRENT's "complete" was doubted (positions too far apart), so the
+    # state had it one item short of the end; 5 s of wall time later it was "stalled".
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    for event in running_events("v1", 3):
+        state.apply(event, 0.0)
+    v.mode, v.armed = 10, True  # AUTO, armed
+    state.apply(ev.UploadStarted("v1", 2, 8), 0.0)
+    state.apply(ev.UploadAcked("v1"), 0.0)
+    state.apply(ev.WindowExtended("v1", 12), 0.0)  # a top-up under way: 8 -> 12 items
+    v.phase, v.reached = Phase.RUNNING, 6
+    v.sim_time_s, v.progress_s, v.progress_wall = 1_000.0, 100.0, 0.0
+    assert state.stalled_for(v, 60.0, 50.0) == 900.0  # one short, still "driving"
+    v.current, v.mission_state = 7, mc.MISSION_STATE_COMPLETE  # at item 7, the last it holds
+    assert v.at_window_end and state.stalled_for(v, 60.0, 50.0) is None
+    v.current, v.mission_state = 5, mc.MISSION_STATE_ACTIVE  # really standing mid-window
+    assert state.stalled_for(v, 60.0, 50.0) == 900.0
