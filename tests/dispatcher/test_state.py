@@ -608,14 +608,20 @@ def test_a_tractor_stopped_at_the_end_of_its_window_is_started_again_at_its_join
     assert daemon.state.vehicles["v1"].phase is Phase.STARTING
 
 
+def driving_v1(dispatch, reached):
+    """A fleet state with v1 armed in AUTO, driving its mission, ``reached`` its item."""
+    state = FleetState(dispatch.document)
+    for event in running_events("v1", reached):
+        state.apply(event, 0.0)
+    v = state.vehicles["v1"]
+    v.mode, v.armed = 10, True  # AUTO, armed
+    return state, v
+
+
 def test_a_tractor_standing_still_while_its_new_mission_comes_is_not_stalled(dispatch):
     # An autopilot truncates its mission at MISSION_COUNT: one past the new mission's length
     # stands still, mission complete, until it is sent on. Neither a stall nor progress.
-    state = FleetState(dispatch.document)
-    v = state.vehicles["v1"]
-    for event in running_events("v1", 8):
-        state.apply(event, 0.0)
-    v.mode, v.armed = 10, True  # AUTO, armed
+    state, v = driving_v1(dispatch, 8)
     v.sim_time_s, v.progress_s, v.progress_wall = 1_000.0, 100.0, 0.0
     v.switch, v.old_items = True, v.items
     assert state.stalled_for(v, 60.0, 50.0) is None
@@ -739,11 +745,7 @@ def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(di
     # The demo at 2367x through a 10 %-loss radio: the report of the window's last item was
     # lost, and MISSION_CURRENT's "complete" was doubted (positions too far apart), so the
     # state had it one item short of the end; 5 s of wall time later it was "stalled".
-    state = FleetState(dispatch.document)
-    v = state.vehicles["v1"]
-    for event in running_events("v1", 3):
-        state.apply(event, 0.0)
-    v.mode, v.armed = 10, True  # AUTO, armed
+    state, v = driving_v1(dispatch, 3)
     state.apply(ev.UploadStarted("v1", 2, 8), 0.0)
     state.apply(ev.UploadAcked("v1"), 0.0)
     state.apply(ev.WindowExtended("v1", 12), 0.0)  # a top-up under way: 8 -> 12 items
