@@ -179,6 +179,10 @@ class VehicleState:
     old_reached: int = 0
     route_from: int = 1  # the first item of its current route (after a re-plan: the new part)
     active_seen: bool = False  # MISSION_CURRENT said "active" since then
+    # It reported reaching an item of the mission being started (one from the start item
+    # on) since the start was asked for: driving it, though no "active" came in time.
+    start_from: int = 0
+    moved_since_start: bool = False
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
     witness: ProgressWitness = field(default_factory=ProgressWitness)  # its track vs claims
@@ -234,11 +238,12 @@ class VehicleState:
         # Its autopilot says its mission is complete at the last item of what it holds:
         # the report of that item was lost, or doubted (a demo at 2367x through a 10 %-loss
         # radio: positions too far apart to witness it), and it was taken for stalled.
-        end = self.held_before or self.held
+        last = self.mission_total  # the last item it holds, as it says
         return (
-            end < len(self.items)
+            last is not None
+            and last < len(self.items) - 1
             and self.mission_state == mc.MISSION_STATE_COMPLETE
-            and self.current >= end - 1
+            and self.current >= last
         )
 
     @property
@@ -370,15 +375,19 @@ class FleetState:
                 if final:
                     v.phase = Phase.FAILED
                     v.error = reason
-            case ev.StartRequested():
+            case ev.StartRequested(item=item):
                 v.phase = Phase.STARTING
                 v.resuming = False
+                v.start_from, v.moved_since_start = item, False
             case ev.MissionStarted():
                 v.phase = Phase.RUNNING
                 v.held_for_route = False
                 v.resuming = False
                 v.error = ""
-                v.started_at, v.active_seen = now, False
+                # A lossy radio: its ACK for AUTO can come after it drove its last items
+                # and reported its mission complete (never "active" again): its reports of
+                # items since the start say it is driving this mission.
+                v.started_at, v.active_seen = now, v.moved_since_start
                 v.progress_s, v.progress_wall = v.sim_time_s, now
             case ev.Resumed():
                 self._resumed(v)
@@ -561,6 +570,8 @@ class FleetState:
             return
         v.progress_s = max(v.progress_s or 0.0, clock_s)
         v.progress_wall = now
+        if v.phase is Phase.STARTING and seq >= v.start_from:
+            v.moved_since_start = True
         old = v.old_items
         if v.switch and old is not None and seq >= v.route_from:
             # Past the kept part, on the mission still on board: its items, not the new.

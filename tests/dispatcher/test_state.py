@@ -752,7 +752,28 @@ def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(di
     v.phase, v.reached = Phase.RUNNING, 6
     v.sim_time_s, v.progress_s, v.progress_wall = 1_000.0, 100.0, 0.0
     assert state.stalled_for(v, 60.0, 50.0) == 900.0  # one short, still "driving"
-    v.current, v.mission_state = 7, mc.MISSION_STATE_COMPLETE  # at item 7, the last it holds
+    v.current, v.mission_total = 7, 7  # at item 7, the last it holds
+    v.mission_state = mc.MISSION_STATE_COMPLETE
     assert v.at_window_end and state.stalled_for(v, 60.0, 50.0) is None
     v.current, v.mission_state = 5, mc.MISSION_STATE_ACTIVE  # really standing mid-window
     assert state.stalled_for(v, 60.0, 50.0) == 900.0
+
+
+def test_a_mission_driven_to_its_end_before_the_start_was_acknowledged_counts(dispatch):
+    # CI, 30 % loss: the ACK for AUTO came after the tractor had driven its last items and
+    # said its mission was complete (never "active" once started): the last item's report
+    # lost, the run waited for it until the test timed out.
+    state, v = driving_v1(dispatch, 3)
+    last = len(v.items) - 1
+    state.apply(ev.StartRequested("v1", last - 2), 10.0)
+    state.apply(ev.ItemReached("v1", last - 2, 200.0), 10.5)  # its reports while starting
+    state.apply(ev.ItemReached("v1", last - 1, 210.0), 10.6)
+    state.apply(ev.MissionStarted("v1", last - 2), 11.0)
+    assert v.reached == last - 1 and v.phase is Phase.RUNNING
+    for k, item in enumerate(v.items[last - 1 :]):  # its track there
+        feed(state, "v1", position(211_000 + 1_000 * k, item.x, item.y), 11.1 + 0.1 * k)
+    done = mission_current(v.system_id, last, last, mc.MISSION_STATE_COMPLETE)
+    for t in (11.5, 14.0):
+        for event in state.on_message("v1", done, t):
+            state.apply(event, t)
+    assert v.phase is Phase.DONE
