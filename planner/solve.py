@@ -514,10 +514,8 @@ def solve(
             walk_cost -= _capped(0.0, walk_route, cap)
             if improved < before:
                 elite_cost = float(improved) - _capped(0.0, elite_route, cap)
-                # The improved elite also enters the population, in place of its worst.
-                worst = int(np.argmax(costs))
-                perms[worst], counts[worst] = elite_perm, elite_counts
-                route_costs[worst], costs[worst] = elite_route, elite_cost
+                _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
+                               elite_route, elite_cost)  # fmt: skip
         if (
             isinstance(params, hybrid.HybridParams)
             and params.route_kicks > 0
@@ -536,9 +534,8 @@ def solve(
                     evaluate(elite_perm, elite_counts, int(obj), tables, elite_route)
                 )
                 stats["route_gains"] += 1.0
-                worst = int(np.argmax(costs))  # the GA gets it too, as with the ILS
-                perms[worst], counts[worst] = elite_perm, elite_counts
-                route_costs[worst], costs[worst] = elite_route, elite_cost
+                _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
+                               elite_route, elite_cost)  # fmt: skip
         history.append(elite_cost)
         if on_generation is not None:
             on_generation(gen, elite_cost, time.perf_counter() - started)
@@ -573,6 +570,16 @@ def _capped(cost: float, route_cost: np.ndarray, cap: float) -> float:
     """A min-max ``cost`` with its figure (``route_cost.max()``) taken as at least ``cap``
     (:func:`planner.cost.fleet_value`); 0: the cost as it is."""
     return float(cost) + max(0.0, cap - float(route_cost.max())) if cap > 0.0 else float(cost)
+
+
+def _replace_worst(  # type: ignore[no-untyped-def]
+    perms, counts, route_costs, costs, perm, cnt, route, cost: float
+) -> None:
+    """An improved elite (hybrid's ILS, its route ILS) enters the population in place of
+    its worst chromosome, so that the GA breeds from it too."""
+    worst = int(np.argmax(costs))
+    perms[worst], counts[worst] = perm, cnt
+    route_costs[worst], costs[worst] = route, cost
 
 
 def _share_of(deadline: float, share: float) -> float:
