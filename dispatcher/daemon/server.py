@@ -39,6 +39,7 @@ from dispatcher.link.mission_protocol import (
     MissionDownload,
     MissionUpload,
     Outcome,
+    RoundTrip,
     gcs_heartbeat,
     hold_commands,
     mission_differences,
@@ -160,6 +161,7 @@ class _Link:
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     starts: int = 0  # start attempts unanswered in a row
     heard_at: float | None = None  # when this process first heard the vehicle
+    round_trip: RoundTrip = field(default_factory=RoundTrip)  # measured by its transfers
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
@@ -507,7 +509,7 @@ class Dispatcher:
         """Read the vehicle's mission back (``why`` is logged as it begins): None while that
         is under way, then "" when it is ours item by item, else what is not."""
         if link.download is None:
-            link.download = MissionDownload(v.system_id)
+            link.download = MissionDownload(v.system_id, round_trip=link.round_trip)
             link.since = now
             self._log("info", f"{v.id}: {why}")
             self._send(v.id, link.download.start(now))
@@ -663,7 +665,7 @@ class Dispatcher:
                     if self.config.verify_missions:
                         # An ArduPilot upload is not atomic and the link may be lossy:
                         # read the mission back before it is driven (docs/restart.md).
-                        link.download = MissionDownload(v.system_id)
+                        link.download = MissionDownload(v.system_id, round_trip=link.round_trip)
                         self._send(vid, link.download.start(now))
                         return
                 if link.download is not None:
@@ -769,7 +771,9 @@ class Dispatcher:
                 self._send_window(v, link, now)
                 return
             link.upload = None
-            link.download = MissionDownload(v.system_id, first=link.topup_from)
+            link.download = MissionDownload(
+                v.system_id, first=link.topup_from, round_trip=link.round_trip
+            )
             self._send(v.id, link.download.start(now))
             return
         if link.download is None or link.download.outcome is Outcome.RUNNING:
@@ -803,7 +807,7 @@ class Dispatcher:
         """Upload the part of its mission the vehicle is to hold (``v.held`` items)."""
         link.since = now
         items = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
-        link.upload = MissionUpload(items, v.system_id)
+        link.upload = MissionUpload(items, v.system_id, round_trip=link.round_trip)
         self._send(v.id, link.upload.start(now))
 
     def _upload_failed(self, v: VehicleState, link: _Link, reason: str, now: float) -> None:
@@ -1099,7 +1103,9 @@ class Dispatcher:
             # Read back from the first item of the new route: those before it are the same
             # in the old mission and the new, so whatever part of the upload the autopilot
             # took, they are right (the count is read too).
-            link.download = MissionDownload(v.system_id, first=link.switch_from or 1)
+            link.download = MissionDownload(
+                v.system_id, first=link.switch_from or 1, round_trip=link.round_trip
+            )
             self._send(v.id, link.download.start(now))
             return
         if link.download.outcome is Outcome.RUNNING:

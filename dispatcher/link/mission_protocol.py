@@ -31,6 +31,10 @@ REQUEST_TIMEOUT_S = 1.5
 """The protocol's timeout for an answer; shortened to a few round trips once they are
 measured (never under MIN_TIMEOUT_S), so a lossy link resends soon."""
 MIN_TIMEOUT_S = 0.3
+TRANSFER_MIN_TIMEOUT_S = 0.05
+"""A mission transfer's timeout is never shorter (the daemon's loop wakes every 50 ms)."""
+TRANSFER_MIN_MARGIN_S = 0.04
+"""Nor closer to the smoothed round trip than this, however steady the link."""
 MAX_RETRIES = 8
 """Resends of one command without an answer before it fails (with 30 % of the frames lost
 each way, 0.51^9 ≈ 0.2 % of the commands)."""
@@ -66,6 +70,25 @@ class Stats:
     stray: int = 0  # frames of the protocol that fit no step (late, duplicated, stale): ignored
 
 
+@dataclass
+class RoundTrip:
+    """A link's smoothed round trip and its mean deviation, in seconds (RFC 6298): the
+    exchanges over one link share it, so a transfer starts with what the last one
+    measured (on a lossy link most items go twice, and Karn's rule leaves one transfer
+    few samples of its own)."""
+
+    srtt: float | None = None
+    rttvar: float = 0.0
+
+    def sample(self, round_trip: float) -> None:
+        sample = max(round_trip, 0.0)
+        if self.srtt is None:
+            self.srtt, self.rttvar = sample, sample / 2.0
+        else:
+            self.rttvar = 0.75 * self.rttvar + 0.25 * abs(self.srtt - sample)
+            self.srtt = 0.875 * self.srtt + 0.125 * sample
+
+
 class _Exchange:
     """What every exchange with one vehicle has: its address, timeouts and outcome."""
 
@@ -75,6 +98,7 @@ class _Exchange:
         target_component: int = mc.MAV_COMP_ID_AUTOPILOT1,
         timeout_s: float = REQUEST_TIMEOUT_S,
         max_retries: int = MAX_RETRIES,
+        round_trip: RoundTrip | None = None,
     ) -> None:
         self.target_system = target_system
         self.target_component = target_component
@@ -84,7 +108,8 @@ class _Exchange:
         self.reason = ""
         self.stats = Stats()
         self._base_timeout_s = timeout_s
-        self._srtt: float | None = None  # smoothed round trip (s)
+        self.round_trip = round_trip if round_trip is not None else RoundTrip()
+        self._adapt_timeout()
         self._sent_at = 0.0
         self._resent = False  # the last message went out more than once
 
@@ -112,22 +137,39 @@ class _Exchange:
 
     def _sample(self, round_trip: float) -> None:
         """A round trip measured on a message sent once (Karn's rule): the timeout adapts."""
-        sample = max(round_trip, 0.0)
-        self._srtt = sample if self._srtt is None else 0.875 * self._srtt + 0.125 * sample
-        self.timeout_s = min(self._base_timeout_s, max(MIN_TIMEOUT_S, 2.0 * self._srtt + 0.2))
+        self.round_trip.sample(round_trip)
+        self._adapt_timeout()
+
+    def _adapt_timeout(self) -> None:
+        rt = self.round_trip
+        if rt.srtt is not None:
+            self.timeout_s = min(self._base_timeout_s, self._timeout_for(rt.srtt, rt.rttvar))
+
+    def _timeout_for(self, srtt: float, rttvar: float) -> float:
+        return max(MIN_TIMEOUT_S, 2.0 * srtt + 0.2)
 
 
 class _Transfer(_Exchange):
     """A mission upload or download: one step at a time, the last message resent at each
     timeout; it fails only after its retries *and* TRANSFER_STALL_S without progress."""
 
-    def __init__(self, target_system: int, **kw: float) -> None:
+    def __init__(
+        self, target_system: int, round_trip: RoundTrip | None = None, **kw: float
+    ) -> None:
         kw.setdefault("max_retries", TRANSFER_RETRIES)
-        super().__init__(target_system, **kw)  # type: ignore[arg-type]
+        super().__init__(target_system, round_trip=round_trip, **kw)  # type: ignore[arg-type]
         self._progress_at = 0.0
         self._last: mc.MAVLinkMessage | None = None
         self._deadline = 0.0
         self._retries_left = self.max_retries
+
+    def _timeout_for(self, srtt: float, rttvar: float) -> float:
+        """A transfer's step is resent sooner than a command: a round trip and four of its
+        deviations (RFC 6298's RTO), not under TRANSFER_MIN_TIMEOUT_S. A resent item
+        costs a frame the vehicle refuses; a wait too long costs the transfer its time
+        (through 20 % loss, an upload of 200 items took 20 s with the command's timeout,
+        almost all of it spent waiting)."""
+        return max(TRANSFER_MIN_TIMEOUT_S, srtt + max(4.0 * rttvar, TRANSFER_MIN_MARGIN_S))
 
     def _progress(self, now: float) -> None:
         """A step went through: its retries start again."""
@@ -163,13 +205,15 @@ class MissionUpload(_Transfer):
     MAV_MISSION_INVALID_SEQUENCE to any other (``MissionItemProtocol::handle_mission_item``),
     so a window costs one round trip, not one per item, and a mission of hundreds of items
     goes up in a fraction of the time over a busy link. A request for item k says the
-    vehicle holds every item before k. When the vehicle stops asking (an item or its
-    request lost), the timeout sends the window again from the item it asked for last
-    (go-back-N) and halves the window; each item taken in order grows it back (one more
-    per window's worth), so a radio that loses or reorders frames works near one item per
-    round trip, as the protocol was written, and a clean link at the full window. The
-    first INVALID_SEQUENCE after a request also resends the requested item, once, without
-    waiting for the timeout (TCP's fast retransmit). ``pipeline=1``: one item per request.
+    vehicle holds every item before k, and refused every item of the window sent before
+    the one it took last: a request sends those again with the new ones (go-back-N from
+    the request). When the vehicle stops asking (an item or its request lost), the
+    timeout sends a pipeline of items again from the item it asked for last and halves the
+    window; each item taken in order grows it back (one more per window's worth), so a
+    radio that reorders frames works near one item per round trip, as the protocol was
+    written, and a clean link at the full window. The first INVALID_SEQUENCE after a
+    request also resends the requested item, once, without waiting for the timeout (TCP's
+    fast retransmit). ``pipeline=1``: one item per request.
     """
 
     def __init__(
@@ -177,9 +221,10 @@ class MissionUpload(_Transfer):
         items: Sequence[mc.MAVLinkMessage],
         target_system: int,
         pipeline: int = TRANSFER_PIPELINE,
+        round_trip: RoundTrip | None = None,
         **kw: float,
     ) -> None:
-        super().__init__(target_system, **kw)
+        super().__init__(target_system, round_trip, **kw)
         self.items = list(items)
         self.last_refusal = ""
         self.pipeline = max(1, int(pipeline))
@@ -272,29 +317,38 @@ class MissionUpload(_Transfer):
             self._deadline = now + self.timeout_s
         elif seq > self._highest:  # the vehicle took every item before ``seq``
             before = seq - 1
-            if before in self._item_at and before not in self._sent_twice:
+            if before in self._item_at and (
+                before not in self._sent_twice or self.round_trip.srtt is None
+            ):
+                # Karn's rule, but for the first sample: on a link that reorders, most
+                # items go twice, and a transfer without a sample waits the protocol's
+                # 1.5 s at every loss (the latest copy's round trip, too short if the
+                # answer was to the first, is corrected by the samples that follow).
                 self._sample(now - self._item_at[before])
+            elif self._highest < 0:
+                self._answered(now)  # the MISSION_COUNT's round trip
             self._highest = seq
             self._asked_last = self._asked_last or seq == len(self.items) - 1
             self._progress(now)
             self._window = min(float(self.pipeline), self._window + 1.0 / self._window)
             self._deadline = now + self.timeout_s
-        if self._lost(seq, now):
-            out.append(self._item(seq, now))
         last = min(len(self.items), seq + int(self._window))
-        for k in range(max(self._next, seq + 1), last):
-            out.append(self._item(k, now))
+        for k in range(seq, last):
+            if k >= self._next or self._lost(k, now, seq):
+                out.append(self._item(k, now))
         return out
 
-    def _lost(self, seq: int, now: float) -> bool:
-        """Whether item ``seq``, asked for, is to be sent (again): never sent; sent long
-        enough ago to be lost; sent before the item the vehicle took last (then it came
-        first and was refused, or was lost); or refused items were reported since it went
-        (it may be one: the link reorders)."""
+    def _lost(self, seq: int, now: float, asked: int) -> bool:
+        """Whether item ``seq``, the vehicle asking for ``asked``, is to be sent (again):
+        never sent; sent long enough ago to be lost; sent before the item the vehicle took
+        last (then it came first and was refused, or was lost); or, the item asked for,
+        refused items were reported since it went (it may be one: the link reorders)."""
         order = self._order.get(seq)
         if order is None or now - self._item_at[seq] >= self.timeout_s:
             return True
-        return order < self._order.get(seq - 1, -1) or self._refused_at > order
+        if order < self._order.get(asked - 1, -1):
+            return True
+        return seq == asked and self._refused_at > order
 
     def _fast_retransmit(self, now: float) -> list[mc.MAVLinkMessage]:
         """The vehicle refused an item it did not expect: the one it asked for last may be
@@ -303,7 +357,7 @@ class MissionUpload(_Transfer):
         seq = self._highest
         if seq < 0 or self._fast_for == seq:
             return []
-        if now - self._item_at.get(seq, -math.inf) < 0.5 * (self._srtt or 0.0):
+        if now - self._item_at.get(seq, -math.inf) < 0.5 * (self.round_trip.srtt or 0.0):
             return []
         self._fast_for = seq
         self._window = max(1.0, self._window / 2.0)
@@ -334,11 +388,12 @@ class MissionUpload(_Transfer):
         self.stats.retries += 1
         self._deadline = now + self.timeout_s
         self._window = max(1.0, self._window / 2.0)
-        # Go back to the item asked for last. The vehicle may hold it and its request for
-        # the next be what was lost: the next one goes too (a lost request then costs one
-        # timeout of ours, not the vehicle's one-second re-request).
+        # Go back to the item asked for last, a whole pipeline of items however small the
+        # window: the vehicle may hold several of them, their requests lost. (Two items
+        # after the window had halved to one: a vehicle two ahead refused both at every
+        # timeout, until its own re-request a second later.)
         self._next = self._highest
-        last = min(len(self.items), self._highest + max(2, int(self._window)))
+        last = min(len(self.items), self._highest + max(2, self.pipeline, int(self._window)))
         return [self._item(k, now) for k in range(self._highest, last)]
 
 
@@ -367,9 +422,14 @@ class MissionDownload(_Transfer):
     for a timeout, the missing ones asked for are asked for again (selective repeat)."""
 
     def __init__(
-        self, target_system: int, first: int = 0, pipeline: int = TRANSFER_PIPELINE, **kw: float
+        self,
+        target_system: int,
+        first: int = 0,
+        pipeline: int = TRANSFER_PIPELINE,
+        round_trip: RoundTrip | None = None,
+        **kw: float,
     ) -> None:
-        super().__init__(target_system, **kw)
+        super().__init__(target_system, round_trip, **kw)
         self.first = first
         self.pipeline = max(1, int(pipeline))
         self.count: int | None = None
