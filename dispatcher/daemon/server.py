@@ -1038,7 +1038,7 @@ class Dispatcher:
             if v.phase not in GONE and v.phase is not Phase.DONE:
                 # Back while the re-plan ran: it must not go on (one failed for good, or
                 # done, is not back: asking for it again would re-plan for ever).
-                self.links[vid] = _Link()
+                self.links[vid] = _Link(round_trip=self.links[vid].round_trip)
                 self._hold(v, self.links[vid], now)
                 self._want_replan(f"{vid} back", now)
         self._log(
@@ -1062,8 +1062,9 @@ class Dispatcher:
                 # every 40 s, its tractor held at the end of its kept part for 280 s).
                 continue
             # A driving one told to HOLD while it was lost is started again on its new route.
-            held = self.links[m.id].hold if v.switch else None
-            link = self.links[m.id] = _Link(hold=held)
+            old = self.links[m.id]
+            held = old.hold if v.switch else None
+            link = self.links[m.id] = _Link(hold=held, round_trip=old.round_trip)
             # From its first item; one that finished while the re-plan ran, whose new
             # mission goes on after it, from there.
             link.start_item = v.resume_item
