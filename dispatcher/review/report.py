@@ -1275,18 +1275,25 @@ def review_contents(log: LogContents) -> Review:
             warnings=tuple(warnings),
         )
 
+    # The dispatcher's own account, replayed with its FleetState.apply: review and the
+    # live status agree on when each field was started and finished, and on which
+    # vehicles a re-plan sent out again with a fresh mission.
+    replayed, fresh = _replay_events(log, plans[base])
     status = _last_status(status_docs, plan.plan_id)
     vehicles: list[VehicleReview] = []
     results: dict[str, _VehicleResult] = {}
     for machine in plan.machines:
         t = traffic.get(machine.id, _Traffic([], [], []))
         vstatus = status.get(machine.id) if status else None
+        given_ns = fresh.get(machine.id, since_ns)
+        if given_ns > since_ns:
+            warnings.append(_fresh_mission(machine.id, given_ns, start_ns))
         result = _review_vehicle(
             machine.id,
             machine,
             t,
             vstatus if isinstance(vstatus, dict) else None,
-            since_ns,
+            given_ns,
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
         )
@@ -1298,12 +1305,15 @@ def review_contents(log: LogContents) -> Review:
         # Reviewed against the last mission it was given, up to where it was lost.
         last = next(m for p in reversed(plans[base:]) for m in p.machines if m.id == vid)
         vstatus = status.get(vid) if status else None
+        given_ns = fresh.get(vid, since_ns)
+        if given_ns > since_ns:
+            warnings.append(_fresh_mission(vid, given_ns, start_ns))
         result = _review_vehicle(
             vid,
             last,
             traffic.get(vid, _Traffic([], [], [])),
             vstatus if isinstance(vstatus, dict) else None,
-            since_ns,
+            given_ns,
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
         )
@@ -1326,10 +1336,7 @@ def review_contents(log: LogContents) -> Review:
     if strangers:
         warnings.append(f"traffic from vehicles not in the plan, left out: {', '.join(strangers)}")
 
-    replayed = _replay_events(log, plans[base])
     if replayed is not None:
-        # The dispatcher's own account, replayed with its FleetState.apply: review and the
-        # live status agree on when each field was started and finished.
         for fid, f in replayed.fields.items():
             if f.vehicle in results:
                 results[f.vehicle].field_times[fid] = _FieldTimes(f.started_s, f.finished_s)
@@ -1365,6 +1372,13 @@ def review_contents(log: LogContents) -> Review:
         replans=tuple(replan_reviews),
         losses=tuple(losses),
         alarms=tuple(alarms),
+    )
+
+
+def _fresh_mission(vid: str, given_ns: int, start_ns: int | None) -> str:
+    return (
+        f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
+        f"its traffic from there against that mission (the fields show all its work)"
     )
 
 
@@ -1508,24 +1522,32 @@ def _ago(ns: int, start_ns: int | None) -> str:
     return f"{(ns - start_ns) / 1e9:.0f} s into the log" if start_ns is not None else "later"
 
 
-def _replay_events(log: LogContents, plan: _Plan) -> FleetState | None:
+def _replay_events(log: LogContents, plan: _Plan) -> tuple[FleetState | None, dict[str, int]]:
     """The fleet state the recorded events of ``plan`` lead to (None: no events recorded,
-    a log from before they were)."""
+    a log from before they were), and when a re-plan last gave each vehicle a fresh
+    mission (one that does not go on from the mission it had: sent out again from item 1,
+    as the state's own rule for a re-plan decides), by vehicle."""
     if plan.document is None:
-        return None
+        return None, {}
     state = FleetState(plan.document)
     seen = False
+    fresh: dict[str, int] = {}
     for rec in _event_records(log):
         if rec.log_time_ns < plan.log_ns:
             continue
         try:
             event = ev.from_dict(rec.decode_json())
+            before = {vid: v.items for vid, v in state.vehicles.items()}
             state.apply(event, rec.log_time_ns / 1e9)
         except (ValueError, KeyError) as exc:
             logger.warning("a recorded event cannot be replayed: %s", exc)
             continue
         seen = True
-    return state if seen else None
+        if isinstance(event, ev.PlanReplaced):
+            for vid, v in state.vehicles.items():
+                if v.items != before[vid] and not v.switch and v.reached == 0:
+                    fresh[vid] = rec.log_time_ns
+    return (state if seen else None), fresh
 
 
 def _field_reviews(

@@ -560,3 +560,35 @@ def test_a_resumed_logs_stored_events_stand_in_for_what_the_crashed_log_lost() -
         ("item_reached", 3),
         ("vehicle_lost", None),
     ]
+
+
+def test_a_vehicle_sent_out_again_by_a_re_plan_is_reviewed_from_its_fresh_mission() -> None:
+    """A re-plan that gives a vehicle a fresh mission (from item 1, not going on from what
+    it drove) is told apart from one that keeps its mission: the vehicle's row is set
+    against the fresh mission from when it was given (against all its traffic, a tractor
+    sent out again after its own fields showed 47 km driven of 1.9 km planned)."""
+    from dispatcher.daemon import events as ev
+    from dispatcher.recording.mcap_file import EVENTS_TOPIC, LogContents, LogRecord
+    from dispatcher.review.report import _parse_plan, _replay_events
+
+    missions = {vid: _mission(vid) for vid in ROUTES}
+    first = _plan_doc(missions, "plan-1")
+    again = dict(missions)
+    again["v2"] = build_mission(MissionSpec("v2", GARAGE, 15.0, 5.0, SERVO, (FIELDS["B"].visit(),)))
+    second = _plan_doc(again, "plan-2")
+    plan = _parse_plan(first, 10)
+    assert plan is not None
+
+    def rec(event: ev.Event, ns: int) -> LogRecord:
+        return LogRecord(
+            EVENTS_TOPIC, "agrifleet.Event", "json", ns, json.dumps(ev.to_dict(event)).encode()
+        )
+
+    events = [
+        rec(ev.VehicleSeen("v1"), 20),
+        rec(ev.PlanReplaced(ev.FLEET, "plan-2", "v3 lost", second), 30),
+    ]
+    log = LogContents("logs", FARM, "plan-1", {}, events, True, None)
+    state, fresh = _replay_events(log, plan)
+    assert state is not None
+    assert fresh == {"v2": 30}  # v1's mission is the same: not sent out again
