@@ -173,8 +173,13 @@ def main() -> int:
         results = HERE / "RESULTS.md"
         if not results.exists():
             results.write_text("# Benchmark results\n\nNewest last. `make bench` appends.\n\n")
+        before = results.read_text()
         with results.open("a") as f:
-            f.write(text)
+            # A heading begins a paragraph of its own, whatever the file ended with.
+            f.write(
+                ("" if before.endswith("\n\n") else "\n" if before.endswith("\n") else "\n\n")
+                + text
+            )
     return 0
 
 
