@@ -22,7 +22,8 @@ fleet's total distance without worsening the objective's figure. One individual 
 first population is a giant tour, improved by an iterated local search of its own
 (:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
 look at), cut by the optimal split (:func:`giant_tour`); the same ILS orders the elite's
-longest route again each generation (:func:`route_ils`). A warm-started run (a re-plan)
+longest route again each generation (:func:`route_ils`), and, under the min-max
+objectives, one other route in turn (``other_routes``). A warm-started run (a re-plan)
 starts instead from the plan being carried out and variants of it (:func:`warm_population`).
 
 Under the makespan (the farm), a plan whose routes all end within minutes of the
@@ -102,6 +103,10 @@ class HybridParams(IGHOAParams):
     # Each generation, the elite's longest route (min-max) or its routes in turn (the sums)
     # get that ILS too (route_ils), for this many kicks a task of the route; 0: never.
     route_kicks: int = 10
+    # Under the min-max objectives, one other route in turn too each generation: the
+    # routes that do not set the cost got no ILS of their own (pcb3038 m=3 min-max 120 s,
+    # seeds 1-3: +3.02 % mean with it, +3.40 % without; benchmarks/RESULTS.md).
+    other_routes: bool = True
     # At most this many tasks over the whole population (its size times n; 0: no bound),
     # and never fewer than MIN_POPULATION individuals: a generation's crossovers and
     # evaluations cost O(population x n), and at n = 3038 the 200 of the paper left few

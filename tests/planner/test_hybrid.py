@@ -136,6 +136,32 @@ def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objecti
     assert a.cost == pytest.approx(a.figures.value(a.objective))
 
 
+@pytest.mark.parametrize("objective", ["minmax", "makespan"])
+def test_other_routes_are_ordered_again_under_min_max_and_the_answer_repeats(objective):
+    """``other_routes``: besides the longest, one route in turn gets the route ILS; the
+    best never worsens, the routes stay valid, and the same seed gives the same answer."""
+    problem = problem_for(240, 3, 5)
+    params = HybridParams(population=20, ils_steps=3, route_kicks=20)
+    runs = [
+        solve(problem, objective, "hybrid", stop_after(6), seed=2, params=params) for _ in (0, 1)
+    ]
+    a, b = runs
+    assert sorted(j for r in a.routes for j in r) == list(range(240)) and all(a.routes)
+    assert a.routes == b.routes and a.history == b.history
+    assert a.stats["other_gains"] > 0
+    assert all(y <= x for x, y in zip(a.history, a.history[1:], strict=False))
+    assert a.cost == pytest.approx(a.figures.value(a.objective))
+    off = solve(
+        problem,
+        objective,
+        "hybrid",
+        stop_after(6),
+        seed=2,
+        params=HybridParams(population=20, ils_steps=3, route_kicks=20, other_routes=False),
+    )
+    assert off.stats["other_gains"] == 0
+
+
 @SETTINGS
 @given(chromosomes(min_count=0), st.sampled_from(list(Objective)), st.integers(0, 1))
 def test_giant_tour_gives_a_valid_chromosome_with_its_pins(case, objective, min_count):
