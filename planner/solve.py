@@ -528,33 +528,27 @@ def solve(
             and not stop.interrupted()
         ):
             # The elite's longest route (min-max: the one that sets the cost), or each in
-            # turn (the sums), ordered again by the giant tour's ILS.
+            # turn (the sums), ordered again by the giant tour's ILS; under min-max one
+            # other route in turn too: shorter routes that do not set the cost leave room
+            # for the longest one's tasks, and the fleet's distance (the second objective)
+            # falls.
             minmax = obj in (Objective.MINMAX, Objective.MAKESPAN)
-            route = int(np.argmax(elite_route)) if minmax else (gen - 1) % m
-            kicks = params.route_kicks * int(elite_counts[route])
-            if hybrid.route_ils(
-                state, elite_perm, elite_counts, route, tables, neighbours, pins, kicks,
-                stop.deadline(),
-            ) > 0.0:  # fmt: skip
-                elite_cost = float(
-                    evaluate(elite_perm, elite_counts, int(obj), tables, elite_route)
-                )
-                stats["route_gains"] += 1.0
-                _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
-                               elite_route, elite_cost)  # fmt: skip
-            if minmax and params.other_routes and not stop.interrupted():
-                # And one other route in turn: shorter routes that do not set the cost
-                # leave room for the longest one's tasks, and the fleet's distance (the
-                # second objective) falls.
-                other = (gen - 1) % m
-                if other != route and hybrid.route_ils(
-                    state, elite_perm, elite_counts, other, tables, neighbours, pins,
-                    params.route_kicks * int(elite_counts[other]), stop.deadline(),
+            longest = int(np.argmax(elite_route)) if minmax else (gen - 1) % m
+            turns = [(longest, "route_gains")]
+            if minmax and params.other_routes and (gen - 1) % m != longest:
+                turns.append(((gen - 1) % m, "other_gains"))
+            for route, gains in turns:
+                if stop.interrupted():
+                    break
+                kicks = params.route_kicks * int(elite_counts[route])
+                if hybrid.route_ils(
+                    state, elite_perm, elite_counts, route, tables, neighbours, pins, kicks,
+                    stop.deadline(),
                 ) > 0.0:  # fmt: skip
                     elite_cost = float(
                         evaluate(elite_perm, elite_counts, int(obj), tables, elite_route)
                     )
-                    stats["other_gains"] += 1.0
+                    stats[gains] += 1.0
                     _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
                                    elite_route, elite_cost)  # fmt: skip
         history.append(elite_cost)
