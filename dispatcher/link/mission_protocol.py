@@ -307,10 +307,10 @@ class MissionUpload(_Transfer):
         out = []
         if seq < self._highest:
             # A late duplicate of an earlier request, or the vehicle started the transfer
-            # again (a duplicated MISSION_COUNT): either way what it asks for now. Answered,
-            # alone until it is back where it was (a late duplicate costs an item or two
-            # that the vehicle refuses; a restart followed from the last item asked for
-            # would never go on).
+            # again (a duplicated MISSION_COUNT): either way what it asks for now. Answered
+            # from there: the items of the window not sent within a timeout go (a late
+            # duplicate soon after costs an item or two that the vehicle refuses; a
+            # restart followed from the last item asked for would never go on).
             self.stats.stray += 1
             self._highest = seq
             self._progress(now)

@@ -1,11 +1,13 @@
 """The ground-station side of the mission protocol against recorded ArduPilot-style
 exchanges: what a Rover sends, in the order it sends it."""
 
+import pytest
 from helpers.messages import command_ack
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import (
     MIN_TIMEOUT_S,
+    TRANSFER_MIN_MARGIN_S,
     TRANSFER_RETRIES,
     Command,
     CommandSequence,
@@ -145,11 +147,15 @@ def test_stray_frames_are_counted_and_ignored():
 
 
 def test_the_timeout_follows_the_round_trip():
+    """A transfer's timeout is the round trip and a margin (RFC 6298's four deviations,
+    none on a steady link), not the command's 0.3 s at least: through 20 % loss an upload
+    spent nearly all its time waiting for it."""
     up = MissionUpload(items(40), VEHICLE, pipeline=1)
     up.start(0.0)
     for k in range(40):
         up.on_message(request(k), 0.02 * (k + 1))  # 20 ms round trips
-    assert up.timeout_s == MIN_TIMEOUT_S
+    assert up.timeout_s == pytest.approx(0.02 + TRANSFER_MIN_MARGIN_S)
+    assert up.timeout_s < MIN_TIMEOUT_S
 
 
 def test_start_sequence_sets_the_item_disarmed_then_arms_then_sets_auto_with_retries():
@@ -237,7 +243,9 @@ def test_silence_sends_the_window_again_from_the_item_asked_for_last():
     up.on_message(request(1), 0.2)  # then nothing: item 1 or 2, or the requests, lost
     assert up.on_tick(0.2 + up.timeout_s - 0.01) == []
     again = seqs(up.on_tick(0.2 + up.timeout_s))
-    assert again == [1, 2, 3, 4]  # from the one asked for, half the window
+    # From the one asked for, a whole pipeline however small the window has become: the
+    # vehicle may hold several of them, their requests lost.
+    assert again == list(range(1, 9))
     assert up.stats.retries == 1
 
 
@@ -254,8 +262,9 @@ def test_a_vehicle_that_starts_over_is_followed_from_where_it_asks():
     up = MissionUpload(items(12), VEHICLE, pipeline=4)
     up.start(0.0)
     asked_in_turn(up, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)  # items 0..8 sent
-    assert seqs(up.on_message(request(0), 2.0)) == [0]  # long after: sent again
-    assert seqs(up.on_message(request(1), 2.1)) == [1]  # and on, one by one
+    # Long after: the window from there again (sent a timeout ago), then on as asked.
+    assert seqs(up.on_message(request(0), 2.0)) == [0, 1, 2, 3]
+    assert seqs(up.on_message(request(1), 2.1)) == [4]
     again = up.on_tick(2.1 + up.timeout_s)  # nothing more came: from item 1, not item 5
     assert seqs(again)[0] == 1 and up.outcome is Outcome.RUNNING
 
