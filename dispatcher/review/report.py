@@ -1282,18 +1282,24 @@ def review_contents(log: LogContents) -> Review:
     status = _last_status(status_docs, plan.plan_id)
     vehicles: list[VehicleReview] = []
     results: dict[str, _VehicleResult] = {}
+
+    def reviewed_from(vid: str) -> int:
+        """From when the vehicle's traffic is set against its last mission (and a warning
+        when a re-plan sent it out again with that mission)."""
+        given_ns = fresh.get(vid, since_ns)
+        if given_ns > since_ns:
+            warnings.append(_fresh_mission(vid, given_ns, start_ns))
+        return given_ns
+
     for machine in plan.machines:
         t = traffic.get(machine.id, _Traffic([], [], []))
         vstatus = status.get(machine.id) if status else None
-        given_ns = fresh.get(machine.id, since_ns)
-        if given_ns > since_ns:
-            warnings.append(_fresh_mission(machine.id, given_ns, start_ns))
         result = _review_vehicle(
             machine.id,
             machine,
             t,
             vstatus if isinstance(vstatus, dict) else None,
-            given_ns,
+            reviewed_from(machine.id),
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
         )
@@ -1305,15 +1311,12 @@ def review_contents(log: LogContents) -> Review:
         # Reviewed against the last mission it was given, up to where it was lost.
         last = next(m for p in reversed(plans[base:]) for m in p.machines if m.id == vid)
         vstatus = status.get(vid) if status else None
-        given_ns = fresh.get(vid, since_ns)
-        if given_ns > since_ns:
-            warnings.append(_fresh_mission(vid, given_ns, start_ns))
         result = _review_vehicle(
             vid,
             last,
             traffic.get(vid, _Traffic([], [], [])),
             vstatus if isinstance(vstatus, dict) else None,
-            given_ns,
+            reviewed_from(vid),
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
         )
@@ -1537,13 +1540,14 @@ def _replay_events(log: LogContents, plan: _Plan) -> tuple[FleetState | None, di
             continue
         try:
             event = ev.from_dict(rec.decode_json())
-            before = {vid: v.items for vid, v in state.vehicles.items()}
+            replaced = isinstance(event, ev.PlanReplaced)
+            before = {vid: v.items for vid, v in state.vehicles.items()} if replaced else {}
             state.apply(event, rec.log_time_ns / 1e9)
         except (ValueError, KeyError) as exc:
             logger.warning("a recorded event cannot be replayed: %s", exc)
             continue
         seen = True
-        if isinstance(event, ev.PlanReplaced):
+        if replaced:
             for vid, v in state.vehicles.items():
                 if v.items != before[vid] and not v.switch and v.reached == 0:
                     fresh[vid] = rec.log_time_ns
