@@ -217,6 +217,7 @@ class SimTractor:
         self._stalled = False
         self._state = MissionState.STOPPED
         self._nav_index: int | None = None
+        self._nav_memory: StoredItem | None = None  # the item at _nav_index when last read
         self._resume_from: int | None = None
         self._dwell_until: float | None = None
         self._rtl_done = False
@@ -485,9 +486,16 @@ class SimTractor:
 
     # --- the mission -----------------------------------------------------------------------
     def _nav_item(self) -> StoredItem | None:
-        if self._nav_index is None or self._nav_index >= self.mission.count:
+        """The navigation item driven to. ArduPilot keeps it in memory (``_nav_cmd``): an
+        upload that ends the mission before it (truncated past it) leaves it driven to,
+        and the mission completes there."""
+        if self._nav_index is None:
             return None
-        return self.mission.item(self._nav_index)
+        if self._nav_index < self.mission.count:
+            self._nav_memory = self.mission.item(self._nav_index)
+            return self._nav_memory
+        memory = self._nav_memory
+        return memory if memory is not None and memory.seq == self._nav_index else None
 
     def _advance_from(self, index: int) -> list[mc.MAVLinkMessage]:
         """Run DO items from ``index`` up to the next navigation item, which becomes the
@@ -499,7 +507,7 @@ class SimTractor:
             assert item is not None
             if item.is_nav:
                 if item.command in _DRIVEN_NAV:
-                    self._nav_index = seq
+                    self._nav_index, self._nav_memory = seq, item
                     self._note_mission_current(out)
                     return out
                 out += self._texts(f"Skipping invalid cmd #{item.command}")
@@ -589,7 +597,7 @@ class SimTractor:
             self._state = MissionState.RUNNING
             return mc.MAV_RESULT_ACCEPTED, self._advance_from(seq)
         self._resume_from = seq
-        self._nav_index = seq
+        self._nav_index, self._nav_memory = seq, self.mission.item(seq)
         if self._state is MissionState.COMPLETE or reset:
             self._state = MissionState.STOPPED
         out: list[mc.MAVLinkMessage] = []

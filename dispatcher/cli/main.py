@@ -332,6 +332,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 stall_after_s=scenario.watch.stall_after_s,
                 lost_grace_s=scenario.watch.lost_grace_s,
                 window_items=scenario.watch.window_items,
+                topup_lead_s=scenario.watch.topup_lead_s,
                 store=store,
                 resume=run,
                 replanner=replanner,

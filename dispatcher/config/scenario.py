@@ -174,6 +174,13 @@ LIMITS: dict[str, Limit] = {
         "0 sends each mission whole",
         "more than any autopilot stores",
     ),
+    "topup_lead_s": Limit(
+        0.5,
+        600.0,
+        "s",
+        "a top-up takes a few round trips at least",
+        "ten minutes ahead is a whole mission on most radios",
+    ),
 }
 """Bounds of every number in a scenario or fleet file, by key (config/README.md lists them)."""
 # The keys in other units have the bounds of their parameter, in their unit.
@@ -214,7 +221,7 @@ MACHINE_KEYS = (
 )
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
 SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
-WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items")
+WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items", "topup_lead_s")
 # Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
 _ELSEWHERE_AT_TOP = {
     **dict.fromkeys(MACHINE_KEYS, "in a [[machine]] table"),
@@ -275,6 +282,12 @@ items a second over a farm radio a window is on board in a few seconds; most aut
 store several hundred."""
 
 
+TOPUP_LEAD_S = 10.0
+"""Default ``[dispatcher] topup_lead_s``: wall seconds before a vehicle reaches the end of
+the window of its mission it holds when its next window is sent, plus twice what the top-up
+is expected to take (at the pace of its last upload)."""
+
+
 @dataclass(frozen=True)
 class WatchSettings:
     """When the dispatcher gives a vehicle up as lost (the scenario's ``[dispatcher]``)."""
@@ -285,6 +298,9 @@ class WatchSettings:
     # Missions are sent in windows of whole fields, about this many items, topped up as
     # the vehicle drives (dispatcher/mission/window.py); 0: each mission whole.
     window_items: int = WINDOW_ITEMS
+    # A window is topped up when the vehicle is due at its end within this many wall
+    # seconds, plus twice what the top-up should take at the pace of its last upload.
+    topup_lead_s: float = TOPUP_LEAD_S
 
 
 @dataclass(frozen=True)

@@ -82,6 +82,17 @@ class UploadAcked(Event):
 
 
 @dataclass(frozen=True)
+class MissionNumbered(Event):
+    """The vehicle acknowledged a mission of ``count`` items (home included) that begins at
+    the plan's item ``base`` (its item 1; dispatcher/link/numbering.py): its reports are
+    read in those numbers from now on."""
+
+    kind: ClassVar[str] = "mission_numbered"
+    base: int
+    count: int
+
+
+@dataclass(frozen=True)
 class Resumed(Event):
     """The dispatcher restarted on its stored state: the vehicle is to be heard again and
     asked where it is before anything is sent to it."""

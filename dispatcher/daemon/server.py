@@ -25,7 +25,7 @@ from typing import Any
 
 import zenoh
 
-from dispatcher.config.scenario import WINDOW_ITEMS
+from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import ACTIVE, GONE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
 from dispatcher.daemon.store import Store, StoredRun
@@ -47,6 +47,7 @@ from dispatcher.link.mission_protocol import (
     set_current_command,
     start_mission_commands,
 )
+from dispatcher.link.numbering import choose_base, command_to_vehicle, on_board
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.window import window
@@ -62,10 +63,6 @@ LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
 FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
-TOPUP_LEAD_S = 10.0
-"""Wall seconds before a vehicle reaches the end of the window of its mission it holds
-(dispatcher/mission/window.py) when its next window is sent, plus twice what the top-up is
-expected to take (at the pace of its last upload)."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -108,6 +105,7 @@ class DaemonConfig:
     foxglove: tuple[str, int] | None = None
     # Missions go in windows of about this many items (dispatcher/mission/window.py); 0: whole.
     window_items: int = WINDOW_ITEMS
+    topup_lead_s: float = TOPUP_LEAD_S  # the scenario's [dispatcher] topup_lead_s
 
 
 class _VehicleSender:
@@ -142,6 +140,24 @@ class _VehicleSender:
                 log.debug("%s: frame not sent (session closing)", self.vid, exc_info=True)
 
 
+def _plan_numbers(doc: dict[str, Any], msg: mc.MAVLinkMessage, v: VehicleState) -> None:
+    """A vehicle's report of a mission item, as recorded: with the item in the plan's
+    numbers (``plan_seq``, ``plan_total``) when the vehicle's differ (link/numbering.py),
+    read as the fleet state is about to read it."""
+    numbering = v.numbering
+    if numbering.base == 1 and numbering.old_base == 1:
+        return
+    kind = msg.get_type()
+    if kind == "MISSION_CURRENT":
+        total = getattr(msg, "total", None)
+        seq, plan_total, _ = numbering.report(int(msg.seq), total)
+        doc["plan_seq"] = seq
+        if plan_total is not None:
+            doc["plan_total"] = plan_total
+    elif kind == "MISSION_ITEM_REACHED":
+        doc["plan_seq"] = numbering.report(int(msg.seq))[0]
+
+
 @dataclass
 class _Link:
     """Per-vehicle protocol state: the upload, then the start commands, then parking."""
@@ -158,6 +174,9 @@ class _Link:
     switch_from: int | None = None  # re-planned while driving: the first item of its new route
     join: int | None = None  # and where it went on in it, having driven past the kept part
     topup_from: int | None = None  # topping up: how many items it held before
+    # The upload under way: (the plan item it begins at, its items with home), the
+    # vehicle's numbering once it is acknowledged (link/numbering.py).
+    numbered: tuple[int, int] | None = None
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     starts: int = 0  # start attempts unanswered in a row
     heard_at: float | None = None  # when this process first heard the vehicle
@@ -456,7 +475,11 @@ class Dispatcher:
         if self.recorder is not None:
             # A refused frame is kept raw only: its decoded twin would read as the vehicle's.
             shown = msg if codec is not None else self.codec.decode_one(payload)
-            self.recorder.record_frame(key, payload, t_ns, mc.as_dict(shown) if shown else None)
+            doc = mc.as_dict(shown) if shown else None
+            v = self.state.vehicles.get(vid) if vid is not None else None
+            if doc is not None and v is not None and msg is not None:
+                _plan_numbers(doc, msg, v)
+            self.recorder.record_frame(key, payload, t_ns, doc)
         return msg
 
     def _foreign_command(
@@ -594,6 +617,11 @@ class Dispatcher:
         uploaded, start again after a reboot, park once done."""
         v = self.state.vehicles[vid]
         link = self.links[vid]
+        if link.numbered is not None and link.upload is not None:
+            if link.upload.outcome is Outcome.DONE:
+                self._numbered(v, link, now)
+            elif link.upload.outcome is Outcome.FAILED:
+                link.numbered = None
         if v.resuming:
             if v.phase is Phase.ALIVE and v.ready and v.mode is not None:
                 link.ready_since = link.ready_since or now
@@ -716,14 +744,14 @@ class Dispatcher:
     def _held_differences(self, v: VehicleState, read: MissionDownload) -> list[str]:
         """Where what ``read`` read back differs from the part of our mission the vehicle
         is to hold (empty: the same)."""
-        ours = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
+        ours = on_board(self.job.missions[v.id].to_mavlink(v.system_id)[: v.held], v.numbering.base)
         return mission_differences(read.items, ours, first=read.first, count=read.count)
 
     def _topup_due(self, v: VehicleState, link: _Link) -> int | None:
         """How many items a driving vehicle that holds a window of its mission is to hold
         now, when it is due its next window (mission/window.py): it will reach the end of
-        the one it holds, at its pace, within TOPUP_LEAD_S plus twice what the top-up should
-        take at the pace of its last upload. None: not due."""
+        the one it holds, at its pace, within the scenario's ``topup_lead_s`` plus twice
+        what the top-up should take at the pace of its last upload. None: not due."""
         if (
             v.held >= len(v.items)
             or self._replan is not None  # a re-plan under way: its next window may change
@@ -743,7 +771,7 @@ class Dispatcher:
         # What the next top-up takes, at the pace of its last upload (items a second): the
         # whole longer prefix, and the new items read back.
         took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        lead_s = TOPUP_LEAD_S + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
+        lead_s = self.config.topup_lead_s + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
         return more if left_s <= lead_s else None
 
     def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
@@ -772,7 +800,9 @@ class Dispatcher:
                 return
             link.upload = None
             link.download = MissionDownload(
-                v.system_id, first=link.topup_from, round_trip=link.round_trip
+                v.system_id,
+                first=v.numbering.to_vehicle(link.topup_from),
+                round_trip=link.round_trip,
             )
             self._send(v.id, link.download.start(now))
             return
@@ -789,26 +819,84 @@ class Dispatcher:
             self._send_window(v, link, now)
             return
         old_end, link.topup_from = link.topup_from, None
-        self._upload_took[v.id] = (now - link.since, 2 * v.held - old_end)
+        self._upload_took[v.id] = (now - link.since, 2 * v.held - old_end - v.numbering.base + 1)
         self.topups.append((v.id, v.held))
         complete = v.mission_state == mc.MISSION_STATE_COMPLETE
-        if (v.reached >= old_end - 1 and v.current < old_end) or complete:
+        at_end = v.current >= old_end - 1
+        if (
+            (v.reached >= old_end - 1 and v.current < old_end)
+            or complete
+            or (v.driving and v.mission_stopped)
+        ):
             # It reached the end of what it held before the new items were there: it
             # stands there, its mission complete; on from the next item (the first new one
-            # when its autopilot says so and what said it reached the last is lost).
+            # when its autopilot says so and what said it reached the last is lost). Or,
+            # renumbered under way, it stopped at the item it drove to from memory (or the
+            # set-current came after it): on after that one.
             self.window_waits += 1
-            link.start_item = max(v.go_on_item, old_end) if complete else v.resume_item
+            if complete and at_end:
+                link.start_item = max(v.go_on_item, old_end)
+            elif complete or v.mission_stopped:
+                link.start_item = v.go_on_item
+            else:
+                link.start_item = v.resume_item
             self._log(
                 "info", f"{v.id}: waited at the end of its window; on at item {link.start_item}"
             )
             self._start(v, link, now, in_auto=True)
 
     def _send_window(self, v: VehicleState, link: _Link, now: float) -> None:
-        """Upload the part of its mission the vehicle is to hold (``v.held`` items)."""
+        """Upload the part of its mission the vehicle is to hold (``v.held`` items): home
+        and the plan's items from a base on (link/numbering.py), the items before it left
+        out when the vehicle is far enough past them."""
         link.since = now
-        items = self.job.missions[v.id].to_mavlink(v.system_id)[: v.held]
+        # The first item it may still need: the one it drives to, or after the last one it
+        # reached if that is before (its reports lost); one standing still, where it is to
+        # be started.
+        first = min(v.resume_item, v.current if v.current > 0 else v.resume_item)
+        if not v.driving:
+            first = min(first, link.start_item)
+        starting = link.start is not None and link.start.outcome is Outcome.RUNNING
+        if v.driving and (
+            starting or not v.active_seen or v.mission_state != mc.MISSION_STATE_ACTIVE
+        ):
+            # Being started, or not yet known to drive the mission it is started on: where
+            # it drives to is not known for sure, and a new base might be past it.
+            base = v.numbering.base
+        else:
+            base = choose_base(v.numbering, v.held, first, v.current)
+        items = on_board(self.job.missions[v.id].to_mavlink(v.system_id)[: v.held], base)
+        link.numbered = (base, len(items))
+        if base != v.numbering.base:
+            self._log(
+                "info",
+                f"{v.id}: its mission from item {base} on ({len(items)} items with home, "
+                f"numbered from 1 on board)",
+            )
         link.upload = MissionUpload(items, v.system_id, round_trip=link.round_trip)
         self._send(v.id, link.upload.start(now))
+
+    def _numbered(self, v: VehicleState, link: _Link, now: float) -> None:
+        """An upload was acknowledged: the vehicle numbers its items as that upload did.
+        A driving vehicle whose numbers changed is sent on to the item it drives to in the
+        new numbers at once (its autopilot drives it from memory, and would stop there)."""
+        assert link.numbered is not None
+        base, count = link.numbered
+        link.numbered = None
+        was = v.numbering
+        if base == was.base and (base == 1 or count == was.count):
+            return
+        self._apply(ev.MissionNumbered(v.id, base, count), now)
+        if (
+            base == was.base
+            or not v.driving
+            or v.mission_state != mc.MISSION_STATE_ACTIVE
+            or v.current < base
+        ):
+            return  # a stopped one is started again on its new numbers (_advance_topup ...)
+        if link.start is None or link.start.outcome is not Outcome.RUNNING:
+            link.start = CommandSequence([set_current_command(v.current)], v.system_id)
+            self._send(v.id, link.start.start(now))
 
     def _upload_failed(self, v: VehicleState, link: _Link, reason: str, now: float) -> None:
         """An upload attempt failed: again after a pause, unless it was the last."""
@@ -1105,7 +1193,9 @@ class Dispatcher:
             # in the old mission and the new, so whatever part of the upload the autopilot
             # took, they are right (the count is read too).
             link.download = MissionDownload(
-                v.system_id, first=link.switch_from or 1, round_trip=link.round_trip
+                v.system_id,
+                first=v.numbering.to_vehicle(link.switch_from or 1),
+                round_trip=link.round_trip,
             )
             self._send(v.id, link.download.start(now))
             return
@@ -1116,7 +1206,7 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        self._upload_took[v.id] = (now - link.since, 2 * v.held - read.first)
+        self._upload_took[v.id] = (now - link.since, 2 * v.held - v.numbering.base + 1 - read.first)
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
         if link.hold is not None or not v.driving or (v.mission_stopped and not starting):
             # Told to HOLD while it was lost (the order may still be on its way), or stopped
@@ -1204,7 +1294,10 @@ class Dispatcher:
         key = wire.vehicle_to(self.farm, vid)
         sender = self.senders.get(vid)
         codec = self.codecs[vid]
+        numbering = self.state.vehicles[vid].numbering if vid in self.state.vehicles else None
         for msg in messages:
+            if numbering is not None:
+                msg = command_to_vehicle(msg, numbering)
             frame = codec.encode(msg)
             if sender is not None:
                 sender.send(frame)

@@ -24,6 +24,7 @@ from dispatcher.daemon.plausibility import ProgressWitness
 from dispatcher.daemon.plausibility import metres as _metres
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import ROVER_MODE_AUTO
+from dispatcher.link.numbering import Numbering
 from dispatcher.mission.document import PlanDocument, PlannedItem, PlannedMachine
 
 
@@ -158,13 +159,18 @@ class VehicleState:
     reboots: int = 0
     needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
     held_for_route: bool = False  # told to HOLD until its new route is on board (events)
-    mission_total: int | None = None  # MISSION_CURRENT.total: items on the vehicle less home
+    # MISSION_CURRENT.total: the last item the vehicle holds (in the plan's numbers)
+    mission_total: int | None = None
     mission_state: int | None = None  # MISSION_CURRENT.mission_state (MISSION_STATE_*)
     acked: bool = False  # the vehicle acknowledged our whole mission (it holds the plan's)
     # How many first items of ``items`` the vehicle holds, or is being given (a window of
     # its mission, dispatcher/mission/window.py); 0 until an upload begins.
     onboard: int = 0
     held_before: int = 0  # what it held before its last top-up (it may wait at its end)
+    numbering: Numbering = field(default_factory=Numbering)  # its item numbers vs the plan's
+    # Its last MISSION_CURRENT was of the mission it was sent last (not, renumbered under
+    # way, of the item it still drove to from memory in the numbers before).
+    current_renumbered: bool = True
     started_at: float | None = None  # wall time of the last MissionStarted
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
@@ -239,6 +245,8 @@ class VehicleState:
         # the report of that item was lost, or doubted (a demo at 2367x through a 10 %-loss
         # radio: positions too far apart to witness it), and it was taken for stalled.
         last = self.mission_total  # the last item it holds, as it says
+        if self.mission_state == mc.MISSION_STATE_COMPLETE and not self.current_renumbered:
+            return True  # renumbered under way, stopped at the item it drove to from memory
         return (
             last is not None
             and last < len(self.items) - 1
@@ -351,6 +359,8 @@ class FleetState:
                 v.acked = False
                 v.resuming = False
                 v.onboard, v.held_before = items or len(v.items), 0
+            case ev.MissionNumbered(base=base, count=count):
+                v.numbering = v.numbering.uploaded(base, count)
             case ev.WindowExtended(items=items):
                 v.held_before, v.onboard = v.held, items
             case ev.UploadAcked():
@@ -678,9 +688,15 @@ class FleetState:
             if msg.time_boot_ms > 0:
                 out += self._clock(v, msg.time_boot_ms / 1000.0, now)
         elif kind == "MISSION_CURRENT":
-            v.current = int(msg.seq)
             total = getattr(msg, "total", None)
-            if isinstance(total, int) and total != 0xFFFF:
+            before = v.numbering
+            seq, total, v.numbering = before.report(
+                int(msg.seq), total if isinstance(total, int) else None
+            )
+            v.current = seq
+            v.current_renumbered = seq != before.to_plan(int(msg.seq), before.old_base)
+            v.current_renumbered = v.current_renumbered or before.old_base == before.base
+            if total is not None:
                 v.mission_total = total
             state = getattr(msg, "mission_state", None)
             if isinstance(state, int) and state != mc.MISSION_STATE_UNKNOWN:
@@ -690,7 +706,8 @@ class FleetState:
             text = mc.statustext(msg)
             v.texts.append((now, int(msg.severity), text))
         elif kind == "MISSION_ITEM_REACHED":
-            out += self._claim(v, int(msg.seq), False, "MISSION_ITEM_REACHED", now)
+            seq, _, v.numbering = v.numbering.report(int(msg.seq))
+            out += self._claim(v, seq, False, "MISSION_ITEM_REACHED", now)
         return out
 
     def _follow(self, v: VehicleState) -> None:
@@ -733,7 +750,11 @@ class FleetState:
             v.active_seen = True
         if not v.active_seen:
             return []
-        done = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
+        done = v.current - 1
+        if v.mission_state == mc.MISSION_STATE_COMPLETE:
+            # At the end of what it holds; or, renumbered under way, at the item it drove
+            # to from memory past the new count (link/numbering.py): that one.
+            done = last if v.current_renumbered else v.current
         if done > v.reached:
             return self._claim(v, done, True, "MISSION_CURRENT", now)
         return []

@@ -552,7 +552,7 @@ def _read_events(
             if t_ms is not None and t_ms > 0:
                 run_clock(t_ms / 1000.0, log_ns)
         elif kind == "MISSION_ITEM_REACHED":
-            seq = msg.get("seq")
+            seq = msg.get("plan_seq", msg.get("seq"))  # in the plan's numbers (link/numbering.py)
             if not isinstance(seq, int):
                 continue
             settle(clock.now)
@@ -571,7 +571,8 @@ def _read_events(
             else:
                 reached.append((seq, clock.now, order))
         elif kind == "MISSION_CURRENT":
-            seq, total = msg.get("seq"), msg.get("total")
+            seq = msg.get("plan_seq", msg.get("seq"))
+            total = msg.get("plan_total", msg.get("total"))
             if isinstance(total, int) and total not in (0, 0xFFFF):
                 # ours, or a window of ours (dispatcher/mission/window.py)
                 this_mission = total <= len(items) - 1

@@ -511,6 +511,7 @@ def run_demo(
         stall_after_s=dispatch.scenario.watch.stall_after_s,
         lost_grace_s=dispatch.scenario.watch.lost_grace_s,
         window_items=dispatch.scenario.watch.window_items,
+        topup_lead_s=dispatch.scenario.watch.topup_lead_s,
         on_progress=printer,
         replanner=replanner_for(dispatch.scenario, dispatch),
         keys=keys,

@@ -2,7 +2,7 @@
 exchanges: what a Rover sends, in the order it sends it."""
 
 import pytest
-from helpers.messages import command_ack
+from helpers.messages import command_ack, waypoints
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import (
@@ -20,25 +20,7 @@ VEHICLE = 7
 
 
 def items(n):
-    return [
-        mc.mission_item_int(
-            target_system=VEHICLE,
-            target_component=1,
-            seq=k,
-            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            command=mc.MAV_CMD_NAV_WAYPOINT,
-            current=0,
-            autocontinue=1,
-            param1=0,
-            param2=0,
-            param3=0,
-            param4=0,
-            x=440000000 + k,
-            y=873000000 + k,
-            z=0,
-        )
-        for k in range(n)
-    ]
+    return waypoints(n, VEHICLE)
 
 
 def request(seq):

@@ -50,3 +50,26 @@ def track(items, first: int, last: int, t0_ms: int = 1_000) -> list[mc.MAVLinkMe
         for k, item in enumerate(items[first : last + 1])
         if item.x or item.y
     ]
+
+
+def waypoints(n: int, target_system: int = 1) -> list[mc.MAVLinkMessage]:
+    """A mission of ``n`` MISSION_ITEM_INT waypoints (seq 0 .. n-1) a step apart."""
+    return [
+        mc.mission_item_int(
+            target_system=target_system,
+            target_component=1,
+            seq=k,
+            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            command=mc.MAV_CMD_NAV_WAYPOINT,
+            current=0,
+            autocontinue=1,
+            param1=0,
+            param2=0,
+            param3=0,
+            param4=0,
+            x=440000000 + k,
+            y=873000000 + k,
+            z=0,
+        )
+        for k in range(n)
+    ]
