@@ -177,6 +177,9 @@ class _Link:
     # The upload under way: (the plan item it begins at, its items with home), the
     # vehicle's numbering once it is acknowledged (link/numbering.py).
     numbered: tuple[int, int] | None = None
+    # Renumbered while driving: until it is seen driving the new mission, one whose mission
+    # stopped (at the item it drove to from memory, the set-current late) is started again.
+    renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     starts: int = 0  # start attempts unanswered in a row
     heard_at: float | None = None  # when this process first heard the vehicle
@@ -739,6 +742,8 @@ class Dispatcher:
             self._log("info", f"{vid}: mission complete; HOLD and disarm")
             self._send(vid, link.park.start(now))
         elif v.phase is Phase.RUNNING:
+            if link.renumbered:
+                self._after_renumbering(v, link, now)
             self._advance_topup(v, link, now)
 
     def _held_differences(self, v: VehicleState, read: MissionDownload) -> list[str]:
@@ -865,6 +870,8 @@ class Dispatcher:
             base = v.numbering.base
         else:
             base = choose_base(v.numbering, v.held, first, v.current)
+        if base < v.numbering.base and v.driving:
+            base = v.numbering.base  # never under a driving vehicle (its index would move)
         items = on_board(self.job.missions[v.id].to_mavlink(v.system_id)[: v.held], base)
         link.numbered = (base, len(items))
         if base != v.numbering.base:
@@ -875,6 +882,29 @@ class Dispatcher:
             )
         link.upload = MissionUpload(items, v.system_id, round_trip=link.round_trip)
         self._send(v.id, link.upload.start(now))
+
+    def _after_renumbering(self, v: VehicleState, link: _Link, now: float) -> None:
+        """A driving vehicle renumbered under way: once it drives the new mission, done;
+        if its mission stopped meanwhile (it reached the item it drove to from memory
+        before the set-current came, or the set-current came after and stopped it there),
+        started again after the last item it reached."""
+        if any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges()):
+            return
+        if not v.driving or v.held_for_route or link.hold is not None:
+            link.renumbered = False  # stopped by us, or by its own failsafe: handled there
+            return
+        if v.mission_state == mc.MISSION_STATE_ACTIVE and v.current_renumbered:
+            link.renumbered = False
+            return
+        if v.mission_stopped and v.go_on_item < v.held:
+            link.renumbered = False
+            link.start_item = v.go_on_item
+            self._log(
+                "info",
+                f"{v.id}: stopped at item {v.current} as it was renumbered; on at item "
+                f"{link.start_item}",
+            )
+            self._start(v, link, now, in_auto=True)
 
     def _numbered(self, v: VehicleState, link: _Link, now: float) -> None:
         """An upload was acknowledged: the vehicle numbers its items as that upload did.
@@ -894,6 +924,7 @@ class Dispatcher:
             or v.current < base
         ):
             return  # a stopped one is started again on its new numbers (_advance_topup ...)
+        link.renumbered = True
         if link.start is None or link.start.outcome is not Outcome.RUNNING:
             link.start = CommandSequence([set_current_command(v.current)], v.system_id)
             self._send(v.id, link.start.start(now))

@@ -102,8 +102,11 @@ def choose_base(numbering: Numbering, held: int, first: int, driving_to: int) ->
     ends MARGIN items or more before the index it drives to or stands at now
     (``driving_to``, plan numbers; 0: none); else the base it has. (Standing still, it
     reports that index too: a number under the new count would read as one of the new
-    mission's.)"""
+    mission's.) A mission that needs items before the base (a new one, given to a vehicle
+    standing still) begins at 1 again."""
     first = max(first, 1)
+    if first < numbering.base:
+        return 1
     if first - numbering.base < LEAST_SAVED:
         return numbering.base
     count = held - first + 1

@@ -38,6 +38,9 @@ def test_a_vehicle_far_into_its_mission_is_sent_the_items_from_where_it_is() -> 
     # Not when the new mission would reach the index it drives to (less MARGIN).
     assert choose_base(n, held=470 + 475 - MARGIN, first=470, driving_to=475) == 1
     assert choose_base(n, held=470 + 475 - MARGIN - 2, first=470, driving_to=475) == 470
+    # A new mission (items before the base needed): from the start again.
+    renumbered = n.uploaded(470, 251)
+    assert choose_base(renumbered, held=29, first=1, driving_to=0) == 1
     # Nor when it saves fewer than LEAST_SAVED items.
     assert choose_base(n, held=40, first=LEAST_SAVED, driving_to=39 + MARGIN + 10) == 1
 
