@@ -78,16 +78,21 @@ def review_run(tmp_path: Path) -> Review:
 
 
 def check_worked_once(review: Review, tight: set[str]) -> None:
-    """Every field done exactly once, by its vehicle; the mission driven to its end, never
-    more than 3 % beyond its length (a swath driven twice is more), and for the vehicles in
-    ``tight`` (those whose whole track was recorded) not less than 3 % short of it."""
+    """Every field done exactly once, by its vehicle, each of its segments worked once
+    (none twice, none never); the mission driven to its end, never more than 5 % beyond its
+    length, and for the vehicles in ``tight`` (those whose whole track was recorded) not
+    less than 3 % short of it. (A bound of 3 % beyond failed a clean-clone CI run once,
+    at 3.04 %, a tractor stopped and started again across the restart; a swath here is
+    about 5 % of a mission, and the segments say whether one was worked twice.)"""
     table = review_table(review)
     done = [f for v in review.vehicles for f in v.fields_done]
     assert sorted(done) == sorted(f.id for f in review.fields), table
+    for f in review.fields:
+        assert not f.worked_twice and not f.never_worked, table
     for v in review.vehicles:
         assert sorted(v.fields_done) == sorted(v.fields_planned), table
         assert v.mission_complete, table
-        assert v.distance_m <= 1.03 * v.planned_distance_m, table
+        assert v.distance_m <= 1.05 * v.planned_distance_m, table
         if v.id in tight:
             assert v.distance_m >= 0.97 * v.planned_distance_m, table
 

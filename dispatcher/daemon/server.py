@@ -824,8 +824,9 @@ class Dispatcher:
             self._send_window(v, link, now)
             return
         old_end, link.topup_from = link.topup_from, None
-        self._upload_took[v.id] = (now - link.since, 2 * v.held - old_end - v.numbering.base + 1)
-        self.topups.append((v.id, v.held))
+        sent = v.held - v.numbering.base + 1  # home and the items from its base
+        self._upload_took[v.id] = (now - link.since, sent + v.held - old_end)
+        self.topups.append((v.id, sent))
         complete = v.mission_state == mc.MISSION_STATE_COMPLETE
         at_end = v.current >= old_end - 1
         if (

@@ -360,6 +360,8 @@ class FleetState:
                 v.resuming = False
                 v.onboard, v.held_before = items or len(v.items), 0
             case ev.MissionNumbered(base=base, count=count):
+                if base != v.numbering.base:
+                    v.current_renumbered = False  # until a MISSION_CURRENT in the new numbers
                 v.numbering = v.numbering.uploaded(base, count)
             case ev.WindowExtended(items=items):
                 v.held_before, v.onboard = v.held, items

@@ -777,3 +777,42 @@ def test_a_mission_driven_to_its_end_before_the_start_was_acknowledged_counts(di
         for event in state.on_message("v1", done, t):
             state.apply(event, t)
     assert v.phase is Phase.DONE
+
+
+SET_CURRENT = mc.MAV_CMD_DO_SET_MISSION_CURRENT
+
+
+def test_renumbered_under_way_and_stopped_at_the_item_driven_from_memory_it_goes_on(dispatch):
+    """A driving vehicle sent its mission from item ``base`` on (link/numbering.py) that
+    reached the item it drove to from memory before the set-current came: it stands there,
+    its mission complete in the old numbers. That is its progress (not the whole window),
+    it is not taken for stalled, and it is started again after it, in the new numbers."""
+    daemon = daemon_for(dispatch)
+    v = daemon.state.vehicles["v1"]
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    n = len(v.items)
+    assert n > 30, n
+    driven = n - 3  # it drives to the plan's item n - 3, its own n - 3 too (base 1)
+    base = driven - 20  # renumbered: the new mission ends well before that index
+    count = n - base + 1  # home and the plan's items base .. n - 1
+    running = heartbeat(11)
+    running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    for event in running_events("v1", driven - 1):
+        daemon.state.apply(event, 0.0)
+    feed(daemon.state, "v1", running, 0.0)
+    feed(daemon.state, "v1", mission_current(11, driven, n - 1, mc.MISSION_STATE_ACTIVE), 1.0)
+    assert v.current == driven
+    # Acknowledged: the daemon reads it in the new numbers from now on.
+    daemon.state.apply(ev.MissionNumbered("v1", base, count), 1.1)
+    link = daemon.links["v1"]
+    link.renumbered = True
+    # Its reports of the item it drove to come in the old numbers, past the new count.
+    done = mission_current(11, driven, count - 1, mc.MISSION_STATE_COMPLETE)
+    feed(daemon.state, "v1", from_vehicle(mc.message("MISSION_ITEM_REACHED", seq=driven), 11), 2.0)
+    feed(daemon.state, "v1", done, 2.0)
+    assert v.current == driven and v.mission_total == n - 1
+    assert not v.current_renumbered and v.at_window_end
+    daemon._advance("v1", 2.1)
+    assert link.start is not None and link.start.outcome is Outcome.RUNNING
+    (item,) = [c.params[0] for c in link.start.commands if c.command == SET_CURRENT]
+    assert item == driven + 1  # the plan's numbers; sent as the vehicle's driven + 1 - base + 1
