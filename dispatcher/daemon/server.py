@@ -27,7 +27,15 @@ import zenoh
 
 from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.state import ACTIVE, GONE, TEXT_WINDOW_S, FleetState, Phase, VehicleState
+from dispatcher.daemon.state import (
+    ACTIVE,
+    CURRENT_SETTLE_S,
+    GONE,
+    TEXT_WINDOW_S,
+    FleetState,
+    Phase,
+    VehicleState,
+)
 from dispatcher.daemon.store import Store, StoredRun
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
@@ -863,11 +871,10 @@ class Dispatcher:
         if not v.driving:
             first = min(first, link.start_item)
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
-        if v.driving and (
-            starting or not v.active_seen or v.mission_state != mc.MISSION_STATE_ACTIVE
-        ):
-            # Being started, or not yet known to drive the mission it is started on: where
-            # it drives to is not known for sure, and a new base might be past it.
+        just_started = v.started_at is not None and now - v.started_at < CURRENT_SETTLE_S
+        if v.driving and (starting or just_started or v.mission_state != mc.MISSION_STATE_ACTIVE):
+            # Being started, or not yet heard driving the mission since: where it drives to
+            # is not known for sure, and a new base might be past it.
             base = v.numbering.base
         else:
             base = choose_base(v.numbering, v.held, first, v.current)

@@ -44,6 +44,10 @@ own, and with 30 % of the frames lost each way about half of them fail (0.51^13 
 TRANSFER_PIPELINE = 8
 """Mission items in flight on a clean link: sent ahead of the vehicle's requests by an upload
 (:class:`MissionUpload`), asked for at once by a read-back (:class:`MissionDownload`)."""
+LOST_LAST_REQUESTS = 2
+"""An upload's ACCEPTED counts when the vehicle asked for one of its last items this many
+items or less before the end (its requests for the ones after lost); one before that is
+taken for a late answer to an earlier upload."""
 TRANSFER_STALL_S = 10.0
 """A transfer also needs this long without progress before it fails (its retries may come
 faster than the vehicle's own one-second re-requests; ArduPilot gives up after 8 s)."""
@@ -277,7 +281,17 @@ class MissionUpload(_Transfer):
         if kind == "MISSION_ACK":
             result = int(msg.type)
             n = len(self.items)
-            if result == mc.MAV_MISSION_ACCEPTED and self._asked_last and n - 1 in self._item_at:
+            if (
+                result == mc.MAV_MISSION_ACCEPTED
+                and n - 1 in self._item_at
+                and self._highest >= n - 1 - LOST_LAST_REQUESTS
+            ):
+                # The vehicle asked for one of the last items and every item went out: its
+                # ACCEPTED ends the transfer, also when its requests for the last ones were
+                # lost (the items went in the pipeline). Before, such an upload began again
+                # from the count, twice in a row in a 20 %-loss soak. Unconfirmed then (the
+                # daemon reads the mission back).
+                self.unconfirmed = not self._asked_last
                 self.outcome = Outcome.DONE
                 return []
             if result == mc.MAV_MISSION_ERROR and self._asked_last and n - 1 in self._sent_twice:

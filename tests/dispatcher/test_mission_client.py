@@ -239,6 +239,14 @@ def test_an_accepted_ack_before_the_last_item_is_asked_for_is_stale():
     assert up.outcome is Outcome.RUNNING and up.stats.stray == 1
 
 
+def test_an_accepted_ack_after_a_lost_request_for_the_last_item_ends_the_upload():
+    up = MissionUpload(items(10), VEHICLE, pipeline=8)
+    up.start(0.0)
+    asked_in_turn(up, *(0.1 * k for k in range(1, 10)))  # requests 0..8; 9's is lost
+    up.on_message(ack(mc.MAV_MISSION_ACCEPTED), 1.0)
+    assert up.outcome is Outcome.DONE and up.unconfirmed  # the daemon reads it back
+
+
 def test_a_vehicle_that_starts_over_is_followed_from_where_it_asks():
     # A duplicated MISSION_COUNT came late: ArduPilot starts the transfer again from item 0.
     up = MissionUpload(items(12), VEHICLE, pipeline=4)
