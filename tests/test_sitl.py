@@ -233,8 +233,9 @@ def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
     procs: Processes, sitl: Sitl, tmp_path: Path
 ) -> None:
     # Windows of a field: ArduPilot holds the first field's items, then is given the
-    # rest (the longer prefix uploaded while it drives, the new items read back; once it
-    # is far enough in, only the items from where it is).
+    # rest (the longer prefix uploaded while it drives, the new items read back; or, far
+    # enough in and far enough from the item it drives to, only the items from where it
+    # is: dispatcher/link/numbering.py).
     scenario = tmp_path / "windows.toml"
     farm = SCENARIO.parent / "sitl-farm.geojson"
     scenario.write_text(
@@ -253,10 +254,6 @@ def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
     first = [e["items"] for e in events if e["kind"] == "upload_started"]
     topups = [e["items"] for e in events if e["kind"] == "window_extended"]
     assert first and first[0] < planned and topups and topups[-1] == planned, events
-    # Topped up late (topup_lead_s), far into its mission: sent the items from where it is,
-    # numbered from 1 on board (dispatcher/link/numbering.py), and driven on in them.
-    numbered = [e for e in events if e["kind"] == "mission_numbered"]
-    assert numbered and numbered[0]["base"] > 1, events
     review = review_contents(log)
     # Not how it drove: ArduPilot restarts the command it drives when an upload changes the
     # commands its mission change detector looks ahead at ("Auto mission changed,

@@ -27,6 +27,7 @@ import zenoh
 
 from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
+from dispatcher.daemon.plausibility import metres
 from dispatcher.daemon.state import (
     ACTIVE,
     CURRENT_SETTLE_S,
@@ -71,6 +72,9 @@ LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
 FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
+RENUMBER_MARGIN_S = 0.5
+"""Wall seconds a driving vehicle is to be at least that far from the item it drives to,
+beyond twice the upload's time, for its mission to be renumbered under it."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -872,13 +876,17 @@ class Dispatcher:
             first = min(first, link.start_item)
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
         just_started = v.started_at is not None and now - v.started_at < CURRENT_SETTLE_S
-        if v.driving and (starting or just_started or v.mission_state != mc.MISSION_STATE_ACTIVE):
+        # Its mission runs: ArduPilot follows a change of it (not one complete or stopped).
+        running = v.driving and not v.mission_stopped
+        if running and (starting or just_started or v.mission_state != mc.MISSION_STATE_ACTIVE):
             # Being started, or not yet heard driving the mission since: where it drives to
             # is not known for sure, and a new base might be past it.
             base = v.numbering.base
         else:
             base = choose_base(v.numbering, v.held, first, v.current)
-        if base < v.numbering.base and v.driving:
+            if running and base != v.numbering.base and not self._outruns(v, link, base):
+                base = v.numbering.base
+        if base < v.numbering.base and running:
             base = v.numbering.base  # never under a driving vehicle (its index would move)
         items = on_board(self.job.missions[v.id].to_mavlink(v.system_id)[: v.held], base)
         link.numbered = (base, len(items))
@@ -913,6 +921,22 @@ class Dispatcher:
                 f"{link.start_item}",
             )
             self._start(v, link, now, in_auto=True)
+
+    def _outruns(self, v: VehicleState, link: _Link, base: int) -> bool:
+        """Whether an upload from ``base`` should be on board, and the vehicle sent on in its
+        new numbers, before a driving vehicle reaches the item it drives to: ArduPilot cuts
+        the mission to the new count at the MISSION_COUNT, so it stops at that item, its
+        mission complete, if it gets there first (link/numbering.py). Twice the time the
+        upload takes at the pace of the last one, and half a second, against the distance
+        to the item at the fastest speed of its mission and its clock's speedup."""
+        if not 0 < v.current < len(v.items) or v.lat is None or v.lon is None:
+            return False
+        item = v.items[v.current]
+        took_s, items = self._upload_took.get(v.id, (0.0, 1))
+        count = v.held - base + 1
+        upload_s = 2.0 * took_s * count / max(items, 1) + RENUMBER_MARGIN_S
+        speed = v.witness.top_speed_ms * max(v.clock.rate, 1e-6)
+        return metres((v.lat, v.lon), (item.lat, item.lon)) / speed >= upload_s
 
     def _numbered(self, v: VehicleState, link: _Link, now: float) -> None:
         """An upload was acknowledged: the vehicle numbers its items as that upload did.

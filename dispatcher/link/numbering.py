@@ -8,17 +8,20 @@ mission is sent home plus the items from where it is, not the whole prefix again
 through a lossy radio costs seconds per few hundred items (docs/link.md, "Missions go in
 windows").
 
-Renumbering a vehicle that drives its mission is safe only one way round. ArduPilot replaces
-items in place as they come, keeps its count until the upload ends (then truncates), and
-when its mission changes under AUTO it restarts the item it drives to *by index* from
-storage (Rover ``ModeAuto::update``, ``AP_Mission::restart_current_nav_cmd``); one past the
-new count it keeps driving from memory, and stops at it, its mission complete. So a mission
-is renumbered only when the new one ends ``MARGIN`` items or more before the index the
-vehicle drives to (:func:`choose_base`): every item it may read while the upload goes on is
-untouched and of the old numbering, and every index of the old numbering it may report from
-then on is past the new count. Reports are then told apart by their number (and
-MISSION_CURRENT by its ``total``, the count) in :meth:`Numbering.report`, and the item it
-drives to is set again in the new numbers as soon as the upload is acknowledged.
+Renumbering a vehicle that drives its mission is safe only one way round. ArduPilot cuts
+its mission to the new count at the MISSION_COUNT (``MissionItemProtocol::handle_mission_count``,
+``truncate``), replaces items in place as they come, and when its mission changes under AUTO
+it restarts the item it drives to *by index* from storage (Rover ``ModeAuto::update``,
+``AP_Mission::restart_current_nav_cmd``); an index past the new count it keeps driving from
+memory, and stops there, its mission complete. So a mission is renumbered only when the new
+one ends ``MARGIN`` items or more before the index the vehicle drives to (:func:`choose_base`):
+no item it may read while the upload goes on is one of the new mission's, and every index
+of the old numbering it may report from then on is past the new count. Reports are then
+told apart by their number (and MISSION_CURRENT by its ``total``, the count) in
+:meth:`Numbering.report`, and the item it drives to is set again in the new numbers as soon
+as the upload is acknowledged. The daemon renumbers a vehicle whose mission runs only when
+that upload should be on board before it reaches the item it drives to (it would stop
+there); one standing still (in the garage, held, at the end of its window) any time.
 """
 
 from __future__ import annotations
