@@ -878,9 +878,11 @@ class Dispatcher:
         just_started = v.started_at is not None and now - v.started_at < CURRENT_SETTLE_S
         # Its mission runs: ArduPilot follows a change of it (not one complete or stopped).
         running = v.driving and not v.mission_stopped
-        if running and (starting or just_started or v.mission_state != mc.MISSION_STATE_ACTIVE):
-            # Being started, or not yet heard driving the mission since: where it drives to
-            # is not known for sure, and a new base might be past it.
+        if starting or just_started or (running and v.mission_state != mc.MISSION_STATE_ACTIVE):
+            # Being started, or not yet heard driving the mission since (what it said before
+            # the start may still stand: a tractor started at item 36 after a restart was
+            # taken for standing still and renumbered past it): where it drives to is not
+            # known for sure, and a new base might be past it.
             base = v.numbering.base
         else:
             base = choose_base(v.numbering, v.held, first, v.current)
@@ -949,14 +951,13 @@ class Dispatcher:
         if base == was.base and (base == 1 or count == was.count):
             return
         self._apply(ev.MissionNumbered(v.id, base, count), now)
-        if (
-            base == was.base
-            or not v.driving
-            or v.mission_state != mc.MISSION_STATE_ACTIVE
-            or v.current < base
-        ):
-            return  # a stopped one is started again on its new numbers (_advance_topup ...)
-        link.renumbered = True
+        if base == was.base:
+            return
+        # Watched until it drives the new mission: one whose mission stops short is started
+        # again (_after_renumbering).
+        link.renumbered = v.phase is Phase.RUNNING
+        if not v.driving or v.mission_state != mc.MISSION_STATE_ACTIVE or v.current < base:
+            return
         if link.start is None or link.start.outcome is not Outcome.RUNNING:
             link.start = CommandSequence([set_current_command(v.current)], v.system_id)
             self._send(v.id, link.start.start(now))
