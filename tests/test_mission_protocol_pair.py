@@ -4,6 +4,7 @@ messages lost on the way."""
 
 import pytest
 from helpers.mavlink_wire import Wire
+from helpers.messages import waypoints
 
 from dispatcher.link.mission_protocol import (
     MissionDownload,
@@ -35,27 +36,7 @@ def home() -> StoredItem:
 
 
 def mission(n):
-    from dispatcher.link import mavlink as mc
-
-    return [
-        mc.mission_item_int(
-            target_system=VEHICLE,
-            target_component=1,
-            seq=k,
-            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            command=mc.MAV_CMD_NAV_WAYPOINT,
-            current=0,
-            autocontinue=1,
-            param1=0,
-            param2=0,
-            param3=0,
-            param4=0,
-            x=440000000 + 10 * k,
-            y=873000000 + 7 * k,
-            z=0,
-        )
-        for k in range(n)
-    ]
+    return waypoints(n, VEHICLE, step_x=10, step_y=7)
 
 
 def run_pair(n, lose=(), request="MISSION_REQUEST", client=None, server=None):

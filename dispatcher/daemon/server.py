@@ -911,7 +911,7 @@ class Dispatcher:
         if not v.driving or v.held_for_route or link.hold is not None:
             link.renumbered = False  # stopped by us, or by its own failsafe: handled there
             return
-        if v.mission_state == mc.MISSION_STATE_ACTIVE and v.current_renumbered:
+        if v.mission_state == mc.MISSION_STATE_ACTIVE and v.current_of_last_upload:
             link.renumbered = False
             return
         if v.mission_stopped and v.go_on_item < v.held:

@@ -168,9 +168,9 @@ class VehicleState:
     onboard: int = 0
     held_before: int = 0  # what it held before its last top-up (it may wait at its end)
     numbering: Numbering = field(default_factory=Numbering)  # its item numbers vs the plan's
-    # Its last MISSION_CURRENT was of the mission it was sent last (not, renumbered under
+    # Its last MISSION_CURRENT was in the numbers of its last upload (not, renumbered under
     # way, of the item it still drove to from memory in the numbers before).
-    current_renumbered: bool = True
+    current_of_last_upload: bool = True
     started_at: float | None = None  # wall time of the last MissionStarted
     progress_s: float | None = None  # its own time it last got somewhere (moved, reached)
     progress_at: tuple[float, float] | None = None  # (lat, lon) there
@@ -245,7 +245,7 @@ class VehicleState:
         # the report of that item was lost, or doubted (a demo at 2367x through a 10 %-loss
         # radio: positions too far apart to witness it), and it was taken for stalled.
         last = self.mission_total  # the last item it holds, as it says
-        if self.mission_state == mc.MISSION_STATE_COMPLETE and not self.current_renumbered:
+        if self.mission_state == mc.MISSION_STATE_COMPLETE and not self.current_of_last_upload:
             return True  # renumbered under way, stopped at the item it drove to from memory
         return (
             last is not None
@@ -361,7 +361,7 @@ class FleetState:
                 v.onboard, v.held_before = items or len(v.items), 0
             case ev.MissionNumbered(base=base, count=count):
                 if base != v.numbering.base:
-                    v.current_renumbered = False  # until a MISSION_CURRENT in the new numbers
+                    v.current_of_last_upload = False  # until a MISSION_CURRENT in the new numbers
                 v.numbering = v.numbering.uploaded(base, count)
             case ev.WindowExtended(items=items):
                 v.held_before, v.onboard = v.held, items
@@ -690,14 +690,12 @@ class FleetState:
             if msg.time_boot_ms > 0:
                 out += self._clock(v, msg.time_boot_ms / 1000.0, now)
         elif kind == "MISSION_CURRENT":
-            total = getattr(msg, "total", None)
+            total_sent = getattr(msg, "total", None)
+            total_sent = total_sent if isinstance(total_sent, int) else None
             before = v.numbering
-            seq, total, v.numbering = before.report(
-                int(msg.seq), total if isinstance(total, int) else None
-            )
+            seq, total, v.numbering = before.report(int(msg.seq), total_sent)
             v.current = seq
-            v.current_renumbered = seq != before.to_plan(int(msg.seq), before.old_base)
-            v.current_renumbered = v.current_renumbered or before.old_base == before.base
+            v.current_of_last_upload = before.in_last(int(msg.seq), total_sent)
             if total is not None:
                 v.mission_total = total
             state = getattr(msg, "mission_state", None)
@@ -756,7 +754,7 @@ class FleetState:
         if v.mission_state == mc.MISSION_STATE_COMPLETE:
             # At the end of what it holds; or, renumbered under way, at the item it drove
             # to from memory past the new count (link/numbering.py): that one.
-            done = last if v.current_renumbered else v.current
+            done = last if v.current_of_last_upload else v.current
         if done > v.reached:
             return self._claim(v, done, True, "MISSION_CURRENT", now)
         return []

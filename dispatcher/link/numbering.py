@@ -72,21 +72,23 @@ class Numbering:
             return replace(self, count=count)
         return Numbering(base, count, self.base, self.count)
 
+    def in_last(self, seq: int, total: int | None = None) -> bool:
+        """Whether a report (as :meth:`report` takes it) is in the numbers of the last
+        upload, not of the one before: a number past the new count is of the old numbering
+        (the item driven from memory across the upload, or a late report); so is a
+        MISSION_CURRENT of another count."""
+        if self.old_base == self.base:
+            return True
+        if total is not None and total != 0xFFFF and total != self.count - 1:
+            return False
+        return seq < self.count
+
     def report(self, seq: int, total: int | None = None) -> tuple[int, int | None, Numbering]:
         """A report's item (MISSION_ITEM_REACHED ``seq``, or MISSION_CURRENT ``seq`` and
         ``total``, its count less home) in the plan's numbers, and the numbering from now
         on: once a MISSION_CURRENT says the vehicle drives the renumbered mission, the old
-        numbering's reports are over.
-
-        A number past the new count is of the old numbering (the item driven from memory
-        across the upload, or a late report); so is a MISSION_CURRENT of another count."""
-        if self.old_base == self.base:
-            new = True
-        elif total is not None and total != 0xFFFF and total != self.count - 1:
-            new = False
-        else:
-            new = seq < self.count
-        base = self.base if new else self.old_base
+        numbering's reports are over (which numbering a report is in: :meth:`in_last`)."""
+        base = self.base if self.in_last(seq, total) else self.old_base
         plan_total = None
         if total is not None and total != 0xFFFF:
             counted = self.base if total == self.count - 1 else self.old_base

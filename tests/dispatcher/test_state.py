@@ -811,7 +811,7 @@ def test_renumbered_under_way_and_stopped_at_the_item_driven_from_memory_it_goes
     feed(daemon.state, "v1", from_vehicle(mc.message("MISSION_ITEM_REACHED", seq=driven), 11), 2.0)
     feed(daemon.state, "v1", done, 2.0)
     assert v.current == driven and v.mission_total == n - 1
-    assert not v.current_renumbered and v.at_window_end
+    assert not v.current_of_last_upload and v.at_window_end
     daemon._advance("v1", 2.1)
     assert link.start is not None and link.start.outcome is Outcome.RUNNING
     (item,) = [c.params[0] for c in link.start.commands if c.command == SET_CURRENT]

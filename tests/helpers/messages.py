@@ -52,8 +52,11 @@ def track(items, first: int, last: int, t0_ms: int = 1_000) -> list[mc.MAVLinkMe
     ]
 
 
-def waypoints(n: int, target_system: int = 1) -> list[mc.MAVLinkMessage]:
-    """A mission of ``n`` MISSION_ITEM_INT waypoints (seq 0 .. n-1) a step apart."""
+def waypoints(
+    n: int, target_system: int = 1, step_x: int = 1, step_y: int = 1
+) -> list[mc.MAVLinkMessage]:
+    """A mission of ``n`` MISSION_ITEM_INT waypoints (seq 0 .. n-1), each ``step_x``,
+    ``step_y`` (degrees * 1e7) from the one before."""
     return [
         mc.mission_item_int(
             target_system=target_system,
@@ -67,8 +70,8 @@ def waypoints(n: int, target_system: int = 1) -> list[mc.MAVLinkMessage]:
             param2=0,
             param3=0,
             param4=0,
-            x=440000000 + k,
-            y=873000000 + k,
+            x=440000000 + step_x * k,
+            y=873000000 + step_y * k,
             z=0,
         )
         for k in range(n)
