@@ -59,7 +59,7 @@ from dispatcher.link.mission_protocol import (
 from dispatcher.link.numbering import choose_base, command_to_vehicle, on_board
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
-from dispatcher.mission.window import window
+from dispatcher.mission.window import first_field, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
@@ -863,10 +863,16 @@ class Dispatcher:
             )
             self._start(v, link, now, in_auto=True)
 
-    def _send_window(self, v: VehicleState, link: _Link, now: float) -> None:
+    def _send_window(self, v: VehicleState, link: _Link, now: float, switch: bool = False) -> None:
         """Upload the part of its mission the vehicle is to hold (``v.held`` items): home
         and the plan's items from a base on (link/numbering.py), the items before it left
-        out when the vehicle is far enough past them."""
+        out when the vehicle is far enough past them. A driving vehicle is renumbered only
+        when the upload should be on board before it reaches the item it drives to
+        (:meth:`_outruns`), unless ``switch``: its new route after a re-plan, which the
+        whole prefix would hold up for seconds (a 676-item switch took 14 s in a 20 %-loss
+        soak, its tractor held at the end of its kept part for 10 of them); it may then
+        stop at that item, and is started again after it (:meth:`_advance_switch`,
+        :meth:`_after_renumbering`)."""
         link.since = now
         # The first item it may still need: the one it drives to, or after the last one it
         # reached if that is before (its reports lost); one standing still, where it is to
@@ -886,7 +892,12 @@ class Dispatcher:
             base = v.numbering.base
         else:
             base = choose_base(v.numbering, v.held, first, v.current)
-            if running and base != v.numbering.base and not self._outruns(v, link, base):
+            if (
+                running
+                and not switch
+                and base != v.numbering.base
+                and not self._outruns(v, link, base)
+            ):
                 base = v.numbering.base
         if base < v.numbering.base and running:
             base = v.numbering.base  # never under a driving vehicle (its index would move)
@@ -958,6 +969,8 @@ class Dispatcher:
         link.renumbered = v.phase is Phase.RUNNING
         if not v.driving or v.mission_state != mc.MISSION_STATE_ACTIVE or v.current < base:
             return
+        if v.switch and link.switch_from is not None and v.current > link.switch_from:
+            return  # past the part its new mission keeps: the new route's item (_join)
         if link.start is None or link.start.outcome is not Outcome.RUNNING:
             link.start = CommandSequence([set_current_command(v.current)], v.system_id)
             self._send(v.id, link.start.start(now))
@@ -1233,11 +1246,12 @@ class Dispatcher:
 
     def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:
         """Upload a driving vehicle's new mission under it: the part it keeps, then its new
-        route (as much as a window from there: mission/window.py)."""
-        count = window(v.items, v.route_from, self.config.window_items)
+        route to the end of its first field (mission/window.py, ``first_field``); top-ups
+        give it the rest."""
+        count = window(v.items, v.route_from, first_field(self.config.window_items))
         if count != v.onboard:
             self._apply(ev.WindowExtended(v.id, count), now)
-        self._send_window(v, link, now)
+        self._send_window(v, link, now, switch=True)
 
     def _advance_switch(self, v: VehicleState, link: _Link, now: float) -> None:
         """A driving vehicle re-planned: upload, then make sure it drives the new route
@@ -1270,7 +1284,8 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        self._upload_took[v.id] = (now - link.since, 2 * v.held - v.numbering.base + 1 - read.first)
+        sent = v.held - v.numbering.base + 1  # home and the items from its base
+        self._upload_took[v.id] = (now - link.since, 2 * sent - read.first)
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
         if link.hold is not None or not v.driving or (v.mission_stopped and not starting):
             # Told to HOLD while it was lost (the order may still be on its way), or stopped

@@ -4,14 +4,18 @@ top-up while it drives, and a re-plan that leaves what it holds alone."""
 import dataclasses
 
 import pytest
-from helpers.daemon import daemon_for, feed, mission_current, running_events
+from helpers.daemon import daemon_for, feed, heartbeat, mission_current, running_events
 from helpers.messages import from_vehicle
 
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import Outcome
-from dispatcher.mission.window import FIELD_ENDS, ROUTE_ENDS, window
+from dispatcher.mission.build import Mission
+from dispatcher.mission.job import DispatchJob
+from dispatcher.mission.window import FIELD_ENDS, ROUTE_ENDS, first_field, window
+
+STATE_ACTIVE = mc.MISSION_STATE_ACTIVE
 
 
 @pytest.mark.parametrize("size", [1, 5, 12, 20, 30])
@@ -199,3 +203,50 @@ def test_the_end_of_the_window_held_is_read_from_mission_current_while_the_next_
     feed(daemon.state, vid, complete, 9.0)
     assert v.reached == held - 1 and v.at_window_end
     assert daemon.state.stalled_for(v, 0.0, 100.0) is None
+
+
+def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_its_first_fields_end(dispatch):
+    """A vehicle re-planned deep in its mission is sent home and the items from the one it
+    drives to, up to the end of its new route's first field: renumbered even when it may
+    reach that item before the upload is on board (a top-up then sends the prefix), and
+    sent on to it in the new numbers once acknowledged."""
+    daemon = windowed(dispatch)
+    daemon._outruns = lambda *args: False  # fast: it would get there before the upload
+    vid = "v1"
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    v = drive(daemon, vid, 35, 0.0)
+    daemon.state.apply(ev.WindowExtended(vid, len(v.items)), 0.5)
+    running = heartbeat(11)
+    running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    feed(daemon.state, vid, running, 1.0)
+    feed(daemon.state, vid, mission_current(11, 36, len(v.items) - 1, STATE_ACTIVE), 1.0)
+    assert v.driving and v.current == 36
+    link = daemon.links[vid]
+    daemon._send_window(v, link, 1.5)  # a top-up: the prefix, as numbered before
+    assert link.numbered == (1, v.held)
+    # its new route: one more field (a copy of its second, moved), then on as before
+    old = v.items
+    extra = tuple(dataclasses.replace(i, x=i.x + 10) for i in old[18:38])
+    new_items = old[:38] + tuple(
+        dataclasses.replace(i, seq=38 + k) for k, i in enumerate(extra + old[38:])
+    )
+    machine = dataclasses.replace(dispatch.document.machines[0], items=new_items)
+    doc = dataclasses.replace(dispatch.document, machines=(machine,)).with_id()
+    mission = daemon.job.missions[vid]
+    order = [*range(38), *range(18, 38), *range(38, len(old))]
+    moved = [dataclasses.replace(mission.items[j], seq=k) for k, j in enumerate(order)]
+    mission = Mission(vid, tuple(moved), tuple(mission.traces[j] for j in order))
+    daemon.job = DispatchJob(doc, {**daemon.job.missions, vid: mission}, {})
+    daemon.state.apply(ev.PlanReplaced(ev.FLEET, doc.plan_id, "test", doc.to_dict()), 2.0)
+    assert v.switch and v.route_from == 38
+    link.switch_from = v.route_from
+    daemon._upload_switch(v, link, 2.0)
+    assert v.held == window(new_items, 38, first_field(20)) < len(new_items)
+    count = daemon.publishers[vid].sent()[-1]
+    assert count.get_type() == "MISSION_COUNT" and count.count == 1 + v.held - 36
+    assert link.numbered == (36, count.count)
+    link.upload.outcome = Outcome.DONE
+    daemon._advance(vid, 3.0)
+    assert v.numbering.base == 36
+    (sent,) = [m for m in daemon.publishers[vid].sent() if m.get_type() == "COMMAND_LONG"]
+    assert sent.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT and sent.param1 == 1.0
