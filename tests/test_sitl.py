@@ -13,7 +13,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers.review import assert_each_segment_worked_once
 from helpers.sitl import (
+    PARAMS,
     Processes,
     Sitl,
     find_ardurover,
@@ -263,3 +265,51 @@ def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
     # in windows, is what this test is for; the other SITL tests check the driving.
     check_worked_once(review, driven_as_planned=False)
     assert not review.vehicles[0].reboots
+
+
+def test_a_lost_rovers_work_goes_to_the_other_while_it_drives(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    # Two rovers; r2's autopilot dies mid-mission (kill -9). r1 is re-planned while it
+    # drives: it keeps the window it holds, its new route (r2's rest) goes on board under
+    # it, and it finishes both rovers' work, every segment once.
+    scenario = tmp_path / "two.toml"
+    farm = Path(__file__).parents[1] / "benchmarks" / "sitl-farm4.geojson"
+    text = SCENARIO.read_text().replace('farm = "sitl-farm.geojson"', f'farm = "{farm}"')
+    machine = text[text.index("[[machine]]") : text.index("[solver]")]
+    second = machine.replace('id = "r1"', 'id = "r2"').replace("system_id = 1", "system_id = 2")
+    scenario.write_text(text.replace("[solver]", second + "[solver]"))
+    assert ARDUROVER is not None
+    sitl.start(wipe=True)  # before the second picks its instance number (ports) free now
+    other = Sitl(ARDUROVER, tmp_path / "sitl2", speedup=SPEEDUP, params={**PARAMS, "MAV_SYSID": 2})
+    try:
+        port = free_port()
+        other.start(wipe=True)
+        serve = procs.serve(scenario, port, tmp_path / "logs")
+        procs.bridge(scenario, "r1", sitl, port)
+        procs.bridge(scenario, "r2", other, port)
+        with status_reader(port, "sitl") as status:
+
+            def both_under_way() -> bool:
+                if serve.poll() is not None:
+                    raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
+                vehicles = status().get("vehicles", {})
+                r1, r2 = vehicles.get("r1", {}), vehicles.get("r2", {})
+                return r1.get("reached", 0) >= 40 and r2.get("phase") == "running"
+
+            wait_for("r1 at item 40", both_under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl))
+        other.kill()
+        assert finished(serve, procs, sitl) == 0, procs.report(sitl)
+    finally:
+        other.stop()
+    log = read_log(log_of(Processes.output(serve)))
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any("re-planning the rest of the work: r2 lost" in ln for ln in lines), lines
+    review = review_contents(log)
+    table = review_table(review)
+    assert all(f.done for f in review.fields), table
+    assert_each_segment_worked_once(review)
+    assert [x.vehicle for x in review.losses] == ["r2"], table
+    assert review.vehicle("r1").mission_complete, table
+    taken = [(a, b) for rp in review.replans for _, a, b in rp.taken_over]
+    assert taken and set(taken) == {("r2", "r1")}, review.replans
