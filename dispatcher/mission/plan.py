@@ -121,6 +121,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
     machines = []
     for route in plan.machines:
         mission = missions[route.machine.id]
+        renumbered = _original_segments(route)
         machine = route.machine
         machines.append(
             PlannedMachine(
@@ -164,7 +165,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
                         command=item.command,
                         param1=item.param1,
                         param2=item.param2,
-                        segment=_segment(route, tr),
+                        segment=_segment(renumbered, tr),
                     )
                     for item, tr in zip(mission.items, mission.traces, strict=True)
                 ),
@@ -197,15 +198,23 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
     )
 
 
-def _segment(route: MachinePlan, trace: Trace) -> int | None:
+def _original_segments(route: MachinePlan) -> dict[str, tuple[int, ...]]:
+    """A route's fields whose segments a re-plan numbered anew: ``Visit.original_segments``
+    (the first visit of a field that has them), by field."""
+    out: dict[str, tuple[int, ...]] = {}
+    for visit in route.visits:
+        if visit.original_segments:
+            out.setdefault(visit.field.id, visit.original_segments)
+    return out
+
+
+def _segment(renumbered: dict[str, tuple[int, ...]], trace: Trace) -> int | None:
     """The segment an item serves, numbered as in its field's first layout (a re-plan's
-    rest of a field maps its own numbers back, ``Visit.original_segments``)."""
+    rest of a field maps its own numbers back: ``renumbered``, :func:`_original_segments`)."""
     if trace.field_id is None or trace.swath_index is None:
         return None
-    for visit in route.visits:
-        if visit.field.id == trace.field_id and visit.original_segments:
-            return visit.original_segments[trace.swath_index]
-    return trace.swath_index
+    first = renumbered.get(trace.field_id)
+    return first[trace.swath_index] if first is not None else trace.swath_index
 
 
 def _round7(value: float) -> float:
