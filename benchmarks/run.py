@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import os
 import platform
 import statistics
 import subprocess
@@ -110,7 +111,7 @@ def bench_store() -> str:
 def bench_soak() -> str:
     from benchmarks.soak_bench import bench_soak as run
 
-    return run()
+    return run(seed=int(os.environ.get("AGRIFLEET_SOAK_SEED", "1")))
 
 
 def bench_replan() -> str:

@@ -14,7 +14,9 @@ lossy radio can take longer), 30-60 s apart, until half the wall time, to a thir
 simulator processes at most (a farm cannot be finished in the time by what is left of a
 fleet that lost most of its tractors: that measures the fleet, not the dispatcher); the
 planned makespan is fitted to ``fit`` of the wall time (40 % by default: the first uploads
-through lossy radios take minutes).
+through lossy radios take minutes). Which processes fail, how and when, and the radios'
+random frames follow ``seed`` (`AGRIFLEET_SOAK_SEED` for `benchmarks/run.py soak`, default
+1); `AGRIFLEET_SOAK_LOGS=DIR` keeps the run's logs and scenario in DIR.
 """
 
 from __future__ import annotations
@@ -180,7 +182,8 @@ def bench_soak(
     lines = [
         f"### Soak: {vehicles} tractors ({per_process} per simulator process), {fields} fields, "
         f"{minutes:g} min wall at {speedup:.0f}x, {100 * loss:g} % frame loss each way, "
-        f"missions in windows of {dispatch.scenario.watch.window_items or 'all'} items",
+        f"missions in windows of {dispatch.scenario.watch.window_items or 'all'} items, "
+        f"fault seed {seed}",
         "",
         "| faults | re-plans | loss → new plan s (median / max) | loss → all acked s "
         "(median / max) | fields not done / lost | segments twice / never (of all) | exit "
