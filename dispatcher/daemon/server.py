@@ -59,7 +59,7 @@ from dispatcher.link.mission_protocol import (
 from dispatcher.link.numbering import choose_base, command_to_vehicle, on_board
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
-from dispatcher.mission.window import first_field, window
+from dispatcher.mission.window import shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
@@ -1246,9 +1246,9 @@ class Dispatcher:
 
     def _upload_switch(self, v: VehicleState, link: _Link, now: float) -> None:
         """Upload a driving vehicle's new mission under it: the part it keeps, then its new
-        route to the end of its first field (mission/window.py, ``first_field``); top-ups
-        give it the rest."""
-        count = window(v.items, v.route_from, first_field(self.config.window_items))
+        route to the first place a window may end (the implement next raised, at a turn or
+        the field's end: mission/window.py, ``shortest``); top-ups give it the rest."""
+        count = window(v.items, v.route_from, shortest(self.config.window_items))
         if count != v.onboard:
             self._apply(ev.WindowExtended(v.id, count), now)
         self._send_window(v, link, now, switch=True)

@@ -121,7 +121,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
     machines = []
     for route in plan.machines:
         mission = missions[route.machine.id]
-        renumbered = _original_segments(route)
+        original = _original_segments(route)
         machine = route.machine
         machines.append(
             PlannedMachine(
@@ -165,7 +165,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
                         command=item.command,
                         param1=item.param1,
                         param2=item.param2,
-                        segment=_segment(renumbered, tr),
+                        segment=_segment(original, tr),
                     )
                     for item, tr in zip(mission.items, mission.traces, strict=True)
                 ),
@@ -208,12 +208,12 @@ def _original_segments(route: MachinePlan) -> dict[str, tuple[int, ...]]:
     return out
 
 
-def _segment(renumbered: dict[str, tuple[int, ...]], trace: Trace) -> int | None:
+def _segment(original: dict[str, tuple[int, ...]], trace: Trace) -> int | None:
     """The segment an item serves, numbered as in its field's first layout (a re-plan's
-    rest of a field maps its own numbers back: ``renumbered``, :func:`_original_segments`)."""
+    rest of a field maps its own numbers back: ``original``, :func:`_original_segments`)."""
     if trace.field_id is None or trace.swath_index is None:
         return None
-    first = renumbered.get(trace.field_id)
+    first = original.get(trace.field_id)
     return first[trace.swath_index] if first is not None else trace.swath_index
 
 

@@ -16,9 +16,9 @@ Why: what goes over the radio at a re-plan is bounded by the window, not by the 
 re-plan changes the routes *after* each vehicle's window; a driving vehicle's window is not
 uploaded again), and an autopilot with little mission storage can still work a big farm.
 
-A driving vehicle re-planned is sent its new route only to the end of the route's first
-field (:func:`first_field`): that upload is what a re-plan waits for, and top-ups give the
-rest while it works that field.
+A driving vehicle re-planned is sent its new route only to the first place a window may
+end (:func:`shortest`: the implement next raised, at a turn or at the field's end): that
+upload is what a re-plan waits for, and top-ups give the rest while it drives that part.
 
 :func:`window` says how many items to hold; :data:`ROUTE_ENDS` where a route may end (a
 window, the part of an old mission a vehicle keeps at a re-plan).
@@ -66,8 +66,8 @@ def window(items: Sequence[PlannedItem], held: int, size: int) -> int:
     return boundaries[0] if boundaries else len(items)
 
 
-def first_field(size: int) -> int:
-    """The ``size`` for :func:`window` that holds a new route up to the end of its first
-    field (the first place a window may end), given the scenario's window ``size``; 0 (no
-    windows) stays 0: the whole mission."""
+def shortest(size: int) -> int:
+    """The ``size`` for :func:`window` that holds a new route up to the first place a
+    window may end (after the implement is next raised), given the scenario's window
+    ``size``; 0 (no windows) stays 0: the whole mission."""
     return min(size, 1)

@@ -13,7 +13,7 @@ from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import Outcome
 from dispatcher.mission.build import Mission
 from dispatcher.mission.job import DispatchJob
-from dispatcher.mission.window import FIELD_ENDS, ROUTE_ENDS, first_field, window
+from dispatcher.mission.window import FIELD_ENDS, ROUTE_ENDS, shortest, window
 
 STATE_ACTIVE = mc.MISSION_STATE_ACTIVE
 
@@ -205,9 +205,10 @@ def test_the_end_of_the_window_held_is_read_from_mission_current_while_the_next_
     assert daemon.state.stalled_for(v, 0.0, 100.0) is None
 
 
-def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_its_first_fields_end(dispatch):
+def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_the_shortest_window(dispatch):
     """A vehicle re-planned deep in its mission is sent home and the items from the one it
-    drives to, up to the end of its new route's first field: renumbered even when it may
+    drives to, up to the first place a window of its new route may end (here the end of a
+    field added to it): renumbered even when it may
     reach that item before the upload is on board (a top-up then sends the prefix), and
     sent on to it in the new numbers once acknowledged."""
     daemon = windowed(dispatch)
@@ -241,7 +242,7 @@ def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_its_first_fields_
     assert v.switch and v.route_from == 38
     link.switch_from = v.route_from
     daemon._upload_switch(v, link, 2.0)
-    assert v.held == window(new_items, 38, first_field(20)) < len(new_items)
+    assert v.held == window(new_items, 38, shortest(20)) < len(new_items)
     count = daemon.publishers[vid].sent()[-1]
     assert count.get_type() == "MISSION_COUNT" and count.count == 1 + v.held - 36
     assert link.numbered == (36, count.count)
