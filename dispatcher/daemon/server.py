@@ -919,6 +919,8 @@ class Dispatcher:
         started again after the last item it reached."""
         if any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges()):
             return
+        if link.topup_from is not None:
+            return  # a renumbered top-up not yet read back: its end starts it if it stopped
         if not v.driving or v.held_for_route or link.hold is not None:
             link.renumbered = False  # stopped by us, or by its own failsafe: handled there
             return

@@ -97,11 +97,14 @@ def test_the_first_upload_sends_a_window(dispatch):
 
 
 @pytest.mark.parametrize("reached_lost", [0, 2])
+@pytest.mark.parametrize("renumbered", [False, True])
 def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_stopped(
-    dispatch, reached_lost
+    dispatch, reached_lost, renumbered
 ):
     """``reached_lost``: the last items' MISSION_ITEM_REACHED lost on the way; its autopilot
-    says its mission is complete all the same, and it goes on at the first new item."""
+    says its mission is complete all the same, and it goes on at the first new item.
+    ``renumbered``: watched as renumbered too (link/numbering.py): started once, by the
+    top-up's end, not also by the watch."""
     daemon = windowed(dispatch)
     vid = "v1"
     v = drive(daemon, vid, 5, 0.0)
@@ -122,11 +125,13 @@ def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_sto
     link.upload.outcome = Outcome.DONE  # every item asked for and sent
     daemon._advance(vid, 3.0)
     assert link.download is not None and link.download.first == held
+    link.renumbered = renumbered
     answer_read_back(daemon, vid, 11, 3.5)
+    sent = len(daemon.publishers[vid].sent())
     daemon._advance(vid, 4.0)
     assert link.topup_from is None and daemon.topups == [(vid, v.held)]
     # it stood at the end of its old window: HOLD (it is in AUTO), then on at the next item
-    commands = [(m.command, m.param1, m.param2) for m in daemon.publishers[vid].sent()[-1:]]
+    commands = [(m.command, m.param1, m.param2) for m in daemon.publishers[vid].sent()[sent:]]
     assert commands == [(mc.MAV_CMD_DO_SET_MODE, 1.0, 4.0)]
     assert v.phase is Phase.STARTING and link.start is not None
     assert link.start_item == held
