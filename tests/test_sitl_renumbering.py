@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers.messages import waypoint
 from helpers.sitl import HOME, PARAMS, Sitl, find_ardurover
 
 from dispatcher.daemon.plausibility import metres
@@ -57,25 +58,11 @@ def north(k: int) -> tuple[float, float]:
     return HOME[0] + NORTH_M[k] / 111_195.0, HOME[1] + east
 
 
-def waypoint(seq: int, k: int) -> mc.MAVLinkMessage:
-    """The mission's item k as item ``seq``."""
+def item(seq: int, k: int) -> mc.MAVLinkMessage:
+    """The mission's item k as item ``seq`` (home in the absolute frame, as ArduPilot has it)."""
     lat, lon = north(k)
-    return mc.mission_item_int(
-        target_system=1,
-        target_component=mc.MAV_COMP_ID_AUTOPILOT1,
-        seq=seq,
-        frame=mc.MAV_FRAME_GLOBAL if seq == 0 else mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        command=mc.MAV_CMD_NAV_WAYPOINT,
-        current=0,
-        autocontinue=1,
-        param1=0.0,
-        param2=0.0,
-        param3=0.0,
-        param4=0.0,
-        x=round(lat * 1e7),
-        y=round(lon * 1e7),
-        z=0.0,
-    )
+    frame = mc.MAV_FRAME_GLOBAL if seq == 0 else mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    return waypoint(seq, round(lat * 1e7), round(lon * 1e7), frame=frame)
 
 
 class Rover:
@@ -143,7 +130,7 @@ def rover(tmp_path: Path) -> Iterator[Rover]:
     sitl.start(wipe=True)
     r = Rover(sitl)
     try:
-        mission = [waypoint(k, k) for k in range(len(NORTH_M))]
+        mission = [item(k, k) for k in range(len(NORTH_M))]
         r.run(MissionUpload(mission, 1))
         r.run(CommandSequence(start_mission_commands(1), 1, refusal_window_s=TIMEOUT_S))
         r.wait(f"driving to item {DRIVING_TO}", lambda: r.state()[0] == DRIVING_TO)
@@ -156,7 +143,7 @@ def rover(tmp_path: Path) -> Iterator[Rover]:
 def renumbered(first: int) -> list[mc.MAVLinkMessage]:
     """Home, then the mission's items from ``first`` on, numbered 1, 2, ..."""
     rest = range(first, len(NORTH_M))
-    return [waypoint(0, 0)] + [waypoint(seq, k) for seq, k in enumerate(rest, start=1)]
+    return [item(0, 0)] + [item(seq, k) for seq, k in enumerate(rest, start=1)]
 
 
 def test_renumbered_under_way_and_sent_on_it_drives_the_new_numbers(rover: Rover) -> None:

@@ -52,27 +52,37 @@ def track(items, first: int, last: int, t0_ms: int = 1_000) -> list[mc.MAVLinkMe
     ]
 
 
+def waypoint(
+    seq: int,
+    x: int,
+    y: int,
+    target_system: int = 1,
+    frame: int = mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+) -> mc.MAVLinkMessage:
+    """A MISSION_ITEM_INT NAV_WAYPOINT: item ``seq`` at lat ``x``, lon ``y`` (degrees * 1e7)."""
+    return mc.mission_item_int(
+        target_system=target_system,
+        target_component=1,
+        seq=seq,
+        frame=frame,
+        command=mc.MAV_CMD_NAV_WAYPOINT,
+        current=0,
+        autocontinue=1,
+        param1=0,
+        param2=0,
+        param3=0,
+        param4=0,
+        x=x,
+        y=y,
+        z=0,
+    )
+
+
 def waypoints(
     n: int, target_system: int = 1, step_x: int = 1, step_y: int = 1
 ) -> list[mc.MAVLinkMessage]:
     """A mission of ``n`` MISSION_ITEM_INT waypoints (seq 0 .. n-1), each ``step_x``,
     ``step_y`` (degrees * 1e7) from the one before."""
     return [
-        mc.mission_item_int(
-            target_system=target_system,
-            target_component=1,
-            seq=k,
-            frame=mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            command=mc.MAV_CMD_NAV_WAYPOINT,
-            current=0,
-            autocontinue=1,
-            param1=0,
-            param2=0,
-            param3=0,
-            param4=0,
-            x=440000000 + step_x * k,
-            y=873000000 + step_y * k,
-            z=0,
-        )
-        for k in range(n)
+        waypoint(k, 440000000 + step_x * k, 873000000 + step_y * k, target_system) for k in range(n)
     ]
