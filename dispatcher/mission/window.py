@@ -1,8 +1,9 @@
 """Missions sent in windows: how much of its mission a vehicle holds at a time.
 
 A long mission (a day's work over many fields: hundreds to thousands of items) is not sent
-whole. A vehicle holds a *window*: the first items of its mission, up to just after the end
-of a field, and is given more (the window extended, "topped up") while it drives, well
+whole. A vehicle holds a *window*: the first items of its mission, up to just after the
+implement is raised (the end of a field, or the next swath's start after a turn), and is
+given more (the window extended, "topped up") while it drives, well
 before it reaches the end of what it holds. What it holds is always a prefix of its planned
 mission, with the plan's item numbers, so a top-up is an upload that begins with the items
 the vehicle already holds: the autopilot keeps driving the item it is on (ArduPilot replaces
@@ -10,7 +11,7 @@ or appends items in place), and any half-done upload still leaves a prefix of th
 board.
 
 The way home from the last field is a window of its own, so a vehicle at work always
-holds up to the end of a field.
+holds up to a place where a route may end (a field's end, or a swath's start).
 
 Why: what goes over the radio at a re-plan is bounded by the window, not by the day (a
 re-plan changes the routes *after* each vehicle's window; a driving vehicle's window is not
@@ -35,17 +36,20 @@ ROUTE_ENDS = frozenset({"swath_end", "swath_start", "road", "transit", "return"}
 or an in-field detour)."""
 
 FIELD_ENDS = frozenset({"implement_up", "implement_raise"})
-"""Roles of the items that end a vehicle's work in a field (the implement raised)."""
+"""Roles of the items after which a window may end (at the next item where a route may
+end): the implement raised at the end of a field, or for a turn between two swaths."""
 
 
 def window(items: Sequence[PlannedItem], held: int, size: int) -> int:
     """How many first items of ``items`` (a mission, home first) a vehicle that holds
-    ``held`` of them now is to hold: up to the first waypoint after the end of a field
-    (where a route may end), as many fields as fit in ``size`` more items, at least one;
-    all of them once no field is left (the way home), or when ``size`` is 0 (no windows).
+    ``held`` of them now is to hold: up to the first waypoint where a route may end after
+    the implement is raised (:data:`FIELD_ENDS`: a field's end, or a turn), as many such
+    stretches as fit in ``size`` more items, at least one; all of them once no field is
+    left (the way home), or when ``size`` is 0 (no windows).
 
-    The way home comes in a window of its own: a vehicle at work always holds up to the
-    end of a field, so a re-plan can send it on from there without changing what it holds."""
+    The way home comes in a window of its own: a vehicle at work always holds up to a place
+    where a route may end, so a re-plan can send it on from there without changing what it
+    holds."""
     held = max(held, 1)
     if size <= 0:
         return len(items)
