@@ -15,12 +15,13 @@ from pathlib import Path
 import pytest
 from helpers.review import assert_each_segment_worked_once
 from helpers.sitl import (
+    ARDUROVER,
     PARAMS,
     Processes,
     Sitl,
-    find_ardurover,
     free_port,
     log_of,
+    needs_ardurover,
     status_reader,
     wait_for,
 )
@@ -28,12 +29,7 @@ from helpers.sitl import (
 from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_log, read_logs
 from dispatcher.review.report import Review, review_contents, review_log, review_table
 
-ARDUROVER = find_ardurover()
-pytestmark = pytest.mark.skipif(
-    ARDUROVER is None,
-    reason="no ArduPilot Rover SITL binary: set AGRIFLEET_ARDUROVER or put it at "
-    "../shared/sitl/ardurover",
-)
+pytestmark = needs_ardurover
 SCENARIO = Path(__file__).parent / "data" / "sitl.toml"
 SPEEDUP = 20.0
 RUN_TIMEOUT_S = 240.0  # wall seconds for one job (about 400 s of vehicle time)

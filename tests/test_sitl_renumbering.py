@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 from helpers.messages import waypoint
-from helpers.sitl import HOME, PARAMS, Sitl, find_ardurover
+from helpers.sitl import ARDUROVER, HOME, PARAMS, Sitl, needs_ardurover
 
 from dispatcher.daemon.plausibility import metres
 from dispatcher.link import mavlink as mc
@@ -39,12 +39,7 @@ from dispatcher.link.mission_protocol import (
 )
 from dispatcher.link.numbering import MARGIN
 
-ARDUROVER = find_ardurover()
-pytestmark = pytest.mark.skipif(
-    ARDUROVER is None,
-    reason="no ArduPilot Rover SITL binary: set AGRIFLEET_ARDUROVER or put it at "
-    "../shared/sitl/ardurover",
-)
+pytestmark = needs_ardurover
 SPEEDUP = 20.0
 NORTH_M = [20.0 * k for k in range(12)] + [370.0, 520.0, 670.0]  # item k's metres from home
 EAST_M = [0.0] * 12 + [100.0, 100.0, 0.0]

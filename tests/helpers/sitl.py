@@ -20,14 +20,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pytest
+
 from helpers.processes import Processes, free_port, log_of, status_reader, wait_for
 
 __all__ = [
+    "ARDUROVER",
     "Processes",
     "Sitl",
     "find_ardurover",
     "free_port",
     "log_of",
+    "needs_ardurover",
     "status_reader",
     "wait_for",
 ]
@@ -61,6 +65,14 @@ def find_ardurover() -> Path | None:
         if candidate.is_file() and os.access(candidate, os.X_OK):
             return candidate
     return None
+
+
+ARDUROVER = find_ardurover()
+needs_ardurover = pytest.mark.skipif(
+    ARDUROVER is None,
+    reason=f"no ArduPilot Rover SITL binary: set {SITL_ENV} or put it at {SHARED_SITL}/ardurover",
+)
+"""The mark of a test module that runs ArduPilot SITL (``pytestmark = needs_ardurover``)."""
 
 
 def _port_free(port: int) -> bool:
