@@ -56,7 +56,7 @@ from dispatcher.link.mission_protocol import (
     set_current_command,
     start_mission_commands,
 )
-from dispatcher.link.numbering import choose_base, command_to_vehicle, on_board
+from dispatcher.link.numbering import choose_base, command_to_vehicle, count_on_board, on_board
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.window import shortest, window
@@ -199,6 +199,11 @@ class _Link:
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
         return (self.upload, self.download, self.start, self.hold, self.park)
+
+    @property
+    def busy(self) -> bool:
+        """An upload, download or command sequence with the vehicle is under way."""
+        return any(x is not None and x.outcome is Outcome.RUNNING for x in self.exchanges())
 
 
 class Dispatcher:
@@ -778,7 +783,7 @@ class Dispatcher:
             or v.needs_restart
             or v.retired
             or link.hold is not None
-            or any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges())
+            or link.busy
         ):
             return None
         more = window(v.items, v.held, self.config.window_items)
@@ -836,7 +841,7 @@ class Dispatcher:
             self._send_window(v, link, now)
             return
         old_end, link.topup_from = link.topup_from, None
-        sent = v.held - v.numbering.base + 1  # home and the items from its base
+        sent = count_on_board(v.held, v.numbering.base)
         self._upload_took[v.id] = (now - link.since, sent + v.held - old_end)
         self.topups.append((v.id, sent))
         complete = v.mission_state == mc.MISSION_STATE_COMPLETE
@@ -917,7 +922,7 @@ class Dispatcher:
         if its mission stopped meanwhile (it reached the item it drove to from memory
         before the set-current came, or the set-current came after and stopped it there),
         started again after the last item it reached."""
-        if any(x is not None and x.outcome is Outcome.RUNNING for x in link.exchanges()):
+        if link.busy:
             return
         if link.topup_from is not None:
             return  # a renumbered top-up not yet read back: its end starts it if it stopped
@@ -948,7 +953,7 @@ class Dispatcher:
             return False
         item = v.items[v.current]
         took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        count = v.held - base + 1
+        count = count_on_board(v.held, base)
         upload_s = 2.0 * took_s * count / max(items, 1) + RENUMBER_MARGIN_S
         speed = v.witness.top_speed_ms * max(v.clock.rate, 1e-6)
         return metres((v.lat, v.lon), (item.lat, item.lon)) / speed >= upload_s
@@ -1286,7 +1291,7 @@ class Dispatcher:
             self._upload_switch(v, link, now)
             return
         self._apply(ev.UploadAcked(v.id), now)
-        sent = v.held - v.numbering.base + 1  # home and the items from its base
+        sent = count_on_board(v.held, v.numbering.base)
         self._upload_took[v.id] = (now - link.since, 2 * sent - read.first)
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
         if link.hold is not None or not v.driving or (v.mission_stopped and not starting):

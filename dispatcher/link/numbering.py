@@ -114,11 +114,17 @@ def choose_base(numbering: Numbering, held: int, first: int, driving_to: int) ->
         return 1
     if first - numbering.base < LEAST_SAVED:
         return numbering.base
-    count = held - first + 1
+    count = count_on_board(held, first)
     index = numbering.to_vehicle(driving_to) if driving_to > 0 else 0
     if index - count < MARGIN:
         return numbering.base
     return first
+
+
+def count_on_board(held: int, base: int) -> int:
+    """How many items a vehicle holds when it holds the plan's first ``held`` items from
+    plan item ``base`` on: home, then items ``base`` .. ``held`` - 1 (all of them from 1)."""
+    return held - max(base, 1) + 1
 
 
 def on_board(items: Sequence[mc.MAVLinkMessage], base: int) -> list[mc.MAVLinkMessage]:
