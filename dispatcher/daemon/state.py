@@ -690,12 +690,12 @@ class FleetState:
             if msg.time_boot_ms > 0:
                 out += self._clock(v, msg.time_boot_ms / 1000.0, now)
         elif kind == "MISSION_CURRENT":
-            total_sent = getattr(msg, "total", None)
-            total_sent = total_sent if isinstance(total_sent, int) else None
+            reported_total = getattr(msg, "total", None)
+            reported_total = reported_total if isinstance(reported_total, int) else None
             before = v.numbering
-            seq, total, v.numbering = before.report(int(msg.seq), total_sent)
+            seq, total, v.numbering = before.report(int(msg.seq), reported_total)
             v.current = seq
-            v.current_of_last_upload = before.in_last(int(msg.seq), total_sent)
+            v.current_of_last_upload = before.in_last(int(msg.seq), reported_total)
             if total is not None:
                 v.mission_total = total
             state = getattr(msg, "mission_state", None)
