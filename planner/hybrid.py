@@ -21,10 +21,13 @@ name, each evaluated in O(1)) and, with ``lexicographic``, takes moves that shor
 fleet's total distance without worsening the objective's figure. One individual of the
 first population is a giant tour, improved by an iterated local search of its own
 (:func:`tour_ils`: local double-bridge kicks, 2-opt and Or-opt with a queue of tasks to
-look at), cut by the optimal split (:func:`giant_tour`); the same ILS orders the elite's
-longest route again each generation (:func:`route_ils`), and, under the min-max
-objectives, one other route in turn (``other_routes``). A warm-started run (a re-plan)
-starts instead from the plan being carried out and variants of it (:func:`warm_population`).
+look at), cut by the optimal split (:func:`giant_tour`); under the min-max objectives
+another is a sweep (:func:`sweep`: a sector of the tasks around the depot a machine, the
+cuts moved until the routes beside each are even, each route ordered by that ILS); the
+same ILS orders the elite's longest route again each generation (:func:`route_ils`), and,
+under the min-max objectives, one other route in turn (``other_routes``). A warm-started
+run (a re-plan) starts instead from the plan being carried out and variants of it
+(:func:`warm_population`).
 
 Under the makespan (the farm), a plan whose routes all end within minutes of the
 makespan leaves no move that keeps the makespan and shortens the roads (at 500 x 30 a full
@@ -113,6 +116,9 @@ class HybridParams(IGHOAParams):
     # generations to the ILS (benchmarks/RESULTS.md, 2026-11-25: 50 individuals were ahead
     # on pcb3038 min-max and min-sum). Up to n = 760 the population stays at 200.
     population_tasks: int = 152_000
+    # Under the min-max objectives, one individual of the first population is a sweep
+    # (sweep): a sector of the tasks around the depot a machine, the sectors evened out.
+    sweep: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -446,25 +452,133 @@ def giant_tour(  # type: ignore[no-untyped-def]
     dist, start_dist, end_dist = tables[0], tables[1], tables[2]
     n = perm.shape[0]
     m = counts.shape[0]
-    free = np.ones(n, dtype=np.bool_)
-    prev = -1
-    for k in range(n):
-        best = -1
-        best_d = np.inf
-        for t in range(n):
-            if free[t]:
-                d = start_dist[0, t] if prev < 0 else dist[prev, t]
-                if d < best_d:
-                    best, best_d = t, d
-        perm[k] = best
-        free[best] = False
-        prev = best
+    perm[:] = np.arange(n)
+    _nearest_neighbour(perm, 0, start_dist, dist)
     tour_ils(state, perm, 0, dist, start_dist, end_dist, neighbours, kicks, min(deadline, ils_end))
     random_counts(state, n, m, min_count, counts)
     split = counts.copy()
     if optimal_split(perm, split, objective, tables, min_count, pins, deadline) < np.inf:
         counts[:] = split
     repair_pins(perm, counts, pins, min_count)
+
+
+@njit(cache=True, nogil=True)
+def _nearest_neighbour(path, machine, start_dist, dist):  # type: ignore[no-untyped-def]
+    """Order the tasks of ``path`` in place by nearest neighbour from ``machine``'s start."""
+    n = path.shape[0]
+    for k in range(n):
+        best = k
+        prev = path[k - 1] if k > 0 else -1
+        best_d = np.inf
+        for q in range(k, n):
+            t = path[q]
+            d = start_dist[machine, t] if prev < 0 else dist[prev, t]
+            if d < best_d or (d == best_d and t < path[best]):  # ties: the lowest task
+                best, best_d = q, d
+        path[k], path[best] = path[best], path[k]
+
+
+@njit(cache=True, nogil=True)
+def sweep(  # type: ignore[no-untyped-def]
+    state,
+    perm,
+    counts,
+    order,
+    objective,
+    tables,
+    neighbours,
+    min_count,
+    pins,
+    deadline,
+    kicks,
+    ils_end,
+):
+    """A first individual, cluster first and route second (the sweep): the tasks in
+    ``order`` (by their angle around the depot, :func:`planner.solve.sweep_order`) cut
+    into one sector a machine, each sector's route ordered by nearest neighbour, then
+    2-opt and Or-opt (:func:`tour_ils` without kicks). The cuts then move (:func:`_cut_at`)
+    while that shortens the longer of the two routes beside the cut (or, that equal, their
+    sum), by steps halved down to one task; last, each route gets :func:`tour_ils` with
+    ``kicks`` kicks a task, until ``ils_end`` (and ``deadline``, the run's end, for all).
+
+    Routes that each serve a wedge from the depot carry no long empty leg through the
+    other routes' areas, which a giant tour's split cannot avoid when the depot is far
+    from the middle (a corner): under the min-max objectives they are what the search
+    must otherwise find move by move."""
+    dist, start_dist, end_dist = tables[0], tables[1], tables[2]
+    n = perm.shape[0]
+    m = counts.shape[0]
+    least = max(min_count, 1)
+    if n < m * least:
+        return
+    for k in range(m):
+        counts[k] = n // m + (1 if k < n % m else 0)
+    begin = 0
+    for k in range(m):
+        _sector(state, perm, counts, order, begin, k, dist, start_dist, end_dist, neighbours)
+        begin += counts[k]
+    route_costs = np.empty(m)
+    evaluate(perm, counts, objective, tables, route_costs)
+    trial = np.empty(m)
+    saved = np.empty(n, dtype=np.int64)
+    step = max(n // (4 * m), 1) if m > 1 else 0
+    while step >= 1 and not past(deadline):
+        moved = False
+        for cut in range(m - 1):
+            for grow in (step, -step):
+                if counts[cut] + grow < least or counts[cut + 1] - grow < least:
+                    continue
+                begin = _cut_at(counts, cut)
+                span = counts[cut] + counts[cut + 1]
+                saved[:span] = perm[begin : begin + span]
+                counts[cut] += grow
+                counts[cut + 1] -= grow
+                _sector(state, perm, counts, order, begin, cut, dist, start_dist, end_dist,
+                        neighbours)  # fmt: skip
+                _sector(state, perm, counts, order, begin + counts[cut], cut + 1, dist,
+                        start_dist, end_dist, neighbours)  # fmt: skip
+                evaluate(perm, counts, objective, tables, trial)
+                old_max = max(route_costs[cut], route_costs[cut + 1])
+                new_max = max(trial[cut], trial[cut + 1])
+                old_sum = route_costs[cut] + route_costs[cut + 1]
+                new_sum = trial[cut] + trial[cut + 1]
+                if new_max < old_max - 1e-9 * old_max or (
+                    new_max <= old_max and new_sum < old_sum - 1e-9 * old_sum
+                ):
+                    route_costs[:] = trial
+                    moved = True
+                    break
+                counts[cut] -= grow
+                counts[cut + 1] += grow
+                perm[begin : begin + span] = saved[:span]
+        if not moved:
+            step //= 2
+    begin = 0
+    for k in range(m):
+        count = counts[k]
+        tour_ils(state, perm[begin : begin + count], k, dist, start_dist, end_dist, neighbours,
+                 kicks * count, min(deadline, ils_end))  # fmt: skip
+        begin += count
+    repair_pins(perm, counts, pins, min_count)
+
+
+@njit(cache=True, nogil=True)
+def _cut_at(counts, k):  # type: ignore[no-untyped-def]
+    """The place in ``perm`` where route ``k`` begins."""
+    begin = 0
+    for i in range(k):
+        begin += counts[i]
+    return begin
+
+
+@njit(cache=True, nogil=True)
+def _sector(state, perm, counts, order, begin, k, dist, start_dist, end_dist, neighbours):  # type: ignore[no-untyped-def]
+    """Route ``k`` of the sweep: the tasks of ``order`` from ``begin`` on, as many as
+    ``counts[k]``, ordered by nearest neighbour, then 2-opt and Or-opt."""
+    path = perm[begin : begin + counts[k]]
+    path[:] = order[begin : begin + counts[k]]
+    _nearest_neighbour(path, k, start_dist, dist)
+    tour_ils(state, path, k, dist, start_dist, end_dist, neighbours, 0, np.inf)
 
 
 @njit(cache=True, nogil=True)

@@ -15,6 +15,7 @@ from planner.hybrid import (
     or_opt_routes,
     perturb,
     route_ils,
+    sweep,
     tour_ils,
 )
 from planner.local_search import nearest_neighbours
@@ -22,7 +23,7 @@ from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
 from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
-from planner.solve import solve, stop_after
+from planner.solve import solve, stop_after, sweep_order
 
 
 def route_lengths(perm, counts, tables):
@@ -139,9 +140,10 @@ def test_hybrid_gives_valid_routes_and_the_same_answer_for_the_same_seed(objecti
 @pytest.mark.parametrize("objective", ["minmax", "makespan"])
 def test_other_routes_are_ordered_again_under_min_max_and_the_answer_repeats(objective):
     """``other_routes``: besides the longest, one route in turn gets the route ILS; the
-    best never worsens, the routes stay valid, and the same seed gives the same answer."""
+    best never worsens, the routes stay valid, and the same seed gives the same answer.
+    (Without the sweep, whose routes are ordered by that ILS from the start.)"""
     problem = problem_for(240, 3, 5)
-    params = HybridParams(population=20, ils_steps=3, route_kicks=20)
+    params = HybridParams(population=20, ils_steps=3, route_kicks=20, sweep=False)
     runs = [
         solve(problem, objective, "hybrid", stop_after(6), seed=2, params=params) for _ in (0, 1)
     ]
@@ -157,14 +159,18 @@ def test_other_routes_are_ordered_again_under_min_max_and_the_answer_repeats(obj
         "hybrid",
         stop_after(6),
         seed=2,
-        params=HybridParams(population=20, ils_steps=3, route_kicks=20, other_routes=False),
+        params=HybridParams(
+            population=20, ils_steps=3, route_kicks=20, sweep=False, other_routes=False
+        ),
     )
     assert off.stats["other_gains"] == 0
 
 
 @SETTINGS
-@given(chromosomes(min_count=0), st.sampled_from(list(Objective)), st.integers(0, 1))
-def test_giant_tour_gives_a_valid_chromosome_with_its_pins(case, objective, min_count):
+@given(chromosomes(min_count=0), st.sampled_from(list(Objective)), st.integers(0, 1), st.booleans())
+def test_the_giant_tour_and_the_sweep_give_valid_chromosomes_with_their_pins(
+    case, objective, min_count, swept
+):
     state, perm, counts = case
     n, m = perm.size, counts.size
     problem = problem_for(n, m, n + 2 * m)
@@ -172,9 +178,13 @@ def test_giant_tour_gives_a_valid_chromosome_with_its_pins(case, objective, min_
     pins = NO_PINS(n)
     pins[int(perm[-1])] = m - 1  # one task pinned to the last machine
     nn = nearest_neighbours(problem.dist, 5)
-    giant_tour(
-        state, perm, counts, int(objective), tables, nn, min_count, pins, np.inf, 50 * n, np.inf
-    )
+    args = (int(objective), tables, nn, min_count, pins, np.inf)
+    if swept:
+        order = sweep_order(problem)
+        assert order is not None and sorted(order.tolist()) == list(range(n))
+        sweep(state, perm, counts, order, *args, 20, np.inf)
+    else:
+        giant_tour(state, perm, counts, *args, 50 * n, np.inf)
     assert_valid(perm, counts, n, m, min_count)
     assert pins_hold(perm, counts, pins)
 
@@ -201,6 +211,53 @@ def test_giant_tour_is_a_good_tour_cut_optimally():
     chord = 2 * 100 * np.sin(np.pi / 40)
     assert counts.tolist() == [20, 20]
     assert route.max() == pytest.approx(200 + 19 * chord, rel=1e-9)
+
+
+def test_sweep_gives_each_machine_a_wedge_from_a_corner_depot():
+    # A 12 x 12 grid with the depot at a corner (as pcb3038's): a giant tour cut into three
+    # routes sends two of them across the others' areas empty; the sweep's sectors (each a
+    # run of the order by angle) leave no such legs, and their min-max figure is lower.
+    tasks = [Task(f"t{i}_{j}", 10.0 * (i + 1), 10.0 * j) for i in range(12) for j in range(12)]
+    problem = Problem.build(
+        [Machine(f"m{i}", 1.0, 1.0, 1.0, 0.0, 1.0, 1.0) for i in range(3)], tasks, (0.0, 0.0)
+    )
+    tables = CostTables.of(problem).kernel_args()
+    n = len(tasks)
+    nn = nearest_neighbours(problem.dist, 6)
+    order = sweep_order(problem)
+    longest = {}
+    for name in ("giant tour", "sweep"):
+        perm = np.arange(n, dtype=np.int64)
+        counts = np.zeros(3, dtype=np.int64)
+        args = (int(Objective.MINMAX), tables, nn, 1, NO_PINS(n), np.inf)
+        if name == "sweep":
+            sweep(make_state(1), perm, counts, order, *args, 50, np.inf)
+            places = np.argsort(order)[perm]  # each task's place in the order by angle
+            begin = 0
+            for count in counts:
+                assert sorted(places[begin : begin + count]) == list(range(begin, begin + count))
+                begin += count
+        else:
+            giant_tour(make_state(1), perm, counts, *args, 50 * n, np.inf)
+        assert_valid(perm, counts, n, 3, 1)
+        longest[name] = route_lengths(perm, counts, tables).max()
+    assert longest["sweep"] < 0.9 * longest["giant tour"]
+
+
+def test_sweep_order_starts_after_the_widest_gap_and_needs_a_depot():
+    # Tasks at 10, 20, 30 and 300 degrees around the depot: the widest gap is 30 -> 300.
+    degrees = [20.0, 300.0, 10.0, 30.0]
+    tasks = [
+        Task(f"t{j}", np.cos(np.radians(d)), np.sin(np.radians(d))) for j, d in enumerate(degrees)
+    ]
+    machine = Machine("m", 1.0, 1.0, 1.0, 0.0, 1.0, 1.0)
+    problem = Problem.build([machine], tasks, (0.0, 0.0))
+    assert sweep_order(problem).tolist() == [1, 2, 0, 3]
+    free = Problem(
+        (machine,), tuple(tasks), problem.dist, problem.start_dist, problem.end_dist,
+        problem.turns, problem.work_hours,
+    )  # fmt: skip
+    assert free.depot is None and sweep_order(free) is None
 
 
 @SETTINGS
