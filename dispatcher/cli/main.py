@@ -502,7 +502,7 @@ def cmd_bench_peer(args: argparse.Namespace) -> int:
     else:
         farms = parse_farms(args.farms)
         compile_solver()
-        report = bench_farm(farms, args.peer, runs, progress)
+        report = bench_farm(farms, args.peer, runs, progress, args.makespan_slack)
     print(report)
     return EXIT_OK
 
@@ -790,6 +790,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = bench_sub.add_parser("farm", help="ours and OR-Tools on generated farms (makespan)")
     p.add_argument("--peer", choices=["ortools"], default=None, help="the peer (default none)")
     p.add_argument("--farms", default=DEFAULT_FARMS, help="FIELDSxMACHINES,… (default %(default)s)")
+    p.add_argument(
+        "--makespan-slack",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="ours ε-lexicographic: in the last 20 %% of the time a makespan up to (1 + F) x the "
+        "best counts as equal and the road km decide (default 0: makespan, then road km)",
+    )
     add_bench_arguments(p, 60.0)
     p.set_defaults(handler=cmd_bench_peer)
     p = bench_sub.add_parser(

@@ -44,6 +44,11 @@ def test_a_bad_cell_or_run_setting_exits_2(capsys):
     assert "eil51:x" in capsys.readouterr().err
     assert main(["bench", "farm", "--runs", "0"]) == EXIT_BAD_INPUT
     assert "--runs" in capsys.readouterr().err
+    assert main(["bench", "farm", "--makespan-slack", "-0.01"]) == EXIT_BAD_INPUT
+    assert "--makespan-slack" in capsys.readouterr().err
+    args = ["bench", "farm", "--makespan-slack", "0.01", "--algorithm", "ighoa"]
+    assert main(args) == EXIT_BAD_INPUT
+    assert "--makespan-slack needs --algorithm hybrid" in capsys.readouterr().err
 
 
 def test_the_bks_table_has_both_objectives_with_sources():
@@ -175,6 +180,13 @@ def test_bench_farm_reports_both_bounds_and_both_gaps():
     gap = float(cells["ours gap to LBt"].removesuffix(" %"))
     assert gap == pytest.approx(100.0 * (ours / lbt - 1.0), abs=0.05)  # ours is rounded
     assert float(cells["LB"]) < float(cells["LBt"]) <= ours
+
+
+def test_bench_farm_with_a_makespan_slack_says_so():
+    pytest.importorskip("ortools")
+    report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), makespan_slack=0.01)
+    assert "a makespan within 1 % of the best counts as equal" in report
+    assert "ours: makespan, then road km" in bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
 
 
 @pytest.mark.parametrize("peer", ["ortools", "pyvrp"])
