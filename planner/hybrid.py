@@ -496,7 +496,7 @@ def sweep(  # type: ignore[no-untyped-def]
     """A first individual, cluster first and route second (the sweep): the tasks in
     ``order`` (by their angle around the depot, :func:`planner.solve.sweep_order`) cut
     into one sector a machine, each sector's route ordered by nearest neighbour, then
-    2-opt and Or-opt (:func:`tour_ils` without kicks). The cuts then move (:func:`_cut_at`)
+    2-opt and Or-opt (:func:`tour_ils` without kicks, :func:`_sector`). The cuts then move
     while that shortens the longer of the two routes beside the cut (or, that equal, their
     sum), by steps halved down to one task; last, each route gets :func:`tour_ils` with
     ``kicks`` kicks a task, until ``ils_end`` (and ``deadline``, the run's end, for all).
