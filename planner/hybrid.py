@@ -54,6 +54,7 @@ from planner.moves import SEGMENT, mask, ruin_recreate
 from planner.operators import edge, improve_routes, leg
 from planner.pins import first_fixed, repair_pins
 from planner.population import random_counts
+from planner.problem import Problem
 from planner.rng import randint
 
 MAX_SEGMENT = 3  # Or-opt moves segments of 1..MAX_SEGMENT tasks
@@ -478,6 +479,19 @@ def _nearest_neighbour(path, machine, start_dist, dist):  # type: ignore[no-unty
         path[k], path[best] = path[best], path[k]
 
 
+def sweep_order(problem: Problem) -> np.ndarray | None:
+    """The tasks by their angle around the depot, from the widest gap between two of them
+    on (the order :func:`sweep` cuts into sectors); ``None`` when the problem has no depot."""
+    if problem.depot is None or problem.num_tasks == 0:
+        return None
+    xy = np.array([(t.x, t.y) for t in problem.tasks], dtype=np.float64)
+    angle = np.arctan2(xy[:, 1] - problem.depot[1], xy[:, 0] - problem.depot[0])
+    order = np.argsort(angle, kind="stable")
+    sorted_angle = angle[order]
+    gaps = np.diff(np.append(sorted_angle, sorted_angle[0] + 2.0 * np.pi))
+    return np.roll(order, -(int(np.argmax(gaps)) + 1)).astype(np.int64)
+
+
 @njit(cache=True, nogil=True)
 def sweep(  # type: ignore[no-untyped-def]
     state,
@@ -494,7 +508,7 @@ def sweep(  # type: ignore[no-untyped-def]
     ils_end,
 ):
     """A first individual, cluster first and route second (the sweep): the tasks in
-    ``order`` (by their angle around the depot, :func:`planner.solve.sweep_order`) cut
+    ``order`` (by their angle around the depot, :func:`sweep_order`) cut
     into one sector a machine, each sector's route ordered by nearest neighbour, then
     2-opt and Or-opt (:func:`tour_ils` without kicks, :func:`_sector`). The cuts then move
     while that shortens the longer of the two routes beside the cut (or, that equal, their
@@ -528,7 +542,7 @@ def sweep(  # type: ignore[no-untyped-def]
             for grow in (step, -step):
                 if counts[cut] + grow < least or counts[cut + 1] - grow < least:
                     continue
-                begin = _cut_at(counts, cut)
+                begin = _route_begin(counts, cut)
                 span = counts[cut] + counts[cut + 1]
                 saved[:span] = perm[begin : begin + span]
                 counts[cut] += grow
@@ -563,7 +577,7 @@ def sweep(  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _cut_at(counts, k):  # type: ignore[no-untyped-def]
+def _route_begin(counts, k):  # type: ignore[no-untyped-def]
     """The place in ``perm`` where route ``k`` begins."""
     begin = 0
     for i in range(k):
@@ -676,9 +690,7 @@ def route_ils(state, perm, counts, route, tables, neighbours, pins, kicks, deadl
     changes, and every objective grows with a route's distance, so the chromosome is never
     worse. A route whose first task is pinned to it (a field in progress, planner/pins.py)
     is left as it is."""
-    begin = 0
-    for i in range(route):
-        begin += counts[i]
+    begin = _route_begin(counts, route)
     end = begin + counts[route]
     if end - begin < 8 or first_fixed(perm, begin, end - begin, route, pins):
         return 0.0

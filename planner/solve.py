@@ -375,29 +375,29 @@ def solve(
                 params.tour_kicks * n,
                 _share_of(stop.deadline(), params.tour_share),
             )
-        order = sweep_order(problem)
         if (
             isinstance(params, hybrid.HybridParams)
             and params.sweep
             and obj in (Objective.MINMAX, Objective.MAKESPAN)
-            and order is not None
             and pop > 1
             and not stop.interrupted()
         ):
-            hybrid.sweep(
-                state,
-                perms[pop - 2],
-                counts[pop - 2],
-                order,
-                int(obj),
-                tables,
-                neighbours,
-                min_count,
-                pins,
-                stop.deadline(),
-                params.tour_kicks,
-                _share_of(stop.deadline(), params.tour_share),
-            )
+            order = hybrid.sweep_order(problem)
+            if order is not None:
+                hybrid.sweep(
+                    state,
+                    perms[pop - 2],
+                    counts[pop - 2],
+                    order,
+                    int(obj),
+                    tables,
+                    neighbours,
+                    min_count,
+                    pins,
+                    stop.deadline(),
+                    params.tour_kicks,
+                    _share_of(stop.deadline(), params.tour_share),
+                )
         if warm is not None:
             perms[0], counts[0] = warm
     costs = np.empty(pop)
@@ -618,19 +618,6 @@ def _replace_worst(  # type: ignore[no-untyped-def]
     worst = int(np.argmax(costs))
     perms[worst], counts[worst] = perm, cnt
     route_costs[worst], costs[worst] = route, cost
-
-
-def sweep_order(problem: Problem) -> np.ndarray | None:
-    """The tasks by their angle around the depot, from the widest gap between two of them
-    on (the sweep, :func:`planner.hybrid.sweep`); ``None`` when the problem has no depot."""
-    if problem.depot is None or problem.num_tasks == 0:
-        return None
-    xy = np.array([(t.x, t.y) for t in problem.tasks], dtype=np.float64)
-    angle = np.arctan2(xy[:, 1] - problem.depot[1], xy[:, 0] - problem.depot[0])
-    order = np.argsort(angle, kind="stable")
-    sorted_angle = angle[order]
-    gaps = np.diff(np.append(sorted_angle, sorted_angle[0] + 2.0 * np.pi))
-    return np.roll(order, -(int(np.argmax(gaps)) + 1)).astype(np.int64)
 
 
 def _share_of(deadline: float, share: float) -> float:

@@ -23,6 +23,7 @@ from typing import Any
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments
+from dispatcher.tools.bench import SLACK_SHARE
 from planner.errors import PlannerError
 
 log = logging.getLogger("agrifleet")
@@ -795,8 +796,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.0,
         metavar="F",
-        help="ours ε-lexicographic: in the last 20 %% of the time a makespan up to (1 + F) x the "
-        "best counts as equal and the road km decide (default 0: makespan, then road km)",
+        help=f"ours ε-lexicographic: in the last {100 * SLACK_SHARE:g} %% of the time a makespan "
+        "up to (1 + F) x the best counts as equal and the road km decide (default 0: makespan, "
+        "then road km)",
     )
     add_bench_arguments(p, 60.0)
     p.set_defaults(handler=cmd_bench_peer)

@@ -16,6 +16,7 @@ from planner.hybrid import (
     perturb,
     route_ils,
     sweep,
+    sweep_order,
     tour_ils,
 )
 from planner.local_search import nearest_neighbours
@@ -23,7 +24,7 @@ from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
 from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
-from planner.solve import solve, stop_after, sweep_order
+from planner.solve import solve, stop_after
 
 
 def route_lengths(perm, counts, tables):
