@@ -116,6 +116,7 @@ def dispatch_for(
         stop_after(solver.generations, time_limit_s or solver.time_limit_s),
         seed=seed,
         on_generation=on_generation,
+        makespan_slack=solver.makespan_slack,
     )
     return dispatch_plan(scenario, plan)
 

@@ -16,6 +16,21 @@ default since it beat ``ighoa`` on every cell measured, benchmarks/RESULTS.md): 
 Or-opt, 2-opt* between routes, a giant-tour individual and an iterated local search on the
 elite (planner.hybrid, docs/ighoa.md)."""
 
+SLACK_SHARE = 0.2
+"""Under the makespan with a makespan slack ε > 0 (``[solver] makespan_slack``), the last
+share of the time in which a makespan up to (1 + ε) times the best found by then counts as
+equal to it and the road distance decides (``hybrid`` only:
+:meth:`planner.hybrid.HybridParams.with_makespan_slack`)."""
+MAX_SLACK = 0.1
+"""The most makespan a slack may give up for road distance (10 %)."""
+
+
+def check_makespan_slack(slack: float) -> float:
+    """``slack`` if it is a makespan slack (within [0, :data:`MAX_SLACK`]); else ValueError."""
+    if not 0.0 <= slack <= MAX_SLACK:
+        raise ValueError(f"a makespan slack must be within [0, {MAX_SLACK:g}], not {slack:g}")
+    return slack
+
 
 class Objective(IntEnum):
     """What the solver minimises; the integer is what the kernels switch on."""

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from planner.choices import SLACK_SHARE, check_makespan_slack
 from planner.cost import evaluate
 from planner.ighoa import IGHOAParams
 from planner.local_search import allocation_search, optimal_split, past
@@ -137,6 +138,17 @@ class HybridParams(IGHOAParams):
         if self.distance_slack < 0.0:
             raise ValueError(f"distance_slack must be >= 0, not {self.distance_slack}")
         mask(self.moves)
+
+    @classmethod
+    def with_makespan_slack(cls, slack: float) -> HybridParams:
+        """The defaults, ε-lexicographic under the makespan with ε = ``slack``: in the last
+        :data:`~planner.choices.SLACK_SHARE` of the time a makespan up to ``1 + slack``
+        times the best found by then counts as equal to it, and the road distance decides
+        (0: the makespan, then the road distance). A farm's ``[solver] makespan_slack``;
+        ``slack`` within [0, :data:`~planner.choices.MAX_SLACK`]."""
+        if check_makespan_slack(slack) == 0.0:
+            return cls()
+        return cls(distance_share=SLACK_SHARE, distance_slack=slack)
 
     def population_for(self, n: int) -> int:
         """The population for ``n`` tasks: :attr:`population`, fewer for a large instance

@@ -206,12 +206,14 @@ def replan_farm(
     stop: AnyOf | Criterion | None = None,
     seed: int = 1,
     previous: FarmPlan | None = None,
+    makespan_slack: float = 0.0,
 ) -> FarmPlan:
     """Allocate, order and lay out the rest of the work on ``farm`` for the alive
     ``machines``, from where they are now. Fields in ``done`` are left out; fields in
     ``in_progress`` are planned for their remaining segments; the others whole, as
     :func:`plan_farm` does. With ``previous`` (the plan being carried out), its remaining
-    routes are the solver's warm start. Each machine's route ends at the garage."""
+    routes are the solver's warm start. Each machine's route ends at the garage.
+    ``makespan_slack``: as :func:`plan_farm`'s."""
     if not machines:
         raise ProblemError("no machines: the fleet is empty")
     done_ids = set(done)
@@ -301,7 +303,15 @@ def replan_farm(
         pinned_machine=pins,
     )
     warm = _warm_routes(previous, fleet, todo) if previous is not None else None
-    result = solve(problem, objective, algorithm, stop, seed=seed, initial_routes=warm)
+    result = solve(
+        problem,
+        objective,
+        algorithm,
+        stop,
+        seed=seed,
+        initial_routes=warm,
+        makespan_slack=makespan_slack,
+    )
 
     plans: list[MachinePlan] = []
     for i, route in enumerate(result.routes):

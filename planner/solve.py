@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 
 from planner import ga, hybrid, ighoa
-from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM
+from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM, check_makespan_slack
 from planner.cost import (
     CostTables,
     Figures,
@@ -284,6 +284,7 @@ def solve(
     annealing: AnnealingParams | None = None,
     on_generation: GenerationCallback | None = None,
     initial_routes: Sequence[Sequence[int]] | None = None,
+    makespan_slack: float = 0.0,
 ) -> Result:
     """Allocate and order the tasks of ``problem`` over its machines.
 
@@ -293,10 +294,22 @@ def solve(
     completed. The result is never worse than it, and equal to it when no generation runs
     (``MaxGenerations(0)``, or a :class:`StopFlag` already set) and nothing in the first
     population beats it.
+
+    ``makespan_slack`` ε > 0 (``hybrid`` with its defaults: no ``params``) makes the
+    makespan and the road distance ε-lexicographic
+    (:meth:`planner.hybrid.HybridParams.with_makespan_slack`); under the other objectives
+    it does nothing.
     """
     obj = Objective.parse(objective)
     if algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
+    if check_makespan_slack(makespan_slack):
+        if algorithm != "hybrid":
+            raise ValueError(f"a makespan slack needs algorithm hybrid, not {algorithm}")
+        if params is not None:
+            raise ValueError("a makespan slack sets hybrid's params: give one or the other")
+        if obj is Objective.MAKESPAN:
+            params = hybrid.HybridParams.with_makespan_slack(makespan_slack)
     if stop is None:
         stop = stop_after()
     elif not isinstance(stop, AnyOf):

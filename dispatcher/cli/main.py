@@ -23,7 +23,7 @@ from typing import Any
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments
-from dispatcher.tools.bench import SLACK_SHARE
+from planner.choices import SLACK_SHARE
 from planner.errors import PlannerError
 
 log = logging.getLogger("agrifleet")

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from dispatcher.config.errors import ConfigError
-from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM, Objective
+from planner.choices import ALGORITHMS, DEFAULT_ALGORITHM, MAX_SLACK, Objective
 from planner.errors import PlannerError
 from planner.farm import Farm, FarmOptions, load_farm
 from planner.problem import Machine
@@ -145,6 +145,13 @@ LIMITS: dict[str, Limit] = {
         "an hour: a plan the dispatcher waits longer for is no use in the field",
     ),
     "generations": Limit(1, 1_000_000, "", "at least one generation", "beyond any useful run"),
+    "makespan_slack": Limit(
+        0.0,
+        MAX_SLACK,
+        "",
+        "a share of the makespan",
+        "at most 10 % of the makespan given up for road distance",
+    ),
     # [dispatcher]
     "lost_after_s": Limit(
         1.0,
@@ -220,7 +227,7 @@ MACHINE_KEYS = (
     "implement",
 )
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
-SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed")
+SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed", "makespan_slack")
 WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items", "topup_lead_s")
 # Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
 _ELSEWHERE_AT_TOP = {
@@ -273,6 +280,10 @@ class SolverSettings:
     time_limit_s: float = 10.0
     generations: int = 2000
     seed: int = 1
+    # ε > 0: a makespan up to (1 + ε) x the best found counts as equal to it late in the
+    # solve, and the road distance decides (planner.choices.SLACK_SHARE); 0: the makespan
+    # first, then the road distance. Under the makespan, with hybrid only.
+    makespan_slack: float = 0.0
 
 
 WINDOW_ITEMS = 250
@@ -727,7 +738,24 @@ def _solver(raw: Any, src: str) -> SolverSettings:
         values["generations"] = _integer(raw, "generations", src, "solver.generations")
     if "seed" in raw:
         values["seed"] = _integer(raw, "seed", src, "solver.seed")
+    if "makespan_slack" in raw:
+        values["makespan_slack"] = _makespan_slack(raw, settings, src)
     return SolverSettings(**values)
+
+
+def _makespan_slack(raw: dict[str, Any], settings: SolverSettings, src: str) -> float:
+    slack = _number(raw, "makespan_slack", src, "solver.makespan_slack")
+    if slack > 0.0 and settings.algorithm != "hybrid":
+        raise ConfigError(
+            f'{src}: solver.makespan_slack needs solver.algorithm = "hybrid", '
+            f"not {_shown(settings.algorithm)}"
+        )
+    if slack > 0.0 and Objective.parse(settings.objective) is not Objective.MAKESPAN:
+        raise ConfigError(
+            f'{src}: solver.makespan_slack applies to solver.objective = "makespan" only, '
+            f"not {_shown(settings.objective)}"
+        )
+    return slack
 
 
 def _watch(raw: Any, src: str) -> WatchSettings:

@@ -29,10 +29,6 @@ class BenchError(DispatcherError, ValueError):
     """A bad benchmark argument (cell, farm size, peer); the message names it."""
 
 
-SLACK_SHARE = 0.2  # bench farm --makespan-slack: the share of the time it applies to
-MAX_SLACK = 0.1  # the most --makespan-slack may give up (10 % of the makespan)
-
-
 @dataclass(frozen=True)
 class Runs:
     """How ours runs on every cell: ``runs`` seeds from ``seed``, ``time_limit`` seconds
@@ -205,30 +201,27 @@ def bench_farm(
 ) -> str:
     """Ours and OR-Tools on generated farms (makespan); returns the Markdown report.
 
-    ``makespan_slack`` > 0 runs ours ε-lexicographic: in the last :data:`SLACK_SHARE` of
-    the time a makespan up to ``1 + makespan_slack`` times the best by then counts as equal
-    to it and the road distance decides (``HybridParams.distance_slack``, docs/ighoa.md);
-    0: the makespan, then the road distance."""
+    ``makespan_slack`` > 0 runs ours ε-lexicographic
+    (:meth:`planner.hybrid.HybridParams.with_makespan_slack`): late in the run a makespan
+    up to ``1 + makespan_slack`` times the best by then counts as equal to it and the road
+    distance decides; 0: the makespan, then the road distance."""
     from agrifleet_bench import peers
     from agrifleet_bench.farm import generate_farm, makespan_lower_bound, travel_lower_bound
 
+    from planner.choices import SLACK_SHARE, check_makespan_slack
     from planner.cost import figures
     from planner.hybrid import HybridParams
     from planner.solve import solve, stop_after
 
     if peer not in (None, "ortools"):
         raise BenchError(f"--peer {peer!r}: the farm's peer is ortools (PyVRP has no makespan)")
-    if not 0.0 <= makespan_slack <= MAX_SLACK:
-        raise BenchError(
-            f"--makespan-slack must be within [0, {MAX_SLACK:g}], not {makespan_slack}"
-        )
+    try:
+        check_makespan_slack(makespan_slack)
+    except ValueError as exc:
+        raise BenchError(f"--makespan-slack: {exc}") from None
     if makespan_slack > 0.0 and runs.algorithm != "hybrid":
         raise BenchError(f"--makespan-slack needs --algorithm hybrid, not {runs.algorithm}")
-    params = (
-        HybridParams(distance_share=SLACK_SHARE, distance_slack=makespan_slack)
-        if makespan_slack > 0.0
-        else None
-    )
+    params = HybridParams.with_makespan_slack(makespan_slack) if makespan_slack > 0.0 else None
     _check_peer(peer)
     order = (
         f"ours: a makespan within {100 * makespan_slack:g} % of the best counts as equal in the "

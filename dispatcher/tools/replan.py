@@ -150,6 +150,7 @@ def replan(
         stop=stop,
         seed=solver.seed,
         previous=current.plan if current else None,
+        makespan_slack=solver.makespan_slack,
     )
     if cancel is not None and cancel.is_set():
         raise ReplanCancelled("given up")

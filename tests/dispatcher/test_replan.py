@@ -1,6 +1,7 @@
 """Planning the rest of the day from the fleet state: a vehicle lost in the middle of a
 field, the others taking over from where they are (dispatcher/tools/replan.py)."""
 
+import dataclasses
 import math
 import threading
 import time
@@ -15,7 +16,7 @@ from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from dispatcher.tools.replan import ReplanError, first_visits, replan, visit_of
 from planner.field_plan import plan_farm
 from planner.replan import visit_segments
-from planner.solve import stop_after
+from planner.solve import solve, stop_after
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -205,3 +206,33 @@ def test_a_finished_vehicle_given_no_more_work_keeps_its_mission(current):
     assert job.missions["v1"] is current.missions["v1"]  # nothing to upload
     assert job.document.machine("v1").items == v1.items
     assert job.missions["v2"] is nxt.missions["v2"]  # not started: the new one, whole
+
+
+def test_the_scenarios_makespan_slack_reaches_the_solver_of_the_plan_and_the_re_plan(
+    current, monkeypatch
+):
+    """``[solver] makespan_slack`` is passed to the solver by the first plan
+    (:func:`agrifleet.api.dispatch_for`) and by every re-plan."""
+    import planner.field_plan
+    import planner.replan
+    from agrifleet.api import dispatch_for
+
+    solver = dataclasses.replace(
+        current.scenario.solver, algorithm="hybrid", generations=5, makespan_slack=0.02
+    )
+    scenario = dataclasses.replace(current.scenario, solver=solver)
+    slacks = []
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        slacks.append(kwargs["makespan_slack"])
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(planner.field_plan, "solve", spy)
+    monkeypatch.setattr(planner.replan, "solve", spy)
+    first = dispatch_for(scenario, "makespan", 30.0)
+    state = FleetState(first.document)
+    for vid in state.vehicles:
+        started(state, vid)
+    state.apply(ev.VehicleLost("v2", "heartbeats stopped"), 1.0)
+    replan(scenario, first, state, stop=stop_after(5))
+    assert slacks == [0.02, 0.02]

@@ -264,3 +264,38 @@ def test_warm_start_from_a_plan_with_a_machine_gone():
         solve(after, initial_routes=[[3, 1], [3]], stop=MaxGenerations(0))
     with pytest.raises(ValueError, match="3 routes for 2 machines"):
         solve(after, initial_routes=[[], [], []], stop=MaxGenerations(0))
+
+
+def test_a_makespan_slack_is_hybrid_with_the_slack_params_under_the_makespan_only():
+    """``makespan_slack`` (a farm's ``[solver] makespan_slack``) is the hybrid with
+    :meth:`HybridParams.with_makespan_slack`: the same answer as with those params under
+    the makespan, and nothing under another objective."""
+    problem = three_machine_farm()
+    slack = solve(problem, "makespan", "hybrid", stop_after(30), seed=2, makespan_slack=0.05)
+    params = HybridParams.with_makespan_slack(0.05)
+    assert (params.distance_share, params.distance_slack) == (0.2, 0.05)
+    same = solve(problem, "makespan", "hybrid", stop_after(30), seed=2, params=params)
+    assert slack.routes == same.routes and slack.history == same.history
+    # the last share of the generations may give up to the slack of the makespan
+    best_before = min(slack.history[:24])
+    assert slack.figures.makespan_h <= best_before * 1.05 + 1e-9
+    plain = solve(problem, "distance", "hybrid", stop_after(10), seed=2)
+    other = solve(problem, "distance", "hybrid", stop_after(10), seed=2, makespan_slack=0.05)
+    assert other.routes == plain.routes and other.history == plain.history
+    assert HybridParams.with_makespan_slack(0.0) == HybridParams()
+
+
+@pytest.mark.parametrize(
+    ("algorithm", "slack", "params", "message"),
+    [
+        ("ighoa", 0.01, None, "needs algorithm hybrid, not ighoa"),
+        ("hybrid", 0.01, HybridParams(), "give one or the other"),
+        ("hybrid", 0.2, None, "within [0, 0.1], not 0.2"),
+        ("hybrid", -0.01, None, "within [0, 0.1], not -0.01"),
+    ],
+)
+def test_a_makespan_slack_out_of_place_is_refused(algorithm, slack, params, message):
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        solve(
+            small_farm(), "makespan", algorithm, stop_after(1), makespan_slack=slack, params=params
+        )
