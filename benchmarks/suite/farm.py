@@ -1,7 +1,9 @@
 """A seeded farm of ``fields`` fields and ``machines`` machines, and a makespan lower bound.
 
 The farm is a square whose side grows with the square root of the number of fields (the
-fields' density stays the same), the garage at its centre. Fields are rectangles of
+fields' density stays the same: ``land_km2`` of land a field, by default
+:data:`FIELD_DENSITY_KM2`, where the fields cover 3.5 % of the land), the garage at its
+centre. Fields are rectangles of
 log-normal area (median 12 ha, 2-60 ha), 1:1 to 1:3. Machines differ in working width
 (3-12 m), working speed (6-12 km/h, field efficiency 0.75), road speed (15-40 km/h) and
 time per U-turn (0.5-1.5 min), so a field's service time depends on the machine: the
@@ -50,12 +52,18 @@ FIELD_DENSITY_KM2 = 4.0  # square kilometres of farm per field
 FIELD_EFFICIENCY = 0.75  # share of the working speed x width that is real work
 
 
-def generate_farm(fields: int, machines: int, seed: int = 1) -> Problem:
-    """The farm ``fields`` x ``machines`` of ``seed``; objective: makespan (hours)."""
+def generate_farm(
+    fields: int, machines: int, seed: int = 1, land_km2: float = FIELD_DENSITY_KM2
+) -> Problem:
+    """The farm ``fields`` x ``machines`` of ``seed``, ``land_km2`` square kilometres of land
+    a field (how spread out it is); objective: makespan (hours). The machines and the
+    fields' sizes are the same whatever ``land_km2``: only where the fields are changes."""
     if fields < 1 or machines < 1:
         raise ValueError(f"a farm needs fields and machines, not {fields} x {machines}")
+    if not land_km2 > 0.0:
+        raise ValueError(f"a farm needs land: land_km2 must be positive, not {land_km2}")
     rng = np.random.default_rng(seed)
-    side_m = 1000.0 * math.sqrt(FIELD_DENSITY_KM2 * fields)
+    side_m = 1000.0 * math.sqrt(land_km2 * fields)
     fleet = []
     for i in range(machines):
         width = float(rng.uniform(3.0, 12.0))

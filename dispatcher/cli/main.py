@@ -503,7 +503,9 @@ def cmd_bench_peer(args: argparse.Namespace) -> int:
     else:
         farms = parse_farms(args.farms)
         compile_solver()
-        report = bench_farm(farms, args.peer, runs, progress, args.makespan_slack)
+        report = bench_farm(
+            farms, args.peer, runs, progress, args.makespan_slack, args.land_per_field
+        )
     print(report)
     return EXIT_OK
 
@@ -799,6 +801,14 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"ours ε-lexicographic: in the last {100 * SLACK_SHARE:g} %% of the time a makespan "
         "up to (1 + F) x the best counts as equal and the road km decide (default 0: makespan, "
         "then road km)",
+    )
+    p.add_argument(
+        "--land-per-field",
+        type=float,
+        default=None,
+        metavar="KM2",
+        help="how spread out the farm is: square kilometres of land a field (default 4: the "
+        "fields cover 3.5 %% of the land; 0.4: 35 %%)",
     )
     add_bench_arguments(p, 60.0)
     p.set_defaults(handler=cmd_bench_peer)

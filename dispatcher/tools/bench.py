@@ -198,19 +198,26 @@ def bench_farm(
     runs: Runs,
     progress: Progress = lambda line: None,
     makespan_slack: float = 0.0,
+    land_km2: float | None = None,
 ) -> str:
     """Ours and OR-Tools on generated farms (makespan); returns the Markdown report.
+    ``land_km2``: square kilometres of land per field (default the generator's,
+    :data:`agrifleet_bench.farm.FIELD_DENSITY_KM2`): how spread out the farm is.
 
     ``makespan_slack`` > 0 runs ours ε-lexicographic
     (:meth:`planner.hybrid.HybridParams.with_makespan_slack`): late in the run a makespan
     up to ``1 + makespan_slack`` times the best by then counts as equal to it and the road
     distance decides; 0: the makespan, then the road distance."""
     from agrifleet_bench import peers
-    from agrifleet_bench.farm import generate_farm, makespan_lower_bound, travel_lower_bound
+    from agrifleet_bench.farm import (
+        FIELD_DENSITY_KM2,
+        generate_farm,
+        makespan_lower_bound,
+        travel_lower_bound,
+    )
 
     from planner.choices import SLACK_SHARE, check_makespan_slack
     from planner.cost import figures
-    from planner.hybrid import HybridParams
     from planner.solve import solve, stop_after
 
     if peer not in (None, "ortools"):
@@ -221,16 +228,19 @@ def bench_farm(
         raise BenchError(f"--makespan-slack: {exc}") from None
     if makespan_slack > 0.0 and runs.algorithm != "hybrid":
         raise BenchError(f"--makespan-slack needs --algorithm hybrid, not {runs.algorithm}")
-    params = HybridParams.with_makespan_slack(makespan_slack) if makespan_slack > 0.0 else None
+    land = FIELD_DENSITY_KM2 if land_km2 is None else land_km2
+    if not 0.01 <= land <= 1000.0:
+        raise BenchError(f"--land-per-field must be within [0.01, 1000] km², not {land:g}")
     _check_peer(peer)
     order = (
         f"ours: a makespan within {100 * makespan_slack:g} % of the best counts as equal in the "
         f"last {100 * SLACK_SHARE:g} % of the time, road km decides"
-        if params is not None
+        if makespan_slack > 0.0
         else "ours: makespan, then road km"
     )
     lines = [
-        f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}), "
+        f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}, "
+        f"{land:g} km² of land a field), "
         f"{runs.describe(peer)}; {order}; road km = total road distance; LB ignores travel, "
         "LBt counts the travel no plan avoids.",
         "",
@@ -240,7 +250,7 @@ def bench_farm(
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for fields, machines in sizes:
-        problem = generate_farm(fields, machines, runs.seed)
+        problem = generate_farm(fields, machines, runs.seed, land)
         bound, travel = makespan_lower_bound(problem), travel_lower_bound(problem)
         results = [
             solve(
@@ -249,7 +259,7 @@ def bench_farm(
                 runs.algorithm,
                 stop_after(None, runs.time_limit),
                 seed=s,
-                params=params,
+                makespan_slack=makespan_slack,
             )
             for s in runs.seeds
         ]

@@ -49,6 +49,8 @@ def test_a_bad_cell_or_run_setting_exits_2(capsys):
     args = ["bench", "farm", "--makespan-slack", "0.01", "--algorithm", "ighoa"]
     assert main(args) == EXIT_BAD_INPUT
     assert "--makespan-slack needs --algorithm hybrid" in capsys.readouterr().err
+    assert main(["bench", "farm", "--land-per-field", "0"]) == EXIT_BAD_INPUT
+    assert "--land-per-field must be within [0.01, 1000] km², not 0" in capsys.readouterr().err
 
 
 def test_the_bks_table_has_both_objectives_with_sources():
@@ -68,6 +70,19 @@ def test_the_farm_generator_is_seeded_and_heterogeneous():
     # Service times depend on the machine, and not by one factor per machine alone.
     ratios = hours / hours[:, :1]
     assert not np.allclose(ratios[0], ratios[1])
+
+
+def test_a_denser_farm_is_the_same_farm_drawn_closer_together():
+    """``land_km2`` (bench farm --land-per-field) moves the fields, nothing else: the
+    distances scale with the side, the machines and the service hours stay."""
+    wide, dense = generate_farm(40, 5, seed=3), generate_farm(40, 5, seed=3, land_km2=0.4)
+    assert wide.machines == dense.machines
+    np.testing.assert_array_equal(service_hours(wide), service_hours(dense))
+    np.testing.assert_allclose(dense.dist, wide.dist * np.sqrt(0.1), rtol=1e-4, atol=0.2)
+    assert makespan_lower_bound(dense) == pytest.approx(makespan_lower_bound(wide), rel=1e-9)
+    assert travel_lower_bound(dense) < travel_lower_bound(wide)
+    with pytest.raises(ValueError, match="land_km2 must be positive"):
+        generate_farm(40, 5, land_km2=0.0)
 
 
 def test_the_lower_bound_is_exact_on_related_machines_and_below_any_schedule():
@@ -187,6 +202,15 @@ def test_bench_farm_with_a_makespan_slack_says_so():
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), makespan_slack=0.01)
     assert "a makespan within 1 % of the best counts as equal" in report
     assert "ours: makespan, then road km" in bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
+
+
+def test_bench_farm_on_a_denser_farm_says_so_and_bounds_that_farm():
+    pytest.importorskip("ortools")
+    report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), land_km2=0.4)
+    assert "0.4 km² of land a field" in report
+    row = next(line for line in report.splitlines() if line.startswith("| 12x3 "))
+    lbt = float(row.split("|")[8])
+    assert lbt == pytest.approx(travel_lower_bound(generate_farm(12, 3, 1, 0.4)), abs=0.005)
 
 
 @pytest.mark.parametrize("peer", ["ortools", "pyvrp"])
