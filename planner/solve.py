@@ -358,22 +358,10 @@ def solve(
             min_count, pins,
         )  # fmt: skip
     else:
-        for p in range(pop):
-            # One call per individual, so that a stop flag is seen during a long
-            # pre-planning; once it is set the rest are random orders (cheap), never empty.
-            _initial_individual(
-                state,
-                perms[p],
-                counts[p],
-                min_count,
-                pins,
-                tables,
-                algorithm in ("ighoa", "hybrid") and not stop.interrupted(),
-                annealing.t_start,
-                annealing.t_end,
-                annealing.alpha,
-                annealing.chain,
-            )
+        _initial_population(
+            state, perms, counts, min_count, pins, tables, annealing, stop,
+            algorithm in ("ighoa", "hybrid"),
+        )  # fmt: skip
         if isinstance(params, hybrid.HybridParams) and params.giant_tour and not stop.interrupted():
             hybrid.giant_tour(
                 state,
@@ -434,6 +422,14 @@ def solve(
     }
     gen = 0
     cap = 0.0  # hybrid's makespan cap in the last share of the time (0: none yet)
+    # hybrid on the sums: the population starts again when its elite has not improved for
+    # ``restart`` of the run; the best before (the record) is kept aside.
+    restart = getattr(params, "restart", 0.0)
+    if obj in (Objective.MINMAX, Objective.MAKESPAN) or warm is not None:
+        restart = 0.0
+    record_perm, record_counts, record_cost = elite_perm.copy(), elite_counts.copy(), elite_cost
+    since_cost, since = elite_cost, 0.0  # the elite's cost and the progress when it improved
+    stats["restarts"] = 0.0
     while not stop.interrupted() and stop.max_generations > 0:
         gen += 1
         # hybrid under the makespan: the last distance_share of the time shortens the roads,
@@ -587,11 +583,33 @@ def solve(
                     stats[gains] += 1.0
                     _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
                                    elite_route, elite_cost)  # fmt: skip
-        history.append(elite_cost)
+        if elite_cost < record_cost:
+            record_perm[:], record_counts[:], record_cost = elite_perm, elite_counts, elite_cost
+        if restart > 0.0 and not stop.interrupted():
+            now = stop.progress()
+            if elite_cost < since_cost * (1.0 - 1e-9):
+                since_cost, since = elite_cost, now
+            elif now - since >= restart and now <= 1.0 - 0.5 * restart:
+                # A new population, as the first (annealed random orders): the GA breeds
+                # away from the record, which it would otherwise fill the population with.
+                _initial_population(
+                    state, perms, counts, min_count, pins, tables, annealing, stop, True
+                )
+                evaluate_population(perms, counts, int(obj), tables, costs, route_costs)
+                best = int(np.argmin(costs))
+                elite_perm[:], elite_counts[:] = perms[best], counts[best]
+                elite_route[:], elite_cost = route_costs[best], float(costs[best])
+                walk_perm[:], walk_counts[:] = elite_perm, elite_counts  # ILS: from it too
+                walk_route[:], walk_cost = elite_route, elite_cost
+                since_cost, since = elite_cost, now
+                stats["restarts"] += 1.0
+        history.append(min(elite_cost, record_cost))
         if on_generation is not None:
-            on_generation(gen, elite_cost, time.perf_counter() - started)
-        if stop(elite_cost):
+            on_generation(gen, min(elite_cost, record_cost), time.perf_counter() - started)
+        if stop(min(elite_cost, record_cost)):
             break
+    if record_cost < elite_cost:
+        elite_perm, elite_counts = record_perm, record_counts
     elapsed = time.perf_counter() - started
     routes = tuple(tuple(r) for r in split_routes(elite_perm, elite_counts))
     figs = figures(problem, routes)
@@ -752,6 +770,28 @@ def _orphans(
         free = [j for j in route if j not in given and problem.pinned_machine[j] < 0]
         out += free[: max(size - problem.min_tasks_per_machine, 0)]
     return np.array(sorted(out), dtype=np.int64)
+
+
+def _initial_population(  # type: ignore[no-untyped-def]
+    state, perms, counts, min_count, pins, tables, annealing, stop, pre_plan
+):
+    """Every individual by :func:`_initial_individual`, annealed when ``pre_plan``. One
+    call per individual, so that a stop flag is seen during a long pre-planning; once it
+    is set the rest are random orders (cheap), never empty."""
+    for p in range(perms.shape[0]):
+        _initial_individual(
+            state,
+            perms[p],
+            counts[p],
+            min_count,
+            pins,
+            tables,
+            pre_plan and not stop.interrupted(),
+            annealing.t_start,
+            annealing.t_end,
+            annealing.alpha,
+            annealing.chain,
+        )
 
 
 @njit(cache=True, nogil=True)

@@ -363,8 +363,35 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"tour_share": 1.5},
         {"distance_share": -0.1},
         {"distance_slack": -0.1},
+        {"restart": 1.5},
     ],
 )
 def test_hybrid_params_refuse_a_bad_setting(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         HybridParams(**bad)
+
+
+def test_a_restart_keeps_the_best_found_before_and_repeats_for_the_same_seed():
+    """``restart``: under a sum, a population whose elite has not improved for that share
+    of the run starts again; the best found before is kept aside and returned unless
+    beaten, so the history never worsens. Not under min-max, nor from a warm start."""
+    problem = problem_for(30, 3, 4)
+    params = HybridParams(population=10, ils_steps=2, restart=0.1)
+    runs = [
+        solve(problem, "distance", "hybrid", stop_after(80), seed=5, params=params) for _ in (0, 1)
+    ]
+    a, b = runs
+    assert a.stats["restarts"] >= 1
+    assert a.routes == b.routes and a.history == b.history
+    assert sorted(j for r in a.routes for j in r) == list(range(30)) and all(a.routes)
+    assert all(y <= x for x, y in zip(a.history, a.history[1:], strict=False))
+    assert a.cost == pytest.approx(a.history[-1]) and a.cost == pytest.approx(min(a.history))
+    assert a.cost == pytest.approx(a.figures.value(a.objective))
+    never = [
+        solve(problem, "minmax", "hybrid", stop_after(80), seed=5, params=params),
+        solve(
+            problem, "distance", "hybrid", stop_after(80), seed=5, params=params,
+            initial_routes=a.routes,
+        ),
+    ]  # fmt: skip
+    assert [r.stats["restarts"] for r in never] == [0.0, 0.0]
