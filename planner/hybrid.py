@@ -27,7 +27,8 @@ cuts moved until the routes beside each are even, each route ordered by that ILS
 same ILS orders the elite's longest route again each generation (:func:`route_ils`), and,
 under the min-max objectives, one other route in turn (``other_routes``). A warm-started
 run (a re-plan) starts instead from the plan being carried out and variants of it
-(:func:`warm_population`).
+(:func:`warm_population`). Under the sums, a population whose elite has not improved for
+``restart`` of the run starts again, the best found so far kept aside (:func:`planner.solve.solve`).
 
 Under the makespan (the farm), a plan whose routes all end within minutes of the
 makespan leaves no move that keeps the makespan and shortens the roads (at 500 x 30 a full
