@@ -3,12 +3,11 @@
 The farm is a square whose side grows with the square root of the number of fields (the
 fields' density stays the same: ``land_km2`` of land a field, by default
 :data:`FIELD_DENSITY_KM2`, where the fields cover 3.5 % of the land), the garage at its
-centre. Fields are rectangles of
-log-normal area (median 12 ha, 2-60 ha), 1:1 to 1:3. Machines differ in working width
-(3-12 m), working speed (6-12 km/h, field efficiency 0.75), road speed (15-40 km/h) and
-time per U-turn (0.5-1.5 min), so a field's service time depends on the machine: the
-area over its capacity plus its turns (the paper's rectangle model, formula 6), as the
-planner costs it. Same seed, same farm.
+centre. Fields are rectangles of log-normal area (median 12 ha, 2-60 ha), 1:1 to 1:3.
+Machines differ in working width (3-12 m), working speed (6-12 km/h, field efficiency
+0.75), road speed (15-40 km/h) and time per U-turn (0.5-1.5 min), so a field's service
+time depends on the machine: the area over its capacity plus its turns (the paper's
+rectangle model, formula 6), as the planner costs it. Same seed, same farm.
 
 Two lower bounds on the makespan, both the value of the linear relaxation of assigning
 fields to machines (unrelated machines, R||Cmax) with a cost c_ij for field j on machine i,
