@@ -154,7 +154,7 @@ class HybridParams(IGHOAParams):
         times the best found by then counts as equal to it, and the road distance decides
         (0: the makespan, then the road distance). A farm's ``[solver] makespan_slack``;
         ``slack`` within [0, :data:`~planner.choices.MAX_SLACK`]."""
-        if check_makespan_slack(slack) == 0.0:
+        if check_makespan_slack(slack) == 0.0:  # refuses a slack out of range
             return cls()
         return cls(distance_share=SLACK_SHARE, distance_slack=slack)
 

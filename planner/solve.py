@@ -303,7 +303,8 @@ def solve(
     obj = Objective.parse(objective)
     if algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
-    if check_makespan_slack(makespan_slack):
+    check_makespan_slack(makespan_slack)
+    if makespan_slack > 0.0:
         if algorithm != "hybrid":
             raise ValueError(f"a makespan slack needs algorithm hybrid, not {algorithm}")
         if params is not None:
@@ -424,11 +425,12 @@ def solve(
     cap = 0.0  # hybrid's makespan cap in the last share of the time (0: none yet)
     # hybrid on the sums: the population starts again when its elite has not improved for
     # ``restart`` of the run; the best before (the record) is kept aside.
-    restart = getattr(params, "restart", 0.0)
+    restart = params.restart if isinstance(params, hybrid.HybridParams) else 0.0
     if obj in (Objective.MINMAX, Objective.MAKESPAN) or warm is not None:
         restart = 0.0
     record_perm, record_counts, record_cost = elite_perm.copy(), elite_counts.copy(), elite_cost
-    since_cost, since = elite_cost, 0.0  # the elite's cost and the progress when it improved
+    # The elite's cost when it last improved, and the progress of the run then.
+    improved_cost, improved_at = elite_cost, 0.0
     stats["restarts"] = 0.0
     while not stop.interrupted() and stop.max_generations > 0:
         gen += 1
@@ -587,9 +589,9 @@ def solve(
             record_perm[:], record_counts[:], record_cost = elite_perm, elite_counts, elite_cost
         if restart > 0.0 and not stop.interrupted():
             now = stop.progress()
-            if elite_cost < since_cost * (1.0 - 1e-9):
-                since_cost, since = elite_cost, now
-            elif now - since >= restart and now <= 1.0 - 0.5 * restart:
+            if elite_cost < improved_cost * (1.0 - 1e-9):
+                improved_cost, improved_at = elite_cost, now
+            elif now - improved_at >= restart and now <= 1.0 - 0.5 * restart:
                 # A new population, as the first (annealed random orders): the GA breeds
                 # away from the record, which it would otherwise fill the population with.
                 _initial_population(
@@ -601,12 +603,13 @@ def solve(
                 elite_route[:], elite_cost = route_costs[best], float(costs[best])
                 walk_perm[:], walk_counts[:] = elite_perm, elite_counts  # ILS: from it too
                 walk_route[:], walk_cost = elite_route, elite_cost
-                since_cost, since = elite_cost, now
+                improved_cost, improved_at = elite_cost, now
                 stats["restarts"] += 1.0
-        history.append(min(elite_cost, record_cost))
+        best_cost = min(elite_cost, record_cost)  # a restart's first elite may be worse
+        history.append(best_cost)
         if on_generation is not None:
-            on_generation(gen, min(elite_cost, record_cost), time.perf_counter() - started)
-        if stop(min(elite_cost, record_cost)):
+            on_generation(gen, best_cost, time.perf_counter() - started)
+        if stop(best_cost):
             break
     if record_cost < elite_cost:
         elite_perm, elite_counts = record_perm, record_counts
