@@ -428,7 +428,10 @@ def solve(
     restart = params.restart if isinstance(params, hybrid.HybridParams) else 0.0
     if obj in (Objective.MINMAX, Objective.MAKESPAN) or warm is not None:
         restart = 0.0
-    record_perm, record_counts, record_cost = elite_perm.copy(), elite_counts.copy(), elite_cost
+    record_perm, record_counts = elite_perm.copy(), elite_counts.copy()
+    # Without restarts there is no record: the elite is the answer (under a makespan slack
+    # it may give up some makespan for road distance in the last share of the time).
+    record_cost = elite_cost if restart > 0.0 else math.inf
     # The elite's cost when it last improved, and the progress of the run then.
     improved_cost, improved_at = elite_cost, 0.0
     stats["restarts"] = 0.0
@@ -585,7 +588,7 @@ def solve(
                     stats[gains] += 1.0
                     _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
                                    elite_route, elite_cost)  # fmt: skip
-        if elite_cost < record_cost:
+        if restart > 0.0 and elite_cost < record_cost:
             record_perm[:], record_counts[:], record_cost = elite_perm, elite_counts, elite_cost
         if restart > 0.0 and not stop.interrupted():
             now = stop.progress()

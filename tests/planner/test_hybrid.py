@@ -395,3 +395,17 @@ def test_a_restart_keeps_the_best_found_before_and_repeats_for_the_same_seed():
         ),
     ]  # fmt: skip
     assert [r.stats["restarts"] for r in never] == [0.0, 0.0]
+
+
+def test_a_makespan_slack_trades_makespan_for_road_distance_in_the_answer():
+    """With ``distance_share`` and ``distance_slack`` the answer is the plan of the last
+    share, which may end up to the slack later for less road, not the best makespan seen
+    before it (no restarts under the makespan, so no record kept aside)."""
+    problem = problem_for(40, 4, 7)
+    strict = solve(problem, "makespan", "hybrid", stop_after(30), seed=1)
+    params = HybridParams(distance_share=0.5, distance_slack=0.05)
+    slack = solve(problem, "makespan", "hybrid", stop_after(30), seed=1, params=params)
+    assert slack.figures.distance_m < strict.figures.distance_m
+    assert slack.figures.makespan_h > min(slack.history)  # it gave some makespan up
+    assert slack.figures.makespan_h <= min(slack.history[:15]) * 1.05 + 1e-9
+    assert slack.cost == pytest.approx(slack.history[-1], rel=1e-5)
