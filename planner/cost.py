@@ -32,6 +32,11 @@ from planner.problem import FloatArray, Problem
 # Weight of the tie-breaker (total distance, metres) added to the min-max objectives:
 # small enough never to trade a real gain in the primary figure for distance.
 TIE_BREAK = 1e-9
+# Under the squeeze (a makespan target, squeeze_figure), what an hour of a route over the
+# target weighs against an hour of the fleet's total: 10 and 100 found the same makespans
+# at 500 x 30, 1 none better than the plan it started from (benchmarks/RESULTS.md,
+# 2026-11-26).
+OVERLOAD = 10.0
 
 
 @dataclass(frozen=True)
@@ -164,12 +169,29 @@ def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # t
 
 @njit(cache=True, nogil=True)
 def fleet_value(objective, values, lengths, cap=0.0):  # type: ignore[no-untyped-def]
-    """The objective from every route's share (``values``) and distance (``lengths``);
-    a min-max figure is taken as at least ``cap`` (0: as it is), so that below the cap
-    only the tie-breaker, the total distance, counts."""
+    """The objective from every route's share (``values``) and distance (``lengths``).
+    ``cap`` > 0: a min-max figure is taken as at least ``cap``, so that below the cap only
+    the tie-breaker, the total distance, counts. ``cap`` < 0: the squeeze towards the
+    target ``-cap`` (:func:`squeeze_figure`), plus the tie-breaker. 0: the objective."""
+    if cap < 0.0:
+        return squeeze_figure(values, -cap) + TIE_BREAK * lengths.sum()
     if objective == 3 or objective == 4:
         return max(values.max(), cap) + TIE_BREAK * lengths.sum()
     return values.sum()
+
+
+@njit(cache=True, nogil=True)
+def squeeze_figure(values, target):  # type: ignore[no-untyped-def]
+    """The makespan as a sum (the squeeze, :func:`planner.hybrid.ils_step`): every
+    route's share (``values``) added up, and each hour a route ends after ``target``
+    counted :data:`OVERLOAD` times more. Below the target the fleet's total hours decide,
+    so a field moves to the machine that does it fastest, or to a shorter road, whichever
+    route it leaves; above it the overloads do."""
+    over = 0.0
+    for v in values:
+        if v > target:
+            over += v - target
+    return values.sum() + OVERLOAD * over
 
 
 @dataclass(frozen=True)

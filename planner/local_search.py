@@ -141,7 +141,8 @@ def allocation_search(  # type: ignore[no-untyped-def]
     a min-max objective untouched) but shortens the fleet's total distance is taken.
     ``cap`` (min-max objectives; 0: none): the figure counts as at least ``cap``
     (:func:`planner.cost.fleet_value`), so a move may lengthen any route up to it when
-    it shortens the fleet's total distance."""
+    it shortens the fleet's total distance; a ``cap`` < 0 is the squeeze's figure instead,
+    with the target ``-cap`` (:func:`planner.cost.squeeze_figure`)."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
     m = counts.shape[0]
     n = perm.shape[0]

@@ -241,8 +241,8 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
     """Ruin and recreate (Schrimpf et al. 2000, radial ruin), the ILS's stronger
     perturbation: a seed task and its nearest neighbours, ``size`` tasks in all, leave
     their routes; then :func:`recreate` puts each back where the objective grows least
-    (with ``cap`` > 0 a min-max figure counts as at least ``cap``,
-    :func:`planner.cost.fleet_value`: below it the distance decides). With
+    (with ``cap`` > 0 a min-max figure counts as at least ``cap``: below it the distance
+    decides; with ``cap`` < 0 the squeeze's figure: :func:`planner.cost.fleet_value`). With
     ``focus_longest`` the seed is taken from the route of highest share of the objective,
     the one that sets a min-max figure: its neighbourhood is re-cut between the routes
     around it. O(size n m) on the chromosome in place. A route is never left below
@@ -288,7 +288,8 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
 def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # type: ignore[no-untyped-def]
     """Take ``tasks`` out of their routes, then put each back, in random order, at the
     place of any route where the objective grows least, ties (a min-max figure that the
-    place leaves as it is, or that stays under ``cap``: :func:`planner.cost.fleet_value`)
+    place leaves as it is, or that stays under ``cap`` > 0; ``cap`` < 0, the squeeze's
+    figure: :func:`planner.cost.fleet_value`)
     broken by the distance it adds; never before a pinned task.
     The recreate half of :func:`ruin_recreate`, and the repair of a warm start whose
     tasks were not all in a route (a machine gone: its tasks go where they cost least).

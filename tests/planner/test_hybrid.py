@@ -6,7 +6,15 @@ from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, pr
 from hypothesis import given
 from hypothesis import strategies as st
 
-from planner.cost import CostTables, Objective, evaluate
+from planner.cost import (
+    OVERLOAD,
+    TIE_BREAK,
+    CostTables,
+    Objective,
+    evaluate,
+    fleet_value,
+    squeeze_figure,
+)
 from planner.hybrid import (
     HybridParams,
     giant_tour,
@@ -117,6 +125,47 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective, ruin, focus
     assert new == pytest.approx(true + max(0.0, cap - check.max()), rel=1e-12)
     assert new <= cost
     np.testing.assert_allclose(route, check)
+
+
+def test_the_squeeze_adds_up_the_routes_and_counts_each_hour_over_the_target_more():
+    values, lengths = np.array([5.0, 10.0, 12.5]), np.array([1000.0, 2000.0, 500.0])
+    assert squeeze_figure(values, 10.0) == pytest.approx(27.5 + OVERLOAD * 2.5)
+    assert squeeze_figure(values, 20.0) == pytest.approx(27.5)
+    # fleet_value's cap < 0 is the squeeze towards -cap, with the distance tie-breaker.
+    squeezed = fleet_value(int(Objective.MAKESPAN), values, lengths, -10.0)
+    assert squeezed == pytest.approx(27.5 + OVERLOAD * 2.5 + TIE_BREAK * 3500.0, rel=1e-12)
+    assert fleet_value(int(Objective.MAKESPAN), values, lengths) == pytest.approx(12.5, rel=1e-6)
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+@pytest.mark.parametrize("ruin", [1, 5])
+def test_the_squeeze_reports_the_true_costs_never_worsens_and_keeps_pins(ruin, pinned):
+    """``ils_step`` with ``squeeze`` (the makespan's ILS): the elite and the walk it
+    returns are what their arrays cost under the makespan, and the elite only improves."""
+    problem = problem_for(25, 3, 5)
+    tables = CostTables.of(problem).kernel_args()
+    perm = np.random.default_rng(1).permutation(25).astype(np.int64)
+    counts = np.array([8, 8, 9], dtype=np.int64)
+    pins = NO_PINS(25)
+    if pinned:  # each route's first task stays first with its machine (a re-plan)
+        pins[perm[[0, 8, 16]]] = [0, 1, 2]
+    route = np.empty(3)
+    cost = evaluate(perm, counts, int(Objective.MAKESPAN), tables, route)
+    walk_perm, walk_counts, walk_route = perm.copy(), counts.copy(), route.copy()
+    nn = nearest_neighbours(problem.dist, 6)
+    new, walk = ils_step(
+        make_state(2), perm, counts, route, cost, walk_perm, walk_counts, walk_route, cost,
+        int(Objective.MAKESPAN), tables, nn, 1, pins, 30, 3, np.inf, 7, False, 0.03, ruin,
+        False, True, 0.0, 0.002,
+    )  # fmt: skip
+    assert new < cost  # a random plan leaves room
+    for p, c, r, value in ((perm, counts, route, new), (walk_perm, walk_counts, walk_route, walk)):
+        assert_valid(p, c, 25, 3)
+        check = np.empty(3)
+        assert value == pytest.approx(evaluate(p, c, int(Objective.MAKESPAN), tables, check))
+        np.testing.assert_allclose(r, check)
+        assert pins_hold(p, c, pins)
+    assert new <= walk + 1e-12
 
 
 @pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
@@ -364,6 +413,7 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"distance_share": -0.1},
         {"distance_slack": -0.1},
         {"restart": 1.5},
+        {"squeeze": -0.1},
     ],
 )
 def test_hybrid_params_refuse_a_bad_setting(bad):
