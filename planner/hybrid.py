@@ -28,14 +28,15 @@ same ILS orders the elite's longest route again each generation (:func:`route_il
 under the min-max objectives, one other route in turn (``other_routes``). A warm-started
 run (a re-plan) starts instead from the plan being carried out and variants of it
 (:func:`warm_population`). Under the sums, a population whose elite has not improved for
-``restart`` of the run starts again, the best found so far kept aside (:func:`planner.solve.solve`).
+``restart`` of the run starts again, the best found so far kept aside
+(:func:`planner.solve.solve`).
 
-Under the makespan (the farm) the elite's ILS is the squeeze (:func:`ils_step`): a
-plan whose routes all end within minutes of the makespan leaves no move under the
-makespan itself, so the ILS minimises the fleet's total hours instead, each hour a route
-ends after a target just under the best makespan counted ten times (a sum, where a field
-may move to the machine that does it faster); a result whose makespan is lower is the
-new elite, and the target follows it. The same jam leaves the total road distance, the
+Under the makespan (the farm) the elite's ILS is the squeeze (:func:`ils_step`): a plan
+whose routes all end within minutes of the makespan leaves no move under the makespan
+itself, so the ILS minimises the fleet's total hours instead, each hour a route ends after
+a target just under the best makespan counted OVERLOAD times (a sum, where a field may
+move to the machine that does it faster); a result whose makespan is lower is the new
+elite, and the target follows it. The same jam leaves the total road distance, the
 second objective, short of room. With ``distance_share`` > 0 (off by default), in that
 last share of the time a makespan up to ``1 + distance_slack`` times the best found by
 then counts as equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin
@@ -135,8 +136,8 @@ class HybridParams(IGHOAParams):
     restart: float = 0.1
     # Under the makespan, the elite's ILS is the squeeze (ils_step; 0: the ILS of the
     # min-max objective): the fleet's total hours, each hour over a target of
-    # ``1 - squeeze`` times the best makespan counted OVERLOAD times; ruin and recreate of
-    # ``ruin`` tasks (``perturb`` when ruin is 0). 500 x 30 at 60 s, seeds 1-2: 55.63 and
+    # ``1 - squeeze`` times the best makespan counted OVERLOAD times, perturbed as that ILS
+    # is (ruin, or perturb when ruin is 0). 500 x 30 at 60 s, seeds 1-2: 55.63 and
     # 55.62 h without it, 55.26 and 55.28 h with it (benchmarks/RESULTS.md, 2026-11-26).
     squeeze: float = 0.002
 
@@ -410,10 +411,10 @@ def ils_step(  # type: ignore[no-untyped-def]
     the elite's and the walk's given too, takes the min-max figure as at least ``cap``
     (:func:`planner.cost.fleet_value`), so that below it the distance decides.
 
-    ``squeeze`` > 0 (the makespan; ``cap`` 0, ``ruin`` > 0) is the squeeze: the search
+    ``squeeze`` > 0 (the makespan; ``cap`` 0) is the squeeze: the search
     and the walk go by :func:`planner.cost.squeeze_figure` with the target ``1 - squeeze``
     times the elite's makespan (the fleet's total hours, each hour over the target counted
-    :data:`~planner.cost.OVERLOAD` times), every other perturbation on the longest route
+    :data:`~planner.cost.OVERLOAD` times), every other ruin seeded on the longest route
     when ``focus``; a result is the walk's next solution when its figure is lower, and the
     new elite (the target following it) when its makespan is. Under the makespan itself a
     plan whose routes all end near it leaves no move (each lengthens some route up to it);
@@ -429,17 +430,16 @@ def ils_step(  # type: ignore[no-untyped-def]
     target = elite_route.max() * (1.0 - squeeze)
     walk_figure = squeeze_figure(walk_route, target)
     figure = walk_figure
-    if squeeze > 0.0:
-        cap = -target  # fleet_value's cap < 0: the squeeze
     for step in range(steps):
         if past(deadline):
             break
+        cut = -target if squeeze > 0.0 else cap  # fleet_value's cap < 0: the squeeze
         perm[:] = walk_perm
         counts[:] = walk_counts
         if ruin > 0:
             done = ruin_recreate(
                 state, perm, counts, objective, tables, neighbours, ruin,
-                focus and (squeeze == 0.0 or step % 2 == 1), min_count, pins, moved, cap,
+                focus and (squeeze == 0.0 or step % 2 == 1), min_count, pins, moved, cut,
             )  # fmt: skip
         else:
             done = perturb(
@@ -454,7 +454,7 @@ def ils_step(  # type: ignore[no-untyped-def]
                 dont_look[w] = False
         local_optimum(
             perm, counts, objective, tables, neighbours, min_count, pins, deadline, dont_look,
-            moves, lexi and squeeze == 0.0, cap,
+            moves, lexi and squeeze == 0.0, cut,
         )  # fmt: skip
         if with_or_opt:
             or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
@@ -479,7 +479,6 @@ def ils_step(  # type: ignore[no-untyped-def]
             elite_cost = cost
             if squeeze > 0.0:
                 target = route.max() * (1.0 - squeeze)
-                cap = -target
                 walk_figure = squeeze_figure(walk_route, target)
     return elite_cost, walk_cost
 

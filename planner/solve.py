@@ -525,7 +525,7 @@ def solve(
             before = improved = _capped(elite_cost, elite_route, cap)
             walk_cost = _capped(walk_cost, walk_route, cap)
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
-            squeeze = obj == Objective.MAKESPAN and params.squeeze > 0.0 and cap == 0.0
+            squeeze = params.squeeze if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
             # In chunks, so that a stop flag is seen between them.
             for done in range(0, params.ils_steps, ILS_CHUNK):
                 if stop.interrupted():
@@ -551,11 +551,11 @@ def solve(
                     params.move_mask,
                     params.lexicographic,
                     params.accept,
-                    max(params.ruin, params.perturb) if squeeze else params.ruin,
+                    params.ruin,
                     params.ils_or_opt,
                     obj in (Objective.MINMAX, Objective.MAKESPAN) and not late,
                     cap,
-                    params.squeeze if squeeze else 0.0,
+                    squeeze,
                 )
             walk_cost -= _capped(0.0, walk_route, cap)
             if improved < before:
