@@ -285,6 +285,7 @@ def solve(
     on_generation: GenerationCallback | None = None,
     initial_routes: Sequence[Sequence[int]] | None = None,
     makespan_slack: float = 0.0,
+    finish_within_h: float = 0.0,
 ) -> Result:
     """Allocate and order the tasks of ``problem`` over its machines.
 
@@ -299,6 +300,12 @@ def solve(
     makespan and the road distance ε-lexicographic
     (:meth:`planner.hybrid.HybridParams.with_makespan_slack`); under the other objectives
     it does nothing.
+
+    ``finish_within_h`` > 0 (``hybrid``) is a deadline on the makespan: once a plan
+    finishes within that many hours, every plan that does counts as equal and the road
+    distance decides between them (the ε-constraint form of the two objectives); until
+    then the makespan is minimised as without it, and if none is found in time the answer
+    is the shortest makespan found. Under the other objectives it does nothing.
     """
     obj = Objective.parse(objective)
     if algorithm not in ALGORITHMS:
@@ -311,6 +318,10 @@ def solve(
             raise ValueError("a makespan slack sets hybrid's params: give one or the other")
         if obj is Objective.MAKESPAN:
             params = hybrid.HybridParams.with_makespan_slack(makespan_slack)
+    if finish_within_h:
+        _check_finish_within(finish_within_h, algorithm, makespan_slack)
+        if obj is not Objective.MAKESPAN:
+            finish_within_h = 0.0  # a deadline on the makespan: nothing to the others
     if stop is None:
         stop = stop_after()
     elif not isinstance(stop, AnyOf):
@@ -422,7 +433,9 @@ def solve(
         "other_gains": 0.0,
     }
     gen = 0
-    cap = 0.0  # hybrid's makespan cap in the last share of the time (0: none yet)
+    # hybrid's makespan cap (0: none yet): finish_within_h once a plan is within it, or in
+    # the last share of the time under a makespan slack.
+    cap = 0.0
     # hybrid on the sums: the population starts again when its elite has not improved for
     # ``restart`` of the run; the best before (the record) is kept aside.
     restart = params.restart if isinstance(params, hybrid.HybridParams) else 0.0
@@ -447,6 +460,8 @@ def solve(
         if late and cap == 0.0:
             assert isinstance(params, hybrid.HybridParams)
             cap = float(elite_route.max()) * (1.0 + params.distance_slack)
+        if cap == 0.0 and 0.0 < float(elite_route.max()) <= finish_within_h:
+            cap = finish_within_h
         if isinstance(params, ighoa.IGHOAParams):
             sp = ighoa.adaptive_tolerance(
                 stop.progress(), pop, stop.max_generations, params.tol_min, params.tol_max
@@ -553,7 +568,7 @@ def solve(
                     params.accept,
                     params.ruin,
                     params.ils_or_opt,
-                    obj in (Objective.MINMAX, Objective.MAKESPAN) and not late,
+                    obj in (Objective.MINMAX, Objective.MAKESPAN) and cap == 0.0,
                     cap,
                     squeeze,
                 )
@@ -642,6 +657,16 @@ def solve(
         elapsed_s=elapsed,
         stats=stats,
     )
+
+
+def _check_finish_within(hours: float, algorithm: str, slack: float) -> None:
+    """ValueError unless ``hours`` is a deadline :func:`solve` can take."""
+    if not (math.isfinite(hours) and hours > 0.0):
+        raise ValueError(f"finish_within_h must be a positive number of hours, not {hours:g}")
+    if algorithm != "hybrid":
+        raise ValueError(f"finish_within_h needs algorithm hybrid, not {algorithm}")
+    if slack > 0.0:
+        raise ValueError("finish_within_h and makespan_slack both cap the makespan: give one")
 
 
 def _capped(cost: float, route_cost: np.ndarray, cap: float) -> float:

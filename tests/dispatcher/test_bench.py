@@ -197,6 +197,21 @@ def test_bench_farm_reports_both_bounds_and_both_gaps():
     assert float(cells["LB"]) < float(cells["LBt"]) <= ours
 
 
+def test_bench_farm_runs_ours_again_within_the_peers_makespan():
+    """With OR-Tools, ours runs again with its makespan as the deadline: the road km of
+    ours at no more makespan beside OR-Tools' (and their ratio)."""
+    pytest.importorskip("ortools")
+    report = bench_farm([(12, 3)], "ortools", Runs(0.3, 1, 1, "hybrid"))
+    header = next(line for line in report.splitlines() if line.startswith("| farm"))
+    row = next(line for line in report.splitlines() if line.startswith("| 12x3"))
+    cells = dict(zip(header.strip("| ").split(" | "), row.strip("| ").split(" | "), strict=True))
+    assert float(cells["ours within OR-Tools' makespan: h"]) <= float(cells["OR-Tools"])
+    km, peer_km = float(cells["its road km"]), float(cells["OR-Tools road km"])
+    assert float(cells["its road km / OR-Tools'"]) == pytest.approx(km / peer_km, abs=0.01)
+    alone = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid")).splitlines()[-1]
+    assert alone.endswith("| – | – | – |")  # no peer, no second run
+
+
 def test_bench_farm_with_a_makespan_slack_says_so():
     pytest.importorskip("ortools")
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), makespan_slack=0.01)

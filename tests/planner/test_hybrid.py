@@ -447,6 +447,20 @@ def test_a_restart_keeps_the_best_found_before_and_repeats_for_the_same_seed():
     assert [r.stats["restarts"] for r in never] == [0.0, 0.0]
 
 
+def test_a_deadline_gives_the_shortest_roads_among_plans_that_finish_within_it():
+    """``finish_within_h``: once a plan finishes within the deadline the road distance
+    decides, so a deadline above the strict makespan gives less road within it; one no
+    plan meets leaves the search as it is without one (bit for bit)."""
+    problem = problem_for(40, 4, 7)
+    strict = solve(problem, "makespan", "hybrid", stop_after(30), seed=1)
+    deadline = 1.1 * strict.figures.makespan_h
+    within = solve(problem, "makespan", "hybrid", stop_after(30), seed=1, finish_within_h=deadline)
+    assert within.figures.makespan_h <= deadline
+    assert within.figures.distance_m < 0.97 * strict.figures.distance_m
+    unmet = solve(problem, "makespan", "hybrid", stop_after(30), seed=1, finish_within_h=1e-3)
+    assert unmet.routes == strict.routes and unmet.history == strict.history
+
+
 def test_a_makespan_slack_trades_makespan_for_road_distance_in_the_answer():
     """With ``distance_share`` and ``distance_slack`` the answer is the plan of the last
     share, which may end up to the slack later for less road, not the best makespan seen

@@ -285,6 +285,31 @@ def test_a_makespan_slack_is_hybrid_with_the_slack_params_under_the_makespan_onl
     assert HybridParams.with_makespan_slack(0.0) == HybridParams()
 
 
+def test_a_deadline_does_nothing_under_the_other_objectives():
+    plain = solve(small_farm(), "distance", "hybrid", stop_after(10), seed=2)
+    other = solve(small_farm(), "distance", "hybrid", stop_after(10), seed=2, finish_within_h=1.0)
+    assert other.routes == plain.routes and other.history == plain.history
+
+
+@pytest.mark.parametrize(
+    ("objective", "algorithm", "hours", "slack", "message"),
+    [
+        ("makespan", "hybrid", -1.0, 0.0, "a positive number of hours, not -1"),
+        ("makespan", "hybrid", float("nan"), 0.0, "a positive number of hours, not nan"),
+        ("makespan", "hybrid", float("inf"), 0.0, "a positive number of hours, not inf"),
+        ("makespan", "ighoa", 10.0, 0.0, "needs algorithm hybrid, not ighoa"),
+        ("distance", "ga", 10.0, 0.0, "needs algorithm hybrid, not ga"),
+        ("makespan", "hybrid", 10.0, 0.01, "both cap the makespan: give one"),
+    ],
+)
+def test_a_deadline_out_of_place_is_refused(objective, algorithm, hours, slack, message):
+    with pytest.raises(ValueError, match=message):
+        solve(
+            small_farm(), objective, algorithm, stop_after(1), makespan_slack=slack,
+            finish_within_h=hours,
+        )  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("algorithm", "slack", "params", "message"),
     [
