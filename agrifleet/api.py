@@ -117,6 +117,7 @@ def dispatch_for(
         seed=seed,
         on_generation=on_generation,
         makespan_slack=solver.makespan_slack,
+        finish_within_h=solver.finish_within_h,
     )
     return dispatch_plan(scenario, plan)
 

@@ -265,14 +265,16 @@ def plan_farm(
     seed: int = 1,
     on_generation: GenerationCallback | None = None,
     makespan_slack: float = 0.0,
+    finish_within_h: float = 0.0,
 ) -> FarmPlan:
     """Allocate, order and lay out the work of ``machines`` on ``farm``.
 
     A time limit in ``stop`` is the limit of the whole: coverage raises
     :class:`~planner.errors.TimeLimitError` (naming the field) once it has passed, and
     the solver stops by then at the latest (see the module's docstring).
-    ``on_generation`` is the solver's progress callback and ``makespan_slack`` the
-    makespan's slack for road distance (:func:`planner.solve.solve`)."""
+    ``on_generation`` is the solver's progress callback, ``makespan_slack`` the
+    makespan's slack for road distance and ``finish_within_h`` its deadline
+    (:func:`planner.solve.solve`)."""
     obj = Objective.parse(objective)
     if stop is not None and not isinstance(stop, AnyOf):
         stop = AnyOf(stop)
@@ -298,6 +300,7 @@ def plan_farm(
         seed=seed,
         on_generation=on_generation,
         makespan_slack=makespan_slack,
+        finish_within_h=finish_within_h,
     )
     plans = []
     for i, route in enumerate(result.routes):

@@ -152,6 +152,13 @@ LIMITS: dict[str, Limit] = {
         "a share of the makespan",
         "at most 10 % of the makespan given up for road distance",
     ),
+    "finish_within_h": Limit(
+        0.0,
+        8760.0,
+        "h",
+        "a number of hours (0: no deadline)",
+        "a year: a deadline beyond any season's work",
+    ),
     # [dispatcher]
     "lost_after_s": Limit(
         1.0,
@@ -227,7 +234,15 @@ MACHINE_KEYS = (
     "implement",
 )
 IMPLEMENT_KEYS = ("kind", "channel", "pwm_down", "pwm_up")
-SOLVER_KEYS = ("algorithm", "objective", "time_limit_s", "generations", "seed", "makespan_slack")
+SOLVER_KEYS = (
+    "algorithm",
+    "objective",
+    "time_limit_s",
+    "generations",
+    "seed",
+    "makespan_slack",
+    "finish_within_h",
+)
 WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items", "topup_lead_s")
 # Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
 _ELSEWHERE_AT_TOP = {
@@ -284,6 +299,10 @@ class SolverSettings:
     # solve, and the road distance decides (planner.choices.SLACK_SHARE); 0: the makespan
     # first, then the road distance. Under the makespan, with hybrid only.
     makespan_slack: float = 0.0
+    # H > 0: a deadline; once a plan finishes within H hours, the road distance decides
+    # among the plans that do (planner.solve.solve's finish_within_h); 0: none. Under the
+    # makespan, with hybrid only, not with a makespan slack. Re-plans do without it.
+    finish_within_h: float = 0.0
 
 
 WINDOW_ITEMS = 250
@@ -738,24 +757,32 @@ def _solver(raw: Any, src: str) -> SolverSettings:
         values["generations"] = _integer(raw, "generations", src, "solver.generations")
     if "seed" in raw:
         values["seed"] = _integer(raw, "seed", src, "solver.seed")
-    if "makespan_slack" in raw:
-        values["makespan_slack"] = _makespan_slack(raw, settings, src)
+    for key in ("makespan_slack", "finish_within_h"):  # both cap the makespan
+        if key in raw:
+            values[key] = _makespan_cap(raw, key, settings, src)
+    if values.get("makespan_slack") and values.get("finish_within_h"):
+        raise ConfigError(
+            f"{src}: solver.makespan_slack and solver.finish_within_h both cap the makespan "
+            "(a share of the best, or a deadline): give one"
+        )
     return SolverSettings(**values)
 
 
-def _makespan_slack(raw: dict[str, Any], settings: SolverSettings, src: str) -> float:
-    slack = _number(raw, "makespan_slack", src, "solver.makespan_slack")
-    if slack > 0.0 and settings.algorithm != "hybrid":
+def _makespan_cap(raw: dict[str, Any], key: str, settings: SolverSettings, src: str) -> float:
+    """``[solver] makespan_slack`` or ``finish_within_h``: a number within its limits, and
+    if not 0, with the hybrid and the makespan."""
+    value = _number(raw, key, src, f"solver.{key}")
+    if value > 0.0 and settings.algorithm != "hybrid":
         raise ConfigError(
-            f'{src}: solver.makespan_slack needs solver.algorithm = "hybrid", '
+            f'{src}: solver.{key} needs solver.algorithm = "hybrid", '
             f"not {_shown(settings.algorithm)}"
         )
-    if slack > 0.0 and Objective.parse(settings.objective) is not Objective.MAKESPAN:
+    if value > 0.0 and Objective.parse(settings.objective) is not Objective.MAKESPAN:
         raise ConfigError(
-            f'{src}: solver.makespan_slack applies to solver.objective = "makespan" only, '
+            f'{src}: solver.{key} applies to solver.objective = "makespan" only, '
             f"not {_shown(settings.objective)}"
         )
-    return slack
+    return value
 
 
 def _watch(raw: Any, src: str) -> WatchSettings:

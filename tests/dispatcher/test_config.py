@@ -313,22 +313,29 @@ def test_an_integer_is_a_number(tmp_path):
     assert scenario.solver.time_limit_s == 2.0
 
 
-def test_a_makespan_slack_is_read_and_refused_where_it_cannot_apply(tmp_path):
-    """``[solver] makespan_slack``: the hybrid's ε-lexicographic makespan; the bounds are
-    checked with the others (LIMITS), here the algorithm and the objective it needs."""
+@pytest.mark.parametrize(("key", "value"), [("makespan_slack", 0.01), ("finish_within_h", 40.0)])
+def test_a_makespan_cap_is_read_and_refused_where_it_cannot_apply(tmp_path, key, value):
+    """``[solver] makespan_slack`` (the hybrid's ε-lexicographic makespan) and
+    ``finish_within_h`` (its deadline): the bounds are checked with the others (LIMITS),
+    here the algorithm and the objective they need."""
     doc = scenario_doc()
-    doc["solver"].update(makespan_slack=0.01)
-    assert load_scenario(write(tmp_path, doc)).solver.makespan_slack == 0.01
-    assert load_scenario(write(tmp_path, scenario_doc())).solver.makespan_slack == 0.0
+    doc["solver"].update({key: value})
+    assert getattr(load_scenario(write(tmp_path, doc)).solver, key) == value
+    assert getattr(load_scenario(write(tmp_path, scenario_doc())).solver, key) == 0.0
     doc["solver"].update(algorithm="ighoa")
-    assert 'solver.makespan_slack needs solver.algorithm = "hybrid", not "ighoa"' in refused(
-        tmp_path, doc
-    )
+    assert f'solver.{key} needs solver.algorithm = "hybrid", not "ighoa"' in refused(tmp_path, doc)
     doc["solver"].update(algorithm="hybrid", objective="distance")
     message = refused(tmp_path, doc)
-    assert 'solver.makespan_slack applies to solver.objective = "makespan" only' in message
-    doc["solver"].update(makespan_slack=0)  # no slack: any algorithm, any objective
-    assert load_scenario(write(tmp_path, doc)).solver.makespan_slack == 0.0
+    assert f'solver.{key} applies to solver.objective = "makespan" only' in message
+    doc["solver"].update({key: 0})  # none: any algorithm, any objective
+    assert getattr(load_scenario(write(tmp_path, doc)).solver, key) == 0.0
+
+
+def test_a_makespan_slack_and_a_deadline_together_are_refused(tmp_path):
+    doc = scenario_doc()
+    doc["solver"].update(makespan_slack=0.01, finish_within_h=40.0)
+    message = refused(tmp_path, doc)
+    assert "solver.makespan_slack and solver.finish_within_h both cap the makespan" in message
 
 
 # --- bounds ------------------------------------------------------------------------------

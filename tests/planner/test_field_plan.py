@@ -116,6 +116,27 @@ def test_plan_farm_covers_every_field_once():
             assert v.coverage.working_width_m == m.machine.working_width_m
 
 
+def test_plan_farm_passes_a_deadline_to_the_solver():
+    """``finish_within_h``: a generous deadline gives the shortest roads within it; the
+    solver's own check refuses a bad one."""
+    frame = LocalFrame.around(87.3, 44.0)
+    fields = tuple(
+        Field(f"f{k}", f"f{k}", rectangle_field(50.0, 80.0, 0.0, (300.0 * k, 0.0)), Polygon())
+        for k in range(6)
+    )
+    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    machines = [MACHINE, Machine("n", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)]
+    plain = plan_farm(farm, machines, "makespan", "hybrid", stop_after(20), seed=1)
+    deadline = 3.0 * plain.makespan_h
+    late = plan_farm(
+        farm, machines, "makespan", "hybrid", stop_after(20), seed=1, finish_within_h=deadline
+    )
+    assert late.makespan_h <= deadline
+    assert late.distance_m < plain.distance_m  # one machine, one trip along the row
+    with pytest.raises(ValueError, match="finish_within_h must be a positive number"):
+        plan_farm(farm, machines, "makespan", "hybrid", stop_after(1), finish_within_h=-1.0)
+
+
 def test_spare_machines_stay_in_the_garage():
     poly = rectangle_field(50.0, 80.0)
     farm = one_field_farm(poly)
