@@ -409,7 +409,8 @@ def ils_step(  # type: ignore[no-untyped-def]
     ``focus`` the perturbation starts on the route of highest share (the min-max
     objectives' longest), else anywhere. ``cap`` (min-max objectives; 0: none): every cost,
     the elite's and the walk's given too, takes the min-max figure as at least ``cap``
-    (:func:`planner.cost.fleet_value`), so that below it the distance decides.
+    (:func:`planner.cost.fleet_value`), so that below it the distance decides; the walk's
+    ``accept`` is then a share of what a cost has above the cap (its distance term).
 
     ``squeeze`` > 0 (the makespan; ``cap`` 0) is the squeeze: the search
     and the walk go by :func:`planner.cost.squeeze_figure` with the target ``1 - squeeze``
@@ -465,7 +466,13 @@ def ils_step(  # type: ignore[no-untyped-def]
         else:
             if cap > 0.0:
                 cost += max(0.0, cap - route.max())
-            walk_on = cost < walk_cost - 1e-12 or cost < elite_cost * (1.0 + accept) - 1e-12
+            # Record-to-record travel; under a cap on what a cost has above it (the
+            # distance term, and any excess over the cap), not on the whole cost, which
+            # would let the walk wander up to ``accept`` of the makespan over the cap
+            # whatever its roads.
+            walk_on = cost < walk_cost - 1e-12 or (
+                cost - cap < (elite_cost - cap) * (1.0 + accept) - 1e-12
+            )
         if walk_on:
             walk_perm[:] = perm
             walk_counts[:] = counts

@@ -534,11 +534,13 @@ def solve(
             and (params.ils_on_sums or obj in (Objective.MINMAX, Objective.MAKESPAN))
             and not stop.interrupted()
         ):
-            if walk_cost > elite_cost * (1.0 + params.accept):
-                walk_perm[:], walk_counts[:] = elite_perm, elite_counts
-                walk_route[:], walk_cost = elite_route, elite_cost
             before = improved = _capped(elite_cost, elite_route, cap)
             walk_cost = _capped(walk_cost, walk_route, cap)
+            # The walk goes back to the elite when left behind (under a cap, by more than
+            # ``accept`` of what the elite has above the cap: its distance term).
+            if walk_cost - cap > (before - cap) * (1.0 + params.accept):
+                walk_perm[:], walk_counts[:] = elite_perm, elite_counts
+                walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
             squeeze = params.squeeze if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
             # In chunks, so that a stop flag is seen between them.

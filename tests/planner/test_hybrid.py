@@ -12,7 +12,9 @@ from planner.cost import (
     CostTables,
     Objective,
     evaluate,
+    figures,
     fleet_value,
+    split_routes,
     squeeze_figure,
 )
 from planner.hybrid import (
@@ -166,6 +168,34 @@ def test_the_squeeze_reports_the_true_costs_never_worsens_and_keeps_pins(ruin, p
         np.testing.assert_allclose(r, check)
         assert pins_hold(p, c, pins)
     assert new <= walk + 1e-12
+
+
+def test_under_a_cap_the_walk_keeps_to_the_cap_and_to_the_elites_road():
+    """``ils_step`` with a makespan cap: the walk's record-to-record ``accept`` is a share of
+    the distance term (what a cost has above the cap), so the walk keeps to plans within
+    the cap (or as far over it as a few metres of road weigh) whose road is within
+    ``accept`` of the elite's; the whole cost's share would let it wander 3 % over the
+    cap whatever its road."""
+    problem = problem_for(40, 4, 7)
+    tables = CostTables.of(problem).kernel_args()
+    best = solve(problem, "makespan", "hybrid", stop_after(20), seed=1)
+    perm = np.array([j for r in best.routes for j in r], dtype=np.int64)
+    counts = np.array([len(r) for r in best.routes], dtype=np.int64)
+    route = np.empty(4)
+    cost = evaluate(perm, counts, int(Objective.MAKESPAN), tables, route)
+    cap = float(route.max())  # the deadline is the elite's makespan: no room below it
+    capped = cost + cap - route.max()
+    walk_perm, walk_counts, walk_route = perm.copy(), counts.copy(), route.copy()
+    nn = nearest_neighbours(problem.dist, 6)
+    new, walk = ils_step(
+        make_state(3), perm, counts, route, capped, walk_perm, walk_counts, walk_route, capped,
+        int(Objective.MAKESPAN), tables, nn, 1, NO_PINS(40), 200, 3, np.inf, 7, True, 0.03, 11,
+        False, False, cap, 0.0,
+    )  # fmt: skip
+    walk_figures = figures(problem, split_routes(walk_perm, walk_counts))
+    assert new <= capped and route.max() <= cap
+    assert walk_figures.makespan_h <= cap + 1e-4
+    assert walk_figures.distance_m <= 1.03 * best.figures.distance_m + 1.0  # the elite's at most
 
 
 @pytest.mark.parametrize("objective", ["distance", "makespan", "minmax"])
