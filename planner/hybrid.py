@@ -41,7 +41,10 @@ second objective, short of room. With ``distance_share`` > 0 (off by default), i
 last share of the time a makespan up to ``1 + distance_slack`` times the best found by
 then counts as equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin
 starts on any route, and the road distance decides below the cap (docs/ighoa.md, "fourth
-round").
+round"); a deadline (:func:`planner.solve.solve`'s ``finish_within_h``) is such a cap in
+hours, from the first plan within it. Under a cap the ILS's walk goes by the road: it
+takes a result whose distance is within ``accept`` of the elite's, not one as far over
+the cap as ``accept`` of the makespan.
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
