@@ -256,7 +256,8 @@ class Result:
     routes: tuple[tuple[int, ...], ...]  # task indices per machine, in driving order
     figures: Figures
     # Best objective value after each generation (hybrid under the makespan: in the last
-    # distance_share of the time up to distance_slack above the best before, for distance).
+    # distance_share of the time up to distance_slack above the best before, and under a
+    # deadline up to it once a plan meets it, for distance).
     history: tuple[float, ...]
     generations: int
     elapsed_s: float
