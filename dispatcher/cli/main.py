@@ -212,16 +212,20 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
 
 
 def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    """The scenario with the command line's overrides (--fields, --machines)."""
+    """The scenario with the command line's overrides (--fields, --machines,
+    --finish-within)."""
     from agrifleet.api import scenario_for
 
-    return scenario_for(
+    scenario = scenario_for(
         args.scenario,
         args.fields,
         args.machines,
         id_field=getattr(args, "id_field", None),
         name_field=getattr(args, "name_field", None),
     )
+    if getattr(args, "finish_within", None) is not None:
+        scenario = scenario.with_deadline(args.finish_within)
+    return scenario
 
 
 def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
@@ -914,6 +918,13 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
         help="wall-clock seconds for the whole plan (default: the scenario's time_limit_s)",
     )
     p.add_argument("--seed", type=int, help="the solver's random seed (default: the scenario's)")
+    p.add_argument(
+        "--finish-within",
+        type=float,
+        metavar="H",
+        help="a deadline (hybrid, makespan): the shortest roads among plans done within H "
+        "hours; 0: none (default: the scenario's finish_within_h)",
+    )
 
 
 def add_log_dir_argument(p: argparse.ArgumentParser) -> None:

@@ -361,6 +361,18 @@ class Scenario:
             )
         return replace(self, vehicles=self.vehicles[:count])
 
+    def with_deadline(self, hours: float) -> Scenario:
+        """The scenario with ``[solver] finish_within_h = hours`` (``--finish-within H``),
+        checked as in the file: its bounds, the hybrid and the makespan, no slack."""
+        where = f"{self.source}: --finish-within"
+        value = _makespan_cap({"finish_within_h": hours}, "finish_within_h", self.solver, where)
+        if value and self.solver.makespan_slack:
+            raise ConfigError(
+                f"{where}: the scenario's solver.makespan_slack caps the makespan already "
+                "(a share of the best, or a deadline): give one"
+            )
+        return replace(self, solver=replace(self.solver, finish_within_h=value))
+
     def with_farm(
         self,
         farm: str | Path | Farm,

@@ -430,3 +430,32 @@ def test_a_one_swath_field_still_turns_onto_its_headland(one_field_scenario):
     assert roles.count("implement_raise") == roles.count("implement_lower") == 1  # one ring
     assert roles.count("turn") == sum(len(m) for m in cov.headland_move(0)) > 0
     assert assert_mission_turns_drivable(one_field_scenario.farm, mission, polygon, 3.0) == 1
+
+
+def test_finish_within_overrides_the_scenarios_deadline_and_is_checked_as_in_the_file(
+    tmp_path, capsys
+):
+    """``--finish-within H``: the shortest roads among plans done within H hours (hybrid,
+    makespan); refused, naming the option and the key, where the file would refuse it."""
+    code = main(["plan", str(REPO / "config/changji.toml"), "--finish-within", "100", "--json"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert '--finish-within: solver.finish_within_h needs solver.algorithm = "hybrid"' in err
+    for name in ("changji.geojson", "fleet-table6.toml"):
+        (tmp_path / name).write_text((REPO / "config" / name).read_text())
+    text = (REPO / "config/changji.toml").read_text()
+    scenario = tmp_path / "hybrid.toml"
+    scenario.write_text(text.replace('algorithm = "ighoa"', 'algorithm = "hybrid"'))
+    totals = []
+    for extra in ([], ["--finish-within", "200"]):
+        args = ["plan", str(scenario), "--machines", "3", "--time-limit", "5", "--json", *extra]
+        assert main(args) == 0
+        totals.append(json.loads(capsys.readouterr().out)["totals"])
+    strict, late = totals
+    assert strict["makespan_h"] < late["makespan_h"] <= 200.0
+    assert late["distance_m"] < strict["distance_m"]
+    assert main(["plan", str(scenario), "--finish-within", "9000", "--json"]) == 2
+    assert (
+        "--finish-within: solver.finish_within_h = 9000.0 is above 8 760 h"
+        in capsys.readouterr().err
+    )
