@@ -378,6 +378,16 @@ def local_optimum(
 
 
 @njit(cache=True, nogil=True)
+def within_accept(cost, elite_cost, cap, accept):  # type: ignore[no-untyped-def]
+    """Whether the ILS's walk may be at ``cost`` (record-to-record travel): within
+    ``accept`` of the elite's cost, or under a makespan ``cap`` (both costs capped,
+    :func:`planner.cost.fleet_value`) within ``accept`` of what the elite's has above the
+    cap (its distance term): at most that much more road, never ``accept`` of the
+    makespan over the cap whatever the roads."""
+    return cost - cap < (elite_cost - cap) * (1.0 + accept) - 1e-12
+
+
+@njit(cache=True, nogil=True)
 def ils_step(  # type: ignore[no-untyped-def]
     state,
     elite_perm,
@@ -469,13 +479,7 @@ def ils_step(  # type: ignore[no-untyped-def]
         else:
             if cap > 0.0:
                 cost += max(0.0, cap - route.max())
-            # Record-to-record travel; under a cap on what a cost has above it (the
-            # distance term, and any excess over the cap), not on the whole cost, which
-            # would let the walk wander up to ``accept`` of the makespan over the cap
-            # whatever its roads.
-            walk_on = cost < walk_cost - 1e-12 or (
-                cost - cap < (elite_cost - cap) * (1.0 + accept) - 1e-12
-            )
+            walk_on = cost < walk_cost - 1e-12 or within_accept(cost, elite_cost, cap, accept)
         if walk_on:
             walk_perm[:] = perm
             walk_counts[:] = counts

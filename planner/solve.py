@@ -537,9 +537,8 @@ def solve(
         ):
             before = improved = _capped(elite_cost, elite_route, cap)
             walk_cost = _capped(walk_cost, walk_route, cap)
-            # The walk goes back to the elite when left behind (under a cap, by more than
-            # ``accept`` of what the elite has above the cap: its distance term).
-            if walk_cost - cap > (before - cap) * (1.0 + params.accept):
+            # The walk goes back to the elite when left behind.
+            if not hybrid.within_accept(walk_cost, before, cap, params.accept):
                 walk_perm[:], walk_counts[:] = elite_perm, elite_counts
                 walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.

@@ -366,11 +366,7 @@ class Scenario:
         checked as in the file: its bounds, the hybrid and the makespan, no slack."""
         where = f"{self.source}: --finish-within"
         value = _makespan_cap({"finish_within_h": hours}, "finish_within_h", self.solver, where)
-        if value and self.solver.makespan_slack:
-            raise ConfigError(
-                f"{where}: the scenario's solver.makespan_slack caps the makespan already "
-                "(a share of the best, or a deadline): give one"
-            )
+        _one_cap(self.solver.makespan_slack, value, where)
         return replace(self, solver=replace(self.solver, finish_within_h=value))
 
     def with_farm(
@@ -772,12 +768,17 @@ def _solver(raw: Any, src: str) -> SolverSettings:
     for key in ("makespan_slack", "finish_within_h"):  # both cap the makespan
         if key in raw:
             values[key] = _makespan_cap(raw, key, settings, src)
-    if values.get("makespan_slack") and values.get("finish_within_h"):
+    _one_cap(values.get("makespan_slack", 0.0), values.get("finish_within_h", 0.0), src)
+    return SolverSettings(**values)
+
+
+def _one_cap(slack: float, deadline: float, where: str) -> None:
+    """A makespan slack or a deadline, not both (ConfigError naming ``where``)."""
+    if slack and deadline:
         raise ConfigError(
-            f"{src}: solver.makespan_slack and solver.finish_within_h both cap the makespan "
+            f"{where}: solver.makespan_slack and solver.finish_within_h both cap the makespan "
             "(a share of the best, or a deadline): give one"
         )
-    return SolverSettings(**values)
 
 
 def _makespan_cap(raw: dict[str, Any], key: str, settings: SolverSettings, src: str) -> float:

@@ -336,6 +336,11 @@ def test_a_makespan_slack_and_a_deadline_together_are_refused(tmp_path):
     doc["solver"].update(makespan_slack=0.01, finish_within_h=40.0)
     message = refused(tmp_path, doc)
     assert "solver.makespan_slack and solver.finish_within_h both cap the makespan" in message
+    doc["solver"].pop("finish_within_h")  # the same from the command line (--finish-within)
+    with_slack = load_scenario(write(tmp_path, doc))
+    with pytest.raises(ConfigError, match="--finish-within: solver.makespan_slack and solver"):
+        with_slack.with_deadline(40.0)
+    assert with_slack.with_deadline(0.0).solver.finish_within_h == 0.0
 
 
 # --- bounds ------------------------------------------------------------------------------
