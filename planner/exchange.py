@@ -1,0 +1,200 @@
+"""The cyclic exchange: one task out of each route and back into another, all routes at once.
+
+Under the makespan the plan is jammed: every route ends within minutes of the makespan, so
+a relocate or a swap between two routes that shortens the roads lengthens one of them past
+the cap. A cyclic exchange moves one task from route a to b, one from b to c, ..., one from
+the last back to a: each route loses one task and gains one, so its hours change by the
+difference of the two, and a chain of three or more routes can shorten the roads where
+every pair is stuck (the cyclic transfers of Thompson and Psaraftis, 1993, for vehicle
+routing; Ahuja et al.'s very large-scale neighbourhoods).
+
+One round picks one task at random in each route (not a pinned one). The cost of route i
+taking route a's task, in place of its own, at the best place in what is left of it, is
+route i's new road distance, or a big number if its new figure (hours under the makespan)
+would exceed the cap; the cost of keeping its own is its road distance now. The cheapest
+way of giving each route one of the picked tasks is an assignment problem over the routes,
+solved exactly (:func:`assignment`), and it is applied when it saves road: so a round finds
+the best exchange of the picked tasks along any set of disjoint cycles, and never takes a
+route above the cap. O(m^2 x route length + m^3) a round, m routes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from planner.local_search import past
+from planner.rng import randint
+
+INFEASIBLE = 1e15  # the cost of a route over the cap (metres; far above any road)
+
+
+@njit(cache=True, nogil=True)
+def assignment(costs):  # type: ignore[no-untyped-def]
+    """The rows' columns (a permutation) of least total cost in the square matrix
+    ``costs``: shortest augmenting paths with potentials (the Hungarian method in its
+    O(n^3) form)."""
+    n = costs.shape[0]
+    u = np.zeros(n + 1)
+    v = np.zeros(n + 1)
+    row_of = np.zeros(n + 1, dtype=np.int64)  # column j's row (1-based; 0: none)
+    way = np.zeros(n + 1, dtype=np.int64)
+    for i in range(1, n + 1):
+        row_of[0] = i
+        j0 = 0
+        minv = np.full(n + 1, np.inf)
+        used = np.zeros(n + 1, dtype=np.bool_)
+        while True:
+            used[j0] = True
+            i0 = row_of[j0]
+            delta = np.inf
+            j1 = 0
+            for j in range(1, n + 1):
+                if not used[j]:
+                    cur = costs[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(n + 1):
+                if used[j]:
+                    u[row_of[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if row_of[j0] == 0:
+                break
+        while j0 != 0:
+            j1 = way[j0]
+            row_of[j0] = row_of[j1]
+            j0 = j1
+    out = np.empty(n, dtype=np.int64)
+    for j in range(1, n + 1):
+        out[row_of[j] - 1] = j - 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.inf):  # type: ignore[no-untyped-def]
+    """``rounds`` rounds of the cyclic exchange (see the module) on the chromosome
+    ``perm``/``counts`` in place, under the makespan: no route's hours (its ready time,
+    service and driving, :func:`planner.cost.evaluate`) above ``cap`` after an exchange
+    that it was not above before. The routes keep their number of tasks; a pinned task
+    neither moves nor has a task put before it. Stops early once ``deadline`` (a
+    monotonic instant) has passed. Returns the road saved (metres)."""
+    dist, start_dist, end_dist, hours_per_m = tables[0], tables[1], tables[2], tables[3]
+    task_hours, ready = tables[5], tables[7]
+    m = counts.shape[0]
+    begin = np.zeros(m, dtype=np.int64)
+    hours = np.zeros(m)
+    road = np.zeros(m)
+    pick = np.full(m, -1, dtype=np.int64)  # the picked task's place in perm
+    left_hours = np.zeros(m)  # route i without its picked task
+    left_road = np.zeros(m)
+    costs = np.empty((m, m))
+    place = np.empty((m, m), dtype=np.int64)  # put route a's task before perm[place]
+    out = np.empty_like(perm)
+    saved = 0.0
+    for _ in range(rounds):
+        if past(deadline):
+            break
+        for i in range(1, m):
+            begin[i] = begin[i - 1] + counts[i - 1]
+        for i in range(m):
+            pick[i] = -1
+            c = counts[i]
+            if c == 0:
+                continue
+            b = begin[i]
+            s = start_dist[i, perm[b]] + end_dist[i, perm[b + c - 1]]
+            h = ready[i]
+            for k in range(b, b + c):
+                h += task_hours[i, perm[k]]
+                if k > b:
+                    s += dist[perm[k - 1], perm[k]]
+            road[i] = s
+            hours[i] = h + s * hours_per_m[i]
+            q = b + randint(state, c)
+            t = perm[q]
+            if pins[t] >= 0:
+                continue
+            pick[i] = q
+            before = start_dist[i, t] if q == b else dist[perm[q - 1], t]
+            after = end_dist[i, t] if q == b + c - 1 else dist[t, perm[q + 1]]
+            if c == 1:
+                bridge = 0.0
+            elif q == b:
+                bridge = start_dist[i, perm[q + 1]]
+            elif q == b + c - 1:
+                bridge = end_dist[i, perm[q - 1]]
+            else:
+                bridge = dist[perm[q - 1], perm[q + 1]]
+            left_road[i] = s + bridge - before - after
+            left_hours[i] = hours[i] - task_hours[i, t] + (left_road[i] - s) * hours_per_m[i]
+        base = 0.0
+        for i in range(m):
+            base += road[i]
+            for a in range(m):
+                costs[i, a] = INFEASIBLE
+            costs[i, i] = road[i]
+            if pick[i] < 0:
+                continue
+            limit = max(cap, hours[i])
+            b = begin[i]
+            c = counts[i]
+            for a in range(m):
+                if a == i or pick[a] < 0:
+                    continue
+                x = perm[pick[a]]
+                best = np.inf
+                best_at = -1
+                prev = -1  # the start
+                for k in range(b, b + c + 1):
+                    if k == pick[i]:
+                        continue
+                    into = start_dist[i, x] if prev < 0 else dist[prev, x]
+                    if k < b + c:
+                        nxt = perm[k]
+                        if prev < 0 and pins[nxt] >= 0:
+                            prev = nxt  # nothing goes before a pinned first task
+                            continue
+                        was = start_dist[i, nxt] if prev < 0 else dist[prev, nxt]
+                        delta = into + dist[x, nxt] - was
+                    else:
+                        was = 0.0 if prev < 0 else end_dist[i, prev]
+                        delta = into + end_dist[i, x] - was
+                    if delta < best:
+                        best = delta
+                        best_at = k
+                    if k < b + c:
+                        prev = perm[k]
+                if best_at < 0:
+                    continue
+                h = left_hours[i] + task_hours[i, x] + best * hours_per_m[i]
+                if h <= limit + 1e-9:
+                    costs[i, a] = left_road[i] + best
+                    place[i, a] = best_at
+        given = assignment(costs)
+        total = 0.0
+        for i in range(m):
+            total += costs[i, given[i]]
+        if not total < base - 1e-6:
+            continue
+        saved += base - total
+        o = 0
+        for i in range(m):
+            a = given[i]
+            b = begin[i]
+            c = counts[i]
+            for k in range(b, b + c + 1):
+                if a != i and k == place[i, a]:
+                    out[o] = perm[pick[a]]
+                    o += 1
+                if k < b + c and (a == i or k != pick[i]):
+                    out[o] = perm[k]
+                    o += 1
+        perm[:] = out
+    return saved
