@@ -143,11 +143,12 @@ class HybridParams(IGHOAParams):
     # is (ruin, or perturb when ruin is 0). 500 x 30 at 60 s, seeds 1-2: 55.63 and
     # 55.62 h without it, 55.26 and 55.28 h with it (benchmarks/RESULTS.md, 2026-11-26).
     squeeze: float = 0.002
-    # Under the makespan, each generation this many rounds of the cyclic exchange
-    # (planner.exchange) on the elite: its road shortened, no route past its makespan (or
-    # the cap of a deadline or a slack); 0: never. Where every route ends near the
-    # makespan, no move between two routes shortens the roads; a cycle of three or more
-    # does (500 x 30, 60 s: see benchmarks/RESULTS.md, 2026-11-26 evening).
+    # Under the makespan, each generation up to this many rounds of the cyclic exchange
+    # (planner.exchange) on a copy of the elite, the answer when it drives less: no route
+    # past its makespan (or the cap of a deadline or a slack); 0: never. Where every route
+    # ends near the makespan, no move between two routes shortens the roads; a cycle of
+    # three or more does (500 x 30, 60 s, seeds 1-2: 1 726 and 1 689 road km without,
+    # 1 668 and 1 658 with; benchmarks/RESULTS.md, 2026-11-26 19:00).
     exchange_rounds: int = 1000
 
     def __post_init__(self) -> None:

@@ -624,11 +624,11 @@ def solve(
                                    elite_route, elite_cost)  # fmt: skip
         if exchange and not stop.interrupted():
             # The answer's roads: a copy of the elite (again whenever the elite beats it)
-            # shortened by cyclic exchanges, no route past its makespan or the cap. A copy,
+            # shortened by cyclic exchanges, no route past its makespan or the cap; once a
+            # generation's rounds find nothing, none run until the elite changes. A copy,
             # with its own random stream: the elite's search goes as without it (applied
             # to the elite, the exchanges filled routes up to the makespan and the
             # makespan came out 0.1 % longer).
-            # Once a generation's rounds find nothing, none run until the elite changes.
             if _capped(elite_cost, elite_route, cap) < _capped(polished_cost, polished_route, cap):
                 polished_perm[:], polished_counts[:] = elite_perm, elite_counts
                 polished_route[:], polished_cost = elite_route, elite_cost
