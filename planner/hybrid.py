@@ -144,23 +144,23 @@ class HybridParams(IGHOAParams):
     # 55.62 h without it, 55.26 and 55.28 h with it (benchmarks/RESULTS.md, 2026-11-26).
     squeeze: float = 0.002
     # Under the makespan, each generation up to this many rounds of the cyclic exchange
-    # (planner.exchange) on a copy of the elite, the answer when it drives less: no route
+    # (planner.cyclic_exchange) on a copy of the elite, the answer when it drives less: no route
     # past its makespan (or the cap of a deadline or a slack); 0: never. Where every route
     # ends near the makespan, no move between two routes shortens the roads; a cycle of
     # three or more does (500 x 30, 60 s, seeds 1-2: 1 726 and 1 689 road km without,
     # 1 668 and 1 658 with; benchmarks/RESULTS.md, 2026-11-26 19:00).
-    exchange_rounds: int = 1000
+    cyclic_exchange_rounds: int = 1000
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if (
             min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
-            or min(self.population_tasks, self.exchange_rounds) < 0
+            or min(self.population_tasks, self.cyclic_exchange_rounds) < 0
             or self.perturb < 1
         ):
             raise ValueError(
                 "ils_steps, ruin, tour_kicks, route_kicks, population_tasks and "
-                "exchange_rounds must be >= 0 and perturb >= 1"
+                "cyclic_exchange_rounds must be >= 0 and perturb >= 1"
             )
         shares = (self.tour_share, self.distance_share, self.restart, self.squeeze)
         if not all(0.0 <= x <= 1.0 for x in shares):

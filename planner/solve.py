@@ -44,8 +44,8 @@ from planner.cost import (
     figures,
     split_routes,
 )
+from planner.cyclic_exchange import cyclic_exchange
 from planner.errors import Deadline
-from planner.exchange import cyclic_exchange
 from planner.local_search import (
     allocation_search,
     improve_allocation,
@@ -434,7 +434,7 @@ def solve(
         "polish_gains": 0.0,
         "route_gains": 0.0,
         "other_gains": 0.0,
-        "exchange_gains": 0.0,
+        "cyclic_exchange_gains": 0.0,
     }
     gen = 0
     # hybrid's makespan cap (0: none yet): finish_within_h once a plan is within it, or in
@@ -451,11 +451,10 @@ def solve(
     record_cost = elite_cost if restart > 0.0 else math.inf
     # hybrid under the makespan: the elite with its roads shortened (cyclic_exchange).
     exchange_rounds = (
-        params.exchange_rounds
+        params.cyclic_exchange_rounds
         if isinstance(params, hybrid.HybridParams) and obj == Objective.MAKESPAN
         else 0
     )
-    exchange = exchange_rounds > 0
     polished_perm, polished_counts = elite_perm.copy(), elite_counts.copy()
     polished_route, polished_cost = elite_route.copy(), elite_cost
     exchange_state = make_state(seed + 0x5EED)
@@ -622,7 +621,7 @@ def solve(
                     stats[gains] += 1.0
                     _replace_worst(perms, counts, route_costs, costs, elite_perm, elite_counts,
                                    elite_route, elite_cost)  # fmt: skip
-        if exchange and not stop.interrupted():
+        if exchange_rounds > 0 and not stop.interrupted():
             # The answer's roads: a copy of the elite (again whenever the elite beats it)
             # shortened by cyclic exchanges, no route past its makespan or the cap; once a
             # generation's rounds find nothing, none run until the elite changes. A copy,
@@ -644,7 +643,7 @@ def solve(
                     polished_cost = float(
                         evaluate(polished_perm, polished_counts, int(obj), tables, polished_route)
                     )
-                    stats["exchange_gains"] += 1.0
+                    stats["cyclic_exchange_gains"] += 1.0
                 else:
                     polished_done = True
         if restart > 0.0 and elite_cost < record_cost:
@@ -675,7 +674,7 @@ def solve(
             break
     if record_cost < elite_cost:
         elite_perm, elite_counts = record_perm, record_counts
-    if exchange and _capped(polished_cost, polished_route, cap) < _capped(
+    if exchange_rounds > 0 and _capped(polished_cost, polished_route, cap) < _capped(
         elite_cost, elite_route, cap
     ):
         elite_perm, elite_counts = polished_perm, polished_counts

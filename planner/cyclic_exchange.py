@@ -23,10 +23,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from planner.choices import Objective
+from planner.cost import route_distance, route_value
 from planner.local_search import past
+from planner.operators import leg
 from planner.rng import randint
 
 INFEASIBLE = 1e15  # the cost of a route over the cap (metres; far above any road)
+_MAKESPAN = int(Objective.MAKESPAN)  # the route figure the cap bounds: hours
 
 
 @njit(cache=True, nogil=True)
@@ -81,18 +85,19 @@ def assignment(costs):  # type: ignore[no-untyped-def]
 def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.inf):  # type: ignore[no-untyped-def]
     """``rounds`` rounds of the cyclic exchange (see the module) on the chromosome
     ``perm``/``counts`` in place, under the makespan: no route's hours (its ready time,
-    service and driving, :func:`planner.cost.evaluate`) above ``cap`` after an exchange
+    service and driving, :func:`planner.cost.route_value`) above ``cap`` after an exchange
     that it was not above before. The routes keep their number of tasks; a pinned task
     neither moves nor has a task put before it. Stops early once ``deadline`` (a
     monotonic instant) has passed. Returns the road saved (metres)."""
-    dist, start_dist, end_dist, hours_per_m = tables[0], tables[1], tables[2], tables[3]
-    task_hours, ready = tables[5], tables[7]
+    dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready = tables
     m = counts.shape[0]
-    begin = np.zeros(m, dtype=np.int64)
+    begin = np.zeros(m, dtype=np.int64)  # the routes keep their sizes: their places too
+    for i in range(1, m):
+        begin[i] = begin[i - 1] + counts[i - 1]
     hours = np.zeros(m)
     road = np.zeros(m)
     pick = np.full(m, -1, dtype=np.int64)  # the picked task's place in perm
-    left_hours = np.zeros(m)  # route i without its picked task
+    left_hours = np.zeros(m)  # route i without its picked task (kept busy: as many tasks)
     left_road = np.zeros(m)
     costs = np.empty((m, m))
     place = np.empty((m, m), dtype=np.int64)  # put route a's task before perm[place]
@@ -101,39 +106,33 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
     for _ in range(rounds):
         if past(deadline):
             break
-        for i in range(1, m):
-            begin[i] = begin[i - 1] + counts[i - 1]
         for i in range(m):
             pick[i] = -1
             c = counts[i]
             if c == 0:
                 continue
             b = begin[i]
-            s = start_dist[i, perm[b]] + end_dist[i, perm[b + c - 1]]
-            h = ready[i]
+            service = 0.0
             for k in range(b, b + c):
-                h += task_hours[i, perm[k]]
-                if k > b:
-                    s += dist[perm[k - 1], perm[k]]
-            road[i] = s
-            hours[i] = h + s * hours_per_m[i]
+                service += task_hours[i, perm[k]]
+            road[i] = route_distance(perm, b, c, i, dist, start_dist, end_dist)
+            hours[i] = route_value(_MAKESPAN, i, road[i], service, road_h, road_f, ready, c)
             q = b + randint(state, c)
             t = perm[q]
             if pins[t] >= 0:
                 continue
             pick[i] = q
-            before = start_dist[i, t] if q == b else dist[perm[q - 1], t]
-            after = end_dist[i, t] if q == b + c - 1 else dist[t, perm[q + 1]]
-            if c == 1:
-                bridge = 0.0
-            elif q == b:
-                bridge = start_dist[i, perm[q + 1]]
-            elif q == b + c - 1:
-                bridge = end_dist[i, perm[q - 1]]
-            else:
-                bridge = dist[perm[q - 1], perm[q + 1]]
-            left_road[i] = s + bridge - before - after
-            left_hours[i] = hours[i] - task_hours[i, t] + (left_road[i] - s) * hours_per_m[i]
+            prev = perm[q - 1] if q > b else -1
+            nxt = perm[q + 1] if q < b + c - 1 else -2
+            left_road[i] = (
+                road[i]
+                + leg(prev, nxt, i, dist, start_dist, end_dist)
+                - leg(prev, t, i, dist, start_dist, end_dist)
+                - leg(t, nxt, i, dist, start_dist, end_dist)
+            )
+            left_hours[i] = route_value(
+                _MAKESPAN, i, left_road[i], service - task_hours[i, t], road_h, road_f, ready, c
+            )
         base = 0.0
         for i in range(m):
             base += road[i]
@@ -155,12 +154,14 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
                 for k in range(b, b + c + 1):
                     if k == pick[i]:
                         continue
+                    nxt = perm[k] if k < b + c else -2
+                    if prev == -1 and nxt >= 0 and pins[nxt] >= 0:
+                        prev = nxt  # nothing goes before a pinned first task
+                        continue
+                    # leg(prev, x) + leg(x, nxt) - leg(prev, nxt) written out: through
+                    # operators.leg this loop, the kernel's hot one, took 14 times as long.
                     into = start_dist[i, x] if prev < 0 else dist[prev, x]
-                    if k < b + c:
-                        nxt = perm[k]
-                        if prev < 0 and pins[nxt] >= 0:
-                            prev = nxt  # nothing goes before a pinned first task
-                            continue
+                    if nxt >= 0:
                         was = start_dist[i, nxt] if prev < 0 else dist[prev, nxt]
                         delta = into + dist[x, nxt] - was
                     else:
@@ -173,7 +174,9 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
                         prev = perm[k]
                 if best_at < 0:
                     continue
-                h = left_hours[i] + task_hours[i, x] + best * hours_per_m[i]
+                # route_value's hours from left_hours by the delta: the call here, m^2 times
+                # a round, made the kernel 1.4 times as slow.
+                h = left_hours[i] + task_hours[i, x] + best * road_h[i]
                 if h <= limit + 1e-9:
                     costs[i, a] = left_road[i] + best
                     place[i, a] = best_at

@@ -1,4 +1,4 @@
-"""The cyclic exchange (planner.exchange): its assignment solver, its moves, and its place in
+"""The cyclic exchange (planner.cyclic_exchange): its assignment solver, its moves, and its place in
 the solver (the answer's roads under the makespan)."""
 
 import itertools
@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from planner.cost import CostTables, Objective, evaluate
-from planner.exchange import INFEASIBLE, assignment, cyclic_exchange
+from planner.cyclic_exchange import INFEASIBLE, assignment, cyclic_exchange
 from planner.hybrid import HybridParams
 from planner.population import random_counts
 from planner.rng import make_state
@@ -112,7 +112,7 @@ def test_in_the_solver_the_answer_keeps_the_elites_makespan_and_drives_less():
             "hybrid",
             stop_after(8),
             seed=2,
-            params=HybridParams(exchange_rounds=rounds),
+            params=HybridParams(cyclic_exchange_rounds=rounds),
         )
         for rounds in (0, 1000)
     }
@@ -120,9 +120,9 @@ def test_in_the_solver_the_answer_keeps_the_elites_makespan_and_drives_less():
     assert without.history == with_.history  # the same search
     assert with_.figures.makespan_h <= without.figures.makespan_h + 1e-12
     assert with_.figures.distance_m < without.figures.distance_m
-    assert with_.stats["exchange_gains"] > 0
+    assert with_.stats["cyclic_exchange_gains"] > 0
 
 
-def test_the_exchange_rounds_are_checked():
-    with pytest.raises(ValueError, match="exchange_rounds"):
-        HybridParams(exchange_rounds=-1)
+def test_the_cyclic_exchange_rounds_are_checked():
+    with pytest.raises(ValueError, match="cyclic_exchange_rounds"):
+        HybridParams(cyclic_exchange_rounds=-1)
