@@ -455,10 +455,10 @@ def solve(
         if isinstance(params, hybrid.HybridParams) and obj == Objective.MAKESPAN
         else 0
     )
-    polished_perm, polished_counts = elite_perm.copy(), elite_counts.copy()
-    polished_route, polished_cost = elite_route.copy(), elite_cost
+    exchanged_perm, exchanged_counts = elite_perm.copy(), elite_counts.copy()
+    exchanged_route, exchanged_cost = elite_route.copy(), elite_cost
     exchange_state = make_state(seed + 0x5EED)
-    polished_done = False
+    exchanged_done = False
     # The elite's cost when it last improved, and the progress of the run then.
     improved_cost, improved_at = elite_cost, 0.0
     stats["restarts"] = 0.0
@@ -628,24 +628,28 @@ def solve(
             # with its own random stream: the elite's search goes as without it (applied
             # to the elite, the exchanges filled routes up to the makespan and the
             # makespan came out 0.1 % longer).
-            if _capped(elite_cost, elite_route, cap) < _capped(polished_cost, polished_route, cap):
-                polished_perm[:], polished_counts[:] = elite_perm, elite_counts
-                polished_route[:], polished_cost = elite_route, elite_cost
-                polished_done = False
-            if not polished_done:
-                limit = max(cap, float(polished_route.max()))
+            if _capped(elite_cost, elite_route, cap) < _capped(
+                exchanged_cost, exchanged_route, cap
+            ):
+                exchanged_perm[:], exchanged_counts[:] = elite_perm, elite_counts
+                exchanged_route[:], exchanged_cost = elite_route, elite_cost
+                exchanged_done = False
+            if not exchanged_done:
+                limit = max(cap, float(exchanged_route.max()))
                 if cyclic_exchange(
-                    exchange_state, polished_perm, polished_counts, tables, pins, limit,
+                    exchange_state, exchanged_perm, exchanged_counts, tables, pins, limit,
                     exchange_rounds, stop.deadline(),
                 ) > 0.0:  # fmt: skip
-                    improve_routes(polished_perm, polished_counts, tables[0], tables[1],
+                    improve_routes(exchanged_perm, exchanged_counts, tables[0], tables[1],
                                    tables[2], neighbours, pins)  # fmt: skip
-                    polished_cost = float(
-                        evaluate(polished_perm, polished_counts, int(obj), tables, polished_route)
+                    exchanged_cost = float(
+                        evaluate(
+                            exchanged_perm, exchanged_counts, int(obj), tables, exchanged_route
+                        )
                     )
                     stats["cyclic_exchange_gains"] += 1.0
                 else:
-                    polished_done = True
+                    exchanged_done = True
         if restart > 0.0 and elite_cost < record_cost:
             record_perm[:], record_counts[:], record_cost = elite_perm, elite_counts, elite_cost
         if restart > 0.0 and not stop.interrupted():
@@ -674,10 +678,10 @@ def solve(
             break
     if record_cost < elite_cost:
         elite_perm, elite_counts = record_perm, record_counts
-    if exchange_rounds > 0 and _capped(polished_cost, polished_route, cap) < _capped(
+    if exchange_rounds > 0 and _capped(exchanged_cost, exchanged_route, cap) < _capped(
         elite_cost, elite_route, cap
     ):
-        elite_perm, elite_counts = polished_perm, polished_counts
+        elite_perm, elite_counts = exchanged_perm, exchanged_counts
     elapsed = time.perf_counter() - started
     routes = tuple(tuple(r) for r in split_routes(elite_perm, elite_counts))
     figs = figures(problem, routes)
