@@ -33,7 +33,7 @@ from planner.problem import FloatArray, Problem
 # small enough never to trade a real gain in the primary figure for distance.
 TIE_BREAK = 1e-9
 # Under the squeeze (a makespan target, squeeze_figure), what an hour of a route over the
-# target weighs against an hour of the fleet's total: 10 and 100 found the same makespans
+# target weighs against an hour of the fleet's (weighted) total: 10 and 100 found the same makespans
 # at 500 x 30, 1 none better than the plan it started from (benchmarks/RESULTS.md,
 # 2026-11-26).
 OVERLOAD = 10.0
@@ -52,6 +52,9 @@ class CostTables:
     task_fuel: FloatArray  # [machine, task] n_turn * t_T * c_v + S / w * c_w
     ready_h: FloatArray  # [machine] hours busy before the route starts (time objectives)
     pinned_machine: np.ndarray  # [task] int64, the machine a task stays first with, or -1
+    # [machine] what an hour of the machine counts in the squeeze (squeeze_figure): all 1,
+    # or the machines' worth to the makespan (planner.relaxation.hour_weights), set by solve
+    hour_weights: FloatArray
 
     @classmethod
     def of(cls, problem: Problem) -> CostTables:
@@ -71,6 +74,7 @@ class CostTables:
             task_fuel=task_fuel,
             ready_h=np.ascontiguousarray(problem.ready_h, dtype=np.float64),
             pinned_machine=np.ascontiguousarray(problem.pinned_machine, dtype=np.int64),
+            hour_weights=np.ones(problem.num_machines),
         )
 
     def kernel_args(self) -> tuple[FloatArray, ...]:
@@ -84,6 +88,7 @@ class CostTables:
             self.task_hours,
             self.task_fuel,
             self.ready_h,
+            self.hour_weights,
         )
 
 
@@ -109,7 +114,7 @@ def evaluate(perm, counts, objective, tables, route_cost):  # type: ignore[no-un
     objective adds up or maximises: s_i for distance and minmax, t_i for time and makespan,
     c_i for fuel (the "path cost" of §4.3's overshoot).
     """
-    dist, start_dist, end_dist, road_hours_per_m, road_fuel_lh, task_hours, task_fuel, ready = (
+    dist, start_dist, end_dist, road_hours_per_m, road_fuel_lh, task_hours, task_fuel, ready, _ = (
         tables
     )
     m = counts.shape[0]
@@ -168,30 +173,35 @@ def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # t
 
 
 @njit(cache=True, nogil=True)
-def fleet_value(objective, values, lengths, cap=0.0):  # type: ignore[no-untyped-def]
+def fleet_value(objective, values, lengths, cap, weights):  # type: ignore[no-untyped-def]
     """The objective from every route's share (``values``) and distance (``lengths``).
     ``cap`` > 0: a min-max figure is taken as at least ``cap``, so that below the cap only
     the tie-breaker, the total distance, counts. ``cap`` < 0: the squeeze towards the
-    target ``-cap`` (:func:`squeeze_figure`), plus the tie-breaker. 0: the objective."""
+    target ``-cap`` with the machines' hour ``weights`` (:func:`squeeze_figure`), plus the
+    tie-breaker. 0: the objective."""
     if cap < 0.0:
-        return squeeze_figure(values, -cap) + TIE_BREAK * lengths.sum()
+        return squeeze_figure(values, -cap, weights) + TIE_BREAK * lengths.sum()
     if objective == 3 or objective == 4:
         return max(values.max(), cap) + TIE_BREAK * lengths.sum()
     return values.sum()
 
 
 @njit(cache=True, nogil=True)
-def squeeze_figure(values, target):  # type: ignore[no-untyped-def]
+def squeeze_figure(values, target, weights):  # type: ignore[no-untyped-def]
     """The makespan as a sum (the squeeze, :func:`planner.hybrid.ils_step`): every
-    route's share (``values``) added up, and each hour a route ends after ``target``
-    counted :data:`OVERLOAD` times more. Below the target the fleet's total hours decide,
-    so a field moves to the machine that does it fastest, or to a shorter road, whichever
-    route it leaves; above it the overloads do."""
+    route's share (``values``, hours) times its machine's weight (``weights``:
+    :attr:`CostTables.hour_weights`) added up, and each hour a route ends after
+    ``target`` counted :data:`OVERLOAD` times more. Below the target the fleet's weighted
+    hours decide, so a field moves to the machine that does it in fewer of them, or to a
+    shorter road, whichever route it leaves; above it the overloads do."""
     over = 0.0
-    for v in values:
+    total = 0.0
+    for i in range(values.shape[0]):
+        v = values[i]
+        total += weights[i] * v
         if v > target:
             over += v - target
-    return values.sum() + OVERLOAD * over
+    return total + OVERLOAD * over
 
 
 @dataclass(frozen=True)

@@ -89,7 +89,7 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
     that it was not above before. The routes keep their number of tasks; a pinned task
     neither moves nor has a task put before it. Stops early once ``deadline`` (a
     monotonic instant) has passed. Returns the road saved (metres)."""
-    dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready = tables
+    dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready, _ = tables
     m = counts.shape[0]
     begin = np.zeros(m, dtype=np.int64)  # the routes keep their sizes: their places too
     for i in range(1, m):

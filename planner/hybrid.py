@@ -143,6 +143,13 @@ class HybridParams(IGHOAParams):
     # is (ruin, or perturb when ruin is 0). 500 x 30 at 60 s, seeds 1-2: 55.63 and
     # 55.62 h without it, 55.26 and 55.28 h with it (benchmarks/RESULTS.md, 2026-11-26).
     squeeze: float = 0.002
+    # The squeeze weighs each machine's hours by what they are worth to the makespan, the
+    # duals of the relaxation of assigning fields to machines with the travel no route
+    # avoids (planner.relaxation; False: all alike). 60 s, seeds 1-2: 500 x 30 with 6
+    # passes 320.34 and 320.25 h alike, 320.06 and 320.15 h weighed; level within the
+    # noise on the farms of one pass, 100 x 10 to 500 x 30 (benchmarks/RESULTS.md,
+    # 2026-11-26 22:12).
+    weigh_hours: bool = True
     # Under the makespan, each generation up to this many rounds of the cyclic exchange
     # (planner.cyclic_exchange) on a copy of the elite, the answer when it drives less: no route
     # past its makespan (or the cap of a deadline or a slack); 0: never. Where every route
@@ -449,7 +456,7 @@ def ils_step(  # type: ignore[no-untyped-def]
     moved = np.empty(max(strength, ruin), dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
     target = elite_route.max() * (1.0 - squeeze)
-    walk_figure = squeeze_figure(walk_route, target)
+    walk_figure = squeeze_figure(walk_route, target, tables[8])
     figure = walk_figure
     for step in range(steps):
         if past(deadline):
@@ -481,7 +488,7 @@ def ils_step(  # type: ignore[no-untyped-def]
             or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
         cost = evaluate(perm, counts, objective, tables, route)
         if squeeze > 0.0:
-            figure = squeeze_figure(route, target)
+            figure = squeeze_figure(route, target, tables[8])
             walk_on = figure < walk_figure - 1e-12
         else:
             if cap > 0.0:
@@ -500,7 +507,7 @@ def ils_step(  # type: ignore[no-untyped-def]
             elite_cost = cost
             if squeeze > 0.0:
                 target = route.max() * (1.0 - squeeze)
-                walk_figure = squeeze_figure(walk_route, target)
+                walk_figure = squeeze_figure(walk_route, target, tables[8])
     return elite_cost, walk_cost
 
 

@@ -143,7 +143,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
     (:func:`planner.cost.fleet_value`), so a move may lengthen any route up to it when
     it shortens the fleet's total distance; a ``cap`` < 0 is the squeeze's figure instead,
     with the target ``-cap`` (:func:`planner.cost.squeeze_figure`)."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready, weights = tables
     m = counts.shape[0]
     n = perm.shape[0]
     task_x = task_f if objective == 2 else task_h
@@ -179,7 +179,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
     for r in range(m):
         prefix(routes, sizes, r, r, dist, start_dist, pref)
     buf = np.empty(n, dtype=np.int64)
-    current = _objective(objective, values, lengths, cap)
+    current = _objective(objective, values, lengths, cap, weights)
     total = lengths.sum()
     trial_values = values.copy()
     trial_lengths = lengths.copy()
@@ -239,7 +239,9 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         trial_values[b] = _route_value(
                             objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b] + 1
                         )
-                        gain = current - _objective(objective, trial_values, trial_lengths, cap)
+                        gain = current - _objective(
+                            objective, trial_values, trial_lengths, cap, weights
+                        )
                         gs = total - trial_lengths.sum()
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
@@ -271,7 +273,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                                     objective, b, lb, eb, road_h, road_f, ready, sizes[b] + length
                                 )
                                 gain = current - _objective(
-                                    objective, trial_values, trial_lengths, cap
+                                    objective, trial_values, trial_lengths, cap, weights
                                 )
                                 gs = total - trial_lengths.sum()
                                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
@@ -300,7 +302,9 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         trial_values[b] = _route_value(
                             objective, b, lb, eb, road_h, road_f, ready, nb
                         )
-                        gain = current - _objective(objective, trial_values, trial_lengths, cap)
+                        gain = current - _objective(
+                            objective, trial_values, trial_lengths, cap, weights
+                        )
                         gs = total - trial_lengths.sum()
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
@@ -334,7 +338,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
                 trial_values[b] = _route_value(
                     objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b]
                 )
-                gain = current - _objective(objective, trial_values, trial_lengths, cap)
+                gain = current - _objective(objective, trial_values, trial_lengths, cap, weights)
                 gs = total - trial_lengths.sum()
                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
                     best_gain, best_gs = gain, gs
@@ -432,7 +436,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
             prefix(routes, sizes, b, b, dist, start_dist, pref)
             trial_values[:] = values
             trial_lengths[:] = lengths
-            current = _objective(objective, values, lengths, cap)
+            current = _objective(objective, values, lengths, cap, weights)
             total = lengths.sum()
             if use_bits and (objective == 3 or objective == 4):
                 longest = np.argmax(values)
@@ -492,7 +496,7 @@ def optimal_split(perm, counts, objective, tables, min_count, pins, deadline=np.
     task and holds no other; when the order allows no such cut, or ``deadline`` (a
     monotonic instant) passes before the cut is found, ``counts`` is kept and the return
     is infinite."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready, _ = tables
     n = perm.shape[0]
     m = counts.shape[0]
     use_max = objective == 3 or objective == 4

@@ -295,7 +295,7 @@ def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # t
     tasks were not all in a route (a machine gone: its tasks go where they cost least).
     O(len(tasks) n m), on the chromosome in place; the caller keeps the routes' minimum
     sizes and the pinned tasks out of ``tasks``."""
-    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready = tables
+    dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready, weights = tables
     n = perm.shape[0]
     m = counts.shape[0]
     task_x = task_f if objective == 2 else task_h
@@ -337,7 +337,7 @@ def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # t
                 )
                 lengths[b] = old_length + add
                 values[b] = route_value(objective, b, lengths[b], eb, road_h, road_f, ready, 1)
-                value = fleet_value(objective, values, lengths, cap)
+                value = fleet_value(objective, values, lengths, cap, weights)
                 eps = 1e-9 * max(1.0, abs(value))
                 if value < best_obj - eps or (value <= best_obj + eps and add < best_add):
                     best_obj, best_add, best_r, best_p = value, add, b, p
@@ -381,7 +381,7 @@ def rows_back(routes, sizes, perm, counts):  # type: ignore[no-untyped-def]
 @njit(cache=True, nogil=True)
 def _figures(routes, sizes, r, objective, tables, task_x, use_extra, lengths, extras, values):  # type: ignore[no-untyped-def]
     """Route r's distance, in-field figure and share of the objective, into the arrays."""
-    dist, start_dist, end_dist, road_h, road_f, _, _, ready = tables
+    dist, start_dist, end_dist, road_h, road_f, _, _, ready, _ = tables
     s = 0.0
     e = 0.0
     prev = -1

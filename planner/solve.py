@@ -28,7 +28,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -57,6 +57,7 @@ from planner.operators import improve_routes
 from planner.pins import repair_pins
 from planner.population import random_counts
 from planner.problem import Problem
+from planner.relaxation import hour_weights
 from planner.rng import make_state, randint, shuffle
 from planner.sa import AnnealingParams, anneal
 
@@ -345,7 +346,16 @@ def solve(
     warm = None if initial_routes is None else warm_chromosome(problem, initial_routes)
     warm_up()
 
+    started = time.perf_counter()
+    stop.start()
     cost_tables = CostTables.of(problem)
+    if (
+        isinstance(params, hybrid.HybridParams)
+        and obj is Objective.MAKESPAN
+        and params.squeeze > 0.0
+        and params.weigh_hours
+    ):
+        cost_tables = replace(cost_tables, hour_weights=hour_weights(cost_tables, stop.deadline()))
     tables = cost_tables.kernel_args()
     pins = cost_tables.pinned_machine
     state = make_state(seed)
@@ -356,8 +366,6 @@ def solve(
     perms = np.empty((pop, n), dtype=np.int64)
     counts = np.empty((pop, m), dtype=np.int64)
     neighbours = nearest_neighbours(problem.dist, getattr(params, "neighbours", 1))
-    started = time.perf_counter()
-    stop.start()
     if warm is not None and isinstance(params, hybrid.HybridParams) and pop > 1:
         # A re-plan: the plan being carried out, its orphans (tasks of a machine gone) put
         # where they cost least, is individual 0; the warm start as given (orphans at the

@@ -14,53 +14,67 @@ fields to machines (unrelated machines, R||Cmax) with a cost c_ij for field j on
 and at least the longest field's cheapest cost on its own:
 
 - :func:`makespan_lower_bound` ignores travel: c_ij = p_ij, machine i's service time.
-- :func:`travel_lower_bound` counts the travel no plan avoids: c_ij = p_ij + e_ij / v_i,
-  v_i the machine's road speed and e_ij half the two shortest legs that can lead into and
-  out of field j on machine i (:func:`incident_legs_m`). Why it holds: machine i's route
-  start_i -> j_1 -> ... -> j_r -> end_i has r + 1 legs and each field has two of them,
-  one in and one out, to two different nodes (other fields, or the start and the end,
-  which count as two nodes even where they are the same place: a one-field route is
-  start -> j -> end). So the legs at field j add up to at least the two shortest of
-  {D(j, k) : k another field} + {D(start_i, j), D(j, end_i)} taken as a multiset, and as
-  every leg ends at most two fields, the route is at least half the sum of that over its
-  fields. The time of a machine is then at least sum_j c_ij over its fields (its share of
-  the start's and end's legs, left out, is >= 0), and the longest field's term becomes
-  min_i p_ij + (D(start_i, j) + D(j, end_i)) / v_i: its machine drives there and back.
-  It leaves out what a route needs beyond that: the garage at the centre of the farm is
-  ~17 km from a field on average, and a route that reaches out to radius R drives at least
-  2R (not additive over fields, so not in this relaxation).
+- :func:`travel_lower_bound` counts the travel no plan avoids: c_ij = p_ij + e_ij / v_i, v_i
+  the machine's road speed and e_ij half the two shortest legs that can lead into and out of
+  field j on machine i (:func:`incident_legs_m`; these c_ij are
+  :func:`planner.relaxation.unavoidable_hours`, whose duals weigh the squeeze's hours). Why
+  it holds: machine i's route start_i -> j_1 -> ... -> j_r -> end_i has r + 1 legs and each
+  field has two of them, one in and one out, to two different nodes (other fields, or the
+  start and the end, which count as two nodes even where they are the same place: a
+  one-field route is start -> j -> end). So the legs at field j add up to at least the two
+  shortest of {D(j, k) : k another field} + {D(start_i, j), D(j, end_i)} taken as a
+  multiset, and as every leg ends at most two fields, the route is at least half the sum of
+  that over its fields. The time of a machine is then at least sum_j c_ij over its fields
+  (its share of the start's and end's legs, left out, is >= 0), and the longest field's term
+  becomes min_i p_ij + (D(start_i, j) + D(j, end_i)) / v_i: its machine drives there and
+  back. It leaves out what a route needs beyond that: the garage at the centre of the farm
+  is ~17 km from a field on average, and a route that reaches out to radius R drives at
+  least 2R (not additive over fields, so not in this relaxation).
 
 Any weights lambda on the machines (summing to one) give a bound sum_j min_i lambda_i c_ij
 (the makespan is at least every lambda-weighted mean of the machines' loads, and each
 field adds at least its lambda-cheapest cost to it). The weights are the optimal duals of
-the relaxation, solved by OR-Tools' LP solver (GLOP); the bound is evaluated from them in
-numpy, so it is valid whatever the LP solver's tolerance (before 2026-11-25 the weights
-came from 400 multiplicative steps, which stopped 0.8 % short of the LP at 500 x 30:
-52.14 h, now 52.54 h).
+the relaxation (:mod:`planner.relaxation`, which the squeeze weighs the machines' hours
+with); the bound is evaluated from them in numpy, so it is valid whatever the LP solver's
+tolerance (before 2026-11-25 the weights came from 400 multiplicative steps, which stopped
+0.8 % short of the LP at 500 x 30: 52.14 h, now 52.54 h; until 2026-11-26 OR-Tools' GLOP
+solved it, to the same bounds).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
+from planner import relaxation
+from planner.cost import CostTables
 from planner.problem import Machine, Problem, Task
+from planner.relaxation import machine_weights, unavoidable_hours, weighted_bound
 
 FIELD_DENSITY_KM2 = 4.0  # square kilometres of farm per field
 FIELD_EFFICIENCY = 0.75  # share of the working speed x width that is real work
 
 
 def generate_farm(
-    fields: int, machines: int, seed: int = 1, land_km2: float = FIELD_DENSITY_KM2
+    fields: int,
+    machines: int,
+    seed: int = 1,
+    land_km2: float = FIELD_DENSITY_KM2,
+    passes: int = 1,
 ) -> Problem:
     """The farm ``fields`` x ``machines`` of ``seed``, ``land_km2`` square kilometres of land
-    a field (how spread out it is); objective: makespan (hours). The machines and the
-    fields' sizes are the same whatever ``land_km2``: only where the fields are changes."""
+    a field (how spread out it is), each field worked ``passes`` times in one visit (its
+    hours and turns that many times over: a season's work, where travel weighs less);
+    objective: makespan (hours). The machines, the fields' sizes and where they are do
+    not depend on ``land_km2`` and ``passes`` but for the land's scale."""
     if fields < 1 or machines < 1:
         raise ValueError(f"a farm needs fields and machines, not {fields} x {machines}")
     if not land_km2 > 0.0:
         raise ValueError(f"a farm needs land: land_km2 must be positive, not {land_km2}")
+    if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
+        raise ValueError(f"a field is worked at least once: passes must be >= 1, not {passes!r}")
     rng = np.random.default_rng(seed)
     side_m = 1000.0 * math.sqrt(land_km2 * fields)
     fleet = []
@@ -94,19 +108,26 @@ def generate_farm(
                 length_m=round(area / width, 1),
             )
         )
-    return Problem.build(
+    once = Problem.build(
         fleet,
         tasks,
         (side_m / 2.0, side_m / 2.0),
         min_tasks_per_machine=0,
         name=f"farm{fields}x{machines}s{seed}",
     )
+    if passes == 1:
+        return once
+    return dataclasses.replace(
+        once,
+        turns=once.turns * passes,
+        work_hours=once.work_hours * passes,
+        name=f"{once.name}p{passes}",
+    )
 
 
 def service_hours(problem: Problem) -> np.ndarray:
     """Hours machine i spends in field j, [machine, field]: work plus turns."""
-    turn_h = problem.machine_array("turn_time_h")
-    return problem.work_hours + problem.turns * turn_h[:, None]
+    return CostTables.of(problem).task_hours
 
 
 def makespan_lower_bound(problem: Problem) -> float:
@@ -119,53 +140,22 @@ def travel_lower_bound(problem: Problem) -> float:
     """A lower bound on the makespan in hours that counts the travel no plan avoids (see
     the module); at least :func:`makespan_lower_bound`'s relaxation with every cost
     raised, so never below it."""
-    hours_per_m = 1.0 / (1000.0 * problem.machine_array("road_speed_kmh"))[:, None]
-    p = service_hours(problem)
-    alone = p + (problem.start_dist + problem.end_dist) * hours_per_m
-    costs = p + incident_legs_m(problem) * hours_per_m
-    return max(float(alone.min(axis=0).max()), assignment_bound(costs))
+    tables = CostTables.of(problem)
+    ends = (tables.start_dist + tables.end_dist) * tables.road_hours_per_m[:, None]
+    alone = tables.task_hours + ends
+    return max(float(alone.min(axis=0).max()), assignment_bound(unavoidable_hours(tables)))
 
 
 def incident_legs_m(problem: Problem) -> np.ndarray:
     """[machine, field]: half the two shortest legs that can lead into and out of the
-    field on that machine's route (metres): the two smallest of the field's distances to
-    the other fields and to the machine's start and end (each its own node)."""
-    n = problem.num_tasks
-    others = np.array(problem.dist, dtype=np.float64)
-    np.fill_diagonal(others, np.inf)
-    two = np.sort(others, axis=1)[:, :2] if n > 1 else np.full((n, 1), np.inf)
-    legs = np.empty((problem.num_machines, n))
-    for i in range(problem.num_machines):
-        ends = np.column_stack([two, problem.start_dist[i], problem.end_dist[i]])
-        legs[i] = np.sort(ends, axis=1)[:, :2].sum(axis=1) / 2.0
-    return legs
+    field on that machine's route (metres; :func:`planner.relaxation.incident_legs_m`)."""
+    return relaxation.incident_legs_m(problem.dist, problem.start_dist, problem.end_dist)
 
 
 def assignment_bound(costs: np.ndarray) -> float:
     """sum_j min_i lambda_i costs[i, j] for the weights lambda of the LP relaxation's
     optimal duals (``costs``: [machine, field]); a lower bound on the makespan of any
     assignment of the fields with these costs (see the module)."""
-    try:
-        from ortools.linear_solver import pywraplp
-    except ImportError as exc:
-        raise RuntimeError(
-            "the farm's bounds need OR-Tools' LP solver: pip install 'agrifleet[bench]'"
-        ) from exc
-    m, n = costs.shape
-    solver = pywraplp.Solver.CreateSolver("GLOP")
-    x = [[solver.NumVar(0.0, 1.0, "") for _ in range(n)] for _ in range(m)]
-    span = solver.NumVar(0.0, solver.infinity(), "span")
-    for j in range(n):
-        solver.Add(solver.Sum([x[i][j] for i in range(m)]) == 1.0)
-    loads = [
-        solver.Add(solver.Sum([float(costs[i, j]) * x[i][j] for j in range(n)]) <= span)
-        for i in range(m)
-    ]
-    solver.Minimize(span)
-    if solver.Solve() != pywraplp.Solver.OPTIMAL:
-        raise RuntimeError("GLOP found no optimum of the assignment relaxation")
-    lam = np.abs([load.dual_value() for load in loads])
-    if not lam.sum() > 0:
-        lam = np.ones(m)
-    lam = lam / lam.sum()
-    return float((lam[:, None] * costs).min(axis=0).sum())
+    weights = machine_weights(costs)
+    assert weights is not None  # no time limit
+    return weighted_bound(costs, weights)

@@ -199,10 +199,12 @@ def bench_farm(
     progress: Progress = lambda line: None,
     makespan_slack: float = 0.0,
     land_km2: float | None = None,
+    passes: int = 1,
 ) -> str:
     """Ours and OR-Tools on generated farms (makespan); returns the Markdown report.
     ``land_km2``: square kilometres of land per field (default the generator's,
     :data:`agrifleet_bench.farm.FIELD_DENSITY_KM2`): how spread out the farm is.
+    ``passes``: how many times each field is worked (its hours that many times over).
 
     ``makespan_slack`` > 0 runs ours ε-lexicographic
     (:meth:`planner.hybrid.HybridParams.with_makespan_slack`): late in the run a makespan
@@ -235,6 +237,8 @@ def bench_farm(
     land = FIELD_DENSITY_KM2 if land_km2 is None else land_km2
     if not 0.01 <= land <= 1000.0:
         raise BenchError(f"--land-per-field must be within [0.01, 1000] km², not {land:g}")
+    if not 1 <= passes <= 100:
+        raise BenchError(f"--passes must be within [1, 100], not {passes}")
     _check_peer(peer)
     order = (
         f"ours: a makespan within {100 * makespan_slack:g} % of the best counts as equal in the "
@@ -244,7 +248,7 @@ def bench_farm(
     )
     lines = [
         f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}, "
-        f"{land:g} km² of land a field), "
+        f"{land:g} km² of land a field, each worked {passes} time{'s' if passes > 1 else ''}), "
         f"{runs.describe(peer)}; {order}; road km = total road distance; LB ignores travel, "
         "LBt counts the travel no plan avoids; ours within OR-Tools' makespan: ours again, "
         "with OR-Tools' makespan as its deadline (the road km at no more makespan).",
@@ -256,7 +260,7 @@ def bench_farm(
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for fields, machines in sizes:
-        problem = generate_farm(fields, machines, runs.seed, land)
+        problem = generate_farm(fields, machines, runs.seed, land, passes)
         bound, travel = makespan_lower_bound(problem), travel_lower_bound(problem)
         results = [
             solve(

@@ -51,6 +51,8 @@ def test_a_bad_cell_or_run_setting_exits_2(capsys):
     assert "--makespan-slack needs --algorithm hybrid" in capsys.readouterr().err
     assert main(["bench", "farm", "--land-per-field", "0"]) == EXIT_BAD_INPUT
     assert "--land-per-field must be within [0.01, 1000] km², not 0" in capsys.readouterr().err
+    assert main(["bench", "farm", "--passes", "0"]) == EXIT_BAD_INPUT
+    assert "--passes must be within [1, 100], not 0" in capsys.readouterr().err
 
 
 def test_the_bks_table_has_both_objectives_with_sources():
@@ -83,6 +85,19 @@ def test_a_denser_farm_is_the_same_farm_drawn_closer_together():
     assert travel_lower_bound(dense) < travel_lower_bound(wide)
     with pytest.raises(ValueError, match="land_km2 must be positive"):
         generate_farm(40, 5, land_km2=0.0)
+
+
+def test_a_farm_worked_in_passes_is_the_same_farm_with_its_hours_times_the_passes():
+    """``passes`` (bench farm --passes): each field's hours and turns that many times over,
+    nothing else; the travel-free bound scales with them."""
+    once, six = generate_farm(40, 5, seed=3), generate_farm(40, 5, seed=3, passes=6)
+    assert once.machines == six.machines and np.array_equal(once.dist, six.dist)
+    np.testing.assert_allclose(service_hours(six), 6 * service_hours(once), rtol=1e-12)
+    np.testing.assert_array_equal(six.turns, 6 * once.turns)
+    assert makespan_lower_bound(six) == pytest.approx(6 * makespan_lower_bound(once), rel=1e-9)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="passes must be >= 1"):
+            generate_farm(40, 5, passes=bad)
 
 
 def test_the_lower_bound_is_exact_on_related_machines_and_below_any_schedule():
@@ -133,7 +148,6 @@ def _optimal_makespan(problem: Problem) -> float:
 
 @pytest.mark.parametrize("seed", range(1, 7))
 def test_both_bounds_are_below_the_optimum_of_a_tiny_farm(seed):
-    pytest.importorskip("ortools")
     problem = generate_farm(6, 2 + seed % 2, seed=seed)
     optimum = _optimal_makespan(problem)
     free, travel = makespan_lower_bound(problem), travel_lower_bound(problem)
@@ -154,7 +168,6 @@ def test_a_route_is_at_least_the_legs_its_fields_cannot_avoid():
 
 
 def test_the_travel_bound_counts_travel_where_the_other_does_not():
-    pytest.importorskip("ortools")
     farm = generate_farm(60, 6, seed=1)
     free, travel = makespan_lower_bound(farm), travel_lower_bound(farm)
     # Fields ~2 km apart at 15-40 km/h, a few hours' work each: travel is a few per cent.
@@ -182,7 +195,6 @@ def test_a_peer_that_finds_nothing_in_time_is_said_so_and_ours_stands(monkeypatc
 
 
 def test_bench_farm_reports_both_bounds_and_both_gaps():
-    pytest.importorskip("ortools")
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
     header = next(line for line in report.splitlines() if line.startswith("| farm"))
     row = next(line for line in report.splitlines() if line.startswith("| 12x3"))
@@ -213,19 +225,25 @@ def test_bench_farm_runs_ours_again_within_the_peers_makespan():
 
 
 def test_bench_farm_with_a_makespan_slack_says_so():
-    pytest.importorskip("ortools")
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), makespan_slack=0.01)
     assert "a makespan within 1 % of the best counts as equal" in report
     assert "ours: makespan, then road km" in bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"))
 
 
 def test_bench_farm_on_a_denser_farm_says_so_and_bounds_that_farm():
-    pytest.importorskip("ortools")
     report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), land_km2=0.4)
     assert "0.4 km² of land a field" in report
     row = next(line for line in report.splitlines() if line.startswith("| 12x3 "))
     lbt = float(row.split("|")[8])
     assert lbt == pytest.approx(travel_lower_bound(generate_farm(12, 3, 1, 0.4)), abs=0.005)
+
+
+def test_bench_farm_in_passes_says_so_and_bounds_that_farm():
+    report = bench_farm([(12, 3)], None, Runs(0.3, 1, 1, "hybrid"), passes=6)
+    assert "each worked 6 times" in report
+    row = next(line for line in report.splitlines() if line.startswith("| 12x3 "))
+    lb = float(row.split("|")[7])
+    assert lb == pytest.approx(makespan_lower_bound(generate_farm(12, 3, 1, passes=6)), abs=0.005)
 
 
 @pytest.mark.parametrize("peer", ["ortools", "pyvrp"])

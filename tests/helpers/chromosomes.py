@@ -47,3 +47,22 @@ def problem_for(n, m, seed, min_count=1, rng=None):
         for j, (x, y) in enumerate(rng.uniform(0, 3000, size=(n, 2)))
     ]
     return Problem.build(machines, tasks, (0.0, 0.0), min_tasks_per_machine=min_count)
+
+
+def least_over_insertions(perm, counts, task, figure):
+    """The least of ``figure(perm, counts)`` over every place of every route where
+    ``task``, taken out of the chromosome, could go back (brute force)."""
+    rows = [[int(j) for j in perm[b:e] if j != task] for b, e in _bounds(counts)]
+    best = np.inf
+    for r, row in enumerate(rows):
+        for p in range(len(row) + 1):
+            trial = [list(x) for x in rows]
+            trial[r].insert(p, task)
+            flat = np.array([j for x in trial for j in x], dtype=np.int64)
+            best = min(best, figure(flat, np.array([len(x) for x in trial], dtype=np.int64)))
+    return best
+
+
+def _bounds(counts):
+    ends = np.cumsum(counts)
+    return zip(ends - counts, ends, strict=True)

@@ -260,9 +260,10 @@ def test_starting_at_with_a_distance_function_and_bad_input():
 
 def test_a_min_max_figure_counts_as_at_least_the_cap():
     values, lengths = np.array([3.0, 5.0]), np.array([100.0, 200.0])
+    alike = np.ones(2)
     for objective in (3, 4):
-        plain = fleet_value(objective, values, lengths)
+        plain = fleet_value(objective, values, lengths, 0.0, alike)
         assert plain == pytest.approx(5.0 + TIE_BREAK * 300.0)
-        assert fleet_value(objective, values, lengths, 4.0) == plain  # below the figure
-        assert fleet_value(objective, values, lengths, 7.0) == pytest.approx(plain + 2.0)
-    assert fleet_value(0, values, lengths, 7.0) == 8.0  # the sums have no cap
+        assert fleet_value(objective, values, lengths, 4.0, alike) == plain  # below the figure
+        assert fleet_value(objective, values, lengths, 7.0, alike) == pytest.approx(plain + 2.0)
+    assert fleet_value(0, values, lengths, 7.0, alike) == 8.0  # the sums have no cap

@@ -131,12 +131,17 @@ def test_ils_step_reports_the_true_cost_and_never_worsens(objective, ruin, focus
 
 def test_the_squeeze_adds_up_the_routes_and_counts_each_hour_over_the_target_more():
     values, lengths = np.array([5.0, 10.0, 12.5]), np.array([1000.0, 2000.0, 500.0])
-    assert squeeze_figure(values, 10.0) == pytest.approx(27.5 + OVERLOAD * 2.5)
-    assert squeeze_figure(values, 20.0) == pytest.approx(27.5)
+    alike = np.ones(3)
+    assert squeeze_figure(values, 10.0, alike) == pytest.approx(27.5 + OVERLOAD * 2.5)
+    assert squeeze_figure(values, 20.0, alike) == pytest.approx(27.5)
+    # Each route's hours count by its machine's weight; an hour over the target by OVERLOAD.
+    weighed = np.array([2.0, 0.5, 0.5])
+    assert squeeze_figure(values, 10.0, weighed) == pytest.approx(21.25 + OVERLOAD * 2.5)
     # fleet_value's cap < 0 is the squeeze towards -cap, with the distance tie-breaker.
-    squeezed = fleet_value(int(Objective.MAKESPAN), values, lengths, -10.0)
+    squeezed = fleet_value(int(Objective.MAKESPAN), values, lengths, -10.0, alike)
     assert squeezed == pytest.approx(27.5 + OVERLOAD * 2.5 + TIE_BREAK * 3500.0, rel=1e-12)
-    assert fleet_value(int(Objective.MAKESPAN), values, lengths) == pytest.approx(12.5, rel=1e-6)
+    plain = fleet_value(int(Objective.MAKESPAN), values, lengths, 0.0, weighed)
+    assert plain == pytest.approx(12.5, rel=1e-6)
 
 
 @pytest.mark.parametrize("pinned", [False, True])

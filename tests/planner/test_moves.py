@@ -4,7 +4,14 @@ every move and the lexicographic second objective never worsens a solution."""
 
 import numpy as np
 import pytest
-from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, problem_for
+from helpers.chromosomes import (
+    NO_PINS,
+    SETTINGS,
+    assert_valid,
+    chromosomes,
+    least_over_insertions,
+    problem_for,
+)
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -211,19 +218,12 @@ def test_ruin_recreate_puts_a_task_back_where_the_objective_is_least(case, objec
     if done == 0:  # its route was at the minimum: nothing moves
         assert perm.tolist() == before_perm.tolist()
         return
-    t = int(moved[0])
-    rows = split_routes(before_perm, before_counts)
-    for r in rows:
-        if t in r:
-            r.remove(t)
-    best = np.inf
-    for b in range(m):
-        for p in range(len(rows[b]) + 1):
-            trial = [list(r) for r in rows]
-            trial[b].insert(p, t)
-            flat = np.array([j for r in trial for j in r], dtype=np.int64)
-            sizes = np.array([len(r) for r in trial], dtype=np.int64)
-            best = min(best, evaluate(flat, sizes, int(objective), tables, route))
+    best = least_over_insertions(
+        before_perm,
+        before_counts,
+        int(moved[0]),
+        lambda flat, sizes: evaluate(flat, sizes, int(objective), tables, route),
+    )
     assert after == pytest.approx(best, rel=1e-8, abs=1e-9)
 
 
