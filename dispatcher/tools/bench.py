@@ -248,7 +248,7 @@ def bench_farm(
     )
     lines = [
         f"makespan (h) on generated farms (agrifleet_bench.farm, instance seed {runs.seed}, "
-        f"{land:g} km² of land a field, each worked {passes} time{'s' if passes > 1 else ''}), "
+        f"{land:g} km² of land a field{f', each worked {passes} times' if passes > 1 else ''}), "
         f"{runs.describe(peer)}; {order}; road km = total road distance; LB ignores travel, "
         "LBt counts the travel no plan avoids; ours within OR-Tools' makespan: ours again, "
         "with OR-Tools' makespan as its deadline (the road km at no more makespan).",
