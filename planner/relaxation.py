@@ -45,18 +45,21 @@ TIME_SHARE = 0.1
 
 def hour_weights(tables: CostTables, deadline: float = math.inf) -> FloatArray:
     """What an hour of each machine counts in the squeeze: the relaxation's duals for the
-    tables' :func:`unavoidable_hours`, busy machines and pins, times the number of
-    machines (so that all alike is all 1). All 1 when the relaxation has more than
-    :data:`MAX_VARIABLES` variables, or is not solved within :data:`TIME_SHARE` of the
-    time to ``deadline`` (:func:`time.perf_counter`)."""
+    tables' :func:`unavoidable_hours` and pins, times the number of machines (so that all
+    alike is all 1). All 1 when the relaxation has more than :data:`MAX_VARIABLES`
+    variables, or is not solved within :data:`TIME_SHARE` of the time to ``deadline``
+    (:func:`time.perf_counter`).
+
+    Busy machines' ready times are left out: a machine without a task does not wait for
+    its ready time in a plan, but would in the relaxation, and one busy past the others'
+    end would take all the weight (the overload of the squeeze sees the ready times)."""
     m, n = tables.task_hours.shape
     alike = np.ones(m)
     if m < 2 or m * n > MAX_VARIABLES:
         return alike
     weights = machine_weights(
         unavoidable_hours(tables),
-        tables.ready_h,
-        tables.pinned_machine,
+        pinned=tables.pinned_machine,
         time_limit=TIME_SHARE * (deadline - time.perf_counter()),
     )
     return alike if weights is None else m * weights

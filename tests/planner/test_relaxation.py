@@ -84,9 +84,10 @@ def test_hour_weights_are_the_duals_times_the_machines_or_all_one():
     tables = CostTables.of(problem)
     weights = hour_weights(tables)
     assert weights.sum() == pytest.approx(4.0)
-    np.testing.assert_allclose(
-        weights, 4 * machine_weights(unavoidable_hours(tables), tables.ready_h), rtol=1e-9
-    )
+    np.testing.assert_allclose(weights, 4 * machine_weights(unavoidable_hours(tables)), rtol=1e-9)
+    # A machine busy past the others' end does not take all the weight.
+    busy = CostTables.of(problem.starting_at([None] * 4, ready_h=[0.0, 0.0, 0.0, 1e4]))
+    np.testing.assert_allclose(hour_weights(busy), weights, rtol=1e-9)
     assert weights.max() > 1.1 * weights.min()  # the machines of problem_for differ
     assert hour_weights(tables, deadline=0.0).tolist() == [1.0] * 4  # out of time
     alike = dataclasses.replace(tables, task_hours=np.ones((4, relaxation.MAX_VARIABLES)))
