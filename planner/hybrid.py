@@ -439,15 +439,15 @@ def ils_step(  # type: ignore[no-untyped-def]
     (:func:`planner.cost.fleet_value`), so that below it the distance decides; the walk's
     ``accept`` is then a share of what a cost has above the cap (its distance term).
 
-    ``squeeze`` > 0 (the makespan; ``cap`` 0) is the squeeze: the search
-    and the walk go by :func:`planner.cost.squeeze_figure` with the target ``1 - squeeze``
-    times the elite's makespan (the fleet's total hours, each hour over the target counted
-    :data:`~planner.cost.OVERLOAD` times), every other ruin seeded on the longest route
-    when ``focus``; a result is the walk's next solution when its figure is lower, and the
-    new elite (the target following it) when its makespan is. Under the makespan itself a
-    plan whose routes all end near it leaves no move (each lengthens some route up to it);
-    under the sum a field goes to a machine that does it faster or nearer, and the
-    overloads then even out. The costs given and returned stay the objective's.
+    ``squeeze`` > 0 (the makespan; ``cap`` 0) is the squeeze: the search and the walk go by
+    :func:`planner.cost.squeeze_figure` with the target ``1 - squeeze`` times the elite's
+    makespan (the fleet's hours weighed by the tables' hour weights, each hour over the
+    target counted :data:`~planner.cost.OVERLOAD` times), every other ruin seeded on the
+    longest route when ``focus``; a result is the walk's next solution when its figure is
+    lower, and the new elite (the target following it) when its makespan is. Under the
+    makespan itself a plan whose routes all end near it leaves no move (each lengthens some
+    route up to it); under the sum a field goes to a machine that does it faster or nearer,
+    and the overloads then even out. The costs given and returned stay the objective's.
 
     Returns the new elite cost and walk cost."""
     perm = walk_perm.copy()
@@ -455,8 +455,9 @@ def ils_step(  # type: ignore[no-untyped-def]
     route = walk_route.copy()
     moved = np.empty(max(strength, ruin), dtype=np.int64)
     dont_look = np.empty(perm.shape[0], dtype=np.bool_)
+    hour_weights = tables[8]  # CostTables.hour_weights
     target = elite_route.max() * (1.0 - squeeze)
-    walk_figure = squeeze_figure(walk_route, target, tables[8])
+    walk_figure = squeeze_figure(walk_route, target, hour_weights)
     figure = walk_figure
     for step in range(steps):
         if past(deadline):
@@ -488,7 +489,7 @@ def ils_step(  # type: ignore[no-untyped-def]
             or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
         cost = evaluate(perm, counts, objective, tables, route)
         if squeeze > 0.0:
-            figure = squeeze_figure(route, target, tables[8])
+            figure = squeeze_figure(route, target, hour_weights)
             walk_on = figure < walk_figure - 1e-12
         else:
             if cap > 0.0:
@@ -507,7 +508,7 @@ def ils_step(  # type: ignore[no-untyped-def]
             elite_cost = cost
             if squeeze > 0.0:
                 target = route.max() * (1.0 - squeeze)
-                walk_figure = squeeze_figure(walk_route, target, tables[8])
+                walk_figure = squeeze_figure(walk_route, target, hour_weights)
     return elite_cost, walk_cost
 
 

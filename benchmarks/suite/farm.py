@@ -16,7 +16,7 @@ and at least the longest field's cheapest cost on its own:
 - :func:`makespan_lower_bound` ignores travel: c_ij = p_ij, machine i's service time.
 - :func:`travel_lower_bound` counts the travel no plan avoids: c_ij = p_ij + e_ij / v_i, v_i
   the machine's road speed and e_ij half the two shortest legs that can lead into and out of
-  field j on machine i (:func:`incident_legs_m`; these c_ij are
+  field j on machine i (:func:`planner.relaxation.incident_legs_m`; these c_ij are
   :func:`planner.relaxation.unavoidable_hours`, whose duals weigh the squeeze's hours). Why
   it holds: machine i's route start_i -> j_1 -> ... -> j_r -> end_i has r + 1 legs and each
   field has two of them, one in and one out, to two different nodes (other fields, or the
@@ -48,7 +48,6 @@ import math
 
 import numpy as np
 
-from planner import relaxation
 from planner.cost import CostTables
 from planner.problem import Machine, Problem, Task
 from planner.relaxation import machine_weights, unavoidable_hours, weighted_bound
@@ -144,12 +143,6 @@ def travel_lower_bound(problem: Problem) -> float:
     ends = (tables.start_dist + tables.end_dist) * tables.road_hours_per_m[:, None]
     alone = tables.task_hours + ends
     return max(float(alone.min(axis=0).max()), assignment_bound(unavoidable_hours(tables)))
-
-
-def incident_legs_m(problem: Problem) -> np.ndarray:
-    """[machine, field]: half the two shortest legs that can lead into and out of the
-    field on that machine's route (metres; :func:`planner.relaxation.incident_legs_m`)."""
-    return relaxation.incident_legs_m(problem.dist, problem.start_dist, problem.end_dist)
 
 
 def assignment_bound(costs: np.ndarray) -> float:

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from agrifleet_bench.farm import (
     generate_farm,
-    incident_legs_m,
     makespan_lower_bound,
     service_hours,
     travel_lower_bound,
@@ -25,6 +24,7 @@ from dispatcher.tools.bench import (
 from planner.cost import CostTables, evaluate, figures
 from planner.paper import BKS_MINSUM, TSPLIB_DIR, best_known
 from planner.problem import Machine, Problem, Task
+from planner.relaxation import incident_legs_m
 from planner.tsplib import read_instance
 
 
@@ -156,7 +156,7 @@ def test_both_bounds_are_below_the_optimum_of_a_tiny_farm(seed):
 
 def test_a_route_is_at_least_the_legs_its_fields_cannot_avoid():
     problem = generate_farm(30, 3, seed=5)
-    legs = incident_legs_m(problem)
+    legs = incident_legs_m(problem.dist, problem.start_dist, problem.end_dist)
     rng = np.random.default_rng(0)
     for size in (1, 2, 3, 10, 30):
         for _ in range(20):
