@@ -137,12 +137,19 @@ class HybridParams(IGHOAParams):
     # at 26 982.02 from the first second where the other seeds reach 26 942.25
     # (benchmarks/RESULTS.md, 2026-11-26).
     restart: float = 0.1
-    # Under the makespan, the elite's ILS is the squeeze (ils_step; 0: the ILS of the
-    # min-max objective): the fleet's total hours, each hour over a target of
-    # ``1 - squeeze`` times the best makespan counted OVERLOAD times, perturbed as that ILS
+    # Under the makespan, the elite's ILS is the squeeze (ils_step; 0 or (): the ILS of
+    # the min-max objective): the fleet's total hours, each hour over a target of
+    # ``1 - step`` times the best makespan counted OVERLOAD times, perturbed as that ILS
     # is (ruin, or perturb when ruin is 0). 500 x 30 at 60 s, seeds 1-2: 55.63 and
     # 55.62 h without it, 55.26 and 55.28 h with it (benchmarks/RESULTS.md, 2026-11-26).
-    squeeze: float = 0.002
+    # The steps, one a generation in turn (a number: that step alone; a step 0: that
+    # generation the ILS of the min-max objective): a coarse step pushes the longest routes
+    # down; a fine one keeps the target at the makespan, and the fields go where they cost
+    # the fleet least. 60 s, seeds 1-2: 500 x 30 with 6 passes 320.06 and 320.15 h at
+    # 0.002 alone, 319.70 and 319.70 h at 0.0002 alone, but 100 x 10 is better at 0.002
+    # (33.134 / 33.113 h against 33.138 / 33.166 h); in turn, no farm measured is worse
+    # than at 0.002 alone (benchmarks/RESULTS.md, 2026-11-27).
+    squeeze: float | tuple[float, ...] = (0.002, 0.0002)
     # The squeeze weighs each machine's hours by what they are worth to the makespan, the
     # duals of the relaxation of assigning fields to machines with the travel no route
     # avoids (planner.relaxation; False: all alike). 60 s, seeds 1-2: 500 x 30 with 6
@@ -169,7 +176,7 @@ class HybridParams(IGHOAParams):
                 "ils_steps, ruin, tour_kicks, route_kicks, population_tasks and "
                 "cyclic_exchange_rounds must be >= 0 and perturb >= 1"
             )
-        shares = (self.tour_share, self.distance_share, self.restart, self.squeeze)
+        shares = (self.tour_share, self.distance_share, self.restart, *self.squeeze_steps)
         if not all(0.0 <= x <= 1.0 for x in shares):
             raise ValueError(
                 "tour_share, distance_share, restart and squeeze must be within [0, 1]"
@@ -188,6 +195,18 @@ class HybridParams(IGHOAParams):
         if check_makespan_slack(slack) == 0.0:  # refuses a slack out of range
             return cls()
         return cls(distance_share=SLACK_SHARE, distance_slack=slack)
+
+    @property
+    def squeeze_steps(self) -> tuple[float, ...]:
+        """The squeeze's steps as given (a number: that one step; 0 or (): no squeeze)."""
+        if isinstance(self.squeeze, tuple):
+            return self.squeeze
+        return (self.squeeze,) if self.squeeze != 0.0 else ()
+
+    def squeeze_at(self, generation: int) -> float:
+        """The squeeze's step in ``generation`` (1, 2, ...): the steps in turn; 0: none."""
+        steps = self.squeeze_steps
+        return steps[(generation - 1) % len(steps)] if steps else 0.0
 
     def population_for(self, n: int) -> int:
         """The population for ``n`` tasks: :attr:`population`, fewer for a large instance

@@ -352,7 +352,7 @@ def solve(
     if (
         isinstance(params, hybrid.HybridParams)
         and obj is Objective.MAKESPAN
-        and params.squeeze > 0.0
+        and any(step > 0.0 for step in params.squeeze_steps)
         and params.weigh_hours
     ):
         cost_tables = replace(cost_tables, hour_weights=hour_weights(cost_tables, stop.deadline()))
@@ -563,7 +563,7 @@ def solve(
                 walk_perm[:], walk_counts[:] = elite_perm, elite_counts
                 walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
-            squeeze = params.squeeze if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
+            squeeze = params.squeeze_at(gen) if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
             # In chunks, so that a stop flag is seen between them.
             for done in range(0, params.ils_steps, ILS_CHUNK):
                 if stop.interrupted():

@@ -6,6 +6,7 @@ from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, chromosomes, pr
 from hypothesis import given
 from hypothesis import strategies as st
 
+import planner.hybrid
 from planner.cost import (
     OVERLOAD,
     TIE_BREAK,
@@ -34,7 +35,7 @@ from planner.moves import MOVES
 from planner.pins import pins_hold, repair_pins
 from planner.problem import Machine, Problem, Task
 from planner.rng import make_state
-from planner.solve import solve, stop_after
+from planner.solve import solve, stop_after, warm_up
 
 
 def route_lengths(perm, counts, tables):
@@ -449,11 +450,47 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"distance_slack": -0.1},
         {"restart": 1.5},
         {"squeeze": -0.1},
+        {"squeeze": (0.002, 1.5)},
     ],
 )
 def test_hybrid_params_refuse_a_bad_setting(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         HybridParams(**bad)
+
+
+def test_the_squeeze_takes_its_steps_in_turn_one_a_generation():
+    default = HybridParams()
+    assert [default.squeeze_at(g) for g in range(1, 6)] == [0.002, 0.0002] * 2 + [0.002]
+    assert [HybridParams(squeeze=0.001).squeeze_at(g) for g in (1, 2, 3)] == [0.001] * 3
+    for off in (0.0, ()):
+        params = HybridParams(squeeze=off)
+        assert params.squeeze_steps == () and params.squeeze_at(1) == 0.0
+    # A step 0 is that generation's ILS of the min-max objective.
+    assert HybridParams(squeeze=(0.0, 0.001)).squeeze_at(2) == 0.001
+
+
+def test_solve_takes_the_squeeze_steps_in_turn_the_same_way_for_the_same_seed(monkeypatch):
+    problem = problem_for(80, 8, 2)
+    warm_up()  # its tiny solves run the ILS too
+    steps = []
+    elite_ils = planner.hybrid.ils_step
+
+    def ils_step(*args):
+        steps.append(args[-1])  # the squeeze's step, ils_step's last argument
+        return elite_ils(*args)
+
+    monkeypatch.setattr(planner.hybrid, "ils_step", ils_step)
+
+    def routes(squeeze):
+        params = HybridParams(squeeze=squeeze, ils_steps=10)
+        return solve(problem, "makespan", "hybrid", stop_after(6), seed=3, params=params).routes
+
+    in_turn = routes((0.002, 0.0002))
+    assert steps == [0.002, 0.0002] * 3
+    assert in_turn == routes((0.002, 0.0002))
+    steps.clear()
+    routes(0.001)
+    assert steps == [0.001] * 6
 
 
 def test_a_restart_keeps_the_best_found_before_and_repeats_for_the_same_seed():
