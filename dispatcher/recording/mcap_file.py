@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import copy
+import hashlib
 import io
 import json
 import logging
@@ -1092,8 +1093,10 @@ def read_log(source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = Fa
 
 def log_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
     """The log files named by ``paths``: files as given, and every ``*.mcap`` directly in
-    a directory (by name). Raises :class:`RecordingError` for a path that does not exist,
-    a directory without logs, or no path at all."""
+    a directory (by name); each log once, however often it is named (the same file by
+    another path, through a link, or a byte-for-byte copy: read twice, a run's track and
+    events would count twice). Raises :class:`RecordingError` for a path that does not
+    exist, a directory without logs, or no path at all."""
     files: list[Path] = []
     for raw in paths:
         path = Path(raw)
@@ -1108,7 +1111,20 @@ def log_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
             raise RecordingError(f"cannot open log {path}: no such file or directory")
     if not files:
         raise RecordingError("no log given")
-    return list(dict.fromkeys(files))  # a file named twice is read once
+    once: dict[tuple[int, bytes], Path] = {}
+    for path in files:
+        once.setdefault(_identity(path), path)
+    return list(once.values())
+
+
+def _identity(path: Path) -> tuple[int, bytes]:
+    """What makes two log files the same log: their size and their bytes' SHA-256."""
+    try:
+        with path.open("rb") as f:
+            digest = hashlib.file_digest(f, "sha256").digest()
+    except OSError as exc:
+        raise RecordingError(f"cannot read log {path}: {exc.strerror or exc}") from exc
+    return path.stat().st_size, digest
 
 
 def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:

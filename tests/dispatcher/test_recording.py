@@ -7,6 +7,7 @@ import io
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -34,6 +35,7 @@ from dispatcher.recording.mcap_file import (
     RecorderStateError,
     RecordingError,
     iter_records,
+    log_files,
     metadata,
     open_log,
     read_log,
@@ -796,6 +798,30 @@ def test_read_logs_merges_files_by_time(tmp_path: Path) -> None:
     assert read_logs([tmp_path]).source == str(tmp_path)
     assert read_logs([restarted, first]).source == f"{first} (+1 more)"
     assert read_logs([restarted]) == read_log(restarted)
+
+
+def test_read_logs_reads_a_log_named_twice_once(tmp_path: Path) -> None:
+    # The same log by another path (a link to its folder, as pytest's "...current") or a
+    # copy of it: read twice, a run's records (its track, its events) would count twice.
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    first = _run_file(logs, 0, [0.0, 1.0, 31.0], finish=False)
+    _run_file(logs, 30, [30.0, 31.5, 33.0])
+    (tmp_path / "current").symlink_to(logs, target_is_directory=True)
+    copied = tmp_path / "copied"
+    copied.mkdir()
+    shutil.copy(first, copied / "renamed.mcap")
+    once = read_logs([logs])
+    for given in (
+        [logs, tmp_path / "current"],
+        [logs, copied],
+        [copied, logs, first, tmp_path / "current" / first.name],
+    ):
+        merged = read_logs(given)
+        assert merged.records == once.records, given
+    # A log that differs (the same run's file, finished) is another log: both are read.
+    finished = _run_file(tmp_path, 0, [0.0, 1.0, 31.0])
+    assert len(log_files([first, finished])) == 2
 
 
 def test_read_logs_incomplete_when_the_last_is(tmp_path: Path) -> None:
