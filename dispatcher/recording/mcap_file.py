@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import atexit
 import copy
-import hashlib
 import io
 import json
 import logging
@@ -1093,10 +1092,9 @@ def read_log(source: str | os.PathLike[str] | IO[bytes], *, streaming: bool = Fa
 
 def log_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
     """The log files named by ``paths``: files as given, and every ``*.mcap`` directly in
-    a directory (by name); each log once, however often it is named (the same file by
-    another path, through a link, or a byte-for-byte copy: read twice, a run's track and
-    events would count twice). Raises :class:`RecordingError` for a path that does not
-    exist, a directory without logs, or no path at all."""
+    a directory (by name); each file once, however often and by whatever path it is named
+    (through a link to its folder, say). Raises :class:`RecordingError` for a path that
+    does not exist, a directory without logs, or no path at all."""
     files: list[Path] = []
     for raw in paths:
         path = Path(raw)
@@ -1111,26 +1109,18 @@ def log_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
             raise RecordingError(f"cannot open log {path}: no such file or directory")
     if not files:
         raise RecordingError("no log given")
-    once: dict[tuple[int, bytes], Path] = {}
+    once: dict[Path, Path] = {}
     for path in files:
-        once.setdefault(_identity(path), path)
+        once.setdefault(path.resolve(), path)
     return list(once.values())
-
-
-def _identity(path: Path) -> tuple[int, bytes]:
-    """What makes two log files the same log: their size and their bytes' SHA-256."""
-    try:
-        with path.open("rb") as f:
-            digest = hashlib.file_digest(f, "sha256").digest()
-    except OSError as exc:
-        raise RecordingError(f"cannot read log {path}: {exc.strerror or exc}") from exc
-    return path.stat().st_size, digest
 
 
 def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
     """Several logs of one run (a dispatcher restarted mid-run writes a new file) read as
     one: the files of ``paths`` (see :func:`log_files`) in order of their start time, their
-    messages merged in log-time order. Header and metadata are those of the first file;
+    messages merged in log-time order, a message that an earlier file holds too counted
+    once (a copy of a log, or of the part of it written by then: read twice, a run's track
+    and events would count twice). Header and metadata are those of the first file;
     ``complete`` is that of the last (an earlier one cut short is where the dispatcher was
     restarted); ``problem`` joins the problems of every file, each naming its file.
     Raises :class:`RecordingError` for a file that is not an agrifleet log, or for logs of
@@ -1146,9 +1136,12 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
         raise RecordingError(f"these logs are of different farms, not one run: {listing}")
     first, last = logs[0], logs[-1]
     # Each file is in log-time order (or nearly, if cut short): a stable sort merges them.
-    records = sorted(
-        (record for log in logs for record in log.records), key=lambda r: r.log_time_ns
-    )
+    seen: set[LogRecord] = set()
+    merged: list[LogRecord] = []
+    for log in logs:
+        merged.extend(record for record in log.records if record not in seen)
+        seen.update(log.records)
+    records = sorted(merged, key=lambda r: r.log_time_ns)
     problems = [log.problem for log in logs if log.problem]
     if len(given) == 1 and given[0].is_dir():
         source = str(given[0])

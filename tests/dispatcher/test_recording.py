@@ -801,8 +801,9 @@ def test_read_logs_merges_files_by_time(tmp_path: Path) -> None:
 
 
 def test_read_logs_reads_a_log_named_twice_once(tmp_path: Path) -> None:
-    # The same log by another path (a link to its folder, as pytest's "...current") or a
-    # copy of it: read twice, a run's records (its track, its events) would count twice.
+    # The same log by another path (a link to its folder, as pytest's "...current"), a copy
+    # of it, or a copy of what it held before it was finished: read twice, a run's records
+    # (its track, its events) would count twice.
     logs = tmp_path / "logs"
     logs.mkdir()
     first = _run_file(logs, 0, [0.0, 1.0, 31.0], finish=False)
@@ -811,17 +812,22 @@ def test_read_logs_reads_a_log_named_twice_once(tmp_path: Path) -> None:
     copied = tmp_path / "copied"
     copied.mkdir()
     shutil.copy(first, copied / "renamed.mcap")
+    early = tmp_path / "early"  # the same run copied while its file held two messages
+    early.mkdir()
+    _run_file(early, 0, [0.0, 1.0], finish=False)
     once = read_logs([logs])
+    assert len(log_files([logs, tmp_path / "current", first])) == 2
     for given in (
         [logs, tmp_path / "current"],
         [logs, copied],
         [copied, logs, first, tmp_path / "current" / first.name],
+        [early, logs],
     ):
         merged = read_logs(given)
         assert merged.records == once.records, given
-    # A log that differs (the same run's file, finished) is another log: both are read.
-    finished = _run_file(tmp_path, 0, [0.0, 1.0, 31.0])
-    assert len(log_files([first, finished])) == 2
+    # The same message twice in one file is two messages.
+    doubled = _run_file(tmp_path, 0, [5.0, 5.0])
+    assert len(read_logs([doubled, copied]).records) == 5
 
 
 def test_read_logs_incomplete_when_the_last_is(tmp_path: Path) -> None:
