@@ -493,7 +493,8 @@ def _read_events(
 
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
     it when that position is at the waypoint (the simulator sends one right away),
-    else the last time heard; other items take the last time heard.
+    else the last time heard; other items take the last time heard. A report of the item
+    reported last is a repeat, and left out.
 
     Frames are taken in the order they were received. The vehicle's clock
     (``time_boot_ms``) restarts from zero when its autopilot reboots: that is one reboot
@@ -510,6 +511,7 @@ def _read_events(
     pending: tuple[int, int, float | None] | None = None
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
+    last_reached: int | None = None  # the item of the last MISSION_ITEM_REACHED
     # Whether the vehicle holds the mission reviewed, as far as its MISSION_CURRENT.total
     # tells: the items it reports of another (before a re-plan gave it a new mission whole)
     # say nothing of where it heads in this one.
@@ -553,8 +555,12 @@ def _read_events(
                 run_clock(t_ms / 1000.0, log_ns)
         elif kind == "MISSION_ITEM_REACHED":
             seq = msg.get("plan_seq", msg.get("seq"))  # in the plan's numbers (link/numbering.py)
-            if not isinstance(seq, int):
+            if not isinstance(seq, int) or seq == last_reached:
+                # The item reached last, reported again (a repeated frame): nothing new.
+                # Taken as a second reach, the first would settle at the position before
+                # its waypoint, and the track would go to the waypoint and back.
                 continue
+            last_reached = seq
             settle(clock.now)
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
