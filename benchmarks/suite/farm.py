@@ -39,6 +39,11 @@ with); the bound is evaluated from them in numpy, so it is valid whatever the LP
 tolerance (before 2026-11-25 the weights came from 400 multiplicative steps, which stopped
 0.8 % short of the LP at 500 x 30: 52.14 h, now 52.54 h; until 2026-11-26 OR-Tools' GLOP
 solved it, to the same bounds).
+
+How far the travel-free bound is from the best assignment that ignores travel, from above:
+:func:`travel_free_assignment` (an R||Cmax local search) gives a makespan with no travel
+that an optimum with no travel is at or below; so the travel-free optimum lies between
+the two, and a plan's gap to LB beyond that is its driving and what driving costs it.
 """
 
 from __future__ import annotations
@@ -152,3 +157,76 @@ def assignment_bound(costs: np.ndarray) -> float:
     weights = machine_weights(costs)
     assert weights is not None  # no time limit
     return weighted_bound(costs, weights)
+
+
+def travel_free_assignment(problem: Problem, kicks: int = 300, seed: int = 1) -> np.ndarray:
+    """A machine for every field that makes the makespan short when travel is ignored
+    ([field] machine index; its makespan: :func:`assignment_makespan`), an upper bound on
+    the travel-free optimum beside :func:`makespan_lower_bound`'s lower one. The fields
+    start on their machine of least weighted hours (the relaxation's duals); then, until
+    no move shortens the longest machine without another reaching it, the best move of
+    one of its fields to any machine, or swap of one with any other field; from the best
+    found, ``kicks`` times, three random fields go to random machines and the descent runs
+    again. Same seed, same answer. O(n) numpy work a move, O(r n) a swap (r: the longest
+    machine's fields)."""
+    hours = service_hours(problem)
+    m, n = hours.shape
+    weights = machine_weights(hours)
+    assert weights is not None  # no time limit
+    machine = np.argmin(weights[:, None] * hours, axis=0)
+    best = _descend(hours, machine)
+    rng = np.random.default_rng(seed)
+    for _ in range(kicks):
+        machine = best.copy()
+        machine[rng.integers(n, size=3)] = rng.integers(m, size=3)
+        machine = _descend(hours, machine)
+        if assignment_makespan(hours, machine) < assignment_makespan(hours, best):
+            best = machine
+    return best
+
+
+def assignment_makespan(hours: np.ndarray, machine: np.ndarray) -> float:
+    """The longest machine's hours when field j is done by ``machine[j]``, travel ignored."""
+    return float(_loads(hours, machine).max())
+
+
+def _loads(hours: np.ndarray, machine: np.ndarray) -> np.ndarray:
+    return np.bincount(
+        machine, weights=hours[machine, np.arange(hours.shape[1])], minlength=hours.shape[0]
+    )
+
+
+def _descend(hours: np.ndarray, machine: np.ndarray) -> np.ndarray:
+    """Steepest descent on the longest machine: the best move or swap of one of its fields
+    that leaves both machines it touches shorter than it was, until there is none."""
+    machine = machine.copy()
+    load = _loads(hours, machine)
+    while True:
+        top = int(np.argmax(load))
+        own = np.flatnonzero(machine == top)
+        if own.size == 0:
+            return machine
+        # Move field own[a] to machine k: [a, k] the longer of the two after it.
+        moved = np.maximum(load[None, :] + hours[:, own].T, (load[top] - hours[top, own])[:, None])
+        moved[:, top] = np.inf
+        a, k = np.unravel_index(int(np.argmin(moved)), moved.shape)
+        value, change = moved[a, k], (own[a], int(k), -1)
+        # Swap field own[a] with field other[b] of machine theirs[b].
+        other = np.flatnonzero(machine != top)
+        if other.size:
+            theirs = machine[other]
+            mine_after = load[top] - hours[top, own][:, None] + hours[top, other][None, :]
+            theirs_after = (
+                load[theirs][None, :] - hours[theirs, other][None, :] + hours[np.ix_(theirs, own)].T
+            )
+            swapped = np.maximum(mine_after, theirs_after)
+            a2, b = np.unravel_index(int(np.argmin(swapped)), swapped.shape)
+            if swapped[a2, b] < value:
+                value, change = swapped[a2, b], (own[a2], int(theirs[b]), int(other[b]))
+        if not value < load[top] - 1e-9:
+            return machine
+        field, to, back = change
+        machine[field] = to
+        if back >= 0:
+            machine[back] = top
+        load = _loads(hours, machine)

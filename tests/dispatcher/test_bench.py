@@ -5,9 +5,11 @@ import itertools
 import numpy as np
 import pytest
 from agrifleet_bench.farm import (
+    assignment_makespan,
     generate_farm,
     makespan_lower_bound,
     service_hours,
+    travel_free_assignment,
     travel_lower_bound,
 )
 
@@ -115,6 +117,33 @@ def test_the_lower_bound_is_exact_on_related_machines_and_below_any_schedule():
     assert hours.min(axis=0).max() <= bound <= load.max()
 
 
+def test_the_travel_free_assignment_is_a_plan_between_the_bound_and_a_greedy_one():
+    farm = generate_farm(60, 6, seed=1)
+    hours = service_hours(farm)
+    machine = travel_free_assignment(farm, kicks=50)
+    assert machine.shape == (60,) and set(machine.tolist()) <= set(range(6))
+    load = np.zeros(6)
+    np.add.at(load, machine, hours[machine, np.arange(60)])
+    assert assignment_makespan(hours, machine) == pytest.approx(load.max())
+    greedy = np.zeros(6)
+    for j in np.argsort(-hours.min(axis=0)):  # earliest finish, largest first
+        i = int(np.argmin(greedy + hours[:, j]))
+        greedy[i] += hours[i, j]
+    assert makespan_lower_bound(farm) <= load.max() < greedy.max()
+    assert np.array_equal(machine, travel_free_assignment(farm, kicks=50))  # same seed
+
+
+@pytest.mark.parametrize("seed", range(1, 7))
+def test_the_travel_free_assignment_finds_the_optimum_of_a_tiny_farm(seed):
+    farm = generate_farm(7, 2 + seed % 2, seed=seed)
+    hours = service_hours(farm)
+    optimum = min(
+        assignment_makespan(hours, np.array(owners))
+        for owners in itertools.product(range(farm.num_machines), repeat=7)
+    )
+    assert assignment_makespan(hours, travel_free_assignment(farm)) == pytest.approx(optimum)
+
+
 def _optimal_makespan(problem: Problem) -> float:
     """The optimum by brute force: every field's machine, every route's order (our cost
     model, planner.cost.evaluate). For a handful of fields only."""
@@ -207,6 +236,9 @@ def test_bench_farm_reports_both_bounds_and_both_gaps():
     gap = float(cells["ours gap to LBt"].removesuffix(" %"))
     assert gap == pytest.approx(100.0 * (ours / lbt - 1.0), abs=0.05)  # ours is rounded
     assert float(cells["LB"]) < float(cells["LBt"]) <= ours
+    no_travel = assignment_makespan(service_hours(farm), travel_free_assignment(farm))
+    assert float(cells["no travel"]) == pytest.approx(no_travel, abs=0.005)
+    assert float(cells["LB"]) <= float(cells["no travel"]) < ours
 
 
 def test_bench_farm_runs_ours_again_within_the_peers_makespan():
