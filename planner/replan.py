@@ -207,13 +207,15 @@ def replan_farm(
     seed: int = 1,
     previous: FarmPlan | None = None,
     makespan_slack: float = 0.0,
+    finish_within_h: float = 0.0,
 ) -> FarmPlan:
     """Allocate, order and lay out the rest of the work on ``farm`` for the alive
     ``machines``, from where they are now. Fields in ``done`` are left out; fields in
     ``in_progress`` are planned for their remaining segments; the others whole, as
     :func:`plan_farm` does. With ``previous`` (the plan being carried out), its remaining
     routes are the solver's warm start. Each machine's route ends at the garage.
-    ``makespan_slack``: as :func:`plan_farm`'s."""
+    ``makespan_slack``: as :func:`plan_farm`'s; ``finish_within_h``: :func:`plan_farm`'s
+    deadline, in hours from now (the machines' ready times count in the makespan)."""
     if not machines:
         raise ProblemError("no machines: the fleet is empty")
     done_ids = set(done)
@@ -311,6 +313,7 @@ def replan_farm(
         seed=seed,
         initial_routes=warm,
         makespan_slack=makespan_slack,
+        finish_within_h=finish_within_h,
     )
 
     plans: list[MachinePlan] = []

@@ -319,7 +319,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 )
             store.resume_run(run)
             job = run.job
-            replanner = replanner_resumed(scenario, job)
+            replanner = replanner_resumed(scenario, job, run.started)
             print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
         else:
             dispatch = plan_scenario(args, scenario)

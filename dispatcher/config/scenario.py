@@ -301,7 +301,8 @@ class SolverSettings:
     makespan_slack: float = 0.0
     # H > 0: a deadline; once a plan finishes within H hours, the road distance decides
     # among the plans that do (planner.solve.solve's finish_within_h); 0: none. Under the
-    # makespan, with hybrid only, not with a makespan slack. Re-plans do without it.
+    # makespan, with hybrid only, not with a makespan slack. It counts from the run's start:
+    # a re-plan gets what is left of it (dispatcher.tools.replan.deadline_left_h).
     finish_within_h: float = 0.0
 
 

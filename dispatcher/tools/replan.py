@@ -85,8 +85,12 @@ def replan(
     lead_s: float = LEAD_S,
     base: Mapping[str, Visit] | None = None,
     cancel: threading.Event | None = None,
+    finish_within_h: float = 0.0,
 ) -> DispatchPlan:
     """The next plan: the remaining work over the vehicles still alive (module doc).
+    ``finish_within_h`` > 0: what is left of the run's deadline (:func:`deadline_left_h`),
+    in hours from now, which the rest is planned within if it can be, the road distance
+    deciding there; 0: as early as it can.
     ``gone`` adds vehicles to leave out whatever their phase; ``lead_s`` as in the module
     doc (:func:`handover` must be given the same); ``base``: each field's first planned
     visit, whose segments ``PlannedItem.segment`` numbers (default: ``current``'s visits,
@@ -151,6 +155,7 @@ def replan(
         seed=solver.seed,
         previous=current.plan if current else None,
         makespan_slack=solver.makespan_slack,
+        finish_within_h=finish_within_h,
     )
     if cancel is not None and cancel.is_set():
         raise ReplanCancelled("given up")
@@ -323,7 +328,10 @@ def _implement_down(traces: Sequence[Trace]) -> bool:
 
 
 def replanner_for(
-    scenario: Scenario, dispatch: DispatchPlan, seconds: float = REPLAN_SOLVER_S
+    scenario: Scenario,
+    dispatch: DispatchPlan,
+    seconds: float = REPLAN_SOLVER_S,
+    started: float | None = None,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
@@ -331,19 +339,39 @@ def replanner_for(
     second argument is set (nothing of it kept); the solver stops after ``seconds``, and driving
     vehicles keep a lead of their old missions: ``LEAD_S``, plus ``seconds`` or twice what
     the last re-plan took when that is more (a big farm on a busy gateway), plus one and a
-    half times what getting missions on board took last (``FleetState.upload_s``)."""
+    half times what getting missions on board took last (``FleetState.upload_s``).
+    ``started``: when the run began (:func:`time.time`; default now), from which the
+    scenario's ``[solver] finish_within_h`` counts (:func:`run_hours`)."""
     base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
-    return _replanner(scenario, dispatch, dispatch.job(), base, seconds)
+    began = time.time() if started is None else started
+    return _replanner(scenario, dispatch, dispatch.job(), base, seconds, began)
 
 
 def replanner_resumed(
-    scenario: Scenario, job: DispatchJob, seconds: float = REPLAN_SOLVER_S
+    scenario: Scenario, job: DispatchJob, started: float, seconds: float = REPLAN_SOLVER_S
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the run's
-    first plan document, the missions as last uploaded). The fields' first layouts are laid
-    out again from that document (coverage is deterministic; each visit's corner is
-    recorded), at the first re-plan."""
-    return _replanner(scenario, None, job, None, seconds)
+    first plan document, the missions as last uploaded), ``started`` when the run began (as
+    stored). The fields' first layouts are laid out again from that document (coverage is
+    deterministic; each visit's corner is recorded), at the first re-plan."""
+    return _replanner(scenario, None, job, None, seconds, started)
+
+
+def run_hours(state: FleetState, started: float, now: float) -> float:
+    """Hours of the run from ``started`` to ``now`` (wall, :func:`time.time`) on the
+    vehicles' clocks: the wall time times the fastest measured speedup of a vehicle's clock
+    (:attr:`~dispatcher.daemon.state.RunClock.rate`; 1 for real vehicles, and until one is
+    measured)."""
+    rates = [v.clock.rate for v in state.vehicles.values() if v.clock.rate_known]
+    return max(now - started, 0.0) * max(rates, default=1.0) / 3600.0
+
+
+def deadline_left_h(finish_within_h: float, elapsed_h: float) -> float:
+    """What is left, in hours from now, of a deadline ``finish_within_h`` hours after the
+    run began, ``elapsed_h`` into it; 0 (none) when there is no deadline or it has passed:
+    the rest is then finished as early as it can be."""
+    left = finish_within_h - elapsed_h
+    return left if finish_within_h > 0.0 and left > 0.0 else 0.0
 
 
 def first_visits(scenario: Scenario, document: PlanDocument) -> dict[str, Visit]:
@@ -365,6 +393,7 @@ def _replanner(
     job: DispatchJob,
     base: dict[str, Visit] | None,
     seconds: float,
+    started: float,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     current = dispatch
     took_s = (
@@ -378,7 +407,13 @@ def _replanner(
             base = first_visits(scenario, job.document)
         lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
         stop = stop_after(scenario.solver.generations, seconds, flag=cancel)
-        nxt = replan(scenario, current, state, stop=stop, lead_s=lead_s, base=base, cancel=cancel)
+        left_h = deadline_left_h(
+            scenario.solver.finish_within_h, run_hours(state, started, time.time())
+        )
+        nxt = replan(
+            scenario, current, state, stop=stop, lead_s=lead_s, base=base, cancel=cancel,
+            finish_within_h=left_h,
+        )  # fmt: skip
         for m in nxt.plan.machines:  # a field planned whole again is numbered anew
             base.update({v.field.id: v for v in m.visits if not v.original_segments})
         job = handover(job, state, nxt, lead_s)

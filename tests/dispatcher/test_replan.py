@@ -236,3 +236,67 @@ def test_the_scenarios_makespan_slack_reaches_the_solver_of_the_plan_and_the_re_
     state.apply(ev.VehicleLost("v2", "heartbeats stopped"), 1.0)
     replan(scenario, first, state, stop=stop_after(5))
     assert slacks == [0.02, 0.02]
+
+
+def _lost_one(scenario):  # type: ignore[no-untyped-def]
+    """The scenario's first plan (hybrid, a few generations), its vehicles driving, v1 lost."""
+    from agrifleet.api import dispatch_for
+
+    solver = dataclasses.replace(scenario.solver, algorithm="hybrid", generations=30)
+    scenario = dataclasses.replace(scenario, solver=solver)
+    first = dispatch_for(scenario, "makespan", 30.0)
+    state = FleetState(first.document)
+    for vid in state.vehicles:
+        started(state, vid)
+    state.apply(ev.VehicleLost("v1", "heartbeats stopped"), 1.0)
+    return scenario, first, state
+
+
+def test_a_re_plan_within_what_is_left_of_the_deadline_drives_less_road():
+    """With room under the deadline the rest is planned for the road distance: on the
+    three-tractor farm with one lost, as early as it can the two left share the two fields;
+    within 1.5 times that, one tractor does both and the fleet drives less."""
+    scenario, first, state = _lost_one(load_scenario(DATA / "restart3.toml"))
+    early = replan(scenario, first, state, stop=stop_after(30))
+    deadline = 1.5 * early.plan.makespan_h
+    within = replan(scenario, first, state, stop=stop_after(30), finish_within_h=deadline)
+    assert within.plan.makespan_h <= deadline
+    assert within.plan.distance_m < early.plan.distance_m - 100.0
+
+
+def test_the_replanner_gives_the_re_plan_what_is_left_of_the_runs_deadline(monkeypatch):
+    """``[solver] finish_within_h`` counts from the run's start: a re-plan two hours in is
+    given eight hours of a ten-hour deadline, and none once it has passed (the rest then
+    finishes as early as it can)."""
+    import planner.replan
+    from dispatcher.tools.replan import replanner_for
+
+    scenario, first, state = _lost_one(load_scenario(DATA / "restart3.toml"))
+    solver = dataclasses.replace(scenario.solver, finish_within_h=10.0)
+    scenario = dataclasses.replace(scenario, solver=solver)
+    given = []
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        given.append(kwargs["finish_within_h"])
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(planner.replan, "solve", spy)
+    for hours_ago in (2.0, 11.0):
+        replanner = replanner_for(scenario, first, 0.2, started=time.time() - 3600.0 * hours_ago)
+        replanner(state, threading.Event())
+    assert given[0] == pytest.approx(8.0, abs=0.01) and given[1] == 0.0
+
+
+def test_the_runs_hours_are_counted_on_the_vehicles_clocks(current):
+    from dispatcher.tools.replan import deadline_left_h, run_hours
+
+    state = FleetState(current.document)
+    assert run_hours(state, 100.0, 100.0 + 1800.0) == pytest.approx(0.5)  # no rate known: 1
+    clock = state.vehicles["v2"].clock
+    clock.update(0.0, 0.0)
+    clock.update(40.0, 2.0)  # a simulated tractor at 20 x
+    assert run_hours(state, 100.0, 100.0 + 1800.0) == pytest.approx(10.0)
+    assert run_hours(state, 100.0, 50.0) == 0.0
+    assert deadline_left_h(12.0, 10.0) == pytest.approx(2.0)
+    assert deadline_left_h(12.0, 12.5) == 0.0  # passed: none
+    assert deadline_left_h(0.0, 1.0) == 0.0  # no deadline
