@@ -11,6 +11,7 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -20,11 +21,14 @@ from dispatcher.config.errors import ConfigError
 from dispatcher.daemon.state import FieldState, Phase, VehicleState
 from dispatcher.mission.document import PlannedItem
 from dispatcher.tools.demo import (
+    MAX_AUTO_SPEEDUP,
+    TARGET_WALL_S,
     DemoFaults,
     Fault,
     FaultInjector,
     LiveStatus,
     Supervisor,
+    auto_speedup,
     demo_faults,
     describe_exit,
     fleet_share_done,
@@ -330,3 +334,12 @@ def test_the_live_view_fits_80_columns_and_ends_on_the_final_state() -> None:
     assert "15/15 fields done" in last and "lost (simulator" in text, text
     # Hours since each tractor set off (its clock at the start: 10 000 s less 1 s at 1x).
     assert status.worked_s(_six_tractors(0).vehicles["tractor-0"]) == pytest.approx(1.0)
+
+
+def test_the_default_speedup_fits_the_plan_into_the_target_but_not_faster_than_the_ceiling():
+    def plan(hours: float):  # type: ignore[no-untyped-def]
+        return SimpleNamespace(plan=SimpleNamespace(makespan_h=hours))
+
+    assert auto_speedup(plan(10.0)) == pytest.approx(10.0 * 3600.0 / TARGET_WALL_S)  # 800x
+    assert auto_speedup(plan(0.001)) == 1.0  # never slower than real time
+    assert auto_speedup(plan(40.0)) == MAX_AUTO_SPEEDUP  # 3 200x would make it late
