@@ -92,7 +92,7 @@ def bench_soak(
                 window_items=dispatch.scenario.watch.window_items,
                 alive_timeout_s=120.0,
                 on_progress=lambda state: None,
-                replanner=replanner_for(dispatch.scenario, dispatch),
+                replanner=replanner_for(dispatch.scenario, dispatch, started=time.time()),
                 keys=_keys(scenario_path),
             )
         )

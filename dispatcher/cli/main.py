@@ -16,6 +16,7 @@ import json
 import logging
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -325,9 +326,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
             dispatch = plan_scenario(args, scenario)
             print_plan_table(dispatch)
             job = dispatch.job()
-            run_id = store.begin_run(job, fingerprint)
+            started = time.time()
+            run_id = store.begin_run(job, fingerprint, started)
             print(f"run {run_id} kept in {store.path}")
-            replanner = replanner_for(scenario, dispatch)
+            replanner = replanner_for(scenario, dispatch, started=started)
         daemon = Dispatcher(
             DaemonConfig(
                 job=job,

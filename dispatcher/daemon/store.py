@@ -253,8 +253,9 @@ class Store:
             raise StoreError(f"{where}: events of vehicles not in its plan: {sorted(unknown)}")
         return StoredRun(run_id, job, fingerprint, started, events)
 
-    def begin_run(self, job: DispatchJob, fingerprint: str) -> int:
-        """Keep a new run's job; its events follow. There must be no unfinished run."""
+    def begin_run(self, job: DispatchJob, fingerprint: str, started: float | None = None) -> int:
+        """Keep a new run's job, begun at ``started`` (:func:`time.time`; default now); its
+        events follow. There must be no unfinished run."""
         if job.farm_id != self.farm_id:
             raise StoreError(
                 f"{self.path}: plan of farm {job.farm_id!r} in {self.farm_id!r}'s store"
@@ -269,7 +270,7 @@ class Store:
                     job.plan_id,
                     job.farm_id,
                     fingerprint,
-                    time.time(),
+                    time.time() if started is None else started,
                     job.document.to_json(),
                     json.dumps(job.geojson),
                 ),

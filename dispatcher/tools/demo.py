@@ -504,7 +504,8 @@ def run_demo(
     store = Store.open(log_dir / "state" / dispatch.document.farm_id, dispatch.document.farm_id)
     store.abandon_unfinished()
     job = dispatch.job()
-    store.begin_run(job, fingerprint="demo")
+    started = time.time()
+    store.begin_run(job, fingerprint="demo", started=started)
     # Throwaway signing keys, one per tractor, for this demo only (beside its logs).
     keys_dir = log_dir / "keys" / dispatch.document.farm_id
     write_keys(keys_dir, list(dispatch.missions), replace=True)
@@ -522,7 +523,7 @@ def run_demo(
         window_items=dispatch.scenario.watch.window_items,
         topup_lead_s=dispatch.scenario.watch.topup_lead_s,
         on_progress=printer,
-        replanner=replanner_for(dispatch.scenario, dispatch),
+        replanner=replanner_for(dispatch.scenario, dispatch, started=started),
         keys=keys,
         foxglove=foxglove,
     )

@@ -331,7 +331,8 @@ def replanner_for(
     scenario: Scenario,
     dispatch: DispatchPlan,
     seconds: float = REPLAN_SOLVER_S,
-    started: float | None = None,
+    *,
+    started: float,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """What the daemon calls to plan the rest of the work (``DaemonConfig.replanner``):
     each call plans from the state it is given against the plan carried out so far, and
@@ -340,11 +341,10 @@ def replanner_for(
     vehicles keep a lead of their old missions: ``LEAD_S``, plus ``seconds`` or twice what
     the last re-plan took when that is more (a big farm on a busy gateway), plus one and a
     half times what getting missions on board took last (``FleetState.upload_s``).
-    ``started``: when the run began (:func:`time.time`; default now), from which the
-    scenario's ``[solver] finish_within_h`` counts (:func:`run_hours`)."""
+    ``started``: when the run began (:func:`time.time`, as its store keeps it), from which
+    the scenario's ``[solver] finish_within_h`` counts (:func:`run_hours`)."""
     base = {v.field.id: v for m in dispatch.plan.machines for v in m.visits}
-    began = time.time() if started is None else started
-    return _replanner(scenario, dispatch, dispatch.job(), base, seconds, began)
+    return _replanner(scenario, dispatch, dispatch.job(), base, seconds, started)
 
 
 def replanner_resumed(

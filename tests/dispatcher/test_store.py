@@ -55,6 +55,19 @@ def test_a_run_is_kept_and_read_back_as_it_was(dispatch: DispatchPlan, tmp_path:
     store.close()
 
 
+def test_a_run_keeps_when_it_began(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    """The start the daemon's re-planner counts a deadline from, given, or now."""
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(dispatch.job(), "x", started=1234.5)
+    run = store.unfinished_run()
+    assert run is not None and run.started == 1234.5
+    store.end_run("done")
+    store.begin_run(dispatch.job(), "y")
+    run = store.unfinished_run()
+    assert run is not None and run.started > 1234.5
+    store.close()
+
+
 def test_uncommitted_events_are_not_kept(dispatch: DispatchPlan, tmp_path: Path) -> None:
     store = Store.open(tmp_path, "tiny")
     store.begin_run(dispatch.job(), "x")
