@@ -56,8 +56,8 @@ ArduPilot behaviour followed (sources are ArduPilot files):
 * Ground-station failsafe (``Rover::gcs_failsafe_check``, ``failsafe_trigger``), when
   ``RoverParams.gcs_failsafe_s`` is set (FS_GCS_ENABLE = 1, FS_GCS_TIMEOUT, FS_ACTION = 2
   Hold): once a ground station's HEARTBEAT has been heard, an armed vehicle that hears
-  nothing from its system id for that long switches to HOLD ("Failsafe GCS"); it stays
-  there when the ground station is back (which starts it again).
+  nothing from its system id for that long switches to HOLD ("GCS Failsafe"); it stays
+  there when the ground station is back ("GCS Failsafe Cleared"), which starts it again.
 * Messages addressed to another system or component are ignored.
 """
 
@@ -225,6 +225,7 @@ class SimTractor:
         self._last_mission_current: tuple[int, int, int, int] | None = None
         self._gcs_system: int | None = None  # the ground station's system id, once heard
         self._gcs_heard_at: float | None = None  # sim time it was last heard
+        self._gcs_failsafe_on = False  # triggered, and the ground station not heard since
         self.servo_pwm: dict[int, int] = {}
         self.relays: dict[int, bool] = {}
 
@@ -308,6 +309,10 @@ class SimTractor:
             self._gcs_system = msg.get_srcSystem()
         if msg.get_srcSystem() == self._gcs_system:  # any message of it (MAV_GCS_SYSID)
             self._gcs_heard_at = self._t
+            if self._gcs_failsafe_on:
+                self._gcs_failsafe_on = False
+                if self.params.status_texts:
+                    out.append(_statustext(mc.MAV_SEVERITY_INFO, "GCS Failsafe Cleared"))
         if not self._addressed_to_me(msg):
             return out
         kind = msg.get_type()
@@ -704,7 +709,8 @@ class SimTractor:
     def _gcs_failsafe(self) -> list[mc.MAVLinkMessage]:
         logger.warning("system %d: no ground station heard: failsafe HOLD", self.system_id)
         _, out = self._set_mode(Mode.HOLD)
-        text = [_statustext(mc.MAV_SEVERITY_WARNING, "Failsafe GCS")]
+        self._gcs_failsafe_on = True
+        text = [_statustext(mc.MAV_SEVERITY_WARNING, "GCS Failsafe")]
         return (text if self.params.status_texts else []) + out
 
     def _break_down(self) -> None:

@@ -8,6 +8,7 @@ once, the driven track on the swaths, the implement never down outside a field.
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -192,6 +193,44 @@ def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(
     review = review_log(path)
     check_worked_once(review)
     assert any("Battery" in w for w in review.warnings), review_table(review)
+
+
+def test_a_rover_held_by_its_ground_station_failsafe_goes_on_once_it_hears_the_dispatcher(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    # The radio gone (the bridge stopped) for longer than FS_GCS_TIMEOUT, not long enough for
+    # the dispatcher to take the rover for lost: ArduPilot holds, says so ("... Failsafe"),
+    # and stays in HOLD when our heartbeats reach it again ("GCS Failsafe Cleared").
+    sitl.params = {**sitl.params, "FS_GCS_TIMEOUT": 1.5 * SPEEDUP}  # 1.5 wall seconds
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    bridge = procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+
+        def under_way() -> bool:
+            if serve.poll() is not None:
+                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
+            state.update(status().get("vehicles", {}).get("r1", {}))
+            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.3
+
+        wait_for("30 % of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl))
+    bridge.send_signal(signal.SIGSTOP)
+    try:
+        gone = time.monotonic()  # the outage: 3.5 s, the dispatcher's limit is 5 s
+        wait_for("the radio to be gone 3.5 s", lambda: time.monotonic() - gone > 3.5, 5.0)
+    finally:
+        bridge.send_signal(signal.SIGCONT)
+    assert finished(serve, procs, sitl) == 0, procs.report(sitl)
+    path = log_of(Processes.output(serve))
+    lines = [r.decode_json()["message"] for r in read_log(path).on(LOG_TOPIC)]
+    assert any("its failsafe held it" in ln and "going on at item" in ln for ln in lines), lines
+    assert not any("lost" in ln for ln in lines), lines
+    review = review_log(path)
+    check_worked_once(review)
+    (v,) = review.vehicles
+    assert any("Failsafe" in t for t in v.autopilot_problems), review_table(review)
 
 
 def test_a_dispatcher_killed_mid_mission_finds_the_rover_on_its_mission_and_keeps_it(

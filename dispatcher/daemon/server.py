@@ -70,8 +70,12 @@ EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lo
 EXIT_INTERRUPTED = 130
 LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
-FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
+FAILSAFE_CLEAR_WAIT_S = 3.0
+"""Wall seconds a vehicle stopped by its ground-station failsafe is to be heard after it
+before it is started again without having said the failsafe is over (the text was lost):
+three HEARTBEATs of ours have gone to it meanwhile."""
+FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per vehicle
 RENUMBER_MARGIN_S = 0.5
 """Wall seconds a driving vehicle is to be at least that far from the item it drives to,
 beyond twice the upload's time, for its mission to be renumbered under it."""
@@ -194,6 +198,7 @@ class _Link:
     renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     starts: int = 0  # start attempts unanswered in a row
+    failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
     heard_at: float | None = None  # when this process first heard the vehicle
     round_trip: RoundTrip = field(default_factory=RoundTrip)  # measured by its transfers
 
@@ -672,6 +677,14 @@ class Dispatcher:
             return
         if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
             self._restart(v, link, now)
+        elif failsafe := self._failsafe_over(v, link):
+            link.start_item = v.resume_item
+            self._log(
+                "warning",
+                f"{vid}: its failsafe held it (autopilot: {failsafe}), for want of our "
+                f"heartbeats; it hears us again: going on at item {link.start_item}",
+            )
+            self._start(v, link, now)
         elif (
             link.hold is not None
             and link.hold.outcome is not Outcome.RUNNING
@@ -762,6 +775,28 @@ class Dispatcher:
             if link.renumbered:
                 self._after_renumbering(v, link, now)
             self._advance_topup(v, link, now)
+
+    def _failsafe_over(self, v: VehicleState, link: _Link) -> str | None:
+        """The text of the ground-station failsafe that put a running vehicle out of AUTO,
+        once it is over: the autopilot said so ("... Failsafe Cleared": a HEARTBEAT of ours
+        reached it), or it has been heard for FAILSAFE_CLEAR_WAIT_S since. None otherwise,
+        and for a vehicle out of AUTO with no such text (the operator's doing: left alone),
+        one we told to HOLD (lost: started again when back), or while a re-plan may give
+        its work away. Each failsafe once."""
+        if v.phase is not Phase.RUNNING or v.off_auto_since is None or not v.ready:
+            return None
+        if link.busy or link.hold is not None or self._replan is not None or self._replan_reason:
+            return None
+        since = max(v.off_auto_since - TEXT_WINDOW_S, link.failsafe_seen + 1e-9)
+        found = v.failsafe(since)
+        if found is None:
+            return None
+        at, text, cleared = found
+        heard_since = (v.last_seen or 0.0) - max(at, v.off_auto_since)
+        if not cleared and heard_since < FAILSAFE_CLEAR_WAIT_S:
+            return None
+        link.failsafe_seen = at
+        return text
 
     def _held_differences(self, v: VehicleState, read: MissionDownload) -> list[str]:
         """Where what ``read`` read back differs from the part of our mission the vehicle

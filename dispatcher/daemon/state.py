@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import enum
 import math
+import re
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -58,6 +59,14 @@ CURRENT_SETTLE_S = 2.0
 """Wall seconds after a start before MISSION_CURRENT counts as news of the started mission."""
 TEXT_WINDOW_S = 10.0
 """How far back (wall seconds) an autopilot's problem text explains a refusal."""
+FAILSAFE_TEXT = re.compile(r"^(?:(?:GCS|Radio) Failsafe|Failsafe trigger: .*\b(?:GCS|Radio)\b.*)$")
+"""An ArduPilot Rover failsafe for want of its ground station (Rover/failsafe.cpp,
+``failsafe_trigger``: "%s Failsafe"; "Failsafe trigger: %s" since 4.7). The name is that of
+the check that happened to cross FS_TIMEOUT, not of the cause: our SITL (4.7.0-dev) names
+a ground-station failsafe "Radio Failsafe" as often as "GCS Failsafe" (docs/bridge.md)."""
+FAILSAFE_CLEARED_TEXT = re.compile(r"^\w+ Failsafe Cleared$")
+"""ArduPilot's word that every failsafe is over ("%s Failsafe Cleared": for ours, once a
+HEARTBEAT of ours reached it again)."""
 
 
 @dataclass
@@ -267,6 +276,19 @@ class VehicleState:
             if t >= since and severity <= PROBLEM_SEVERITY and text not in out:
                 out.append(text)
         return out
+
+    def failsafe(self, since: float) -> tuple[float, str, bool] | None:
+        """The autopilot's last failsafe for want of its ground station said since
+        ``since`` (wall): when, its text, and whether it said the failsafe is over since."""
+        found: tuple[float, str, bool] | None = None
+        for t, _, text in self.texts:
+            if t < since:
+                continue
+            if FAILSAFE_TEXT.match(text):
+                found = (t, text, False)
+            elif found is not None and FAILSAFE_CLEARED_TEXT.match(text):
+                found = (found[0], found[1], True)
+        return found
 
     def explain(self, reason: str, since: float) -> str:
         """``reason`` with what the autopilot said about it since ``since``."""

@@ -280,6 +280,72 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     assert v.phase is Phase.STARTING and v.reached == 7
 
 
+def daemon_driving_v1(dispatch, reached):
+    """A daemon whose v1 drives its mission, ``reached`` its last item reached."""
+    daemon = daemon_for(dispatch)
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    for event in running_events("v1", reached):
+        daemon._apply(event, 0.0)
+    feed(daemon.state, "v1", driving_heartbeat(11), 0.0)
+    return daemon
+
+
+def holding(sysid):
+    """A HEARTBEAT of a vehicle in HOLD, armed (how a failsafe or the operator stops it)."""
+    msg = heartbeat(sysid)
+    msg.custom_mode, msg.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("said", "cleared"),
+    [
+        ("GCS Failsafe", "GCS Failsafe Cleared"),  # Rover 4.6, the simulator
+        ("Radio Failsafe", "GCS Failsafe Cleared"),  # the same, named by the radio's check
+        ("Failsafe trigger: GCS", None),  # Rover 4.7; "Cleared" lost on the radio
+    ],
+)
+def test_a_vehicle_held_by_its_ground_station_failsafe_goes_on_once_it_hears_us(
+    dispatch, said, cleared
+):
+    daemon = daemon_driving_v1(dispatch, 7)
+    v = daemon.state.vehicles["v1"]
+    feed(daemon.state, "v1", statustext(11, said, mc.MAV_SEVERITY_WARNING), 10.0)
+    feed(daemon.state, "v1", holding(11), 10.0)
+    daemon._advance("v1", 10.1)
+    assert not commands_to(daemon, "v1", 11)  # the failsafe holds until a beat of ours
+    if cleared is not None:
+        feed(daemon.state, "v1", statustext(11, cleared, mc.MAV_SEVERITY_INFO), 10.9)
+    else:
+        feed(daemon.state, "v1", holding(11), 12.9)
+        daemon._advance("v1", 12.95)
+        assert not commands_to(daemon, "v1", 11)  # heard for less than 3 s yet
+        feed(daemon.state, "v1", holding(11), 13.0)
+    daemon._advance("v1", 13.1)
+    # From the item after the last one reached (then arm, AUTO: each once this one's ACK
+    # is in).
+    assert commands_to(daemon, "v1", 11) == [(mc.MAV_CMD_DO_SET_MISSION_CURRENT, 8.0)]
+    assert v.phase is Phase.STARTING
+    v.phase, daemon.links["v1"].start = Phase.RUNNING, None  # started, and in HOLD again:
+    daemon.publishers["v1"].frames.clear()  # not for the same failsafe
+    feed(daemon.state, "v1", holding(11), 14.0)
+    daemon._advance("v1", 20.0)
+    assert not commands_to(daemon, "v1", 11)
+
+
+def test_a_vehicle_the_operator_stopped_is_left_alone(dispatch):
+    daemon = daemon_driving_v1(dispatch, 7)
+    feed(daemon.state, "v1", statustext(11, "GCS Failsafe", mc.MAV_SEVERITY_WARNING), 1.0)
+    feed(daemon.state, "v1", statustext(11, "GCS Failsafe Cleared", mc.MAV_SEVERITY_INFO), 2.0)
+    daemon._advance("v1", 2.1)  # a failsafe over while it drove on in AUTO: nothing to do
+    feed(daemon.state, "v1", holding(11), 30.0)  # the operator put it in HOLD, long after
+    for now in (31.0, 36.0, 45.0):
+        feed(daemon.state, "v1", holding(11), now)
+        daemon._tick(now)
+    assert not commands_to(daemon, "v1", 11)
+    assert daemon.state.vehicles["v1"].error.startswith("left AUTO")
+
+
 def test_a_vehicle_left_in_auto_is_put_in_hold_before_its_next_start(dispatch):
     from dispatcher.link.mission_protocol import start_mission_commands
 

@@ -21,6 +21,10 @@ def send(tractor: SimTractor, wire: Wire, msg: mc.MAVLinkMessage) -> list[mc.MAV
     return wire.down(tractor.handle(wire.up(msg), tractor.sim_time))
 
 
+def texts(messages: list[mc.MAVLinkMessage]) -> list[str]:
+    return [mc.statustext(m) for m in messages if m.get_type() == "STATUSTEXT"]
+
+
 def upload(tractor: SimTractor, wire: Wire, mission: Mission) -> None:
     items = mission.to_mavlink(wire.vehicle_system)
     replies = send(tractor, wire, wire.mission_msg("MISSION_COUNT", count=len(items)))
@@ -414,12 +418,15 @@ def test_the_ground_station_failsafe_holds_where_the_heartbeats_stopped(
     heard_at, seq = tractor.sim_time, tractor.current_seq
     events = wire.down(tractor.advance(60.0))
     assert tractor.mode == Mode.HOLD and tractor.armed
-    assert any(m.get_type() == "STATUSTEXT" and "Failsafe" in m.text for m in events)
+    assert "GCS Failsafe" in texts(events)
     lat, lon = tractor.lat, tractor.lon
     tractor.advance(100.0)  # it stands where the failsafe stopped it, 5 s after the last
     assert (tractor.lat, tractor.lon) == (lat, lon)
-    send(tractor, wire, gcs_beat)  # the ground station is back: it stays in HOLD
-    tractor.advance(10.0)
+    back = send(tractor, wire, gcs_beat)  # the ground station is back
+    assert [t for t in texts(back) if "Failsafe" in t] == ["GCS Failsafe Cleared"]
+    back = send(tractor, wire, gcs_beat)  # said once
+    assert not [t for t in texts(back) if "Failsafe" in t]
+    tractor.advance(10.0)  # it stays in HOLD (the ground station starts it again)
     assert tractor.mode == Mode.HOLD and tractor.current_seq >= seq
     assert heard_at + 5.0 <= tractor.sim_time
     with pytest.raises(ValueError, match="gcs_failsafe_s"):
