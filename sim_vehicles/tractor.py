@@ -15,7 +15,9 @@ ArduPilot behaviour followed (sources are ArduPilot files):
 * HEARTBEAT (``Rover/GCS_MAVLink_Rover.cpp``): type GROUND_ROVER, autopilot
   ARDUPILOTMEGA, base_mode CUSTOM_MODE_ENABLED plus GUIDED_ENABLED in AUTO/GUIDED/RTL,
   MANUAL_INPUT_ENABLED in MANUAL, SAFETY_ARMED when armed; custom_mode = mode number;
-  system_status STANDBY in HOLD, ACTIVE otherwise (that is Rover's rule, not "armed").
+  system_status CRITICAL in a failsafe, else STANDBY in HOLD, ACTIVE otherwise (that is
+  Rover's rule, ``vehicle_system_status``, not "armed"; SITL says CRITICAL in HOLD from the
+  ground-station failsafe until the ground station is heard again).
 * COMMAND_LONG / COMMAND_INT are answered with COMMAND_ACK(command, result, target = the
   sender) (``GCS_Common.cpp`` ``handle_command_long``):
   ARM_DISARM param1 1 arms, 0 disarms (ACCEPTED also when already so; anything else
@@ -761,7 +763,12 @@ class SimTractor:
             base |= mc.MAV_MODE_FLAG_GUIDED_ENABLED
         if self._armed:
             base |= mc.MAV_MODE_FLAG_SAFETY_ARMED
-        status = mc.MAV_STATE_STANDBY if self._mode == Mode.HOLD else mc.MAV_STATE_ACTIVE
+        if self._gcs_failsafe_on:
+            status = mc.MAV_STATE_CRITICAL
+        elif self._mode == Mode.HOLD:
+            status = mc.MAV_STATE_STANDBY
+        else:
+            status = mc.MAV_STATE_ACTIVE
         return mc.message(
             "HEARTBEAT",
             type=mc.MAV_TYPE_GROUND_ROVER,

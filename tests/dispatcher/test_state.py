@@ -294,6 +294,7 @@ def holding(sysid):
     """A HEARTBEAT of a vehicle in HOLD, armed (how a failsafe or the operator stops it)."""
     msg = heartbeat(sysid)
     msg.custom_mode, msg.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED
+    msg.system_status = mc.MAV_STATE_STANDBY  # Rover's in HOLD
     return msg
 
 
@@ -311,11 +312,16 @@ def test_a_vehicle_held_by_its_ground_station_failsafe_goes_on_once_it_hears_us(
     daemon = daemon_driving_v1(dispatch, 7)
     v = daemon.state.vehicles["v1"]
     feed(daemon.state, "v1", statustext(11, said, mc.MAV_SEVERITY_WARNING), 10.0)
-    feed(daemon.state, "v1", holding(11), 10.0)
+    in_failsafe = holding(11)
+    in_failsafe.system_status = mc.MAV_STATE_CRITICAL  # ArduPilot's, until it hears us
+    feed(daemon.state, "v1", in_failsafe, 10.0)
     daemon._advance("v1", 10.1)
     assert not commands_to(daemon, "v1", 11)  # the failsafe holds until a beat of ours
     if cleared is not None:
         feed(daemon.state, "v1", statustext(11, cleared, mc.MAV_SEVERITY_INFO), 10.9)
+        daemon._advance("v1", 10.95)
+        assert not commands_to(daemon, "v1", 11)  # its heartbeat says critical yet
+        feed(daemon.state, "v1", holding(11), 11.0)
     else:
         feed(daemon.state, "v1", holding(11), 12.9)
         daemon._advance("v1", 12.95)

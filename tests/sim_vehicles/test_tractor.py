@@ -419,6 +419,8 @@ def test_the_ground_station_failsafe_holds_where_the_heartbeats_stopped(
     events = wire.down(tractor.advance(60.0))
     assert tractor.mode == Mode.HOLD and tractor.armed
     assert "GCS Failsafe" in texts(events)
+    (beat,) = only(wire.down(tractor.heartbeat(tractor.sim_time)), "HEARTBEAT")
+    assert beat.system_status == mc.MAV_STATE_CRITICAL  # as SITL says it in the failsafe
     lat, lon = tractor.lat, tractor.lon
     tractor.advance(100.0)  # it stands where the failsafe stopped it, 5 s after the last
     assert (tractor.lat, tractor.lon) == (lat, lon)
@@ -426,6 +428,8 @@ def test_the_ground_station_failsafe_holds_where_the_heartbeats_stopped(
     assert [t for t in texts(back) if "Failsafe" in t] == ["GCS Failsafe Cleared"]
     back = send(tractor, wire, gcs_beat)  # said once
     assert not [t for t in texts(back) if "Failsafe" in t]
+    (beat,) = only(wire.down(tractor.heartbeat(tractor.sim_time)), "HEARTBEAT")
+    assert beat.system_status == mc.MAV_STATE_STANDBY
     tractor.advance(10.0)  # it stays in HOLD (the ground station starts it again)
     assert tractor.mode == Mode.HOLD and tractor.current_seq >= seq
     assert heard_at + 5.0 <= tractor.sim_time
