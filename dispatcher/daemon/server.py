@@ -777,18 +777,21 @@ class Dispatcher:
             self._advance_topup(v, link, now)
 
     def _failsafe_over(self, v: VehicleState, link: _Link) -> str | None:
-        """The text of the ground-station failsafe that put a running vehicle out of AUTO,
-        once it is over: the autopilot said so ("... Failsafe Cleared": a HEARTBEAT of ours
+        """What said a ground-station failsafe put a running vehicle out of AUTO (its text,
+        or its HEARTBEAT's CRITICAL: :meth:`VehicleState.failsafe`), once it is over: the
+        autopilot said so ("... Failsafe Cleared", or STANDBY again: a HEARTBEAT of ours
         reached it), or it has been heard for FAILSAFE_CLEAR_WAIT_S since. None otherwise,
-        and for a vehicle out of AUTO with no such text (the operator's doing: left alone),
+        and for a vehicle out of AUTO with no such word (the operator's doing: left alone),
         one we told to HOLD (lost: started again when back), or while a re-plan may give
         its work away. Each failsafe once."""
         if v.phase is not Phase.RUNNING or v.off_auto_since is None or not v.ready:
             return None
         if link.busy or link.hold is not None or self._replan is not None or self._replan_reason:
             return None
-        since = max(v.off_auto_since - TEXT_WINDOW_S, link.failsafe_seen + 1e-9)
-        found = v.failsafe(since)
+        after = link.failsafe_seen + 1e-9
+        found = v.failsafe(
+            max(v.off_auto_since - TEXT_WINDOW_S, after), max(v.off_auto_since, after)
+        )
         if found is None:
             return None
         at, text, cleared = found

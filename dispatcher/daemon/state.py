@@ -67,6 +67,9 @@ a ground-station failsafe "Radio Failsafe" as often as "GCS Failsafe" (docs/brid
 FAILSAFE_CLEARED_TEXT = re.compile(r"^\w+ Failsafe Cleared$")
 """ArduPilot's word that every failsafe is over ("%s Failsafe Cleared": for ours, once a
 HEARTBEAT of ours reached it again)."""
+EKF_FAILSAFE_TEXT = re.compile(r"^EKF failsafe$", re.IGNORECASE)
+"""Rover's failsafe for a position it cannot trust (``failsafe_ekf_event``): its HEARTBEAT
+says CRITICAL as in the ground station's, but that one is for the operator to look at."""
 
 
 @dataclass
@@ -200,6 +203,7 @@ class VehicleState:
     moved_since_start: bool = False
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
+    critical_at: float | None = None  # wall time of its last HEARTBEAT saying CRITICAL
     witness: ProgressWitness = field(default_factory=ProgressWitness)  # its track vs claims
     alarms: int = 0  # progress doubted, commands on its key the dispatcher did not send
     verify_mission: bool = False  # a foreign command: read its mission back, restore it
@@ -277,18 +281,29 @@ class VehicleState:
                 out.append(text)
         return out
 
-    def failsafe(self, since: float) -> tuple[float, str, bool] | None:
-        """The autopilot's last failsafe for want of its ground station said since
-        ``since`` (wall): when, its text, and whether it said the failsafe is over since."""
+    def failsafe(self, since: float, held_since: float) -> tuple[float, str, bool] | None:
+        """The autopilot's last failsafe for want of its ground station: when, what said
+        so, and whether it said the failsafe is over since. Said by its text since ``since``
+        (wall), or (the text lost on the radio) by a HEARTBEAT saying CRITICAL since
+        ``held_since`` (out of AUTO), as Rover says for exactly its radio, ground-station
+        and EKF failsafes; over when the text says so or a later HEARTBEAT is STANDBY or
+        ACTIVE again. None after an EKF failsafe."""
         found: tuple[float, str, bool] | None = None
         for t, _, text in self.texts:
             if t < since:
                 continue
+            if EKF_FAILSAFE_TEXT.match(text):
+                return None
             if FAILSAFE_TEXT.match(text):
                 found = (t, text, False)
             elif found is not None and FAILSAFE_CLEARED_TEXT.match(text):
                 found = (found[0], found[1], True)
-        return found
+        if self.critical_at is None or self.critical_at < held_since:
+            return found
+        over = self.system_status in READY_STATES  # a HEARTBEAT after the critical one
+        if found is None:
+            return (self.critical_at, "HEARTBEAT system_status CRITICAL", over)
+        return (found[0], found[1], found[2] or over)
 
     def explain(self, reason: str, since: float) -> str:
         """``reason`` with what the autopilot said about it since ``since``."""
@@ -579,7 +594,7 @@ class FleetState:
         v.error = ""
         v.last_seen = v.lost_at = v.off_auto_since = None
         v.phase_before_lost = None
-        v.mode = v.system_status = v.mission_total = v.mission_state = None
+        v.mode = v.system_status = v.mission_total = v.mission_state = v.critical_at = None
         v.armed = False
 
     def _back(self, v: VehicleState, now: float) -> None:
@@ -681,6 +696,8 @@ class FleetState:
                 out.append(ev.Rebooted(vid))  # booting again (before its clock tells)
             else:
                 v.system_status = status
+                if status == mc.MAV_STATE_CRITICAL:
+                    v.critical_at = now
             if v.needs_restart or v.held_for_route:
                 v.off_auto_since = None  # expected: the daemon starts it again
             elif v.phase is Phase.RUNNING and (v.mode != ROVER_MODE_AUTO or not v.armed):

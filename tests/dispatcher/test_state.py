@@ -303,7 +303,8 @@ def holding(sysid):
     [
         ("GCS Failsafe", "GCS Failsafe Cleared"),  # Rover 4.6, the simulator
         ("Radio Failsafe", "GCS Failsafe Cleared"),  # the same, named by the radio's check
-        ("Failsafe trigger: GCS", None),  # Rover 4.7; "Cleared" lost on the radio
+        # Rover 4.7; "Cleared" lost on the radio, and the CRITICAL heartbeats too
+        ("Failsafe trigger: GCS", None),
     ],
 )
 def test_a_vehicle_held_by_its_ground_station_failsafe_goes_on_once_it_hears_us(
@@ -313,7 +314,8 @@ def test_a_vehicle_held_by_its_ground_station_failsafe_goes_on_once_it_hears_us(
     v = daemon.state.vehicles["v1"]
     feed(daemon.state, "v1", statustext(11, said, mc.MAV_SEVERITY_WARNING), 10.0)
     in_failsafe = holding(11)
-    in_failsafe.system_status = mc.MAV_STATE_CRITICAL  # ArduPilot's, until it hears us
+    if cleared is not None:
+        in_failsafe.system_status = mc.MAV_STATE_CRITICAL  # ArduPilot's, until it hears us
     feed(daemon.state, "v1", in_failsafe, 10.0)
     daemon._advance("v1", 10.1)
     assert not commands_to(daemon, "v1", 11)  # the failsafe holds until a beat of ours
@@ -337,6 +339,41 @@ def test_a_vehicle_held_by_its_ground_station_failsafe_goes_on_once_it_hears_us(
     feed(daemon.state, "v1", holding(11), 14.0)
     daemon._advance("v1", 20.0)
     assert not commands_to(daemon, "v1", 11)
+
+
+def test_a_failsafe_whose_text_was_lost_is_told_by_the_heartbeat(dispatch):
+    """Rover's HEARTBEAT says CRITICAL in its radio, ground-station and EKF failsafes and
+    STANDBY in HOLD once the failsafe is over: that says it when the texts are lost."""
+    daemon = daemon_driving_v1(dispatch, 7)
+    in_failsafe = holding(11)
+    in_failsafe.system_status = mc.MAV_STATE_CRITICAL
+    feed(daemon.state, "v1", in_failsafe, 10.0)
+    daemon._advance("v1", 10.5)
+    assert not commands_to(daemon, "v1", 11)
+    feed(daemon.state, "v1", holding(11), 11.0)  # it heard us: STANDBY
+    daemon._advance("v1", 11.1)
+    assert commands_to(daemon, "v1", 11) == [(mc.MAV_CMD_DO_SET_MISSION_CURRENT, 8.0)]
+
+
+def test_an_ekf_failsafe_or_an_old_critical_is_left_to_the_operator(dispatch):
+    daemon = daemon_driving_v1(dispatch, 7)
+    in_failsafe = holding(11)
+    in_failsafe.system_status = mc.MAV_STATE_CRITICAL
+    feed(daemon.state, "v1", statustext(11, "EKF failsafe", mc.MAV_SEVERITY_CRITICAL), 10.0)
+    feed(daemon.state, "v1", in_failsafe, 10.0)
+    feed(daemon.state, "v1", holding(11), 11.0)
+    daemon._advance("v1", 15.0)
+    assert not commands_to(daemon, "v1", 11)  # its position was not to be trusted
+    other = daemon_driving_v1(dispatch, 7)
+    critical_in_auto = driving_heartbeat(11)
+    critical_in_auto.system_status = mc.MAV_STATE_CRITICAL  # FS_GCS_ENABLE 2: drives on
+    feed(other.state, "v1", critical_in_auto, 10.0)
+    feed(other.state, "v1", driving_heartbeat(11), 11.0)
+    feed(other.state, "v1", holding(11), 12.0)  # then the operator holds it
+    for now in (13.0, 18.0):
+        feed(other.state, "v1", holding(11), now)
+        other._advance("v1", now)
+    assert not commands_to(other, "v1", 11)
 
 
 def test_a_vehicle_the_operator_stopped_is_left_alone(dispatch):
