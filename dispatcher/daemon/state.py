@@ -61,9 +61,9 @@ TEXT_WINDOW_S = 10.0
 """How far back (wall seconds) an autopilot's problem text explains a refusal."""
 FAILSAFE_TEXT = re.compile(r"^(?:(?:GCS|Radio) Failsafe|Failsafe trigger: .*\b(?:GCS|Radio)\b.*)$")
 """An ArduPilot Rover failsafe for want of its ground station (Rover/failsafe.cpp,
-``failsafe_trigger``: "%s Failsafe"; "Failsafe trigger: %s" since 4.7). The name is that of
-the check that happened to cross FS_TIMEOUT, not of the cause: our SITL (4.7.0-dev) names
-a ground-station failsafe "Radio Failsafe" as often as "GCS Failsafe" (docs/bridge.md)."""
+``failsafe_trigger``: "%s Failsafe"; "Failsafe trigger: %s" in later 4.7). The name is that
+of the check that happened to cross FS_TIMEOUT, not of the cause: our SITL (4.7.0-dev) said
+"Radio Failsafe" for a ground-station failsafe (tests/test_sitl.py, docs/bridge.md)."""
 FAILSAFE_CLEARED_TEXT = re.compile(r"^\w+ Failsafe Cleared$")
 """ArduPilot's word that every failsafe is over ("%s Failsafe Cleared": for ours, once a
 HEARTBEAT of ours reached it again)."""
