@@ -626,6 +626,8 @@ class Dispatcher:
                 and not v.error.startswith(LEFT_AUTO)
             ):
                 reason = f"{LEFT_AUTO}: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
+                if failsafe := v.held_by_failsafe:
+                    reason += f", held by its failsafe ({failsafe})"
                 self._apply(ev.LeftAuto(vid, reason), now)
                 self._log("warning", f"{vid}: {reason}; not driving its mission")
             if v.off_auto_since is None and v.error.startswith(LEFT_AUTO):

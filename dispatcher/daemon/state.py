@@ -305,6 +305,15 @@ class VehicleState:
             return (self.critical_at, "HEARTBEAT system_status CRITICAL", over)
         return (found[0], found[1], found[2] or over)
 
+    @property
+    def held_by_failsafe(self) -> str | None:
+        """What says a failsafe for want of its ground station holds this vehicle out of
+        AUTO (:meth:`failsafe`), or None: to be started again once it hears us, not given up."""
+        if self.off_auto_since is None:
+            return None
+        found = self.failsafe(self.off_auto_since - TEXT_WINDOW_S, self.off_auto_since)
+        return None if found is None else found[1]
+
     def explain(self, reason: str, since: float) -> str:
         """``reason`` with what the autopilot said about it since ``since``."""
         said = self.problems(since)
@@ -820,13 +829,18 @@ class FleetState:
         return min(join, len(v.items) - 1)
 
     def finished(self, now: float, lost_grace_s: float) -> bool:
-        """Nothing more will happen: every vehicle done, failed, or lost for longer than
-        ``lost_grace_s`` (a short loss of link is not the end of a vehicle)."""
+        """Nothing more will happen: every vehicle done, failed, or lost or out of AUTO for
+        longer than ``lost_grace_s`` (a short loss of link is not the end of a vehicle; one
+        its failsafe holds is started again once it hears us, however long that takes)."""
         return all(
             v.phase in (Phase.DONE, Phase.FAILED)
             or v.retired
             or (v.phase is Phase.LOST and v.lost_at is not None and now - v.lost_at >= lost_grace_s)
-            or (v.off_auto_since is not None and now - v.off_auto_since >= lost_grace_s)
+            or (
+                v.off_auto_since is not None
+                and now - v.off_auto_since >= lost_grace_s
+                and v.held_by_failsafe is None
+            )
             for v in self.vehicles.values()
         )
 

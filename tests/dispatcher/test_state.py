@@ -376,6 +376,33 @@ def test_an_ekf_failsafe_or_an_old_critical_is_left_to_the_operator(dispatch):
     assert not commands_to(other, "v1", 11)
 
 
+def test_a_vehicle_its_failsafe_holds_is_not_given_up(dispatch):
+    """Its failsafe may outlast the grace (a top-up under way on a lossy radio holds the
+    start back: a 50 %-loss run ended without it): the run waits for it, and says why it
+    stands; one the operator stopped is given up after the grace."""
+    import types
+
+    daemon = daemon_driving_v1(dispatch, 7)
+    state = daemon.state
+    # A transfer under way (a top-up's read-back): nothing is started meanwhile.
+    daemon.links["v1"].download = types.SimpleNamespace(
+        outcome=Outcome.RUNNING, on_tick=lambda now: []
+    )
+    feed(state, "v1", statustext(11, "GCS Failsafe", mc.MAV_SEVERITY_WARNING), 10.0)
+    for now in (10.0, 16.0, 45.0):
+        feed(state, "v1", holding(11), now)
+        daemon._tick(now)
+    assert "held by its failsafe (GCS Failsafe)" in state.vehicles["v1"].error
+    assert not commands_to(daemon, "v1", 11)
+    assert not state.finished(45.0, lost_grace_s=30.0)
+    operator = daemon_driving_v1(dispatch, 7)
+    for now in (10.0, 16.0, 45.0):
+        feed(operator.state, "v1", holding(11), now)
+        operator._tick(now)
+    assert operator.state.vehicles["v1"].error == "left AUTO: mode 4, armed"
+    assert operator.state.finished(45.0, lost_grace_s=30.0)
+
+
 def test_a_vehicle_the_operator_stopped_is_left_alone(dispatch):
     daemon = daemon_driving_v1(dispatch, 7)
     feed(daemon.state, "v1", statustext(11, "GCS Failsafe", mc.MAV_SEVERITY_WARNING), 1.0)
