@@ -32,7 +32,9 @@ ArduPilot behaviour followed (sources are ArduPilot files):
   message id, as ArduPilot does (``GCS_MAVLINK::handle_set_mode``).
 * AUTO cannot be entered without a mission beyond home ("No Mission. Can't set AUTO.",
   ``Rover/mode_auto.cpp``); it can be entered disarmed (the vehicle then does not move).
-  Entering AUTO resets the speed to the default cruise speed (``AR_WPNav::init``) and
+  Entering AUTO keeps the speed the mission last set (SITL 4.7.0-dev: a rover its failsafe
+  held and put back in AUTO mid-swath drove on at the mission's 2.22 m/s, not WP_SPEED's
+  3.33; tests/test_sitl.py), the cruise speed until one is set, and
   resumes the mission where it stopped (MIS_RESTART = 0, ``AP_Mission::start_or_resume``);
   a completed mission starts again from item 1. Leaving AUTO stops the mission. So a new
   mission uploaded to a vehicle stopped half-way resumes at the old index: send
@@ -689,7 +691,6 @@ class SimTractor:
         logger.info("system %d: mode %s", self.system_id, new.name)
         out: list[mc.MAVLinkMessage] = []
         if new == Mode.AUTO:
-            self._speed_ms = self.cruise_speed_ms
             self._seen_changes = self.mission.changes
             out += self._start_or_resume()
         elif new == Mode.RTL:

@@ -1059,8 +1059,9 @@ class Dispatcher:
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
+        speed = self.job.missions[v.id].speed_before(link.start_item)
         link.start = CommandSequence(
-            start_mission_commands(link.start_item, in_auto=in_auto),
+            start_mission_commands(link.start_item, in_auto=in_auto, speed_ms=speed),
             v.system_id,
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )

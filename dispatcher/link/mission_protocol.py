@@ -682,9 +682,12 @@ class CommandSequence(_Exchange):
         )
 
 
-def start_mission_commands(first_item: int = 1, in_auto: bool = False) -> list[Command]:
+def start_mission_commands(
+    first_item: int = 1, in_auto: bool = False, speed_ms: float | None = None
+) -> list[Command]:
     """How a ground station starts (or resumes) an ArduPilot Rover mission at
-    ``first_item``: make it current while disarmed, arm, then switch to AUTO.
+    ``first_item``: make it current while disarmed, arm, then switch to AUTO; then, given
+    ``speed_ms``, set the speed the mission's DO_CHANGE_SPEED items set before that item.
 
     * The current item is set with ``DO_SET_MISSION_CURRENT`` param2 = 0, never 1 (reset):
       a reset sent while armed outside AUTO makes ArduPilot start the first navigation
@@ -695,6 +698,11 @@ def start_mission_commands(first_item: int = 1, in_auto: bool = False) -> list[C
     * A vehicle still in AUTO (a finished mission stays in AUTO with MIS_DONE_BEHAV = 0)
       is put in HOLD first: asking for AUTO while in AUTO changes nothing, so the mission
       would not resume at the new item.
+    * Entering AUTO sets the speed to WP_SPEED (``ModeAuto::_enter``, ``wp_nav.init()``),
+      and a mission resumed past its DO_CHANGE_SPEED items does not run them again: resumed
+      in a field, the implement would work at road speed until the next one. So the speed
+      in force at ``first_item`` is set once in AUTO (DO_CHANGE_SPEED param1 = 1 ground
+      speed, param2 = m/s, param3 = -1 throttle unchanged).
     """
     commands = []
     if in_auto:
@@ -704,6 +712,8 @@ def start_mission_commands(first_item: int = 1, in_auto: bool = False) -> list[C
         Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
         _set_mode(ROVER_MODE_AUTO),
     ]
+    if speed_ms is not None:
+        commands.append(Command(mc.MAV_CMD_DO_CHANGE_SPEED, (1.0, float(speed_ms), -1.0)))
     return commands
 
 

@@ -217,6 +217,14 @@ class Mission:
             )
         return self.items[seq], self.traces[seq]
 
+    def speed_before(self, seq: int) -> float | None:
+        """The ground speed (m/s) in force when the vehicle drives to item ``seq``: that of
+        the last DO_CHANGE_SPEED before it; None if there is none."""
+        for item in reversed(self.items[1:seq]):
+            if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
+                return float(item.param2)
+        return None
+
     def to_mavlink(
         self, target_system: int, target_component: int = mc.MAV_COMP_ID_AUTOPILOT1
     ) -> list[mc.MissionItemIntMessage]:

@@ -541,3 +541,20 @@ def test_qgc_plan_structure(mission: Mission, tmp_path: Path) -> None:
         assert entry["params"][4] == pytest.approx(item.x / 1e7, abs=1e-9)
         assert entry["params"][5] == pytest.approx(item.y / 1e7, abs=1e-9)
         assert entry["params"][6] == 0.0
+
+
+def test_the_speed_before_an_item_is_that_of_the_last_change_before_it(mission: Mission) -> None:
+    """What a resumed mission is to drive at (link/mission_protocol.py
+    ``start_mission_commands``: AUTO starts at WP_SPEED)."""
+    speeds = [
+        (item.seq, item.param2)
+        for item in mission.items
+        if item.command == mc.MAV_CMD_DO_CHANGE_SPEED
+    ]
+    assert len(speeds) >= 2 and speeds[0][0] == 1
+    assert mission.speed_before(1) is None  # nothing before the first change
+    ends = [*(s for s, _ in speeds[1:]), len(mission)]
+    for (seq, speed), after in zip(speeds, ends, strict=True):
+        for n in (seq + 1, after - 1):
+            if seq < n < len(mission):
+                assert mission.speed_before(n) == speed

@@ -740,7 +740,11 @@ def test_a_tractor_stopped_at_the_end_of_its_window_is_started_again_at_its_join
     assert commands[0][2] == 4  # Rover HOLD
     assert link.start.commands[1].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
     assert link.start.commands[1].params[0] == link.join and link.join >= 5
-    assert link.start.commands[-1].params[1] == 10  # then AUTO
+    assert link.start.commands[3].params[1] == 10  # then AUTO
+    # and the speed in force there (AUTO starts at WP_SPEED)
+    speed = daemon.job.missions["v1"].speed_before(link.join)
+    assert speed is not None and link.start.commands[4].command == mc.MAV_CMD_DO_CHANGE_SPEED
+    assert link.start.commands[4].params[:2] == (1.0, speed)
     assert daemon.state.vehicles["v1"].phase is Phase.STARTING
 
 
