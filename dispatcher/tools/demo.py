@@ -49,7 +49,11 @@ tractor waits for them are hours of its simulated time, and on two cores the sim
 behind: the default scenario's tractors finished within 3 % of their planned times at 1 714x
 (its default), within 12 % at 2 000x, up to 66 % late at 2 600x and 76 % at 3 400x (with
 upload retries), where the default scenario planned within a 40-hour deadline ran by
-default: up to 31 % late, ~40 retries; at 1 800x within 3 %, no retries, in 85 s."""
+default: up to 31 % late, ~40 retries; at 1 800x within 3 %, no retries, in 85 s. Those
+figures were taken while the simulator drove on at road speed after every start past a
+window's end (d67da2c mended it), which hid the waits: at 1 714x the two tractors with the
+longest missions (2 166 and 2 277 items) now finish 25-31 % late, each top-up re-uploading
+its whole prefix (benchmarks/RESULTS.md, 2026-11-27 07:15)."""
 FAULT_CHECK_PERIOD_S = 0.1
 """How often (wall seconds) the share of the work is looked at when faults are planned (the
 dispatcher's status period, which calls the progress callback, is cut to this: its default,
