@@ -61,6 +61,23 @@ def finished(proc, procs: Processes, sitl: Sitl, timeout_s: float = RUN_TIMEOUT_
     return int(proc.returncode)
 
 
+def wait_under_way(procs: Processes, sitl: Sitl, serve, port: int, share: float) -> None:  # type: ignore[no-untyped-def]
+    """Until r1 drives its mission with ``share`` of it done (the dispatcher's status);
+    fails at once if ``serve`` exits."""
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+
+        def under_way() -> bool:
+            if serve.poll() is not None:
+                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
+            state.update(status().get("vehicles", {}).get("r1", {}))
+            return state.get("phase") == "running" and state.get("share_done", 0) >= share
+
+        wait_for(
+            f"{share:.0%} of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl)
+        )
+
+
 def check_worked_once(review: Review, driven_as_planned: bool = True) -> None:
     """Every field done, each exactly once, the implement never down outside a field; with
     ``driven_as_planned``, on swaths driven as planned and turns without a loop."""
@@ -206,16 +223,7 @@ def test_a_rover_held_by_its_ground_station_failsafe_goes_on_once_it_hears_the_d
     sitl.start(wipe=True)
     serve = procs.serve(SCENARIO, port, tmp_path / "logs")
     bridge = procs.bridge(SCENARIO, "r1", sitl, port)
-    with status_reader(port, "sitl") as status:
-        state: dict = {}
-
-        def under_way() -> bool:
-            if serve.poll() is not None:
-                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
-            state.update(status().get("vehicles", {}).get("r1", {}))
-            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.3
-
-        wait_for("30 % of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl))
+    wait_under_way(procs, sitl, serve, port, 0.3)
     bridge.send_signal(signal.SIGSTOP)
     try:
         gone = time.monotonic()  # the outage: 3.5 s, the dispatcher's limit is 5 s
@@ -241,16 +249,7 @@ def test_a_dispatcher_killed_mid_mission_finds_the_rover_on_its_mission_and_keep
     sitl.start(wipe=True)
     first = procs.serve(SCENARIO, port, tmp_path / "logs", *data)
     procs.bridge(SCENARIO, "r1", sitl, port)
-    with status_reader(port, "sitl") as status:
-        state: dict = {}
-
-        def under_way() -> bool:
-            if first.poll() is not None:
-                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
-            state.update(status().get("vehicles", {}).get("r1", {}))
-            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
-
-        wait_for("40 % of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl))
+    wait_under_way(procs, sitl, first, port, 0.4)
     first.kill()
     first.wait(10)
     second = procs.serve(SCENARIO, port, tmp_path / "logs", *data)
