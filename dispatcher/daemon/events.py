@@ -261,33 +261,10 @@ class PlanReplaced(Event):
     document: dict[str, Any]
 
 
-EVENTS: dict[str, type[Event]] = {
-    cls.kind: cls
-    for cls in (
-        VehicleSeen,
-        VehicleLost,
-        VehicleStalled,
-        UploadStarted,
-        WindowExtended,
-        UploadFailed,
-        UploadAcked,
-        SwitchUploaded,
-        RouteJoined,
-        HeldForRoute,
-        Resumed,
-        StartRequested,
-        MissionStarted,
-        StartFailed,
-        StartRefused,
-        LeftAuto,
-        BackInAuto,
-        ItemReached,
-        Rebooted,
-        ProgressDoubted,
-        ForeignCommand,
-        PlanReplaced,
-    )
-}
+EVENTS: dict[str, type[Event]] = {cls.kind: cls for cls in Event.__subclasses__()}
+"""Every kind of event by its name: all of this module's (one forgotten in a hand-kept list,
+``mission_numbered``, made a store with a renumbered vehicle in it fail to resume, and the
+review skip its numbering)."""
 
 
 def to_dict(event: Event) -> dict[str, Any]:

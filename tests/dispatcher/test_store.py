@@ -55,6 +55,28 @@ def test_a_run_is_kept_and_read_back_as_it_was(dispatch: DispatchPlan, tmp_path:
     store.close()
 
 
+def test_a_renumbered_vehicle_is_read_back_with_its_numbers(
+    dispatch: DispatchPlan, tmp_path: Path
+) -> None:
+    """A vehicle renumbered under way (link/numbering.py): the dispatcher that resumes reads
+    its reports in its new numbers (``mission_numbered`` was once left out of the events a
+    store could read back, and a crash after a renumbering could not be resumed)."""
+    job = dispatch.job()
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(job, "inputs-1")
+    v1 = job.document.machines[0]
+    events = [*run_events(v1.id, 35), ev.MissionNumbered(v1.id, 36, len(v1.items) - 35)]
+    for k, event in enumerate(events):
+        store.append(event, 1000.0 + k)
+    store.commit()
+    store.close()
+    run = Store.open(tmp_path, "tiny").unfinished_run()
+    assert run is not None and [e for _, e in run.events] == events
+    numbering = run.replay().vehicles[v1.id].numbering
+    assert (numbering.base, numbering.count) == (36, len(v1.items) - 35)
+    assert numbering.to_vehicle(40) == 5
+
+
 def test_a_run_keeps_when_it_began(dispatch: DispatchPlan, tmp_path: Path) -> None:
     """The start the daemon's re-planner counts a deadline from, given, or now."""
     store = Store.open(tmp_path, "tiny")
