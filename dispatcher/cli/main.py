@@ -588,7 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="X",
-        help="simulated seconds per wall second (default: fit the run into ~45 s)",
+        help="simulated seconds per wall second (default: fit the run into ~45 s, at most 1200x)",
     )
     add_log_dir_argument(p)
     g = p.add_argument_group("fault injection (docs/demo.md)")

@@ -827,14 +827,26 @@ class Dispatcher:
         ):
             return None
         more = window(v.items, v.held, self.config.window_items)
-        if len(v.planned_s) != len(v.items):
+        left_s = self._left_s(v, v.held)
+        if left_s is None:
             return more
-        left_s = (v.planned_s[v.held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
-        # What the next top-up takes, at the pace of its last upload (items a second): the
-        # whole longer prefix, and the new items read back.
-        took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        lead_s = self.config.topup_lead_s + 2.0 * took_s * (2 * more - v.held) / max(items, 1)
+        # What the next top-up takes: the whole longer prefix, and the new items read back.
+        lead_s = self.config.topup_lead_s + self._upload_s(v, 2 * more - v.held)
         return more if left_s <= lead_s else None
+
+    def _left_s(self, v: VehicleState, held: int) -> float | None:
+        """Wall seconds until a driving vehicle reaches the last of the first ``held`` items
+        of its mission, at its planned pace from the last item it reached (None: no plan
+        of its times)."""
+        if len(v.planned_s) != len(v.items) or not 0 < held <= len(v.items):
+            return None
+        return (v.planned_s[held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
+
+    def _upload_s(self, v: VehicleState, count: int) -> float:
+        """Wall seconds an upload (or read-back) of ``count`` items to the vehicle is to be
+        given: twice what it took at the pace of its last upload (items a second)."""
+        took_s, items = self._upload_took.get(v.id, (0.0, 1))
+        return 2.0 * took_s * count / max(items, 1)
 
     def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
         """Give a driving vehicle the next window of its mission: upload the longer prefix
@@ -942,6 +954,7 @@ class Dispatcher:
                 and not switch
                 and base != v.numbering.base
                 and not self._outruns(v, link, base)
+                and not self._stops_sooner(v, link, base)
             ):
                 base = v.numbering.base
         if base < v.numbering.base and running:
@@ -991,12 +1004,34 @@ class Dispatcher:
         to the item at the fastest speed of its mission and its clock's speedup."""
         if not 0 < v.current < len(v.items) or v.lat is None or v.lon is None:
             return False
+        upload_s = self._upload_s(v, count_on_board(v.held, base)) + RENUMBER_MARGIN_S
+        return self._to_current_s(v) >= upload_s
+
+    def _to_current_s(self, v: VehicleState) -> float:
+        """Wall seconds a driving vehicle (its position known) needs at the least to reach
+        the item it drives to: the distance at the fastest speed of its mission and its
+        clock's speedup."""
+        assert v.lat is not None and v.lon is not None
         item = v.items[v.current]
-        took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        count = count_on_board(v.held, base)
-        upload_s = 2.0 * took_s * count / max(items, 1) + RENUMBER_MARGIN_S
         speed = v.witness.top_speed_ms * max(v.clock.rate, 1e-6)
-        return metres((v.lat, v.lon), (item.lat, item.lon)) / speed >= upload_s
+        return metres((v.lat, v.lon), (item.lat, item.lon)) / speed
+
+    def _stops_sooner(self, v: VehicleState, link: _Link, base: int) -> bool:
+        """Whether a top-up renumbered from ``base`` has a driving vehicle stand still for
+        less time than the whole prefix would, when the whole prefix would not be on board
+        before it reaches the end of the window it holds (it would stop there and wait):
+        with the shorter upload it stops at the item it drives to instead (it cannot be
+        sent on in the new numbers before it gets there, :meth:`_outruns`), and is started
+        again sooner. A fast clock, or a slow radio, where the prefix takes longer to send
+        than the vehicle takes to drive its window."""
+        if link.topup_from is None or not 0 < v.current < len(v.items):
+            return False
+        left_s = self._left_s(v, link.topup_from)
+        if left_s is None or v.lat is None or v.lon is None:
+            return False
+        whole_wait_s = self._upload_s(v, count_on_board(v.held, v.numbering.base)) - left_s
+        short_wait_s = self._upload_s(v, count_on_board(v.held, base)) - self._to_current_s(v)
+        return whole_wait_s > 0.0 and short_wait_s < whole_wait_s
 
     def _numbered(self, v: VehicleState, link: _Link, now: float) -> None:
         """An upload was acknowledged: the vehicle numbers its items as that upload did.

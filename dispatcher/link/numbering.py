@@ -21,8 +21,10 @@ told apart by their number (and MISSION_CURRENT by its ``total``, the count) in
 :meth:`Numbering.report`, and the item it drives to is set again in the new numbers as soon
 as the upload is acknowledged. The daemon renumbers a vehicle whose mission runs only when
 that upload should be on board before it reaches the item it drives to (it would stop
-there), except for its new route after a re-plan (a stop costs one start; the prefix,
-seconds); one standing still (in the garage, held, at the end of its window) any time.
+there), or when the whole prefix would stop it longer at the end of the window it holds (a
+top-up through a slow radio or on a fast clock), and for its new route after a re-plan (a
+stop costs one start; the prefix, seconds); one standing still (in the garage, held, at the
+end of its window) any time.
 tests/test_sitl_renumbering.py checks these facts against ArduPilot SITL.
 """
 

@@ -42,18 +42,19 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SCENARIO = DEMO_SCENARIO
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
-MAX_AUTO_SPEEDUP = 1800.0
-"""The default speedup's ceiling: a longer plan takes longer than ``TARGET_WALL_S``. The
-mission protocol and the top-ups of a window run in wall time, so past ~2 000x the seconds a
-tractor waits for them are hours of its simulated time, and on two cores the simulators fall
-behind: the default scenario's tractors finished within 3 % of their planned times at 1 714x
-(its default), within 12 % at 2 000x, up to 66 % late at 2 600x and 76 % at 3 400x (with
-upload retries), where the default scenario planned within a 40-hour deadline ran by
-default: up to 31 % late, ~40 retries; at 1 800x within 3 %, no retries, in 85 s. Those
-figures were taken while the simulator drove on at road speed after every start past a
-window's end (d67da2c mended it), which hid the waits: at 1 714x the two tractors with the
-longest missions (2 166 and 2 277 items) now finish 25-31 % late, each top-up re-uploading
-its whole prefix (benchmarks/RESULTS.md, 2026-11-27 07:15)."""
+MAX_AUTO_SPEEDUP = 1200.0
+"""The default speedup's ceiling: a longer plan takes longer than ``TARGET_WALL_S`` (the
+default scenario's 21.4 h take ~65 s). The mission protocol and the top-ups of a window run
+in wall time, so a second a tractor waits for them is ``speedup`` seconds of its simulated
+time, and on two cores the simulators and the links fall behind. The default scenario on
+this project's two-core machine (benchmarks/RESULTS.md, 2026-11-27 08:40): at 1 000x and
+1 400x every tractor finished within 3 % of its planned time, no waits at a window's end,
+no upload retries; at 1 714x (what fits 45 s) the two with the longest missions (2 166 and
+2 277 items) waited at 2 to 4 of their windows' ends and finished 10-20 % late, with up to
+36 upload retries (16-31 % before the top-ups were renumbered to spare a prefix that cannot
+be sent in time, ``Dispatcher._stops_sooner``). 1 200x leaves a margin for a slower
+machine. Until 2026-11-27 the ceiling was 1 800x, chosen from runs whose simulator drove on
+at road speed after each start at a window's end (d67da2c), which hid the waits."""
 FAULT_CHECK_PERIOD_S = 0.1
 """How often (wall seconds) the share of the work is looked at when faults are planned (the
 dispatcher's status period, which calls the progress callback, is cut to this: its default,

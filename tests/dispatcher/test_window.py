@@ -256,3 +256,48 @@ def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_the_shortest_wind
     assert v.numbering.base == 36
     (sent,) = [m for m in daemon.publishers[vid].sent() if m.get_type() == "COMMAND_LONG"]
     assert sent.command == mc.MAV_CMD_DO_SET_MISSION_CURRENT and sent.param1 == 1.0
+
+
+def run_at(v, rate):
+    """The vehicle's clock heard running ``rate`` times the wall clock (its speedup)."""
+    v.clock._first, v.clock._last_wall = (0.0, 0.0), 2.0
+    v.clock.now = 2.0 * rate
+    assert v.clock.rate == pytest.approx(rate)
+
+
+@pytest.mark.parametrize("rate", [1.0, 2000.0])
+def test_a_top_up_is_renumbered_when_the_whole_prefix_would_stop_the_vehicle_longer(dispatch, rate):
+    """A driving vehicle due its next window, too close to the item it drives to for a
+    renumbered upload to be on board first (it would stop there): on a slow clock the whole
+    prefix is sent, in time before the end of its window; on a fast one (or a slow radio)
+    the whole prefix would have it stand at the end of its window longer than the short
+    upload has it stand at its item, and the top-up is renumbered."""
+    daemon = windowed(dispatch)
+    vid = "v1"
+    v = drive(daemon, vid, 35, 0.0)
+    daemon.state.apply(ev.WindowExtended(vid, 40), 0.5)  # to the field's end and on the road
+    running = heartbeat(11)
+    running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
+    feed(daemon.state, vid, running, 1.0)
+    feed(daemon.state, vid, mission_current(11, 36, 39, STATE_ACTIVE), 1.0)
+    near = v.items[36]  # a metre short of the item it drives to: it gets there first
+    fix = mc.message(
+        "GLOBAL_POSITION_INT", time_boot_ms=1000, lat=near.x + 90, lon=near.y, alt=0,
+        relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
+    )  # fmt: skip
+    feed(daemon.state, vid, from_vehicle(fix, 11), 1.0)
+    assert v.driving and v.current == 36 and v.lat is not None
+    run_at(v, rate)
+    daemon._upload_took[vid] = (1.0, 10)  # a slow radio: 10 items a second
+    link = daemon.links[vid]
+    link.topup_from = 40
+    daemon.state.apply(ev.WindowExtended(vid, len(v.items)), 1.5)
+    assert not daemon._outruns(v, link, 36)
+    daemon._send_window(v, link, 2.0)
+    count = daemon.publishers[vid].sent()[-1]
+    assert count.get_type() == "MISSION_COUNT"
+    if rate == 1.0:  # its last swath and the road take longer than the whole prefix
+        assert daemon._left_s(v, 40) > daemon._upload_s(v, len(v.items))
+        assert link.numbered == (1, len(v.items)) and count.count == len(v.items)
+    else:  # home and items 36 ..
+        assert link.numbered == (36, len(v.items) - 35) and count.count == len(v.items) - 35
