@@ -1502,13 +1502,21 @@ class Dispatcher:
                 self.replans[index][2] = time.monotonic() - since
                 self._awaiting_acks = None
         if (
-            isinstance(event, ev.VehicleLost | ev.VehicleStalled)
+            isinstance(event, ev.VehicleLost | ev.VehicleStalled | ev.StartFailed)
             and self.config.replanner is not None
             and was not in (None, Phase.DONE, Phase.FAILED, Phase.LOST)
             and not self.state.all_fields_done()
         ):
             v = self.state.vehicles[event.vehicle]
-            self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
+            if not isinstance(event, ev.StartFailed):
+                self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
+            elif not v.driving:
+                # Heard, but deaf to our commands (a dead uplink: its failsafe holds it
+                # where it is), or never answering them: its work goes to the others, as
+                # a lost one's does. One heard driving took the start after all: left be.
+                self._want_replan(
+                    f"{event.vehicle} could not be started ({v.error})", now, supersede=True
+                )
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
 

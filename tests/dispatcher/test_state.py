@@ -355,6 +355,36 @@ def test_a_failsafe_whose_text_was_lost_is_told_by_the_heartbeat(dispatch):
     assert commands_to(daemon, "v1", 11) == [(mc.MAV_CMD_DO_SET_MISSION_CURRENT, 8.0)]
 
 
+@pytest.mark.parametrize("driving", [False, True])
+def test_a_tractor_heard_but_deaf_to_the_start_has_its_work_re_planned(dispatch, driving):
+    """Held by its ground-station failsafe, heard, but none of our commands reaches it (a
+    dead uplink): the start fails after its attempts, and its work goes to the others as
+    a lost one's does, instead of standing undone to the end of the run. One heard armed in
+    AUTO took the start after all (the answers were what got lost): no re-plan."""
+    daemon = daemon_driving_v1(dispatch, 7)
+    daemon.config.replanner = lambda state, cancel: daemon.job  # wanted, not run here
+    v = daemon.state.vehicles["v1"]
+    in_failsafe = holding(11)
+    in_failsafe.system_status = mc.MAV_STATE_CRITICAL
+    feed(daemon.state, "v1", in_failsafe, 10.0)
+    now = 11.0
+    while v.phase is not Phase.FAILED and now < 300.0:
+        feed(
+            daemon.state, "v1", driving_heartbeat(11) if driving and now > 12 else holding(11), now
+        )
+        for machine in daemon.links["v1"].exchanges():
+            if machine is not None and machine.outcome is Outcome.RUNNING:
+                machine.on_tick(now)
+        daemon._advance("v1", now)
+        now += 0.5
+    assert v.phase is Phase.FAILED and "start failed" in v.error
+    assert len(commands_to(daemon, "v1", 11)) >= daemon.config.start_attempts
+    if driving:
+        assert daemon._replan_reason == ""
+    else:
+        assert daemon._replan_reason.startswith("v1 could not be started (start failed")
+
+
 def test_an_ekf_failsafe_or_an_old_critical_is_left_to_the_operator(dispatch):
     daemon = daemon_driving_v1(dispatch, 7)
     in_failsafe = holding(11)
