@@ -47,7 +47,7 @@ MAX_AUTO_SPEEDUP = 1200.0
 default scenario's 21.4 h take ~65 s). The mission protocol and the top-ups of a window run
 in wall time, so a second a tractor waits for them is ``speedup`` seconds of its simulated
 time, and on two cores the simulators and the links fall behind. The default scenario on
-this project's two-core machine (benchmarks/RESULTS.md, 2026-11-27 08:40): at 1 000x and
+this project's two-core machine (benchmarks/RESULTS.md, 2026-11-27 08:20): at 1 000x and
 1 400x every tractor finished within 3 % of its planned time, no waits at a window's end,
 no upload retries; at 1 714x (what fits 45 s) the two with the longest missions (2 166 and
 2 277 items) waited at 2 to 4 of their windows' ends and finished 10-20 % late, with up to
