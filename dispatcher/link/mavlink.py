@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import heapq
 import hmac
 import logging
 import socket
@@ -213,7 +214,10 @@ class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._recent: dict[tuple[int, int, int], set[int]] = {}  # per stream, in the window
+        # Per stream, the timestamps taken within the window: a set to look them up, and
+        # the same in a heap to let the oldest go as the window moves on.
+        self._recent: dict[tuple[int, int, int], set[int]] = {}
+        self._oldest: dict[tuple[int, int, int], list[int]] = {}
 
     def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         signing = self.signing
@@ -231,8 +235,10 @@ class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
             return False
         newest = stamp if last is None else max(last, stamp)
         recent.add(stamp)
-        if newest != last and len(recent) > 64:
-            recent.difference_update([s for s in recent if s <= newest - REORDER_WINDOW])
+        oldest = self._oldest.setdefault(stream, [])
+        heapq.heappush(oldest, stamp)
+        while oldest[0] <= newest - REORDER_WINDOW:  # out of the window: refused by age now
+            recent.discard(heapq.heappop(oldest))
         signing.stream_timestamps[stream] = newest
         signing.timestamp = max(signing.timestamp, stamp)
         return True
