@@ -800,9 +800,11 @@ class FleetState:
             return []
         done = v.current - 1
         if v.mission_state == mc.MISSION_STATE_COMPLETE:
-            # At the end of what it holds; or, renumbered under way, at the item it drove
-            # to from memory past the new count (link/numbering.py): that one.
-            done = last if v.current_of_last_upload else v.current
+            # Complete at the item it says: the end of what it held, or, renumbered under
+            # way, the item it drove to from memory past the new count (link/numbering.py).
+            # Not the total: given its next window while it stood there, ArduPilot says
+            # complete at the same item with the longer mission's total (Rover 4.7 SITL).
+            done = v.current
         if done > v.reached:
             return self._claim(v, done, True, "MISSION_CURRENT", now)
         return []

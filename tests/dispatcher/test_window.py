@@ -210,6 +210,38 @@ def test_the_end_of_the_window_held_is_read_from_mission_current_while_the_next_
     assert daemon.state.stalled_for(v, 0.0, 100.0) is None
 
 
+def test_a_vehicle_standing_complete_given_its_next_window_is_not_taken_to_have_driven_it(
+    dispatch,
+):
+    """ArduPilot stands at the end of the window it held, its mission complete (MISSION_CURRENT
+    seq = total = that item); once the next window is on board it still says complete, at
+    the same seq, but with the longer mission's total (Rover 4.7 SITL: (4, 4, complete),
+    then (4, 14, complete) after a longer upload). That is where it stands, not a claim to
+    have driven the new window: counted so, the claim was doubted as the track never got
+    there (a demo at 1 714x: four alarms, each at a wait at a window's end)."""
+    daemon = windowed(dispatch)
+    vid = "v1"
+    v = drive(daemon, vid, 5, 0.0)
+    held = v.held
+    daemon.state.apply(ev.WindowExtended(vid, window(v.items, held, 20)), 1.0)
+    assert v.held > held
+    feed(daemon.state, vid, mission_current(11, held - 2, held - 1, mc.MISSION_STATE_ACTIVE), 5.0)
+    for k in range(5, held):  # its track along the window, to its last item
+        fix = mc.message(
+            "GLOBAL_POSITION_INT", time_boot_ms=1000 * k, lat=v.items[k].x, lon=v.items[k].y,
+            alt=0, relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
+        )  # fmt: skip
+        feed(daemon.state, vid, from_vehicle(fix, 11), 5.0 + 0.1 * k)
+    feed(daemon.state, vid, mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE), 9.0)
+    assert v.reached == held - 1
+    # the next window on board: complete still, at the item it stands at, of a longer mission
+    stands = mission_current(11, held - 1, v.held - 1, mc.MISSION_STATE_COMPLETE)
+    feed(daemon.state, vid, stands, 10.0)
+    assert v.reached == held - 1 and v.mission_total == v.held - 1
+    assert v.witness.claims == []  # nothing claimed beyond where it stands
+    assert v.go_on_item == held and v.at_window_end
+
+
 def test_a_driving_vehicles_new_route_goes_from_where_it_is_to_the_shortest_window(dispatch):
     """A vehicle re-planned deep in its mission is sent home and the items from the one it
     drives to, up to the first place a window of its new route may end (here the end of a
