@@ -184,25 +184,33 @@ def test_a_vehicle_that_finished_while_re_planning_goes_on_after_its_mission(dis
     assert v.phase is Phase.ALIVE and v.reached == last and v.resume_item == len(old)
 
 
+def tracked_to_the_end_of_its_window(dispatch):
+    """v1 driving its first window with the next one on its way (it holds the first), its
+    track along it to its last item, no MISSION_ITEM_REACHED of that one: the daemon, v1,
+    and how many items the first window holds."""
+    daemon = windowed(dispatch)
+    v = drive(daemon, "v1", 5, 0.0)
+    held = v.held
+    daemon.state.apply(ev.WindowExtended("v1", window(v.items, held, 20)), 1.0)
+    feed(daemon.state, "v1", mission_current(11, held - 2, held - 1, mc.MISSION_STATE_ACTIVE), 5.0)
+    for k in range(5, held):
+        fix = mc.message(
+            "GLOBAL_POSITION_INT", time_boot_ms=1000 * k, lat=v.items[k].x, lon=v.items[k].y,
+            alt=0, relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
+        )  # fmt: skip
+        feed(daemon.state, "v1", from_vehicle(fix, 11), 5.0 + 0.1 * k)
+    return daemon, v, held
+
+
 def test_the_end_of_the_window_held_is_read_from_mission_current_while_the_next_is_on_its_way(
     dispatch,
 ):
     """Its MISSION_ITEM_REACHED for the last item of its window lost, and the next window
     on its way (the vehicle still holds the old one): MISSION_CURRENT of the window it
     holds says it reached its end, so it waits there, not taken for stalled."""
-    daemon = windowed(dispatch)
-    vid = "v1"
-    v = drive(daemon, vid, 5, 0.0)
-    held = v.held
-    daemon.state.apply(ev.WindowExtended(vid, window(v.items, held, 20)), 1.0)
+    daemon, v, held = tracked_to_the_end_of_its_window(dispatch)
+    vid = v.id
     assert v.held > held and v.held_before == held
-    feed(daemon.state, vid, mission_current(11, held - 2, held - 1, mc.MISSION_STATE_ACTIVE), 5.0)
-    for k in range(5, held):  # its track along the window, to its last item
-        fix = mc.message(
-            "GLOBAL_POSITION_INT", time_boot_ms=1000 * k, lat=v.items[k].x, lon=v.items[k].y,
-            alt=0, relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
-        )  # fmt: skip
-        feed(daemon.state, vid, from_vehicle(fix, 11), 5.0 + 0.1 * k)
     assert v.reached < held - 1  # no MISSION_ITEM_REACHED of its last item
     complete = mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE)
     feed(daemon.state, vid, complete, 9.0)
@@ -219,19 +227,8 @@ def test_a_vehicle_standing_complete_given_its_next_window_is_not_taken_to_have_
     then (4, 14, complete) after a longer upload). That is where it stands, not a claim to
     have driven the new window: counted so, the claim was doubted as the track never got
     there (a demo at 1 714x: four alarms, each at a wait at a window's end)."""
-    daemon = windowed(dispatch)
-    vid = "v1"
-    v = drive(daemon, vid, 5, 0.0)
-    held = v.held
-    daemon.state.apply(ev.WindowExtended(vid, window(v.items, held, 20)), 1.0)
-    assert v.held > held
-    feed(daemon.state, vid, mission_current(11, held - 2, held - 1, mc.MISSION_STATE_ACTIVE), 5.0)
-    for k in range(5, held):  # its track along the window, to its last item
-        fix = mc.message(
-            "GLOBAL_POSITION_INT", time_boot_ms=1000 * k, lat=v.items[k].x, lon=v.items[k].y,
-            alt=0, relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
-        )  # fmt: skip
-        feed(daemon.state, vid, from_vehicle(fix, 11), 5.0 + 0.1 * k)
+    daemon, v, held = tracked_to_the_end_of_its_window(dispatch)
+    vid = v.id
     feed(daemon.state, vid, mission_current(11, held - 1, held - 1, mc.MISSION_STATE_COMPLETE), 9.0)
     assert v.reached == held - 1
     # the next window on board: complete still, at the item it stands at, of a longer mission
