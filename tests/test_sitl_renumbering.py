@@ -14,6 +14,10 @@ drives to is 8 past it, as ``choose_base`` asks). Then:
 - renumbered so that the index it drives to is *inside* the new mission (home and the items
   from 3 on: 13 items), it drives at once to what is now at that index, the old item 14,
   and leaves out items 12 and 13: why ``choose_base`` never does that.
+
+And what the daemon reads a wait at a window's end by: a rover whose mission is complete,
+given a longer one (the same items and more after), still says complete at the same item,
+with the longer mission's total (daemon/state.py, ``_progress_of_current``).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ NORTH_M = [20.0 * k for k in range(12)] + [370.0, 520.0, 670.0]  # item k's metr
 EAST_M = [0.0] * 12 + [100.0, 100.0, 0.0]
 DRIVING_TO = 12  # the item it drives to when it is renumbered
 TIMEOUT_S = 120.0  # wall seconds for any one step
+COMPLETE = mc.MISSION_STATE_COMPLETE
 
 
 def north(k: int) -> tuple[float, float]:
@@ -181,3 +186,21 @@ def test_renumbered_around_the_index_it_drives_to_it_leaves_items_out(rover: Rov
     assert rover.metres_to(len(NORTH_M) - 1) < 10.0, rover.metres_to(len(NORTH_M) - 1)
     assert rover.reached == [DRIVING_TO], rover.reached
     assert min(closest) > 30.0, closest
+
+
+def test_complete_and_given_a_longer_mission_it_says_so_at_the_same_item(rover: Rover) -> None:
+    last = len(NORTH_M) - 1
+    rover.wait("its mission complete", lambda: rover.state() == (last, last, COMPLETE))
+    lat, lon = north(last)
+    more = [
+        waypoint(last + j, round((lat + 150.0 * j / 111_195.0) * 1e7), round(lon * 1e7))
+        for j in (1, 2, 3)
+    ]
+    longer = [item(k, k) for k in range(len(NORTH_M))] + more
+    rover.run(MissionUpload(longer, 1))
+    total = len(longer) - 1
+    rover.wait("the longer mission's total", lambda: rover.state()[1] == total)
+    for _ in range(40):  # 2 s of wall time: it stays where it is, complete
+        rover.pump()
+    assert rover.state() == (last, total, COMPLETE), rover.state()
+    assert rover.metres_to(last) < 10.0, rover.metres_to(last)
