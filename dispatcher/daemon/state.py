@@ -776,13 +776,14 @@ class FleetState:
 
     def _progress_of_current(self, v: VehicleState, now: float) -> list[ev.Event]:
         """What MISSION_CURRENT says of a running mission that MISSION_ITEM_REACHED did not
-        (lost on the link): the items before the current one are reached, all of them once
-        the mission is complete. Only once the vehicle has said its mission is active,
-        CURRENT_SETTLE_S after the start: a report still on its way from before the start
-        (of an earlier mission, complete) says nothing of this one. While its next window is
-        on its way, a report of the window it holds counts too (both are first items of the
-        same mission): one that reached the end of its window, whose MISSION_ITEM_REACHED
-        was lost, is known to wait there, not taken for stalled (20 %-loss soak)."""
+        (lost on the link): the items before the current one are reached, and the current
+        one too once the mission is complete (where it completed). Only once the vehicle
+        has said its mission is active, CURRENT_SETTLE_S after the start: a report still on
+        its way from before the start (of an earlier mission, complete) says nothing of
+        this one. While its next window is on its way, a report of the window it holds
+        counts too (both are first items of the same mission): one that reached the end of
+        its window, whose MISSION_ITEM_REACHED was lost, is known to wait there, not taken
+        for stalled (20 %-loss soak)."""
         windows = (v.held - 1, v.held_before - 1) if v.held_before else (v.held - 1,)
         last = v.mission_total  # the last item of what it holds
         if (
