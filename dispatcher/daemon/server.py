@@ -1182,7 +1182,9 @@ class Dispatcher:
             return
         if not v.acked:  # acknowledged before the crash, not yet stored: it is ours
             self._apply(ev.UploadAcked(v.id), now)
-        on_vehicle = last if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
+        # Complete: at the item it says (given its next window while it stood at the end of
+        # the one it held, it says complete there, with the longer total: FleetState).
+        on_vehicle = v.current if v.mission_state == mc.MISSION_STATE_COMPLETE else v.current - 1
         if on_vehicle > v.reached:
             self._log("info", f"{v.id}: reached items {v.reached + 1}..{on_vehicle} meanwhile")
             self._apply(ev.ItemReached(v.id, on_vehicle, v.sim_time_s, caught_up=True), now)

@@ -584,6 +584,40 @@ def test_a_vehicle_that_finished_meanwhile_is_done_and_parked(dispatch, tmp_path
     assert commands_to(daemon, "v1", 11)[0][0] == mc.MAV_CMD_DO_SET_MODE  # HOLD, then disarm
 
 
+def test_a_vehicle_standing_at_its_windows_end_with_the_next_on_board_goes_on_from_there(
+    dispatch, tmp_path
+):
+    """It stood at the end of its first window, its mission complete, and had its next
+    window on board when the dispatcher died: it says complete at the item it stands at,
+    with the longer mission's total (as ArduPilot does). The new window is not taken as
+    driven: it goes on at its first item."""
+    from dispatcher.mission.window import window
+
+    items = dispatch.document.machine("v1").items
+    first = window(items, 1, 20)
+    second = window(items, first, 20)
+    assert first < second <= len(items)
+    stored = [
+        ev.VehicleSeen("v1"),
+        ev.UploadStarted("v1", 1, first),
+        ev.UploadAcked("v1"),
+        ev.StartRequested("v1", 1),
+        ev.MissionStarted("v1", 1),
+        ev.ItemReached("v1", first - 1, 100.0),
+        ev.WindowExtended("v1", second),
+    ]
+    daemon = resumed_daemon(dispatch, tmp_path, stored)
+    v = daemon.state.vehicles["v1"]
+    assert v.held == second and v.reached == first - 1
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", heartbeat(11), 0.0)
+    stands = mission_current(11, first - 1, second - 1, mc.MISSION_STATE_COMPLETE)
+    feed(daemon.state, "v1", stands, 0.0)
+    read_back(daemon, "v1", 11, daemon.job.missions["v1"].to_mavlink(255)[:second])
+    assert v.reached == first - 1  # nothing of the new window counted
+    assert v.phase is Phase.STARTING and daemon.links["v1"].start_item == first
+
+
 @pytest.mark.parametrize("held", ["shorter", "mixed"])
 def test_an_upload_cut_by_the_crash_is_made_again_before_going_on(dispatch, tmp_path, held):
     stored = running_events("v1", 7)[:2]  # upload started, never acknowledged
