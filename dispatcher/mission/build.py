@@ -98,6 +98,11 @@ Role = Literal[
     "return",
 ]
 ROLES: frozenset[str] = frozenset(get_args(Role))
+IMPLEMENT_LOWERED: frozenset[str] = frozenset({"implement_down", "implement_lower"})
+"""Roles of the items that lower the implement: a field's first lowering, and again after a
+turn."""
+IMPLEMENT_RAISED: frozenset[str] = frozenset({"implement_up", "implement_raise"})
+"""Roles of the items that raise it: a field's last raising, and for a turn."""
 
 SAME_POINT_M = 0.01
 """A swath start this close (metres) to the point before it is not repeated."""

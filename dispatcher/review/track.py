@@ -32,6 +32,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED
 from dispatcher.mission.document import PlannedItem
 from planner.geo import LocalFrame
 
@@ -143,19 +144,15 @@ def track_quality(
     )
 
 
-LOWER_ROLES: Final = frozenset({"implement_down", "implement_lower"})
-RAISE_ROLES: Final = frozenset({"implement_up", "implement_raise"})
-
-
 def _stretches(items: Sequence[PlannedItem]) -> list[tuple[int, int]]:
     """(seq lowering the implement, seq raising it next) for every working stretch: a
     whole field when turns are not planned, else one swath or headland run each."""
     out = []
     down: int | None = None
     for item in items:
-        if item.role in LOWER_ROLES:
+        if item.role in IMPLEMENT_LOWERED:
             down = item.seq
-        elif item.role in RAISE_ROLES and down is not None:
+        elif item.role in IMPLEMENT_RAISED and down is not None:
             out.append((down, item.seq))
             down = None
     return out

@@ -33,7 +33,7 @@ from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import GONE, FleetState, Phase, VehicleState
 from dispatcher.link.mission_item import MissionItem
-from dispatcher.mission.build import Mission, Role, Trace
+from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED, Mission, Role, Trace
 from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
@@ -60,9 +60,6 @@ a first plan: on the 30-tractor, 200-field re-plan bench, 0.1 s found the makesp
 FIRST_REPLAN_S = 2.5
 """What a re-plan is taken to take until one has been timed (the first re-plan of a run):
 coverage of the rest, transit from where the vehicles are, the solver, the missions."""
-
-IMPLEMENT_DOWN = frozenset({"implement_down", "implement_lower"})
-IMPLEMENT_UP = frozenset({"implement_raise", "implement_up"})
 
 
 _Seq = TypeVar("_Seq", MissionItem, PlannedItem)
@@ -251,7 +248,7 @@ def handover(
         items_doc = list(v.items[: cut + 1])
         if _implement_down(old.traces[: cut + 1]):  # the implement up before going on
             raise_at = next(
-                k for k in range(cut + 1, len(old.items)) if old.traces[k].role in IMPLEMENT_UP
+                k for k in range(cut + 1, len(old.items)) if old.traces[k].role in IMPLEMENT_RAISED
             )
             raise_item = v.items[raise_at]
             # The field's last work when no route goes back to it: it is done there.
@@ -320,9 +317,9 @@ def _fields(items: Sequence[PlannedItem]) -> tuple[str, ...]:
 def _implement_down(traces: Sequence[Trace]) -> bool:
     """Whether the implement is down after these items (the last implement item says)."""
     for trace in reversed(traces):
-        if trace.role in IMPLEMENT_DOWN:
+        if trace.role in IMPLEMENT_LOWERED:
             return True
-        if trace.role in IMPLEMENT_UP:
+        if trace.role in IMPLEMENT_RAISED:
             return False
     return False
 
