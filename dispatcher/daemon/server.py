@@ -59,7 +59,7 @@ from dispatcher.link.mission_protocol import (
 from dispatcher.link.numbering import choose_base, command_to_vehicle, count_on_board, on_board
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.mission.job import DispatchJob
-from dispatcher.mission.window import shortest, window
+from dispatcher.mission.window import implement_down_at, shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
@@ -842,11 +842,12 @@ class Dispatcher:
             return None
         return (v.planned_s[held - 1] - v.planned_s[v.reached]) / max(v.clock.rate, 1e-6)
 
-    def _upload_s(self, v: VehicleState, count: int) -> float:
+    def _upload_s(self, v: VehicleState, count: int, margin: float = 2.0) -> float:
         """Wall seconds an upload (or read-back) of ``count`` items to the vehicle is to be
-        given: twice what it took at the pace of its last upload (items a second)."""
+        given: ``margin`` times what it takes at the pace of its last upload (items a
+        second); 1: what it should take."""
         took_s, items = self._upload_took.get(v.id, (0.0, 1))
-        return 2.0 * took_s * count / max(items, 1)
+        return margin * took_s * count / max(items, 1)
 
     def _advance_topup(self, v: VehicleState, link: _Link, now: float) -> None:
         """Give a driving vehicle the next window of its mission: upload the longer prefix
@@ -1018,19 +1019,26 @@ class Dispatcher:
 
     def _stops_sooner(self, v: VehicleState, link: _Link, base: int) -> bool:
         """Whether a top-up renumbered from ``base`` has a driving vehicle stand still for
-        less time than the whole prefix would, when the whole prefix would not be on board
-        before it reaches the end of the window it holds (it would stop there and wait):
-        with the shorter upload it stops at the item it drives to instead (it cannot be
-        sent on in the new numbers before it gets there, :meth:`_outruns`), and is started
-        again sooner. A fast clock, or a slow radio, where the prefix takes longer to send
-        than the vehicle takes to drive its window."""
+        less time than the whole prefix would, when the whole prefix should not be on
+        board before it reaches the end of the window it holds (it would stop there and
+        wait; both at the pace of its last upload): with the shorter upload it stops at
+        the item it drives to instead (it cannot be sent on in the new numbers before it
+        gets there, :meth:`_outruns`), and is started again sooner. A fast clock, or a slow
+        radio, where the prefix takes longer to send than the vehicle takes to drive its
+        window. Never where it would stand with its implement down (in a swath: a sprayer
+        or a seeder standing there works the same ground on; windows end after the
+        implement is raised for that reason)."""
         if link.topup_from is None or not 0 < v.current < len(v.items):
             return False
         left_s = self._left_s(v, link.topup_from)
         if left_s is None or v.lat is None or v.lon is None:
             return False
-        whole_wait_s = self._upload_s(v, count_on_board(v.held, v.numbering.base)) - left_s
-        short_wait_s = self._upload_s(v, count_on_board(v.held, base)) - self._to_current_s(v)
+        if implement_down_at(v.items, v.current):
+            return False
+        whole = count_on_board(v.held, v.numbering.base)
+        whole_wait_s = self._upload_s(v, whole, margin=1.0) - left_s
+        short = count_on_board(v.held, base)
+        short_wait_s = self._upload_s(v, short, margin=1.0) - self._to_current_s(v)
         return whole_wait_s > 0.0 and short_wait_s < whole_wait_s
 
     def _numbered(self, v: VehicleState, link: _Link, now: float) -> None:
@@ -1512,15 +1520,24 @@ class Dispatcher:
             v = self.state.vehicles[event.vehicle]
             if not isinstance(event, ev.StartFailed):
                 self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
-            elif not v.driving:
+            elif not (v.driving and not v.mission_stopped) and self._work_left(v):
                 # Heard, but deaf to our commands (a dead uplink: its failsafe holds it
-                # where it is), or never answering them: its work goes to the others, as
-                # a lost one's does. One heard driving took the start after all: left be.
+                # where it is, or it stands at the end of its window), or never answering
+                # them: its work goes to the others, as a lost one's does. One heard
+                # running its mission took the start after all: left be.
                 self._want_replan(
                     f"{event.vehicle} could not be started ({v.error})", now, supersede=True
                 )
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
+
+    def _work_left(self, v: VehicleState) -> bool:
+        """Whether fields not done lie ahead on the vehicle's mission."""
+        fields = self.state.fields
+        return any(
+            item.field_id is not None and fields[str(item.field_id)].status != "done"
+            for item in v.items[v.resume_item :]
+        )
 
     def _log(self, level: str, text: str) -> None:
         getattr(log, level)(text)

@@ -260,11 +260,15 @@ class VehicleState:
         last = self.mission_total  # the last item it holds, as it says
         if self.mission_state == mc.MISSION_STATE_COMPLETE and not self.current_of_last_upload:
             return True  # renumbered under way, stopped at the item it drove to from memory
+        # Complete at the end of the window it held before, the next one on board: it says
+        # so at that item, with the longer total (ArduPilot; FleetState._progress_of_current).
+        end = min(last, self.held_before - 1) if last is not None and self.held_before else last
         return (
-            last is not None
+            end is not None
+            and last is not None
             and last < len(self.items) - 1
             and self.mission_state == mc.MISSION_STATE_COMPLETE
-            and self.current >= last
+            and self.current >= end
         )
 
     @property

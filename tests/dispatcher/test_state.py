@@ -355,23 +355,31 @@ def test_a_failsafe_whose_text_was_lost_is_told_by_the_heartbeat(dispatch):
     assert commands_to(daemon, "v1", 11) == [(mc.MAV_CMD_DO_SET_MISSION_CURRENT, 8.0)]
 
 
-@pytest.mark.parametrize("driving", [False, True])
-def test_a_tractor_heard_but_deaf_to_the_start_has_its_work_re_planned(dispatch, driving):
+@pytest.mark.parametrize("heard", ["holding", "stopped in AUTO", "running", "no work left"])
+def test_a_tractor_heard_but_deaf_to_the_start_has_its_work_re_planned(dispatch, heard):
     """Held by its ground-station failsafe, heard, but none of our commands reaches it (a
     dead uplink): the start fails after its attempts, and its work goes to the others as
-    a lost one's does, instead of standing undone to the end of the run. One heard armed in
-    AUTO took the start after all (the answers were what got lost): no re-plan."""
+    a lost one's does, instead of standing undone to the end of the run. So too for one
+    armed in AUTO whose mission stopped (at the end of its window). One heard running its
+    mission took the start after all (the answers were what got lost), and one with no
+    field left to work has no work to give: no re-plan."""
     daemon = daemon_driving_v1(dispatch, 7)
     daemon.config.replanner = lambda state, cancel: daemon.job  # wanted, not run here
     v = daemon.state.vehicles["v1"]
+    if heard == "no work left":
+        for f in daemon.state.fields.values():
+            f.status = "done"
+        daemon.state.fields["other"] = dataclasses.replace(f, id="other", status="planned")
     in_failsafe = holding(11)
     in_failsafe.system_status = mc.MAV_STATE_CRITICAL
     feed(daemon.state, "v1", in_failsafe, 10.0)
+    state = mc.MISSION_STATE_COMPLETE if heard == "stopped in AUTO" else mc.MISSION_STATE_ACTIVE
     now = 11.0
     while v.phase is not Phase.FAILED and now < 300.0:
-        feed(
-            daemon.state, "v1", driving_heartbeat(11) if driving and now > 12 else holding(11), now
-        )
+        in_auto = heard in ("stopped in AUTO", "running") and now > 12
+        feed(daemon.state, "v1", driving_heartbeat(11) if in_auto else holding(11), now)
+        if in_auto:
+            feed(daemon.state, "v1", mission_current(11, 8, len(v.items) - 1, state), now)
         for machine in daemon.links["v1"].exchanges():
             if machine is not None and machine.outcome is Outcome.RUNNING:
                 machine.on_tick(now)
@@ -379,7 +387,7 @@ def test_a_tractor_heard_but_deaf_to_the_start_has_its_work_re_planned(dispatch,
         now += 0.5
     assert v.phase is Phase.FAILED and "start failed" in v.error
     assert len(commands_to(daemon, "v1", 11)) >= daemon.config.start_attempts
-    if driving:
+    if heard in ("running", "no work left"):
         assert daemon._replan_reason == ""
     else:
         assert daemon._replan_reason.startswith("v1 could not be started (start failed")

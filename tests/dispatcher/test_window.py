@@ -294,39 +294,53 @@ def run_at(v, rate):
     assert v.clock.rate == pytest.approx(rate)
 
 
-@pytest.mark.parametrize("rate", [1.0, 2000.0])
-def test_a_top_up_is_renumbered_when_the_whole_prefix_would_stop_the_vehicle_longer(dispatch, rate):
+@pytest.mark.parametrize(
+    ("rate", "driving_to", "renumbered"),
+    [
+        (1.0, 39, False),  # on the road home: the whole prefix is there in time
+        (2000.0, 39, True),  # the whole prefix would have it stand longer
+        (2000.0, 36, False),  # to the end of its last swath: never a stop there
+    ],
+)
+def test_a_top_up_is_renumbered_when_the_whole_prefix_would_stop_the_vehicle_longer(
+    dispatch, rate, driving_to, renumbered
+):
     """A driving vehicle due its next window, too close to the item it drives to for a
     renumbered upload to be on board first (it would stop there): on a slow clock the whole
     prefix is sent, in time before the end of its window; on a fast one (or a slow radio)
     the whole prefix would have it stand at the end of its window longer than the short
-    upload has it stand at its item, and the top-up is renumbered."""
+    upload has it stand at its item, and the top-up is renumbered; but not where it would
+    stand with its implement down (the end of a swath: the implement is raised after it)."""
     daemon = windowed(dispatch)
     vid = "v1"
-    v = drive(daemon, vid, 35, 0.0)
-    daemon.state.apply(ev.WindowExtended(vid, 40), 0.5)  # to the field's end and on the road
+    v = drive(daemon, vid, driving_to - 1, 0.0)
+    assert v.items[36].role == "swath_end" and v.items[39].role == "road"
+    held = driving_to + 4
+    daemon.state.apply(ev.WindowExtended(vid, held), 0.5)
     running = heartbeat(11)
     running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
     feed(daemon.state, vid, running, 1.0)
-    feed(daemon.state, vid, mission_current(11, 36, 39, STATE_ACTIVE), 1.0)
-    near = v.items[36]  # a metre short of the item it drives to: it gets there first
+    feed(daemon.state, vid, mission_current(11, driving_to, held - 1, STATE_ACTIVE), 1.0)
+    near = v.items[driving_to]  # a metre short of the item it drives to: it gets there first
     fix = mc.message(
         "GLOBAL_POSITION_INT", time_boot_ms=1000, lat=near.x + 90, lon=near.y, alt=0,
         relative_alt=0, vx=0, vy=0, vz=0, hdg=0,
     )  # fmt: skip
     feed(daemon.state, vid, from_vehicle(fix, 11), 1.0)
-    assert v.driving and v.current == 36 and v.lat is not None
+    assert v.driving and v.current == driving_to and v.lat is not None
     run_at(v, rate)
-    daemon._upload_took[vid] = (1.0, 10)  # a slow radio: 10 items a second
+    daemon._upload_took[vid] = (0.1, 10)  # 100 items a second
     link = daemon.links[vid]
-    link.topup_from = 40
+    link.topup_from = held
     daemon.state.apply(ev.WindowExtended(vid, len(v.items)), 1.5)
-    assert not daemon._outruns(v, link, 36)
+    assert not daemon._outruns(v, link, driving_to)
     daemon._send_window(v, link, 2.0)
     count = daemon.publishers[vid].sent()[-1]
     assert count.get_type() == "MISSION_COUNT"
-    if rate == 1.0:  # its last swath and the road take longer than the whole prefix
-        assert daemon._left_s(v, 40) > daemon._upload_s(v, len(v.items))
+    if rate == 1.0:  # the road to the window's end takes longer than the whole prefix
+        assert daemon._left_s(v, held) > daemon._upload_s(v, len(v.items))
+    if renumbered:  # home and the items from the one it drives to
+        short = len(v.items) - driving_to + 1
+        assert link.numbered == (driving_to, short) and count.count == short
+    else:
         assert link.numbered == (1, len(v.items)) and count.count == len(v.items)
-    else:  # home and items 36 ..
-        assert link.numbered == (36, len(v.items) - 35) and count.count == len(v.items) - 35
