@@ -108,6 +108,12 @@ class Rover:
             self.pump(exchange)
         assert exchange.outcome is Outcome.DONE, (exchange.outcome, exchange.reason)
 
+    def pump_for(self, seconds: float) -> None:
+        """Keep reading and beating for ``seconds`` of wall time."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.pump()
+
     def wait(self, what: str, condition) -> None:  # type: ignore[no-untyped-def]
         deadline = time.monotonic() + TIMEOUT_S
         while not condition():
@@ -164,8 +170,7 @@ def test_renumbered_under_way_and_not_sent_on_it_stops_at_its_item(rover: Rover)
     # From memory to item DRIVING_TO, then its mission is complete: it stands there.
     rover.wait("its mission complete", lambda: rover.state()[2] == mc.MISSION_STATE_COMPLETE)
     rover.wait("stopped", lambda: rover.metres_to(DRIVING_TO) < 10.0)
-    for _ in range(60):  # 3 s of wall time, a minute of its own: it does not go on
-        rover.pump()
+    rover.pump_for(3.0)  # a minute of its own: it does not go on
     assert rover.metres_to(DRIVING_TO) < 10.0, rover.metres_to(DRIVING_TO)
     assert rover.state()[2] == mc.MISSION_STATE_COMPLETE, rover.state()
 
@@ -200,7 +205,6 @@ def test_complete_and_given_a_longer_mission_it_says_so_at_the_same_item(rover: 
     rover.run(MissionUpload(longer, 1))
     total = len(longer) - 1
     rover.wait("the longer mission's total", lambda: rover.state()[1] == total)
-    for _ in range(40):  # 2 s of wall time: it stays where it is, complete
-        rover.pump()
+    rover.pump_for(2.0)  # it stays where it is, complete
     assert rover.state() == (last, total, COMPLETE), rover.state()
     assert rover.metres_to(last) < 10.0, rover.metres_to(last)

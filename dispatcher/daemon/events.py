@@ -261,7 +261,18 @@ class PlanReplaced(Event):
     document: dict[str, Any]
 
 
-EVENTS: dict[str, type[Event]] = {cls.kind: cls for cls in Event.__subclasses__()}
+def _kinds() -> dict[str, type[Event]]:
+    found: dict[str, type[Event]] = {}
+    todo = list(Event.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo += cls.__subclasses__()
+        if not cls.kind or found.setdefault(cls.kind, cls) is not cls:
+            raise TypeError(f"event {cls.__name__}: its kind {cls.kind!r} is empty or taken")
+    return found
+
+
+EVENTS: dict[str, type[Event]] = _kinds()
 """Every kind of event by its name: all of this module's (one forgotten in a hand-kept list,
 ``mission_numbered``, made a store with a renumbered vehicle in it fail to resume, and the
 review skip its numbering)."""

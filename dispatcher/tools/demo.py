@@ -44,7 +44,7 @@ DEFAULT_SCENARIO = DEMO_SCENARIO
 TARGET_WALL_S = 45.0  # the default speedup fits the planned makespan into this
 MAX_AUTO_SPEEDUP = 1200.0
 """The default speedup's ceiling: a longer plan takes longer than ``TARGET_WALL_S`` (the
-default scenario's 21.4 h take ~65 s). The mission protocol and the top-ups of a window run
+default scenario's 21.4 h take ~70 s). The mission protocol and the top-ups of a window run
 in wall time, so a second a tractor waits for them is ``speedup`` seconds of its simulated
 time, and on two cores the simulators and the links fall behind. The default scenario on
 this project's two-core machine (benchmarks/RESULTS.md, 2026-11-27 08:20): at 1 000x and

@@ -242,7 +242,7 @@ def test_bench_farm_reports_both_bounds_and_both_gaps():
     assert float(cells["LB"]) <= float(cells["no travel"]) < ours
 
 
-def test_bench_farm_runs_ours_again_within_the_peers_makespan():
+def test_bench_farm_runs_ours_again_with_the_peers_makespan_as_its_deadline():
     """With OR-Tools, ours runs again with its makespan as the deadline: the road km of
     ours at that makespan beside OR-Tools' (and their ratio). (Whether it meets the
     deadline in 0.3 s depends on the machine's load: a benchmark's figure, not a test's.)"""
