@@ -58,8 +58,9 @@ from dispatcher.link.mission_protocol import (
 )
 from dispatcher.link.numbering import choose_base, command_to_vehicle, count_on_board, on_board
 from dispatcher.link.signals import stop_on_signals
+from dispatcher.mission.build import implement_down_after
 from dispatcher.mission.job import DispatchJob
-from dispatcher.mission.window import implement_down_at, shortest, window
+from dispatcher.mission.window import shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
 from dispatcher.recording.mcap_file import Recorder
 
@@ -1033,7 +1034,7 @@ class Dispatcher:
         left_s = self._left_s(v, link.topup_from)
         if left_s is None or v.lat is None or v.lon is None:
             return False
-        if implement_down_at(v.items, v.current):
+        if implement_down_after(v.items[: v.current]):
             return False
         whole = count_on_board(v.held, v.numbering.base)
         whole_wait_s = self._upload_s(v, whole, margin=1.0) - left_s

@@ -68,10 +68,10 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
-from typing import Literal, get_args
+from typing import Literal, Protocol, get_args
 
 from pyproj import Geod
 
@@ -103,6 +103,24 @@ IMPLEMENT_LOWERED: frozenset[str] = frozenset({"implement_down", "implement_lowe
 turn."""
 IMPLEMENT_RAISED: frozenset[str] = frozenset({"implement_up", "implement_raise"})
 """Roles of the items that raise it: a field's last raising, and for a turn."""
+
+
+class _HasRole(Protocol):
+    @property
+    def role(self) -> str: ...
+
+
+def implement_down_after(steps: Sequence[_HasRole]) -> bool:
+    """Whether the implement is down after these mission items (their traces, or planned
+    items): the last of them that lowers or raises it says; down from a lowering to the
+    next raising, in a swath or in a field without planned turns."""
+    for step in reversed(steps):
+        if step.role in IMPLEMENT_LOWERED:
+            return True
+        if step.role in IMPLEMENT_RAISED:
+            return False
+    return False
+
 
 SAME_POINT_M = 0.01
 """A swath start this close (metres) to the point before it is not repeated."""

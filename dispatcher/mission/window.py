@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED
+from dispatcher.mission.build import IMPLEMENT_RAISED
 from dispatcher.mission.document import PlannedItem
 
 ROUTE_ENDS = frozenset({"swath_end", "swath_start", "road", "transit", "return"})
@@ -76,15 +76,3 @@ def shortest(size: int) -> int:
     window may end (after the implement is next raised), given the scenario's window
     ``size``; 0 (no windows) stays 0: the whole mission."""
     return min(size, 1)
-
-
-def implement_down_at(items: Sequence[PlannedItem], k: int) -> bool:
-    """Whether the implement is down at item ``k`` of a mission, before that item's own
-    command: what a vehicle standing there, its mission ended at ``k``, holds it at (down
-    from a lowering to the next raising, in a swath or in a field without planned turns)."""
-    for item in reversed(items[:k]):
-        if item.role in IMPLEMENT_LOWERED:
-            return True
-        if item.role in IMPLEMENT_RAISED:
-            return False
-    return False

@@ -33,7 +33,13 @@ from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
 from dispatcher.daemon.state import GONE, FleetState, Phase, VehicleState
 from dispatcher.link.mission_item import MissionItem
-from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED, Mission, Role, Trace
+from dispatcher.mission.build import (
+    IMPLEMENT_RAISED,
+    Mission,
+    Role,
+    Trace,
+    implement_down_after,
+)
 from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
@@ -246,7 +252,7 @@ def handover(
         items = list(old.items[: cut + 1])
         traces = list(old.traces[: cut + 1])
         items_doc = list(v.items[: cut + 1])
-        if _implement_down(old.traces[: cut + 1]):  # the implement up before going on
+        if implement_down_after(old.traces[: cut + 1]):  # the implement up before going on
             raise_at = next(
                 k for k in range(cut + 1, len(old.items)) if old.traces[k].role in IMPLEMENT_RAISED
             )
@@ -312,16 +318,6 @@ def _work(items: Sequence[PlannedItem]) -> list[tuple[str | None, int | None]]:
 def _fields(items: Sequence[PlannedItem]) -> tuple[str, ...]:
     """The fields these items work, in order."""
     return tuple(dict.fromkeys(str(i.field_id) for i in items if i.role == ON_SEGMENT))
-
-
-def _implement_down(traces: Sequence[Trace]) -> bool:
-    """Whether the implement is down after these items (the last implement item says)."""
-    for trace in reversed(traces):
-        if trace.role in IMPLEMENT_LOWERED:
-            return True
-        if trace.role in IMPLEMENT_RAISED:
-            return False
-    return False
 
 
 def replanner_for(
