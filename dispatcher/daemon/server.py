@@ -942,7 +942,7 @@ class Dispatcher:
         starting = link.start is not None and link.start.outcome is Outcome.RUNNING
         just_started = v.started_at is not None and now - v.started_at < CURRENT_SETTLE_S
         # Its mission runs: ArduPilot follows a change of it (not one complete or stopped).
-        running = v.driving and not v.mission_stopped
+        running = v.runs_mission
         if starting or just_started or (running and v.mission_state != mc.MISSION_STATE_ACTIVE):
             # Being started, or not yet heard driving the mission since (what it said before
             # the start may still stand: a tractor started at item 36 after a restart was
@@ -1521,7 +1521,7 @@ class Dispatcher:
             v = self.state.vehicles[event.vehicle]
             if not isinstance(event, ev.StartFailed):
                 self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
-            elif not (v.driving and not v.mission_stopped) and self._work_left(v):
+            elif not v.runs_mission and self._work_left(v):
                 # Heard, but deaf to our commands (a dead uplink: its failsafe holds it
                 # where it is, or it stands at the end of its window), or never answering
                 # them: its work goes to the others, as a lost one's does. One heard

@@ -219,6 +219,11 @@ class VehicleState:
         return self.mode == ROVER_MODE_AUTO and self.armed
 
     @property
+    def runs_mission(self) -> bool:
+        """Armed in AUTO, its mission running (not stopped): it drives it."""
+        return self.driving and not self.mission_stopped
+
+    @property
     def mission_stopped(self) -> bool:
         """Its autopilot says its mission is not running (MISSION_CURRENT.mission_state):
         complete, or not started (an item set current on a mission that had completed), or
@@ -260,16 +265,16 @@ class VehicleState:
         last = self.mission_total  # the last item it holds, as it says
         if self.mission_state == mc.MISSION_STATE_COMPLETE and not self.current_of_last_upload:
             return True  # renumbered under way, stopped at the item it drove to from memory
+        if (
+            last is None
+            or last >= len(self.items) - 1
+            or self.mission_state != mc.MISSION_STATE_COMPLETE
+        ):
+            return False
         # Complete at the end of the window it held before, the next one on board: it says
         # so at that item, with the longer total (ArduPilot; FleetState._progress_of_current).
-        end = min(last, self.held_before - 1) if last is not None and self.held_before else last
-        return (
-            end is not None
-            and last is not None
-            and last < len(self.items) - 1
-            and self.mission_state == mc.MISSION_STATE_COMPLETE
-            and self.current >= end
-        )
+        end = min(last, self.held_before - 1) if self.held_before else last
+        return self.current >= end
 
     @property
     def resume_item(self) -> int:
