@@ -61,18 +61,24 @@ def finished(proc, procs: Processes, sitl: Sitl, timeout_s: float = RUN_TIMEOUT_
     return int(proc.returncode)
 
 
+def r1_under_way(procs: Processes, sitl: Sitl, serve, status, share: float, state: dict):  # type: ignore[no-untyped-def]
+    """A check: whether r1 drives its mission with ``share`` of it done (the dispatcher's
+    ``status``, kept in ``state``); fails at once if ``serve`` exits."""
+
+    def under_way() -> bool:
+        if serve.poll() is not None:
+            raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
+        state.update(status().get("vehicles", {}).get("r1", {}))
+        return state.get("phase") == "running" and state.get("share_done", 0) >= share
+
+    return under_way
+
+
 def wait_under_way(procs: Processes, sitl: Sitl, serve, port: int, share: float) -> None:  # type: ignore[no-untyped-def]
     """Until r1 drives its mission with ``share`` of it done (the dispatcher's status);
     fails at once if ``serve`` exits."""
     with status_reader(port, "sitl") as status:
-        state: dict = {}
-
-        def under_way() -> bool:
-            if serve.poll() is not None:
-                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
-            state.update(status().get("vehicles", {}).get("r1", {}))
-            return state.get("phase") == "running" and state.get("share_done", 0) >= share
-
+        under_way = r1_under_way(procs, sitl, serve, status, share, {})
         wait_for(
             f"{share:.0%} of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl)
         )
@@ -131,13 +137,7 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
     procs.bridge(SCENARIO, "r1", sitl, port)
     with status_reader(port, "sitl") as status:
         state: dict = {}
-
-        def well_under_way() -> bool:
-            if serve.poll() is not None:
-                raise AssertionError(f"serve exited early\n{procs.report(sitl)}")
-            state.update(status().get("vehicles", {}).get("r1", {}))
-            return state.get("phase") == "running" and state.get("share_done", 0) >= 0.4
-
+        well_under_way = r1_under_way(procs, sitl, serve, status, 0.4, state)
         wait_for(
             "40 % of the mission",
             well_under_way,
