@@ -123,6 +123,14 @@ class StartFailed(Event):
 
 
 @dataclass(frozen=True)
+class AnsweringAgain(Event):
+    """A vehicle failed for want of answers (its upload or its start), its work given to
+    the others, acknowledged a command of ours: it hears us again and may be given work."""
+
+    kind: ClassVar[str] = "answering_again"
+
+
+@dataclass(frozen=True)
 class StartRefused(Event):
     """The vehicle refused to arm or to start (pre-arm checks ...); asked again."""
 

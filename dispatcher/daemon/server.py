@@ -80,6 +80,10 @@ FOREIGN_ALARM_PERIOD_S = 1.0  # at most one foreign-command alarm a second per v
 RENUMBER_MARGIN_S = 0.5
 """Wall seconds a driving vehicle is to be at least that far from the item it drives to,
 beyond twice the upload's time, for its mission to be renumbered under it."""
+PROBE_PERIOD_S = 10.0
+"""Wall seconds from a HOLD unanswered to the next, told a vehicle failed for want of
+answers whose work went to the others, while it is heard: whether it hears us again
+(Dispatcher._probe)."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -198,6 +202,7 @@ class _Link:
     # stopped (at the item it drove to from memory, the set-current late) is started again.
     renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
+    probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
     heard_at: float | None = None  # when this process first heard the vehicle
@@ -659,6 +664,9 @@ class Dispatcher:
         if v.switch and v.phase is Phase.RUNNING:
             self._advance_switch(v, link, now)
             return
+        if v.retired and v.phase is Phase.FAILED:
+            self._probe(v, link, now)
+            return
         if v.retired:
             # Its work went to the others: it stays where it is, and rejoins at a re-plan
             # asked for when it is heard again.
@@ -778,6 +786,27 @@ class Dispatcher:
             if link.renumbered:
                 self._after_renumbering(v, link, now)
             self._advance_topup(v, link, now)
+
+    def _probe(self, v: VehicleState, link: _Link, now: float) -> None:
+        """A vehicle failed for want of answers, its work given to the others: told to
+        HOLD while it is heard, PROBE_PERIOD_S after the last time went unanswered. Once
+        it acknowledges, it hears us again (events.AnsweringAgain), and it rejoins as one
+        back from a loss does (the retired branch of :meth:`_advance`: a re-plan gives it
+        work from where it is). The HOLD stops one that drives its mission after all: its
+        fields are the others' now."""
+        if link.hold is not None:
+            if link.hold.outcome is Outcome.RUNNING:
+                return
+            if link.hold.outcome is Outcome.DONE:
+                link.starts = 0
+                self._apply(ev.AnsweringAgain(v.id), now)
+                self._log("info", f"{v.id}: answers our commands again; to be given work")
+                return
+            link.hold, link.probe_at = None, now + PROBE_PERIOD_S
+        heard = v.last_seen is not None and now - v.last_seen <= self.config.heartbeat_timeout_s
+        if heard and now >= link.probe_at and not link.busy:
+            link.hold = CommandSequence(hold_commands(), v.system_id)
+            self._send(v.id, link.hold.start(now))
 
     def _failsafe_over(self, v: VehicleState, link: _Link) -> str | None:
         """What said a ground-station failsafe put a running vehicle out of AUTO (its text,
@@ -1512,22 +1541,27 @@ class Dispatcher:
             if not waiting:
                 self.replans[index][2] = time.monotonic() - since
                 self._awaiting_acks = None
+        deaf = isinstance(event, ev.StartFailed) or (
+            isinstance(event, ev.UploadFailed) and event.final
+        )
         if (
-            isinstance(event, ev.VehicleLost | ev.VehicleStalled | ev.StartFailed)
+            (deaf or isinstance(event, ev.VehicleLost | ev.VehicleStalled))
             and self.config.replanner is not None
             and was not in (None, Phase.DONE, Phase.FAILED, Phase.LOST)
             and not self.state.all_fields_done()
         ):
             v = self.state.vehicles[event.vehicle]
-            if not isinstance(event, ev.StartFailed):
+            if not deaf:
                 self._want_replan(f"{event.vehicle} lost ({v.error})", now, supersede=True)
             elif not v.runs_mission and self._work_left(v):
                 # Heard, but deaf to our commands (a dead uplink: its failsafe holds it
                 # where it is, or it stands at the end of its window), or never answering
-                # them: its work goes to the others, as a lost one's does. One heard
-                # running its mission took the start after all: left be.
+                # them: its work goes to the others, as a lost one's does, and it is asked
+                # now and then whether it hears us again (_probe). One heard running its
+                # mission took the start after all: left be.
+                what = "started" if isinstance(event, ev.StartFailed) else "given its mission"
                 self._want_replan(
-                    f"{event.vehicle} could not be started ({v.error})", now, supersede=True
+                    f"{event.vehicle} could not be {what} ({v.error})", now, supersede=True
                 )
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())

@@ -461,6 +461,10 @@ class FleetState:
             case ev.StartFailed(reason=reason):
                 v.phase = Phase.FAILED
                 v.error = reason
+            case ev.AnsweringAgain():
+                if v.phase is Phase.FAILED:
+                    v.phase, v.error = Phase.ALIVE, ""
+                    v.upload_attempts = 0
             case ev.StartRefused(reason=reason) | ev.LeftAuto(reason=reason):
                 v.error = reason
             case ev.BackInAuto():

@@ -86,9 +86,12 @@ def booting(sysid):
 
 
 def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
+    """Three uploads, then the vehicle is failed, and its work goes to the others (a
+    re-plan is asked for), as a vehicle's that cannot be started does."""
     from dispatcher.link.mission_protocol import Outcome
 
     daemon = daemon_for(dispatch)
+    daemon.config.replanner = lambda state, cancel: daemon.job  # wanted, not run here
     for vid, v in daemon.state.vehicles.items():
         daemon.state.apply(ev.VehicleSeen(vid), 0.0)
         feed(daemon.state, vid, heartbeat(v.system_id), 0.0)
@@ -112,6 +115,7 @@ def test_a_failed_upload_is_tried_again_from_the_count_after_a_pause(dispatch):
     assert v1.phase is Phase.FAILED and "after 3 attempts" in v1.error
     types = [m.get_type() for m in daemon.publishers["v1"].sent()]
     assert types.count("MISSION_COUNT") == 3
+    assert daemon._replan_reason.startswith("v1 could not be given its mission (upload failed")
 
 
 def test_a_booting_autopilot_gets_its_mission_once_it_is_ready(dispatch):
@@ -209,6 +213,57 @@ def test_a_started_mission_gives_the_next_start_its_attempts_again(dispatch):
         link.start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.6)
     daemon._advance("v1", 0.7)
     assert v.phase is Phase.RUNNING and link.starts == 0
+
+
+def test_a_tractor_that_could_not_be_started_is_asked_again_and_rejoins_once_it_answers(
+    dispatch,
+):
+    """Its work given to the others, a vehicle failed for want of answers is told to HOLD
+    while it is heard (not when it is not), PROBE_PERIOD_S after the last time went
+    unanswered; once it acknowledges, it hears us again, and a re-plan is asked for to give
+    it work, as for one back from a loss."""
+    from dispatcher.daemon.server import PROBE_PERIOD_S
+
+    daemon, v, link = starting_v1(dispatch, 0.0)
+    daemon.config.replanner = lambda state, cancel: daemon.job  # wanted, not run here
+    now = unanswered(daemon, link.start, 0.0)
+    while v.phase is not Phase.FAILED:
+        feed(daemon.state, "v1", held(11), now)
+        daemon._advance("v1", now)
+        if link.start.outcome is Outcome.RUNNING:
+            now = unanswered(daemon, link.start, now)
+    assert daemon._replan_reason.startswith("v1 could not be started")
+    daemon._replan_reason = ""
+    v.retired = True  # what the re-plan does to a vehicle it leaves out
+
+    def holds():
+        return commands_to(daemon, "v1", 11).count((mc.MAV_CMD_DO_SET_MODE, 1.0))
+
+    before = holds()
+    now += daemon.config.heartbeat_timeout_s + 1.0
+    daemon._advance("v1", now)  # its last HEARTBEAT is old: not heard
+    assert holds() == before
+    feed(daemon.state, "v1", held(11), now)
+    daemon._advance("v1", now)
+    assert holds() == before + 1 and link.hold.outcome is Outcome.RUNNING
+    probe = link.hold
+    now = unanswered(daemon, probe, now)
+    assert probe.outcome is Outcome.FAILED
+    feed(daemon.state, "v1", held(11), now)
+    daemon._advance("v1", now)  # it went unanswered: the next in PROBE_PERIOD_S
+    assert holds() == before + 1 + probe.max_retries and link.hold is None
+    feed(daemon.state, "v1", held(11), now + PROBE_PERIOD_S - 0.5)
+    daemon._advance("v1", now + PROBE_PERIOD_S - 0.5)
+    assert link.hold is None
+    now += PROBE_PERIOD_S
+    feed(daemon.state, "v1", held(11), now)
+    daemon._advance("v1", now)
+    assert link.hold is not probe and v.phase is Phase.FAILED
+    link.hold.on_message(ack(mc.MAV_CMD_DO_SET_MODE, mc.MAV_RESULT_ACCEPTED), now + 0.5)
+    daemon._advance("v1", now + 0.6)
+    assert v.phase is Phase.ALIVE and not v.error and v.retired
+    daemon._advance("v1", now + 0.7)
+    assert daemon._replan_reason == "v1 back"
 
 
 def starting_v1(dispatch, now):
