@@ -70,6 +70,16 @@ EXACT_CANDIDATES = 32  # angles with the lowest estimated counts, decomposed exa
 COVERAGE_CANDIDATES = 12  # angles tied on the fewest swaths, compared by covered area
 MIN_CELL_FRACTION = 0.1  # cells thinner than this many working widths are dropped
 MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
+# A field the short side of whose minimum rotated rectangle is a working width across may
+# still be nowhere that wide (an L of thin arms, a thin rim about a hole): one where no
+# circle this many working widths across fits is refused too. A convex field a width
+# across always has room for one 2/3 of a width across (a triangle's inradius is at least
+# a third of its least width), so this refuses no convex field the rectangle lets through.
+MIN_INSIDE_FRACTION = 0.6
+# A headland ring's points closer than this to the point before are dropped: the offset of
+# a jittery outline (GPS noise) leaves edges of a fraction of a millimetre, which a mission
+# in lat/lon (1e-7 degrees, ~1 cm) cannot tell from a point.
+MIN_RING_EDGE_M = 0.05
 # Adjacent swaths of a cell are at least this many working widths apart (and at most one);
 # a cell that would need them closer gets one swath less (see swath_counts).
 MIN_SPACING_FRACTION = 0.5
@@ -292,6 +302,7 @@ def cover_field(
         rings_by_pass, region, lane, angle, cells, ref = _layout_fitting_turns(
             field_poly, w, passes, radius, angle_deg, simplify_m, field_id, clock
         )
+        passes = len(rings_by_pass)  # as laid out: fewer where the field has no room
     else:
         passes = headland_passes
         rings_by_pass, region, lane, angle, cells, ref = _layout(
@@ -324,6 +335,7 @@ def cover_field(
             rings, moves = fits.enter_rings(rings_by_pass, last.end, _heading(last))
         else:
             rings = _order_rings(rings_by_pass, corner_path[-1].end)
+        rings = tuple(_without_short_edges(ring, MIN_RING_EDGE_M) for ring in rings)
         links.append(routes)
         turn_paths.append(turns)
         headland_paths.append(rings)
@@ -603,6 +615,13 @@ def _checked_field(
             f"{where}: the field is {short_side:.2f} m across at its narrowest,"
             f" less than the working width {working_width_m:g} m"
         )
+    widest = _widest_inside_m(polygon)
+    if widest + 2.0 * _INSCRIBED_TOLERANCE_M < MIN_INSIDE_FRACTION * working_width_m:
+        raise GeometryError(
+            f"{where}: the field is nowhere {MIN_INSIDE_FRACTION:g} of the working width"
+            f" {working_width_m:g} m wide (the widest circle inside it, holes and bends"
+            f" counted, is {widest:.2f} m across)"
+        )
     return orient(polygon, sign=1.0)
 
 
@@ -615,6 +634,17 @@ def _narrowest_m(polygon: Polygon) -> float:
     c = np.asarray(rect.exterior.coords)
     sides = np.hypot(*(c[1:3] - c[0:2]).T)
     return float(sides.min())
+
+
+_INSCRIBED_TOLERANCE_M = 0.01
+
+
+def _widest_inside_m(polygon: Polygon) -> float:
+    """The diameter of the largest circle inside ``polygon`` (outside its holes), to within
+    :data:`_INSCRIBED_TOLERANCE_M` below."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # GEOS on near-collinear outlines
+        radius = shapely.maximum_inscribed_circle(polygon, tolerance=_INSCRIBED_TOLERANCE_M)
+    return 2.0 * float(radius.length)
 
 
 def _normalise_angle(angle_deg: float) -> float:
@@ -709,6 +739,21 @@ def _rounded(offset: shapely.Geometry, radius: float) -> shapely.Geometry:
     if len(_polygons(opened)) != len(_polygons(offset)) or opened.area < 0.5 * offset.area:
         return offset
     return opened
+
+
+def _without_short_edges(path: tuple[XY, ...], min_m: float) -> tuple[XY, ...]:
+    """``path`` without the points within ``min_m`` of the point kept before them; its
+    first and last points stay (a closed ring stays closed)."""
+    if len(path) < 3:
+        return path
+    kept = [path[0]]
+    for point in path[1:-1]:
+        if math.dist(point, kept[-1]) > min_m:
+            kept.append(point)
+    while len(kept) > 1 and math.dist(kept[-1], path[-1]) <= min_m:
+        kept.pop()
+    kept.append(path[-1])
+    return tuple(kept)
 
 
 def _order_rings(rings_by_pass: list[list[FloatArray]], after: XY) -> tuple[tuple[XY, ...], ...]:
@@ -835,8 +880,11 @@ def _score(
 
     Each strip is clipped to its own cell (cells tile the region), less the overlap of each
     strip with its neighbour below in the cell (evenly spread swaths overlap a little).
-    An overlay GEOS cannot compute scores the angle as covering nothing.
+    An overlay GEOS cannot compute scores the angle as covering nothing, and one with no
+    swaths (a region too narrow at that angle) loses to any with some.
     """
+    if not any(len(c.lines) for c in cells):
+        return (math.inf, round(area, 2), 0.0)
     lines = np.vstack([c.lines for c in cells])
     total = round(float((lines[:, 2] - lines[:, 1]).sum()), 3)
     sizes = np.array([len(c.lines) for c in cells])

@@ -519,6 +519,15 @@ def _km(metres: float) -> str:
     return f"{metres / 1000:.1f} km".replace(".0 km", " km")
 
 
+def _ring_centre(ring: list[tuple[float, float]]) -> tuple[float, float]:
+    """The mean of a ring's corners (lon, lat), its longitudes taken about the first one: a
+    field across the antimeridian (179.99° and -179.99°) is there, not at longitude 0."""
+    lonlat = np.asarray(ring, dtype=np.float64)
+    first = lonlat[0, 0]
+    lon = first + float(np.mean((lonlat[:, 0] - first + 180.0) % 360.0 - 180.0))
+    return (lon + 180.0) % 360.0 - 180.0, float(np.mean(lonlat[:, 1]))
+
+
 def _check_extent(
     source: str,
     garage: tuple[float, float],
@@ -536,7 +545,7 @@ def _check_extent(
     """
     limit = MAX_GARAGE_DISTANCE_M
     centres = np.array(
-        [np.mean(rings[0], axis=0) for _, _, rings in raw_fields] + [garage], dtype=np.float64
+        [_ring_centre(rings[0]) for _, _, rings in raw_fields] + [garage], dtype=np.float64
     )
     lon, lat = centres[:, 0], centres[:, 1]
     apart = _distance_m(lon[:, None], lat[:, None], lon[None, :], lat[None, :])

@@ -11,10 +11,12 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiPoint, MultiPolygon, Point, Polygon
 
 from planner.coverage import (
+    MIN_RING_EDGE_M,
     MIN_SPACING_FRACTION,
     FieldCoverage,
     Swath,
     cover_field,
+    headland_passes_for_turns,
     rectangle_field,
 )
 from planner.errors import GeometryError
@@ -356,6 +358,31 @@ def test_adjacent_swaths_are_never_closer_than_allowed(
     assert_spacing_and_no_overlap(cov)
 
 
+def test_a_field_no_angle_fits_with_the_headland_is_laid_out_with_fewer_passes() -> None:
+    """15 m across, 3.7 m wide, turns of 4.5 m: with the headland the turns need, no angle
+    has a swath (the angle search raised ValueError, which the fallback to fewer passes
+    did not catch); the layout has fewer passes, and says so."""
+    cov = cover_field(rectangle_field(15.0, 300.0), 3.7, field_id="narrow", turn_radius_m=4.5)
+    assert cov.swaths
+    assert cov.headland_passes == len(cov.headland) < headland_passes_for_turns(3.7, 4.5, 3.7)
+
+
+def test_a_jittery_outline_gives_headland_rings_without_edges_of_a_point() -> None:
+    """A round field digitised with 0.4 m of GPS noise: its offsets have edges of a fraction
+    of a millimetre, which a mission in lat/lon cannot tell from a point (the mission
+    builder refused them as swaths of zero length)."""
+    rng = np.random.default_rng(3)
+    k = np.arange(800) * 2.0 * math.pi / 800
+    radius = 150.0 + rng.uniform(-0.4, 0.4, 800)
+    field = Polygon(np.column_stack([radius * np.cos(k), radius * np.sin(k)]))
+    cov = cover_field(field, 6.9, field_id="noisy", turn_radius_m=6.0)
+    for corner in range(4):
+        for ring in cov.headland_path(corner):
+            edges = np.hypot(*np.diff(np.asarray(ring), axis=0).T)
+            assert edges.min() > MIN_RING_EDGE_M
+            assert ring[0] == ring[-1]
+
+
 # ----------------------------------------------------------------------------- headland
 
 
@@ -403,6 +430,19 @@ def test_headland_goes_around_holes_too() -> None:
         (MultiPolygon([shapely.box(0, 0, 50, 50)]), 1.0, {}, "expected one shapely Polygon"),
         (rectangle_field(4.0, 100.0), 6.0, {}, "4.00 m across at its narrowest"),
         (Polygon([(0, 0), (100, 0), (50, 3)]), 6.0, {}, "narrowest"),
+        # An L of two 2.5 m arms and a 2 m rim about a hole: their rectangles are wide.
+        (
+            Polygon([(0, 0), (200, 0), (200, 2.5), (2.5, 2.5), (2.5, 200), (0, 200)]),
+            6.0,
+            {},
+            "nowhere 0.6 of the working width 6 m wide",
+        ),
+        (
+            Polygon(shapely.box(0, 0, 100, 100).exterior, [shapely.box(2, 2, 98, 98).exterior]),
+            6.0,
+            {},
+            r"holes and bends counted, is 2\.\d\d m across",
+        ),
         (rectangle_field(60.0, 100.0), 0.0, {}, "working width must be positive"),
         (rectangle_field(60.0, 100.0), -3.0, {}, "working width must be positive"),
         (rectangle_field(60.0, 100.0), math.nan, {}, "working width must be positive"),

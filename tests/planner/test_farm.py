@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import shapely
 
 from planner.errors import GeometryError
 from planner.farm import KINDS, MAX_ABS_LATITUDE, load_farm
@@ -271,6 +272,20 @@ def test_a_field_farther_than_the_limit_from_the_garage_is_named_with_its_distan
     assert "field 'far': its corner 1 [10.84019, 50.00000] is 60.1 km from the garage" in message
     assert "(limit 50 km)" in message
     assert "swapped" not in message
+
+
+def test_a_field_across_the_antimeridian_is_where_it_is(tmp_path):
+    """Its corners at 179.999 and -179.999 degrees: its centre is at 180, not at 0 (which
+    put it 14 600 km from its garage)."""
+    lat0 = -16.5
+    across = [[lon - 360.0 if lon > 180.0 else lon, lat] for lon, lat in rect(179.9995, lat0)]
+    doc = {
+        "type": "FeatureCollection",
+        "features": [field("F1", across), point("garage", 179.9990, lat0 - 0.0003)],
+    }
+    farm = load_farm(write(tmp_path, doc))
+    assert farm.fields[0].area_m2 == pytest.approx(120.0 * 80.0, rel=0.01)
+    assert farm.fields[0].boundary.distance(shapely.Point(farm.garage)) < 100.0
 
 
 def test_a_road_far_from_the_farm_is_named(tmp_path):
