@@ -78,8 +78,9 @@ MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
 MIN_INSIDE_FRACTION = 0.6
 # A headland ring's points closer than this to the point before are dropped: the offset of
 # a jittery outline (GPS noise) leaves edges of a fraction of a millimetre, which a mission
-# in lat/lon (1e-7 degrees, ~1 cm) cannot tell from a point.
-MIN_RING_EDGE_M = 0.05
+# in lat/lon cannot tell from a point (1e-7 degrees, ~1 cm: two points 2.5 cm apart stay
+# more than the mission builder's 1 cm apart when rounded to it).
+MIN_RING_EDGE_M = 0.025
 # Adjacent swaths of a cell are at least this many working widths apart (and at most one);
 # a cell that would need them closer gets one swath less (see swath_counts).
 MIN_SPACING_FRACTION = 0.5
@@ -335,7 +336,6 @@ def cover_field(
             rings, moves = fits.enter_rings(rings_by_pass, last.end, _heading(last))
         else:
             rings = _order_rings(rings_by_pass, corner_path[-1].end)
-        rings = tuple(_without_short_edges(ring, MIN_RING_EDGE_M) for ring in rings)
         links.append(routes)
         turn_paths.append(turns)
         headland_paths.append(rings)
@@ -707,8 +707,11 @@ def _headland_and_region(
         offset = _rounded(field_poly.buffer(-(k + 0.5) * w, join_style="mitre"), radius)
         rings: list[FloatArray] = []
         for part in (orient(p, sign=1.0) for p in _polygons(offset)):
-            rings.append(np.asarray(part.exterior.coords))
-            rings.extend(np.asarray(hole.coords) for hole in part.interiors)
+            rings.append(_without_short_edges(np.asarray(part.exterior.coords), MIN_RING_EDGE_M))
+            rings.extend(
+                _without_short_edges(np.asarray(hole.coords), MIN_RING_EDGE_M)
+                for hole in part.interiors
+            )
         rings_by_pass.append(rings)
     if clock is not None:
         clock.check("laying out the headland")
@@ -741,19 +744,19 @@ def _rounded(offset: shapely.Geometry, radius: float) -> shapely.Geometry:
     return opened
 
 
-def _without_short_edges(path: tuple[XY, ...], min_m: float) -> tuple[XY, ...]:
-    """``path`` without the points within ``min_m`` of the point kept before them; its
-    first and last points stay (a closed ring stays closed)."""
-    if len(path) < 3:
-        return path
-    kept = [path[0]]
-    for point in path[1:-1]:
-        if math.dist(point, kept[-1]) > min_m:
-            kept.append(point)
-    while len(kept) > 1 and math.dist(kept[-1], path[-1]) <= min_m:
+def _without_short_edges(ring: FloatArray, min_m: float) -> FloatArray:
+    """A closed ring without the points within ``min_m`` of the point kept before them
+    (its first point stays, and so it stays closed)."""
+    if len(ring) < 4:
+        return ring
+    kept = [0]
+    for k in range(1, len(ring) - 1):
+        if math.dist(ring[k], ring[kept[-1]]) > min_m:
+            kept.append(k)
+    while len(kept) > 1 and math.dist(ring[kept[-1]], ring[-1]) <= min_m:
         kept.pop()
-    kept.append(path[-1])
-    return tuple(kept)
+    kept.append(len(ring) - 1)
+    return ring[kept] if len(kept) >= 4 else ring
 
 
 def _order_rings(rings_by_pass: list[list[FloatArray]], after: XY) -> tuple[tuple[XY, ...], ...]:
