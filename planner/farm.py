@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
@@ -191,6 +192,8 @@ def farm_from_geojson(
             garages.append((lon, lat))
             garage_wheres.append(where.removeprefix(f"{source}: "))
         elif kind == "field":
+            if _prop(props, "id") is None and feature.get("id") is not None:
+                props = {**props, "id": feature["id"]}  # RFC 7946's id of the feature
             field_id = _field_id(props, options.id_field, k, where)
             name = _field_name(props, options.name_field, field_id, where)
             where = f"{source}: field {field_id!r}"
@@ -426,10 +429,12 @@ def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -
         value = _prop(props, id_field)
         if value is None:
             have = ", ".join(sorted(props)) or "none"
-            raise GeometryError(
-                f"{where}: a field without property {id_field!r} (the --id-field); "
-                f"its properties: {have}"
+            what = (
+                f"a field whose property {id_field!r} (the --id-field) is empty"
+                if any(name.lower() == id_field.lower() for name in props)
+                else f"a field without property {id_field!r} (the --id-field)"
             )
+            raise GeometryError(f"{where}: {what}; its properties: {have}")
         found = _text(value)
         if found is None:
             raise GeometryError(
@@ -621,8 +626,10 @@ def _field(
         xs, ys = frame.to_local(np.array([p[0] for p in ring]), np.array([p[1] for p in ring]))
         local_rings.append(list(zip(xs.tolist(), ys.tolist(), strict=True)))
     try:
-        boundary = Polygon(local_rings[0], local_rings[1:])
-        lonlat = Polygon(rings[0], rings[1:])
+        # Outline counter-clockwise, holes clockwise (RFC 7946), whatever the file has: the
+        # same field gives the same plan from every format (GDAL's readers orient it so).
+        boundary = orient(Polygon(local_rings[0], local_rings[1:]), sign=1.0)
+        lonlat = orient(Polygon(rings[0], rings[1:]), sign=1.0)
     except (ValueError, shapely.errors.ShapelyError) as exc:
         raise GeometryError(f"{where}: not a polygon: {exc}") from exc
     if boundary.is_empty or boundary.area <= 0.0:
@@ -638,6 +645,8 @@ def _field(
     ):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
     passes = _prop(props, "headland_passes")
+    if isinstance(passes, float) and passes.is_integer():
+        passes = int(passes)  # 2.0: a GIS's numeric column (QGIS's default type is real)
     if passes is not None and (
         not isinstance(passes, int) or isinstance(passes, bool) or passes < 0
     ):

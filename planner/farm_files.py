@@ -34,10 +34,12 @@ log = logging.getLogger(__name__)
 GEOJSON_SUFFIXES = (".geojson", ".json")
 ISOXML_NAME = "TASKDATA.XML"
 WGS84 = pyproj.CRS.from_epsg(4326)
-CONVERTED_DECIMALS = 9
-"""Converted lon/lat are rounded to 1e-9 degrees (0.1 mm): a farm drawn in WGS84 and
-converted there and back reads as the same numbers, so plans the same (the solver is
-deterministic on its inputs, and 1e-14 degrees of conversion noise changes its choices)."""
+CONVERTED_DECIMALS = 7
+"""Converted lon/lat are rounded to 1e-7 degrees (~1 cm, a MAVLink position's step): a
+farm drawn in WGS84 and converted there and back reads as the same numbers, so plans the
+same (the solver is deterministic on its inputs, and 1e-14 degrees of conversion noise
+changes its choices). 1e-9 absorbed the noise of a projection of the same datum but not
+the ~1e-8 degrees of a datum shift there and back (OSGB36, EPSG:27700; DHDN, EPSG:31468)."""
 
 # ISO 11783-10 codes read (ISOXML attributes are one-letter names in the element's order).
 PLN_BOUNDARY = "1"  # PLN A: partfield boundary
@@ -72,7 +74,7 @@ def read_farm_document(path: Path) -> Document:
 def read_json(path: Path) -> Any:
     """A JSON file, or a :class:`GeometryError` naming the file and what is wrong."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return json.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark or none
     except OSError as exc:
         raise GeometryError(f"{path}: cannot read the farm: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:
@@ -104,16 +106,25 @@ def read_gdal(path: Path) -> Document:
 
     if not path.exists():
         raise GeometryError(f"{path}: cannot read the farm: No such file or directory")
+    source: Path | str = path
     try:
         layers = [str(name) for name, geom in pyogrio.list_layers(path) if geom is not None]
     except (DataSourceError, DataLayerError, OSError) as exc:
-        raise GeometryError(f"{path}: not a farm file GDAL can read ({_first_line(exc)})") from exc
+        folder = _shapefile_folder_in_zip(path)
+        if folder is None:
+            raise GeometryError(
+                f"{path}: not a farm file GDAL can read ({_first_line(exc)})"
+            ) from exc
+        source = f"/vsizip/{path}/{folder}"  # a zipped folder of shapefiles
+        layers = [str(name) for name, geom in pyogrio.list_layers(source) if geom is not None]
+    if path.is_dir():
+        layers.sort()  # a folder lists its files in whatever order its file system keeps
     if not layers:
         raise GeometryError(f"{path}: no layer with geometry in this file")
     features: list[dict[str, Any]] = []
     for layer in layers:
         try:
-            meta, _, geometry, values = pyogrio.raw.read(path, layer=layer)
+            meta, _, geometry, values = pyogrio.raw.read(source, layer=layer)
         except (DataSourceError, DataLayerError, OSError) as exc:
             raise GeometryError(
                 f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
@@ -135,6 +146,21 @@ def read_gdal(path: Path) -> Document:
                 }
             )
     return {"type": "FeatureCollection", "features": features}
+
+
+def _shapefile_folder_in_zip(path: Path) -> str | None:
+    """The one folder of a .zip that holds its shapefiles (zipping a folder puts them there,
+    where GDAL, opening the archive's top, does not look); None if not exactly one."""
+    if path.suffix.lower() != ".zip":
+        return None
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return None
+    folders = {str(Path(n).parent) for n in names if n.lower().endswith(".shp")}
+    folders.discard(".")
+    return folders.pop() if len(folders) == 1 else None
 
 
 def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
@@ -172,9 +198,16 @@ def _first_line(exc: BaseException) -> str:
 
 
 def _isoxml_in_dir(path: Path) -> Path | None:
-    for child in path.iterdir():
-        if child.name.upper() == ISOXML_NAME:
+    """The TASKDATA.XML in ``path``, or in a folder of it (a terminal's USB stick holds
+    ``TASKDATA/TASKDATA.XML``)."""
+    for child in sorted(path.iterdir()):
+        if child.name.upper() == ISOXML_NAME and child.is_file():
             return child
+    for child in sorted(path.iterdir()):
+        if child.is_dir():
+            for inner in sorted(child.iterdir()):
+                if inner.name.upper() == ISOXML_NAME and inner.is_file():
+                    return inner
     return None
 
 
@@ -248,7 +281,8 @@ def read_isoxml(path: Path) -> Document:
                 }
             )
         else:
-            log.warning("%s: no boundary polygon (PLN of type 1); skipped", where)
+            log.warning("%s: no boundary polygon (PLN of type 1); skipped, with its gates", where)
+            continue
         for pnt in pfd.findall("PNT"):
             if pnt.get("A") == PNT_FIELD_ACCESS:
                 features.append(

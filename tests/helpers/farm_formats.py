@@ -132,8 +132,14 @@ def convert(source: Path, fmt: str, out: Path) -> Path:
         return out / "utm.geojson"
     if fmt == "shp-folder":
         return write_shapefiles(features, out / "shapes")
+    if fmt == "gpkg-osgb":  # another datum: a Helmert shift there and back
+        write_gdal(features, out / "osgb.gpkg", "GPKG", layer="farm", crs="EPSG:27700")
+        return out / "osgb.gpkg"
     if fmt == "shp-zip":
         return zip_folder(write_shapefiles(features, out / "zipped"), out / "farm.zip")
+    if fmt == "shp-zip-folder":  # a folder zipped: its files one folder down in the archive
+        write_shapefiles(features, out / "zipped" / "Farm Hof")
+        return zip_folder(out / "zipped", out / "farm.zip")
     if fmt == "isoxml":
         return write_isoxml(features, out / "TASKDATA" / "TASKDATA.XML")
     raise ValueError(fmt)

@@ -5,6 +5,7 @@ garage from the scenario; every error names the file and the feature."""
 
 import json
 import logging
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -38,7 +39,19 @@ def same_farm(farm: Farm, ref: Farm, roads: bool = True) -> None:
             assert a.line_lonlat.hausdorff_distance(b.line_lonlat) < CM_DEG
 
 
-@pytest.mark.parametrize("fmt", ["kml", "gpkg", "gpkg-utm", "geojson-utm", "shp-folder", "shp-zip"])
+@pytest.mark.parametrize(
+    "fmt",
+    [
+        "kml",
+        "gpkg",
+        "gpkg-utm",
+        "gpkg-osgb",
+        "geojson-utm",
+        "shp-folder",
+        "shp-zip",
+        "shp-zip-folder",
+    ],
+)
 def test_the_demo_farm_reads_the_same_from_every_gdal_format(tmp_path, reference, fmt):
     farm = load_farm(convert(CHANGJI, fmt, tmp_path))
     same_farm(farm, reference)
@@ -60,6 +73,43 @@ def test_isoxml_partfields_read_as_fields_with_gates_and_home_base(tmp_path, ref
     assert [f.name for f in by_code.fields] == [f.name for f in reference.fields]
     by_default = load_farm(path.parent)  # the folder holding TASKDATA.XML
     assert [f.id for f in by_default.fields][:3] == ["PFD1", "PFD2", "PFD3"]
+    usb = load_farm(path.parent.parent)  # a USB stick's top: TASKDATA/TASKDATA.XML
+    assert [f.id for f in usb.fields] == [f.id for f in by_default.fields]
+
+
+def test_an_isoxml_partfield_without_a_boundary_is_skipped_with_its_gates(tmp_path, caplog):
+    path = convert(CHANGJI, "isoxml", tmp_path)
+    root = ET.parse(path).getroot()
+    pfd = root.find("PFD[@A='PFD2']")
+    assert pfd is not None and pfd.find("PNT[@A='3']") is not None  # it has a gate
+    pfd.remove(pfd.find("PLN"))
+    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+    with caplog.at_level(logging.WARNING, logger="planner.farm_files"):
+        farm = load_farm(path)
+    assert "PFD2" not in [f.id for f in farm.fields] and "PFD1" in [f.id for f in farm.fields]
+    assert "partfield 'PFD2': no boundary polygon" in caplog.text
+
+
+def test_geojson_as_others_write_it_reads_as_the_same_farm(tmp_path, reference):
+    """Clockwise rings (the shapefile's rule), a byte-order mark, ids on the features
+    (RFC 7946's "id") and a whole number of headland passes as a decimal."""
+    doc = json.loads(CHANGJI.read_text())
+    for feature in doc["features"]:
+        geom = feature["geometry"]
+        if geom["type"] == "Polygon":
+            geom["coordinates"] = [ring[::-1] for ring in geom["coordinates"]]
+        props = feature["properties"]
+        if props.get("kind") == "field":
+            feature["id"] = props.pop("id")
+            props["headland_passes"] = 1.0
+    path = tmp_path / "others.geojson"
+    path.write_text(json.dumps(doc), encoding="utf-8-sig")
+    farm = load_farm(path)
+    same_farm(farm, reference)
+    for f, r in zip(farm.fields, reference.fields, strict=True):
+        assert f.boundary_lonlat.equals_exact(r.boundary_lonlat, 0.0)
+        assert f.boundary.equals_exact(r.boundary, 0.0)
+        assert f.headland_passes == 1
 
 
 def test_isoxml_holes_and_a_bad_point_named(tmp_path):
@@ -142,6 +192,8 @@ def test_a_missing_id_field_or_garage_is_refused_naming_file_and_feature(tmp_pat
         load_farm(path, FarmOptions(id_field="PLOT", garage=(9.999, 49.999)))
     assert f"{path}: feature #0: a field without property 'PLOT'" in str(err.value)
     assert "FIELD_NO" in str(err.value)
+    with pytest.raises(GeometryError, match="feature #0: a field whose property 'LABEL' .* empty"):
+        load_farm(shapefile_farm(tmp_path, LABEL=None), FarmOptions(id_field="LABEL"))
     with pytest.raises(GeometryError, match="no garage .* or the scenario's garage"):
         load_farm(path)
 
