@@ -9,7 +9,8 @@ or :data:`ID_FIELDS`, or ``FarmOptions.id_field``); the garage is a ``Point`` wi
 it from its geometry (polygon: field, line: road, point: gate if it names a field, else
 the garage).
 Optional field properties: ``name``, ``work_angle_deg`` (fixed swath direction, degrees
-counter-clockwise from east), ``headland_passes``.
+counter-clockwise from true east; turned into the frame's grid by :meth:`Farm.grid_angle_deg`),
+``headland_passes``.
 
 Optional: roads, ``LineString`` or ``MultiLineString`` features with ``properties.kind =
 "road"``, and gates, ``Point`` features with ``properties.kind = "gate"`` and
@@ -61,6 +62,9 @@ NAME_FIELDS = ("name", "field_name", "fieldname", "designator", "title")
 DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many characters
 
 log = logging.getLogger(__name__)
+
+OVERLAP_WARN_M2 = 1.0
+"""Fields overlapping by more than this many square metres are named in a warning."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +118,18 @@ class Farm:
             if f.id == field_id:
                 return f
         raise KeyError(field_id)
+
+    def grid_angle_deg(self, field_id: str, true_deg: float) -> float:
+        """A direction in field ``field_id``, ``true_deg`` counter-clockwise from true east
+        (how a farmer gives a work angle), as the frame's: from its ``x`` axis, grid east
+        (:meth:`planner.geo.LocalFrame.convergence_deg` at the field's centre)."""
+        centre = self.field(field_id).boundary_lonlat.centroid
+        return true_deg + self.frame.convergence_deg(centre.x, centre.y)
+
+    def true_angle_deg(self, field_id: str, grid_deg: float) -> float:
+        """The inverse of :meth:`grid_angle_deg`, within [0, 180) (a swath direction)."""
+        centre = self.field(field_id).boundary_lonlat.centroid
+        return (grid_deg - self.frame.convergence_deg(centre.x, centre.y)) % 180.0
 
     def gates_of(self, field_id: str) -> tuple[Gate, ...]:
         """The gates of one field (empty: entered where it is nearest to the roads)."""
@@ -277,6 +293,7 @@ def farm_from_geojson(
             f"(limit {MAX_GARAGE_DISTANCE_M / 1000:.0f} km); are its longitude and latitude "
             "swapped? GeoJSON wants [longitude, latitude]"
         )
+    _warn_of_overlaps(source, fields)
     by_id = {f.id: f for f in fields}
     roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
     gates = tuple(
@@ -611,6 +628,28 @@ def _check_near(
         f"{where}: its {what} {worst} [{lon[worst]:.5f}, {lat[worst]:.5f}] is "
         f"{_km(float(off[worst]))} from the garage (limit {_km(limit)}){hint}"
     )
+
+
+def _warn_of_overlaps(source: str, fields: tuple[Field, ...]) -> None:
+    """Say which fields overlap, by more than :data:`OVERLAP_WARN_M2`: the overlap is
+    worked once for each (a double dose of spray or fertiliser), and the planner cannot
+    tell which field it belongs to. Not refused: two layers of one farm (a field and a
+    plot drawn inside it) may be meant, and a slight overlap along a shared border is
+    common in digitised boundaries."""
+    boundaries = [f.boundary for f in fields]
+    tree = shapely.STRtree(boundaries)
+    for a, b in zip(*tree.query(boundaries, predicate="intersects"), strict=True):
+        if a < b:
+            area = boundaries[a].intersection(boundaries[b]).area
+            if area > OVERLAP_WARN_M2:
+                log.warning(
+                    "%s: fields %r and %r overlap by %.0f m2, which is worked once for each "
+                    "(a double dose): correct the boundaries or leave one of them out",
+                    source,
+                    fields[a].id,
+                    fields[b].id,
+                    area,
+                )
 
 
 def _field(

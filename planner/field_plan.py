@@ -166,7 +166,9 @@ def cover_farm(
                         f.boundary,
                         width,
                         field_id=f.id,
-                        angle_deg=f.work_angle_deg,
+                        angle_deg=None
+                        if f.work_angle_deg is None
+                        else farm.grid_angle_deg(f.id, f.work_angle_deg),
                         headland_passes=f.headland_passes,
                         turn_radius_m=machine.min_turn_radius_m,
                         deadline=deadline,

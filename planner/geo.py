@@ -118,6 +118,17 @@ class LocalFrame:
             np.asarray(northing, dtype=np.float64) - self.origin_northing,
         )
 
+    def convergence_deg(self, lon: float, lat: float) -> float:
+        """How far grid north is turned from true north at ``(lon, lat)``, in degrees
+        counter-clockwise: a direction ``a`` degrees counter-clockwise from true east is
+        ``a + convergence`` from the frame's ``x`` axis (UTM is conformal: locally a
+        rotation). Zero on the zone's central meridian; ~2.7 degrees at 70 N, 3 degrees
+        of longitude from it."""
+        step = 1e-4  # degrees of latitude, ~11 m: the meridian's direction here
+        x0, y0 = self.to_local(float(lon), float(lat) - step / 2)
+        x1, y1 = self.to_local(float(lon), float(lat) + step / 2)
+        return math.degrees(math.atan2(y1 - y0, x1 - x0)) - 90.0
+
     @overload
     def to_lonlat(self, x: float, y: float) -> tuple[float, float]: ...
     @overload

@@ -97,7 +97,7 @@ class PlannedVisit:
     swaths: int
     headland_rings: int
     turn_m: float
-    angle_deg: float
+    angle_deg: float  # the swaths' direction, degrees counter-clockwise from true east
 
 
 @dataclass(frozen=True)

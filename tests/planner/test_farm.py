@@ -8,7 +8,9 @@ belongs, coordinates that look swapped, and a farm spread wider than
 import contextlib
 import copy
 import json
+import logging
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -317,3 +319,13 @@ def test_a_farm_swapped_in_every_feature_is_refused_at_the_pole(tmp_path):
     message = refused(tmp_path, farm)
     assert "field 'A' lies at latitude 87.30" in message
     assert f"limit {MAX_ABS_LATITUDE:g} degrees" in message and "swapped" in message
+
+
+def test_overlapping_fields_are_named_with_the_overlap(tmp_path, caplog):
+    doc = farm_doc()
+    east = LON0 + 60 / (111320 * math.cos(math.radians(LAT0)))  # 60 m into F1 (120 m)
+    doc["features"].append(field("F3", rect(east, LAT0)))
+    with caplog.at_level(logging.WARNING, logger="planner.farm"):
+        load_farm(write(tmp_path, doc))
+    assert re.search(r"fields 'F1' and 'F3' overlap by 48\d\d m2", caplog.text)  # 60 x 80 m
+    assert "'F2' and 'F3'" not in caplog.text  # F2 starts 200 m east: 20 m apart

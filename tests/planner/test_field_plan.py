@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+import json
 import math
 from pathlib import Path
 
@@ -210,3 +211,45 @@ def test_plan_on_the_tiny_farm_drives_along_its_road():
     for visit in route.visits:
         assert any(lane.distance(shapely.Point(p)) < 1e-6 for p in visit.approach)
     assert any(lane.distance(shapely.Point(p)) < 1e-6 for p in route.return_path)
+
+
+def test_a_work_angle_is_a_true_direction_far_from_the_zones_central_meridian(tmp_path):
+    """At 70 N, 2.9 degrees of longitude east of UTM zone 34's central meridian, grid north
+    is 2.7 degrees off true north: a field's work angle of 90 (counter-clockwise from true
+    east) gives swaths that run true north, and the plan reports the angle it was given."""
+    import pyproj
+
+    lon0, lat0 = 23.9, 70.0
+    geod = pyproj.Geod(ellps="WGS84")
+    corners = [(lon0, lat0)]
+    for azimuth, length in ((90.0, 300.0), (0.0, 1000.0), (270.0, 300.0)):
+        lon, lat, _ = geod.fwd(*corners[-1], azimuth, length)
+        corners.append((lon, lat))
+    doc = {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"kind": "field", "id": "N", "work_angle_deg": 90.0},
+                "geometry": {"type": "Polygon", "coordinates": [corners + corners[:1]]},
+            },
+            {
+                "type": "Feature",
+                "properties": {"kind": "garage"},
+                "geometry": {"type": "Point", "coordinates": [lon0 - 0.002, lat0 - 0.001]},
+            },
+        ],
+    }
+    path = tmp_path / "north.geojson"
+    path.write_text(json.dumps(doc))
+    farm = load_farm(path)
+    assert farm.frame.convergence_deg(lon0, lat0) == pytest.approx(2.7, abs=0.1)
+    cov = cover_farm(farm, [MACHINE])[("m", "N")]
+    for swath in cov.swaths[:3]:
+        (lon_a, lon_b), (lat_a, lat_b) = farm.frame.to_lonlat(
+            np.array([swath.start[0], swath.end[0]]), np.array([swath.start[1], swath.end[1]])
+        )
+        azimuth, _, length = geod.inv(lon_a, lat_a, lon_b, lat_b)
+        assert min(abs(azimuth), 180.0 - abs(azimuth)) < 0.05
+        assert length > 900.0  # along the field, not across it
+    assert farm.true_angle_deg("N", cov.angle_deg) == pytest.approx(90.0, abs=1e-6)
