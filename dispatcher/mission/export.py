@@ -11,12 +11,15 @@ Features, all in WGS84 lon/lat, with the properties of :data:`PROPERTIES` (missi
 * ``swath``: each worked segment (swath or headland ring edge) in driving order:
   ``machine``, ``field``, ``order`` (1 = the machine's first), ``start_s``, ``end_s``.
 
-The GeoJSON file is one layer; the KML file has a folder ``farm`` and one per machine.
+The GeoJSON file is one layer; the KML file has a folder ``farm`` and one per machine, and
+calls ``id`` :data:`KML_ID_PROPERTY` (see there).
 """
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +30,9 @@ from shapely.geometry.base import BaseGeometry
 
 if TYPE_CHECKING:
     from dispatcher.mission.plan import DispatchPlan
+    from planner.geo import LocalFrame
+
+logger = logging.getLogger(__name__)
 
 PROPERTIES = (
     "kind",
@@ -45,9 +51,25 @@ PROPERTIES = (
 WHOLE_PROPERTIES = frozenset({"order"})
 NUMBER_PROPERTIES = frozenset({"start_s", "end_s", "time_h", "distance_m", "fuel_l"})
 FARM_LAYER = "farm"
+KML_ID_PROPERTY = "feature_id"
+"""plan.kml's name for ``id``. GDAL's KML writer puts a column ``id`` as it is into the
+placemark's XML ``id`` attribute: a field id such as ``Schlag 3 & 4`` (a Google Earth
+placemark's name) made the file unreadable, and an XML id may hold no space nor start with
+a digit anyway. Under another name it is written as the other properties are
+(``ExtendedData``, quoted); the placemarks get GDAL's own ids (``farm.1``, ...)."""
+_NOT_IN_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]")
+"""Characters XML 1.0 cannot hold, even escaped (a control character in a shapefile's id)."""
 FENCE_MARGIN_M = 10.0
 """How far the inclusion fence lies outside the fields, roads and planned paths."""
 FENCE_SIMPLIFY_M = 1.0  # fewer fence vertices (autopilots store few), never inside the margin
+FENCE_DECIMALS = 7  # the .plan's degrees: about 1 cm
+FENCE_REPAIR_M = (0.05, 0.1, 0.2, 0.5, 1.0)
+"""How far a fence polygon is grown (an exclusion: shrunk), in turn, when its outline in
+lat/lon rounded to :data:`FENCE_DECIMALS` crosses itself. Where a road runs at twice
+:data:`FENCE_MARGIN_M` from a field their margins touch, and the outline passes twice within
+a millimetre of one point: rounding can make it cross there, and an autopilot's
+point-in-polygon test is then wrong about some places. Growing closes such a pinch; the
+fence then covers a little more (or the exclusion a little less), never less."""
 SECONDS_DECIMALS = 1
 
 PathLike = str | os.PathLike[str]
@@ -143,10 +165,26 @@ def write_plan_geojson(dispatch: DispatchPlan, path: PathLike) -> None:
 
 
 def write_plan_kml(dispatch: DispatchPlan, path: PathLike) -> None:
-    """The farm in folder ``farm``, then one folder per machine (its route and swaths)."""
-    _write(path, farm_features(dispatch), "LIBKML", layer=FARM_LAYER, options={"FOLDER": "YES"})
-    for machine_id, features in machine_features(dispatch).items():
-        _write(path, features, "LIBKML", layer=machine_id, options={"FOLDER": "YES"}, append=True)
+    """The farm in folder ``farm``, then one folder per machine (its route and swaths); ``id``
+    named :data:`KML_ID_PROPERTY`, and text XML cannot hold made so (:func:`_kml_text`)."""
+    layers = {FARM_LAYER: farm_features(dispatch), **machine_features(dispatch)}
+    names = [KML_ID_PROPERTY if key == "id" else key for key in PROPERTIES]
+    for k, (layer, features) in enumerate(layers.items()):
+        kml = [
+            PlanFeature(f.geometry, {key: _kml_text(v) for key, v in f.properties.items()})
+            for f in features
+        ]
+        options = {"FOLDER": "YES"}
+        _write(path, kml, "LIBKML", layer=layer, options=options, append=k > 0, names=names)
+
+
+def _kml_text(value: Any) -> Any:
+    """A property as GDAL's KML writer can write it: it quotes text holding ``&<>"'`` as
+    ``<![CDATA[...]]>``, which ``]]>`` in the text would end early (a space parts it), and
+    characters XML cannot hold are left out. Anything but text is as it is."""
+    if not isinstance(value, str):
+        return value
+    return _NOT_IN_XML.sub("", value).replace("]]>", "]] >")
 
 
 def _write(
@@ -156,9 +194,13 @@ def _write(
     layer: str | None,
     options: dict[str, str],
     append: bool = False,
+    names: list[str] | None = None,
 ) -> None:
+    """Write ``features`` with the properties of :data:`PROPERTIES` as columns, named
+    ``names`` (as the properties if None)."""
     import pyogrio
 
+    names = list(PROPERTIES) if names is None else names
     geometry = shapely.to_wkb(np.array([f.geometry for f in features], dtype=object))
     columns, masks = [], []
     for key in PROPERTIES:
@@ -174,7 +216,7 @@ def _write(
         path,
         geometry,
         columns,
-        list(PROPERTIES),
+        names,
         field_mask=masks,
         driver=driver,
         layer=layer,
@@ -191,7 +233,8 @@ def fence_polygons(
     """The farm as fence polygons in (lat, lon): inclusion polygons around the fields, the
     roads, the garage and every planned path, :data:`FENCE_MARGIN_M` outside them (without
     holes), and an exclusion polygon for each hole of a field (a pond), shrunk by the
-    margin and less the planned paths."""
+    margin and less the planned paths. Each is a simple polygon in (lon, lat) as written,
+    rounded (:func:`_fence_rings`)."""
     farm = dispatch.scenario.farm
     paths: list[BaseGeometry] = [Point(farm.garage)]
     for mission in dispatch.missions.values():
@@ -207,15 +250,65 @@ def fence_polygons(
         for f in farm.fields
         for hole in f.boundary.interiors
     ]
-
-    def latlon(polygon: Polygon) -> list[tuple[float, float]]:
-        xy = np.asarray(polygon.exterior.coords)[:-1]  # QGroundControl's are not closed
-        lon, lat = farm.frame.to_lonlat(xy[:, 0], xy[:, 1])
-        return [(round(float(a), 7), round(float(o), 7)) for a, o in zip(lat, lon, strict=True)]
-
-    inclusion = [latlon(p) for p in _polygons(area.simplify(FENCE_SIMPLIFY_M))]
-    exclusion = [latlon(p) for pond in ponds for p in _polygons(pond.simplify(FENCE_SIMPLIFY_M))]
+    inclusion = [
+        ring
+        for p in _polygons(area.simplify(FENCE_SIMPLIFY_M))
+        for ring in _fence_rings(p, farm.frame, inclusion=True)
+    ]
+    exclusion = [
+        ring
+        for pond in ponds
+        for p in _polygons(pond.simplify(FENCE_SIMPLIFY_M))
+        for ring in _fence_rings(p, farm.frame, inclusion=False)
+    ]
     return inclusion, exclusion
+
+
+def _fence_rings(
+    polygon: Polygon, frame: LocalFrame, inclusion: bool
+) -> list[list[tuple[float, float]]]:
+    """The outline of a fence polygon (local metres) in (lat, lon) rounded to
+    :data:`FENCE_DECIMALS`, not closed (as QGroundControl writes them), and simple as
+    rounded: grown (an exclusion: shrunk, maybe into parts) by :data:`FENCE_REPAIR_M` in
+    turn until it is. Last resorts: an inclusion's convex hull (more, not less), no
+    exclusion (with a warning; the paths keep out of the pond anyway)."""
+    for grow in (0.0, *FENCE_REPAIR_M):
+        if grow == 0.0:
+            parts = [Polygon(polygon.exterior)]
+        elif inclusion:  # one polygon still: its outline
+            parts = [Polygon(polygon.buffer(grow, join_style="mitre").exterior)]
+        else:
+            parts = _polygons(polygon.buffer(-grow, join_style="mitre"))
+        rings = [_latlon(p, frame) for p in parts]
+        if all(_is_simple(ring) for ring in rings):
+            return rings
+    if inclusion:
+        ring = _latlon(Polygon(polygon.convex_hull.exterior), frame)
+        if _is_simple(ring):
+            return [ring]
+    logger.warning(
+        "a fence %s polygon of %d corners is not simple in lat/lon rounded to %d decimals, "
+        "whatever its growth: left out of the .plan files",
+        "inclusion" if inclusion else "exclusion",
+        len(polygon.exterior.coords) - 1,
+        FENCE_DECIMALS,
+    )
+    return []
+
+
+def _latlon(polygon: Polygon, frame: LocalFrame) -> list[tuple[float, float]]:
+    xy = np.asarray(polygon.exterior.coords)[:-1]  # QGroundControl's are not closed
+    lon, lat = frame.to_lonlat(xy[:, 0], xy[:, 1])
+    return [
+        (round(float(a), FENCE_DECIMALS), round(float(o), FENCE_DECIMALS))
+        for a, o in zip(lat, lon, strict=True)
+    ]
+
+
+def _is_simple(ring: list[tuple[float, float]]) -> bool:
+    """Whether a (lat, lon) outline is a valid polygon in (lon, lat): at least 3 corners,
+    some area, no crossing nor touching of itself."""
+    return len(ring) >= 3 and Polygon([(lon, lat) for lat, lon in ring]).is_valid
 
 
 def _polygons(geometry: BaseGeometry) -> list[Polygon]:

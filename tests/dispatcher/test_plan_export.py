@@ -1,9 +1,11 @@
 """The plan for other tools (dispatcher/mission/export.py): plan.geojson and plan.kml read
-back with pyogrio carry every field and every machine's route within 1 cm; the .plan files'
-fence holds every waypoint and loads by QGroundControl's rules; nothing is written when a
-writer fails. And `agrifleet plan` plans the tiny farm the same from every format."""
+back with pyogrio carry every field and every machine's route within 1 cm, and field ids
+as they are whatever their characters; the .plan files' fence holds every waypoint, loads
+by QGroundControl's rules and is simple as written; nothing is written when a writer fails.
+And `agrifleet plan` plans the tiny farm the same from every format."""
 
 import json
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ import pytest
 import shapely
 from helpers.farm_formats import convert
 from shapely.geometry import Point, Polygon
+from shapely.validation import explain_validity
 
 from dispatcher.cli.main import main
 from dispatcher.config.errors import ConfigError
@@ -19,6 +22,7 @@ from dispatcher.config.scenario import load_scenario
 from dispatcher.mission import export
 from dispatcher.mission.files import QGC_FENCE_POLYGON_VERSION, QGC_GEOFENCE_VERSION
 from dispatcher.mission.plan import write_plan_files
+from planner.geo import LocalFrame
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 CM_DEG = 1e-7  # about 1 cm
@@ -42,12 +46,12 @@ def waypoints(mission) -> list[tuple[float, float]]:
     return [(it.lon, it.lat) for it in mission.items if it.is_waypoint]
 
 
-def check_routes(features, dispatch) -> None:
+def check_routes(features, dispatch, id_key: str = "id") -> None:
     routes = {p["machine"]: g for g, p in features if p["kind"] == "route"}
     assert set(routes) == set(dispatch.missions)
     for machine, mission in dispatch.missions.items():
         assert np.allclose(np.asarray(routes[machine].coords), waypoints(mission), atol=CM_DEG)
-    fields = {p["id"]: g for g, p in features if p["kind"] == "field"}
+    fields = {p[id_key]: g for g, p in features if p["kind"] == "field"}
     for f in dispatch.scenario.farm.fields:
         assert fields[f.id].hausdorff_distance(f.boundary_lonlat) < CM_DEG
 
@@ -76,8 +80,46 @@ def test_plan_kml_has_a_folder_per_machine(written, dispatch):
     layers = [str(name) for name, _ in pyogrio.list_layers(written / "plan.kml")]
     assert layers == [export.FARM_LAYER, *dispatch.missions]
     features = [f for layer in layers for f in read_layer(written / "plan.kml", layer)]
-    check_routes(features, dispatch)
+    check_routes(features, dispatch, id_key=export.KML_ID_PROPERTY)
     assert "<Folder" in (written / "plan.kml").read_text()
+
+
+def test_plan_kml_and_geojson_keep_field_ids_xml_cannot_hold_as_an_attribute(tmp_path):
+    # GDAL's KML writer put a column "id" unescaped into <Placemark id="...">: a Google
+    # Earth placemark named "Schlag 3 & 4" (its field id) made plan.kml unreadable, and
+    # `agrifleet plan` failed on reopening it for the machines' folders.
+    ids = {"A": "Schlag 3 & 4", "B": '<B> "Süd"', "C": "3 'C' > 2"}
+    roads = {"lane": "lane & <yard>", "yard": 'yard "1"'}
+    doc = json.loads((DATA / "tiny-farm.geojson").read_text())
+    for f in doc["features"]:
+        props = f["properties"]
+        if props["kind"] == "field":
+            props["id"] = ids[props["id"]]
+        elif props["kind"] == "road":
+            props["id"] = roads[props["id"]]
+        elif props["kind"] == "gate":
+            props["field"] = ids[props["field"]]
+    (tmp_path / "farm.geojson").write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "farm.geojson")]
+    assert main([*args, "--out", str(out), "--time-limit", "60", "--seed", "3"]) == 0
+    plan = json.loads((out / "plan.json").read_text())
+    ET.parse(out / "plan.kml")  # well-formed XML
+    layers = [str(name) for name, _ in pyogrio.list_layers(out / "plan.kml")]
+    assert layers == [export.FARM_LAYER, *(m["id"] for m in plan["machines"])]
+    kml = [p for layer in layers for _, p in read_layer(out / "plan.kml", layer)]
+    geojson = [p for _, p in read_layer(out / "plan.geojson")]
+    for features, id_key in ((kml, export.KML_ID_PROPERTY), (geojson, "id")):
+        assert sorted(p[id_key] for p in features if p["kind"] == "field") == sorted(ids.values())
+        assert sorted(p[id_key] for p in features if p["kind"] == "road") == sorted(roads.values())
+        for m in plan["machines"]:
+            route = next(p for p in features if p["kind"] == "route" and p["machine"] == m["id"])
+            assert route["fields"] == " ".join(m["fields"])
+            swaths = {
+                p["field"] for p in features if p["kind"] == "swath" and p["machine"] == m["id"]
+            }
+            assert swaths == set(m["fields"])
+    assert {f for m in plan["machines"] for f in m["fields"]} == set(ids.values())
 
 
 def test_the_plan_files_fence_the_farm_and_rally_at_the_garage(written, dispatch):
@@ -98,6 +140,73 @@ def test_the_plan_files_fence_the_farm_and_rally_at_the_garage(written, dispatch
             assert any(a.contains(f.boundary_lonlat) for a in areas)
         assert doc["rallyPoints"]["version"] == 2
         assert doc["rallyPoints"]["points"] == [[glat, glon, 0.0]]
+
+
+def road_at_the_margins_farm(origin: tuple[float, float], gap_m: float) -> dict:
+    """A field with a road along its north side ``gap_m`` away (their fence margins touch
+    at 2 x FENCE_MARGIN_M) that turns south 25.5 m west of it, to the garage."""
+    frame = LocalFrame.around(*origin)
+
+    def lonlat(points):
+        return [[float(v) for v in frame.to_lonlat(x, y)] for x, y in points]
+
+    w, h = 123.4, 77.7
+    road = [(-25.5, -30.0), (-25.5, h + gap_m), (w + 50.0, h + gap_m)]
+    return {
+        "type": "FeatureCollection",
+        "features": [
+            {
+                "type": "Feature",
+                "properties": {"id": "A"},
+                "geometry": {
+                    "type": "Polygon",
+                    "coordinates": [lonlat([(0, 0), (w, 0), (w, h), (0, h), (0, 0)])],
+                },
+            },
+            {
+                "type": "Feature",
+                "properties": {"kind": "road", "id": "r"},
+                "geometry": {"type": "LineString", "coordinates": lonlat(road)},
+            },
+            {
+                "type": "Feature",
+                "properties": {"kind": "garage"},
+                "geometry": {"type": "Point", "coordinates": lonlat(road[:1])[0]},
+            },
+        ],
+    }
+
+
+@pytest.mark.parametrize("gap_m", [2 * export.FENCE_MARGIN_M, 2 * export.FENCE_MARGIN_M + 0.001])
+@pytest.mark.parametrize("origin", [(151.0, -33.9), (87.3, 44.0)])
+def test_a_road_at_twice_the_margin_from_a_field_leaves_every_fence_simple(tmp_path, origin, gap_m):
+    # Where the margins touch, the fence's outline passed twice within a millimetre of one
+    # point: rounded to 7 decimals, it crossed itself there (QGroundControl and the
+    # autopilot take such a polygon's inside wrongly).
+    farm = road_at_the_margins_farm(origin, gap_m)
+    (tmp_path / "farm.geojson").write_text(json.dumps(farm))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "farm.geojson")]
+    args += ["--machines", "1", "--out", str(out)]
+    assert main([*args, "--time-limit", "60", "--seed", "3"]) == 0
+    field = Polygon(farm["features"][0]["geometry"]["coordinates"][0])
+    garage = Point(farm["features"][2]["geometry"]["coordinates"])
+    doc = json.loads((out / "v1.plan").read_text())
+    fence = doc["geoFence"]["polygons"]
+    polygons = [Polygon([(lon, lat) for lat, lon in p["polygon"]]) for p in fence]
+    for k, polygon in enumerate(polygons):
+        assert polygon.is_valid, f"v1.plan: fence polygon #{k}: {explain_validity(polygon)}"
+    inclusion = [a for p, a in zip(fence, polygons, strict=True) if p["inclusion"]]
+    exclusion = [a for p, a in zip(fence, polygons, strict=True) if not p["inclusion"]]
+    items = [i for i in doc["mission"]["items"] if i["command"] == 16]
+    home = doc["mission"]["plannedHomePosition"]
+    points = [Point(i["params"][5], i["params"][4]) for i in items] + [Point(home[1], home[0])]
+    points += [Point(lon, lat) for lat, lon, _ in doc["rallyPoints"]["points"]]
+    for point in points:
+        assert any(a.contains(point) for a in inclusion), point
+        assert not any(a.contains(point) for a in exclusion), point
+    assert any(a.contains(field) for a in inclusion)
+    assert any(a.contains(garage) for a in inclusion)
 
 
 def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
