@@ -233,7 +233,10 @@ def replan_farm(
         progress[entry.field_id] = entry
     todo = [f for f in farm.fields if f.id not in done_ids]
     if not todo:
-        raise ProblemError("no tasks: every field is done")
+        raise ProblemError(
+            "no tasks: every field is done, or what is left of it lies in the part of its "
+            "mission a vehicle keeps"
+        )
     fleet = [s.machine for s in machines]
     same_farm = previous is not None and previous.farm is farm
     known = previous.coverage if previous is not None and same_farm else None

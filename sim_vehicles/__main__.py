@@ -48,6 +48,14 @@ def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParse
         "reporting; SIGUSR1 stalls every machine of the process at once)",
     )
     p.add_argument(
+        "--deaf-until",
+        action="append",
+        metavar="ID:SECONDS",
+        default=[],
+        help="fault injection: machine ID hears nothing until SECONDS simulated (a dead "
+        "uplink that comes back; it reports as ever)",
+    )
+    p.add_argument(
         "--mission-done",
         choices=["stop", "hold"],
         default="stop",
@@ -146,7 +154,12 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
         impairment = impairment_of(args)
         fail_after = parse_fail_after(args.fail_after)
         stall_after = parse_fail_after(args.stall_after, "--stall-after")
-        for flag, faults in (("--fail-after", fail_after), ("--stall-after", stall_after)):
+        deaf_until = parse_fail_after(args.deaf_until, "--deaf-until")
+        for flag, faults in (
+            ("--fail-after", fail_after),
+            ("--stall-after", stall_after),
+            ("--deaf-until", deaf_until),
+        ):
             unknown = sorted(set(faults) - set(ids))
             if unknown:
                 raise ValueError(f"{flag} names {', '.join(unknown)}, not simulated here")
@@ -154,8 +167,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
             raise ValueError("--speedup and --telemetry-hz must be > 0")
         if args.mavlink:
             check_mavlink_args(args, ids)
-            if stall_after:
-                raise ValueError("--stall-after works on Zenoh only, not with --mavlink")
+            for flag, faults in (("--stall-after", stall_after), ("--deaf-until", deaf_until)):
+                if faults:
+                    raise ValueError(f"{flag} works on Zenoh only, not with --mavlink")
         keys = signing_keys(args, scenario, ids)
     except (DispatcherError, ValueError, zenoh.ZError) as exc:
         log.error("%s", exc)
@@ -189,6 +203,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
         seed=args.radio_seed,
         stall_after=stall_after,
         keys=keys,
+        deaf_until=deaf_until,
     )
 
 

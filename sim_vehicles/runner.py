@@ -111,11 +111,13 @@ def run(
     stall_after: dict[str, float] | None = None,
     stall: threading.Event | None = None,
     keys: Mapping[str, bytes] | None = None,
+    deaf_until: dict[str, float] | None = None,
 ) -> int:
     """Simulate ``vehicle_ids`` of ``scenario`` until ``stop`` is set or SIGINT/SIGTERM.
 
     ``fail_after`` maps a vehicle id to the simulated second it breaks down at,
-    ``stall_after`` to the simulated second it stalls at (stands still, keeps reporting).
+    ``stall_after`` to the simulated second it stalls at (stands still, keeps reporting),
+    ``deaf_until`` to the simulated second until which it hears nothing (a dead uplink).
     Setting ``stall`` (or SIGUSR1 to the process) stalls every vehicle at once.
     ``impairment`` makes every vehicle's radio lose, duplicate and delay frames both ways
     (random numbers seeded with ``seed`` and the vehicle's place).
@@ -129,7 +131,12 @@ def run(
     vehicles = [scenario.vehicle(vid) for vid in vehicle_ids]
     fail_after = dict(fail_after or {})
     stall_after = dict(stall_after or {})
-    for name, faults in (("fail_after", fail_after), ("stall_after", stall_after)):
+    deaf_until = dict(deaf_until or {})
+    for name, faults in (
+        ("fail_after", fail_after),
+        ("stall_after", stall_after),
+        ("deaf_until", deaf_until),
+    ):
         for vid in faults:
             if vid not in vehicle_ids:
                 raise ConfigError(f"{name} names {vid!r}, which is not simulated here")
@@ -165,6 +172,7 @@ def run(
                         params=params,
                         fail_after_s=fail_after.get(vehicle.id),
                         stall_after_s=stall_after.get(vehicle.id),
+                        deaf_until_s=deaf_until.get(vehicle.id),
                         unix_epoch_s=boot_unix_s,
                     )
                     links.append(

@@ -174,7 +174,9 @@ class SimTractor:
     stops and sends nothing. ``stall_after_s`` (simulated seconds), or :meth:`stall`,
     injects a stall (stuck in mud): from then on the vehicle stands still, armed and in its
     mode, its mission running but getting nowhere, and keeps reporting and answering as
-    before. ``unix_epoch_s`` is the UNIX time at boot for SYSTEM_TIME
+    before. ``deaf_until_s`` (simulated seconds) injects a dead uplink: until then the
+    vehicle hears nothing (no command, no ground-station HEARTBEAT) and reports as ever.
+    ``unix_epoch_s`` is the UNIX time at boot for SYSTEM_TIME
     (None: 0, "no GPS time").
     """
 
@@ -186,6 +188,7 @@ class SimTractor:
         params: RoverParams | None = None,
         fail_after_s: float | None = None,
         stall_after_s: float | None = None,
+        deaf_until_s: float | None = None,
         unix_epoch_s: float | None = None,
         component_id: int = mc.MAV_COMP_ID_AUTOPILOT1,
     ) -> None:
@@ -196,6 +199,8 @@ class SimTractor:
             raise ValueError(f"fail_after_s must be >= 0 simulated seconds, got {fail_after_s}")
         if stall_after_s is not None and not stall_after_s >= 0.0:
             raise ValueError(f"stall_after_s must be >= 0 simulated seconds, got {stall_after_s}")
+        if deaf_until_s is not None and not deaf_until_s >= 0.0:
+            raise ValueError(f"deaf_until_s must be >= 0 simulated seconds, got {deaf_until_s}")
         self.vehicle = vehicle
         self.params = params or RoverParams()
         self.system_id = vehicle.system_id
@@ -203,6 +208,7 @@ class SimTractor:
         self.home_lat, self.home_lon = lat, lon
         self.fail_after_s = fail_after_s
         self.stall_after_s = stall_after_s
+        self.deaf_until_s = deaf_until_s
         self.unix_epoch_s = unix_epoch_s
         self.cruise_speed_ms = vehicle.machine.road_speed_kmh / 3.6  # WP_SPEED
         self.mission = MissionServer(
@@ -309,6 +315,8 @@ class SimTractor:
         out = self._catch_up(sim_now)
         if self._failed:
             return out
+        if self.deaf_until_s is not None and self._t < self.deaf_until_s:
+            return out  # a dead uplink (fault injection)
         if msg.get_type() == "HEARTBEAT" and int(msg.type) == mc.MAV_TYPE_GCS:
             self._gcs_system = msg.get_srcSystem()
         if msg.get_srcSystem() == self._gcs_system:  # any message of it (MAV_GCS_SYSID)

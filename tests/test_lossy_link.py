@@ -93,3 +93,38 @@ def test_a_tractor_that_goes_quiet_is_re_planned_around_and_rejoins_when_it_is_b
     for f in review.fields:
         assert f.never_worked == (), review_table(review)
         assert {(f.id, s) for s in f.worked_twice} <= quiet, (f, quiet, review_table(review))
+
+
+def test_a_tractor_deaf_to_the_dispatcher_is_re_planned_around_and_rejoins_once_it_hears(
+    procs: Processes, tmp_path: Path
+) -> None:
+    """v1's uplink is dead for its first 750 simulated seconds (75 s at 10x): it is heard,
+    but its mission upload goes unanswered, three times (~20 s each, failed at ~67 s), and
+    its work goes to v2, done with its own by then (the run used to end there, v1's fields
+    undone); v1 is told to HOLD now and then, and once it answers a re-plan is asked for
+    to give it work again (on the tiny farm v2 holds what is left in the part of its
+    mission it keeps). Every field is done, every segment once."""
+    scenario = tmp_path / "deaf.toml"
+    text = (Path(__file__).parent / "data" / "restart.toml").read_text()
+    farm = Path(__file__).parent / "data" / "tiny-farm.geojson"
+    scenario.write_text(text.replace('farm = "tiny-farm.geojson"', f'farm = "{farm}"'))
+    port = free_port()
+    serve = procs.serve(scenario, port, tmp_path / "logs", "--time-limit", "1")
+    # Its deafness counts from its start: not before the dispatcher waits for it.
+    wait_for(
+        "the plan", lambda: "waiting for 2 vehicles" in Processes.output(serve), 120.0, procs.report
+    )
+    procs.sim(scenario, port, 10, "v1", extra=("--deaf-until", "v1:750"))
+    procs.sim(scenario, port, 20, "v2")
+    wait_for("the run to end", lambda: serve.poll() is not None, 240.0, procs.report)
+    assert serve.returncode == 0, procs.report()
+    log = read_logs([log_of(Processes.output(serve))])
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any("v1: upload failed after 3 attempts" in ln for ln in lines), lines
+    assert any("re-planning the rest of the work: v1 could not be given its mission" in ln
+               for ln in lines), lines  # fmt: skip
+    assert any("v1: answers our commands again" in ln for ln in lines), lines
+    assert any("re-planning the rest of the work: v1 back" in ln for ln in lines), lines
+    review = review_contents(log)
+    assert all(f.done for f in review.fields), review_table(review)
+    assert_each_segment_worked_once(review)

@@ -366,6 +366,12 @@ class Dispatcher:
                 self.config.exit_when_done
                 and self.state.finished(now, self.config.lost_grace_s)
                 and not self._parking()
+                # A re-plan wanted or under way may give a vehicle that is done more work
+                # (one failed when the rest were done: the run ended with its fields undone).
+                and (
+                    self.state.all_fields_done()
+                    or (self._replan is None and not self._replan_reason)
+                )
             ):
                 self._publish_status(now)
                 break

@@ -1,5 +1,5 @@
 """Fault injection in the simulator process: the stall signal, the stall in the serve loop,
-and the ``--stall-after`` / ``--fail-after`` arguments."""
+and the ``--stall-after`` / ``--fail-after`` / ``--deaf-until`` arguments."""
 
 from __future__ import annotations
 
@@ -99,6 +99,12 @@ def test_stall_after_is_parsed_and_checked_like_fail_after() -> None:
         (
             ["--vehicle", "v1", "--stall-after", "v1:10", "--mavlink", "tcpin:127.0.0.1:5760"],
             "--stall-after works on Zenoh only",
+        ),
+        (["--vehicle", "v1", "--deaf-until", "v2:10"], "--deaf-until names v2"),
+        (["--vehicle", "v1", "--deaf-until", "v1"], "--deaf-until wants ID:SECONDS"),
+        (
+            ["--vehicle", "v1", "--deaf-until", "v1:10", "--mavlink", "tcpin:127.0.0.1:5760"],
+            "--deaf-until works on Zenoh only",
         ),
     ],
 )

@@ -372,6 +372,26 @@ def test_breakdown_silences_and_stops_the_vehicle(
     assert tractor.on_link_tick(1000.0) == []
 
 
+def test_a_dead_uplink_hears_nothing_until_it_comes_back(
+    vehicle: Vehicle, home_lonlat: tuple[float, float], mission: Mission, wire: Wire
+) -> None:
+    """``deaf_until_s``: no command is heard (nor answered) until then, and the vehicle
+    reports as ever meanwhile; from then on it hears and answers."""
+    tractor = SimTractor(vehicle, home_lonlat, deaf_until_s=30.0)
+    arm = wire.command_long(mc.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+    tractor.advance(10.0)
+    assert send(tractor, wire, arm) == [] and not tractor.armed
+    assert tractor.heartbeat(10.0) and tractor.telemetry(10.0)
+    assert send(tractor, wire, wire.mission_msg("MISSION_COUNT", count=3)) == []
+    tractor.advance(31.0)
+    upload(tractor, wire, mission)
+    assert ack_of(send(tractor, wire, arm), mc.MAV_CMD_COMPONENT_ARM_DISARM) == (
+        mc.MAV_RESULT_ACCEPTED
+    )
+    with pytest.raises(ValueError, match="deaf_until_s"):
+        SimTractor(vehicle, home_lonlat, deaf_until_s=-1.0)
+
+
 def test_broken_from_boot_never_speaks(vehicle: Vehicle, home_lonlat: tuple[float, float]) -> None:
     tractor = SimTractor(vehicle, home_lonlat, fail_after_s=0.0)
     assert tractor.heartbeat(0.0) == [] and tractor.failed
