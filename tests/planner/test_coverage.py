@@ -367,6 +367,19 @@ def test_a_field_no_angle_fits_with_the_headland_is_laid_out_with_fewer_passes()
     assert cov.headland_passes == len(cov.headland) < headland_passes_for_turns(3.7, 4.5, 3.7)
 
 
+def test_land_no_swath_nor_ring_sweeps_is_measured_and_an_acute_corner_named(caplog) -> None:
+    """A right triangle 400 m long with a 10-degree corner: its apex, beyond the innermost
+    headland ring and too narrow for a swath, goes unworked, ~19 % of the field, and a
+    warning says so; a rectangle leaves under 1 % (the turns' half-width at the ends)."""
+    apex = Polygon([(0, 0), (400, 0), (400, 400 * math.tan(math.radians(10.0)))])
+    cov = cover_field(apex, 6.9, field_id="wedge", turn_radius_m=6.0)
+    assert 0.15 < cov.unworked_m2 / apex.area < 0.25
+    assert "field 'wedge': " in caplog.text and "left unworked at a working width" in caplog.text
+    caplog.clear()
+    rect = cover_field(rectangle_field(120.0, 300.0), 6.9, field_id="r", turn_radius_m=6.0)
+    assert rect.unworked_m2 < 0.01 * 120.0 * 300.0 and "unworked" not in caplog.text
+
+
 def test_a_jittery_outline_gives_headland_rings_without_edges_of_a_point() -> None:
     """A round field digitised with 0.4 m of GPS noise: its offsets have edges of a fraction
     of a millimetre, which a mission in lat/lon cannot tell from a point (the mission
