@@ -76,7 +76,13 @@ def scenario_for(
     loaded :class:`Farm`; the farm id is then the file's name) with its first ``machines``;
     ``id_field``/``name_field``: the properties that hold a field's id and name."""
     if not isinstance(scenario, Scenario):
-        scenario = load_scenario(scenario)
+        # Its farm read once, as asked: on another farm file, its own is not read (it may
+        # be missing).
+        on_file = None if fields is None or isinstance(fields, Farm) else fields
+        scenario = load_scenario(scenario, on_file, id_field, name_field)
+        if on_file is not None or fields is None:
+            id_field = name_field = None  # done
+            fields = None
     if fields is not None:
         scenario = scenario.with_farm(fields, id_field, name_field)
     elif id_field or name_field:  # the scenario's own farm file, read another way

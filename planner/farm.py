@@ -674,9 +674,11 @@ def _field(
     if boundary.is_empty or boundary.area <= 0.0:
         raise GeometryError(f"{where}: the polygon has no area")
     if not boundary.is_valid:
+        # Where, in the file's longitude and latitude (the local metres mean nothing to
+        # whoever drew it), unless only the local frame shows it.
+        why = explain_validity(lonlat if not lonlat.is_valid else boundary)
         raise GeometryError(
-            f"{where}: invalid polygon ({explain_validity(boundary)}); "
-            "is its boundary self-intersecting?"
+            f"{where}: invalid polygon ({why}); is its boundary self-intersecting?"
         )
     angle = _prop(props, "work_angle_deg")
     if angle is not None and (

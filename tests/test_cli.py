@@ -180,6 +180,24 @@ def test_the_farm_id_follows_the_fields_file(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["farm_id"] == "North-farm"
 
 
+def test_a_scenario_whose_own_farm_is_missing_plans_on_the_fields_given(tmp_path, capsys):
+    """A scenario kept as a template for several farms: with --fields its own farm file is
+    not read (it used to be, and a missing one stopped the plan)."""
+    scenario = tmp_path / "template.toml"
+    scenario.write_text(
+        TINY.read_text().replace('farm = "tiny-farm.geojson"', 'farm = "not-here.geojson"')
+    )
+    farm = tmp_path / "North farm.geojson"
+    farm.write_text((DATA / "tiny-farm.geojson").read_text())
+    assert main(["plan", str(scenario), "--json", "--time-limit", "2"]) == 2
+    assert "not-here.geojson" in capsys.readouterr().err
+    args = ["plan", str(scenario), "--fields", str(farm), "--json", "--time-limit", "2"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["farm_id"] == "North-farm"
+    args += ["--id-field", "id"]
+    assert main(args) == 0
+
+
 def test_interrupted_exits_130(monkeypatch, capsys):
     cli = importlib.import_module("dispatcher.cli.main")  # the package's `main` is the function
 

@@ -405,7 +405,16 @@ def farm_id_for(path: str | Path) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(path).stem).strip("-") or "farm"
 
 
-def load_scenario(path: str | Path) -> Scenario:
+def load_scenario(
+    path: str | Path,
+    fields: str | Path | None = None,
+    id_field: str | None = None,
+    name_field: str | None = None,
+) -> Scenario:
+    """The scenario file at ``path``; on the farm file ``fields`` instead of its own when
+    given (``--fields``: its own is then not read, and may be missing), the farm id then
+    the farm file's name, as :meth:`Scenario.with_farm` has it; its farm read with
+    ``id_field`` and ``name_field`` when given (``--id-field``, ``--name-field``)."""
     path = Path(path)
     doc = _read_toml(path)
     src = str(path)
@@ -424,8 +433,15 @@ def load_scenario(path: str | Path) -> Scenario:
             f"{src}: key 'farm' must name the farm GeoJSON file (a string), not {_shown(farm_key)}"
         )
     farm_options = _farm_options(doc, src)
+    farm_options = replace(
+        farm_options,
+        id_field=id_field or farm_options.id_field,
+        name_field=name_field or farm_options.name_field,
+    )
+    if fields is not None:
+        farm_id = farm_id_for(fields)
     try:
-        farm = load_farm(path.parent / farm_key, farm_options)
+        farm = load_farm(path.parent / farm_key if fields is None else fields, farm_options)
     except PlannerError as exc:
         raise ConfigError(str(exc)) from exc
     machines = doc.get("machine")

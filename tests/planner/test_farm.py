@@ -329,3 +329,13 @@ def test_overlapping_fields_are_named_with_the_overlap(tmp_path, caplog):
         load_farm(write(tmp_path, doc))
     assert re.search(r"fields 'F1' and 'F3' overlap by 48\d\d m2", caplog.text)  # 60 x 80 m
     assert "'F2' and 'F3'" not in caplog.text  # F2 starts 200 m east: 20 m apart
+
+
+def test_a_self_intersecting_field_is_said_where_in_longitude_and_latitude(tmp_path):
+    doc = farm_doc()
+    a = rect(LON0, LAT0)
+    doc["features"][0]["geometry"]["coordinates"][0] = [a[0], a[2], a[1], a[3], a[0]]
+    message = refused(tmp_path, doc)
+    assert re.search(
+        r"field 'F1': invalid polygon \(Self-intersection\[10\.000\d+ 50\.000\d+\]", message
+    )
