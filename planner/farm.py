@@ -677,9 +677,7 @@ def _field(
         # Where, in the file's longitude and latitude (the local metres mean nothing to
         # whoever drew it), unless only the local frame shows it.
         why = explain_validity(lonlat if not lonlat.is_valid else boundary)
-        raise GeometryError(
-            f"{where}: invalid polygon ({why}); is its boundary self-intersecting?"
-        )
+        raise GeometryError(f"{where}: invalid polygon ({why}); is its boundary self-intersecting?")
     angle = _prop(props, "work_angle_deg")
     if angle is not None and (
         isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(angle)
