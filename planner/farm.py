@@ -174,7 +174,7 @@ def farm_from_geojson(
     garage_wheres: list[str] = []
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
-    seen: set[str] = set()
+    seen: dict[str, str] = {}  # field id -> the feature it came from (for messages)
     # A gate names its field as the file does (properties.id, an ISOXML PFD's id): which
     # fields (parts of a MultiPolygon) that is, when the field id is another property.
     aliases: dict[str, list[str]] = {}
@@ -212,6 +212,7 @@ def farm_from_geojson(
                 props = {**props, "id": feature["id"]}  # RFC 7946's id of the feature
             field_id = _field_id(props, options.id_field, k, where)
             name = _field_name(props, options.name_field, field_id, where)
+            feature_where = where.removeprefix(f"{source}: ")
             where = f"{source}: field {field_id!r}"
             gtype = geom.get("type")
             if gtype not in ("Polygon", "MultiPolygon"):
@@ -237,8 +238,10 @@ def farm_from_geojson(
                 part_id = part_ids[n]
                 here = f"{source}: field {part_id!r}"
                 if part_id in seen:
-                    raise GeometryError(f"{here}: duplicate field id")
-                seen.add(part_id)
+                    raise GeometryError(
+                        f"{here}: duplicate field id ({seen[part_id]} and {feature_where})"
+                    )
+                seen[part_id] = feature_where
                 if not isinstance(rings, list) or not rings:
                     raise GeometryError(
                         f"{here}: a Polygon's coordinates must be a list of rings, "

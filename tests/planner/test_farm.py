@@ -339,3 +339,9 @@ def test_a_self_intersecting_field_is_said_where_in_longitude_and_latitude(tmp_p
     assert re.search(
         r"field 'F1': invalid polygon \(Self-intersection\[10\.000\d+ 50\.000\d+\]", message
     )
+
+
+def test_a_duplicate_field_id_names_both_features(tmp_path):
+    doc = farm_doc()
+    doc["features"][1]["properties"]["id"] = "F1"
+    assert "field 'F1': duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
