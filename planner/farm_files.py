@@ -307,7 +307,8 @@ def _isoxml_polygon(pln: ET.Element, where: str) -> list[list[list[float]]]:
             f"{where}: a boundary needs exactly one outer line string (LSG of type 1), "
             f"not {len(outer)}"
         )
-    return [_isoxml_ring(lsg, f"{where} line string #{n}") for n, lsg in enumerate(outer + holes)]
+    number = {id(lsg): n for n, lsg in enumerate(pln.findall("LSG"))}  # as in the file
+    return [_isoxml_ring(lsg, f"{where} line string #{number[id(lsg)]}") for lsg in outer + holes]
 
 
 def _isoxml_ring(lsg: ET.Element, where: str) -> list[list[float]]:

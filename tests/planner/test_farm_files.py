@@ -135,7 +135,16 @@ def test_isoxml_holes_and_a_bad_point_named(tmp_path):
     with pytest.raises(GeometryError) as err:
         load_farm(path)
     assert str(path) in str(err.value) and "partfield 'PFD1'" in str(err.value)
-    assert "C='north'" in str(err.value)
+    assert "C='north'" in str(err.value) and "line string #1 point #0" in str(err.value)
+    # The hole first in the file: the bad point is in the file's line string #0.
+    root = ET.parse(path).getroot()
+    pln = root.find("PFD/PLN")
+    hole = pln.findall("LSG")[1]
+    pln.remove(hole)
+    pln.insert(0, hole)
+    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+    with pytest.raises(GeometryError, match="polygon #0 line string #0 point #0: .*C='north'"):
+        load_farm(path)
 
 
 def test_a_multipolygon_is_split_into_fields_with_derived_ids(tmp_path):
