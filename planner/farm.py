@@ -63,6 +63,8 @@ DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many charac
 
 log = logging.getLogger(__name__)
 
+CROSSING_M = 0.5
+"""A road runs through a field (a warning) where it lies deeper inside than this."""
 OVERLAP_WARN_M2 = 1.0
 """Fields overlapping by more than this many square metres are named in a warning."""
 
@@ -254,11 +256,12 @@ def farm_from_geojson(
         elif kind == "road":
             raw_roads += _road_parts(k, props, geom, where)
         else:  # a gate
-            field_id = _prop(props, "field")
-            if not isinstance(field_id, str) or not field_id:
+            named = _text(_prop(props, "field"))  # a whole number too, as field ids are
+            if named is None:
                 raise GeometryError(
                     f"{where} (gate): a gate needs properties.field, the id of its field"
                 )
+            field_id = named
             if geom.get("type") != "Point":
                 raise GeometryError(f"{where} (gate of {field_id!r}): a gate must be a Point")
             where = f"{where} (gate of {field_id!r})"
@@ -305,7 +308,8 @@ def farm_from_geojson(
     )
     for road in roads:
         for f in fields:
-            if road.line.intersection(f.boundary).length > 1.0:
+            # Through it, not along its border (a lane beside the fence is what roads are).
+            if road.line.intersection(f.boundary.buffer(-CROSSING_M)).length > 1.0:
                 log.warning(
                     "%s: road %r crosses field %r; transit may drive through it",
                     source,
@@ -342,6 +346,8 @@ def _road_parts(
         parts = coords
     else:
         raise GeometryError(f"{where}: a road must be a LineString or MultiLineString, not {kind}")
+    if not parts:
+        raise GeometryError(f"{where}: a road needs at least 2 points (this one has no part)")
     out = []
     for n, part in enumerate(parts):
         here = where if kind == "LineString" else f"{where} part {n}"
@@ -383,6 +389,15 @@ def _gate(
             f"{where}: the gate is {off:.0f} m from the boundary of field {field_id!r} "
             f"(limit {MAX_GATE_DISTANCE_M:.0f} m); a gate lies on its field's boundary"
         )
+    for other in fields.values():
+        if other.id != field_id and other.boundary.buffer(-CROSSING_M).contains(Point(x, y)):
+            log.warning(
+                "%s: the gate lies inside field %r: transit to field %r drives through it "
+                "(is the gate where it should be?)",
+                where,
+                other.id,
+                field_id,
+            )
     return Gate(field_id=field_id, xy=(x, y), lonlat=lonlat)
 
 

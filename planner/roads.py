@@ -50,6 +50,7 @@ Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly betwee
 
 CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
+ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -191,7 +192,15 @@ testing each against the obstacles its bounding box meets (:meth:`_FreeSpace._vi
 class _FreeSpace:
     """Shortest paths in the plane around grown field outlines (a visibility graph)."""
 
-    def __init__(self, outlines: Sequence[Polygon], clearance_m: float) -> None:
+    def __init__(
+        self,
+        outlines: Sequence[Polygon],
+        clearance_m: float,
+        names: Sequence[str] = (),
+        source: str = "<memory>",
+    ) -> None:
+        self._names = list(names) or [f"#{k}" for k in range(len(outlines))]  # for messages
+        self._source = source
         grown = [
             orient(Polygon(p.exterior).buffer(clearance_m, join_style="mitre"), 1.0)
             for p in outlines
@@ -298,7 +307,12 @@ class _FreeSpace:
         total = reach_a + seen_b
         j = int(np.argmin(total)) if len(total) else -1
         if j < 0 or not math.isfinite(total[j]):
-            log.warning("no way around the fields from %s to %s; counting the straight line", a, b)
+            log.warning(
+                "%s: no way around the other fields from %s to %s; counting the straight line",
+                self._source,
+                self._where(own_a),
+                self._where(own_b),
+            )
             return straight, ()
         i = int(np.argmin(seen_a + self._dist[:, j]))
         nodes = [i]
@@ -309,6 +323,13 @@ class _FreeSpace:
             nodes.append(int(np.argmin(step)))
         via = tuple((float(self.nodes[k][0]), float(self.nodes[k][1])) for k in nodes)
         return float(total[j]), via
+
+    def _where(self, own: int | None) -> str:
+        return (
+            "the garage (or a point off the fields)"
+            if own is None
+            else (f"field {self._names[own]!r}")
+        )
 
     def length_matrix(self, points: Sequence[XY], owners: Sequence[int | None]) -> FloatArray:
         """Route lengths between all pairs of ``points`` (point k lies in obstacle
@@ -404,7 +425,12 @@ class TransitNetwork:
     def _free(self) -> _FreeSpace:
         if self._free_space is None:
             outlines = [f.boundary for f in self.farm.fields]
-            self._free_space = _FreeSpace(outlines, self._clearance_m)
+            self._free_space = _FreeSpace(
+                outlines,
+                self._clearance_m,
+                [f.id for f in self.farm.fields],
+                self.farm.source,
+            )
         return self._free_space
 
     @property
@@ -413,7 +439,9 @@ class TransitNetwork:
 
     def _build_roads(self) -> None:
         farm = self.farm
-        lines = joined([r.line for r in farm.roads])
+        # Simplified first: a track logged by GPS every metre or two would make every
+        # vertex a mission item (25 000 for 30 km), for nothing a tractor can follow.
+        lines = joined([r.line.simplify(ROAD_SIMPLIFY_M) for r in farm.roads])
         network = shapely.unary_union(lines)
         for f in farm.fields:
             declared = tuple(g.xy for g in farm.gates_of(f.id))

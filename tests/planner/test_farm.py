@@ -345,3 +345,32 @@ def test_a_duplicate_field_id_names_both_features(tmp_path):
     doc = farm_doc()
     doc["features"][1]["properties"]["id"] = "F1"
     assert "field 'F1': duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
+
+
+def test_roads_and_gates_as_others_draw_them(tmp_path, caplog):
+    """A gate naming its field by a whole number, as a GIS column holds it; a lane along a
+    field's fence is not a road through it, and a gate digitised inside another field is
+    said; a MultiLineString road with no part is refused."""
+    doc = farm_doc()
+    doc["features"][0]["properties"]["id"] = 7
+    doc["features"][4]["properties"]["field"] = 7
+    south = LAT0  # along F1's southern edge, its fence
+    doc["features"].append(
+        feature(
+            "road",
+            {"type": "LineString", "coordinates": [[LON0 - 0.001, south], [LON0 + 0.004, south]]},
+            id="fence lane",
+        )
+    )
+    metre = 1 / (111320 * math.cos(math.radians(LAT0)))  # a metre east, in degrees
+    doc["features"].append(field("F3", rect(LON0 + 125 * metre, LAT0, 60.0)))  # 5 m east of F1
+    doc["features"].append(point("gate", LON0 + 135 * metre, LAT0 + 0.0004, field="7"))  # in F3
+    with caplog.at_level(logging.WARNING, logger="planner.farm"):
+        farm = load_farm(write(tmp_path, doc))
+    assert [g.field_id for g in farm.gates] == ["7", "7"]
+    assert "crosses field" not in caplog.text
+    assert "(gate of '7'): the gate lies inside field 'F3'" in caplog.text
+    doc["features"].append(
+        feature("road", {"type": "MultiLineString", "coordinates": []}, id="nothing")
+    )
+    assert "road 'nothing'): a road needs at least 2 points" in refused(tmp_path, doc)

@@ -3,6 +3,7 @@
 import copy
 import itertools
 import json
+import logging
 import math
 import time
 from pathlib import Path
@@ -365,3 +366,28 @@ def test_lengths_from_many_points_equal_the_routes_one_by_one(with_roads):
     ]
     assert got == pytest.approx(np.array(want))
     assert got[0, 15] > math.dist(sources[0], targets[15])  # around fields in the way
+
+
+def test_a_road_logged_every_two_metres_is_driven_as_a_few_points():
+    """A 2 km track logged by GPS every 2 m, wobbling 0.2 m: simplified to within
+    ROAD_SIMPLIFY_M, its route has a handful of points, not a thousand mission items."""
+    track = [(x, 120.0 + 0.2 * math.sin(x)) for x in np.arange(-50.0, 2000.0, 2.0)]
+    fields = {"A": box(0, 0, 100, 100), "B": box(1800, 0, 1900, 100)}
+    farm = farm_of(fields, (-50, 120), [track], [("A", (50, 100)), ("B", (1850, 100))])
+    length, via = TransitNetwork(farm).route((50, 50), (1850, 50), "A", "B")
+    assert len(via) < 10
+    assert length == pytest.approx(50 + 20 + 1800 + 20 + 50, abs=2.0)
+
+
+def test_no_way_around_is_said_with_the_fields_it_is_between(caplog):
+    """Three fields in a row, touching, the middle one long: from inside the east one, half
+    a metre from the fence, there is no way around within the clearance; the warning names
+    the farm and the places, not local metres."""
+    fields = {"A": box(0, 0, 60, 60), "B": box(60, -300, 120, 360), "C": box(120, 0, 180, 60)}
+    net = TransitNetwork(farm_of(fields, (-60, 30)))
+    with caplog.at_level(logging.WARNING, logger="planner.roads"):
+        net.route((120.5, 30.0), (-60.0, 30.0), "C", None)
+    assert (
+        "<memory>: no way around the other fields from field 'C' to the garage (or a point "
+        "off the fields)"
+    ) in caplog.text
