@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import networkx as nx
@@ -51,6 +51,7 @@ Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly betwee
 CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
+ACCESS_MARGIN_M = 0.5  # a straight way onto the roads deeper into a field than this goes around
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -94,7 +95,14 @@ class _Option:
 class _RoadGraph:
     """The roads as a weighted graph, noded at crossings and where ``anchors`` hang on."""
 
-    def __init__(self, roads: Sequence[LineString], anchors: Sequence[XY]) -> None:
+    def __init__(
+        self,
+        roads: Sequence[LineString],
+        anchors: Sequence[XY],
+        access: Callable[[int, XY, XY], tuple[XY, ...]] | None = None,
+    ) -> None:
+        """``access(k, p, q)``: the points strictly between anchor ``k`` at ``p`` and the
+        road point ``q`` it hangs on (default: none, a straight segment)."""
         merged = shapely.unary_union(joined(roads))
         segments = [g for g in shapely.get_parts(merged) if g.length > _SAME_M]
         self.graph: nx.Graph = nx.Graph()
@@ -104,7 +112,7 @@ class _RoadGraph:
         tree = shapely.STRtree(segments)
         cuts: dict[int, list[tuple[float, int]]] = {k: [] for k in range(len(segments))}
         self.anchor_nodes: list[int] = []
-        for p in anchors:
+        for n, p in enumerate(anchors):
             k = int(tree.query_nearest(Point(p))[0])
             seg = segments[k]
             along = float(seg.project(Point(p)))
@@ -113,7 +121,8 @@ class _RoadGraph:
             cuts[k].append((along, on_road))
             here = self._node(p)
             if here != on_road:
-                self._edge(here, on_road, (p, self.xy[on_road]))
+                via = () if access is None else access(n, p, self.xy[on_road])
+                self._edge(here, on_road, (p, *via, self.xy[on_road]))
             self.anchor_nodes.append(here)
         for k, seg in enumerate(segments):
             coords = list(seg.coords)
@@ -418,6 +427,8 @@ class TransitNetwork:
         self.gates: dict[str, tuple[XY, ...]] = {}
         self._gate_nodes: dict[str, tuple[int, ...]] = {}
         self._garage_node = -1
+        self._inner: list[BaseGeometry] = []  # the fields shrunk by ACCESS_MARGIN_M
+        self._fields_tree: shapely.STRtree | None = None  # of those, built on first use
         if farm.roads:
             self._build_roads()
 
@@ -450,7 +461,10 @@ class TransitNetwork:
                 declared = ((float(p.x), float(p.y)),)
             self.gates[f.id] = declared
         anchors = [farm.garage] + [g for f in farm.fields for g in self.gates[f.id]]
-        roads = _RoadGraph(lines, anchors)
+        owners: list[int | None] = [None] + [
+            k for k, f in enumerate(farm.fields) for _ in self.gates[f.id]
+        ]
+        roads = _RoadGraph(lines, anchors, lambda n, p, q: self._access(p, q, owners[n]))
         self._garage_node = roads.anchor_nodes[0]
         k = 1
         for f in farm.fields:
@@ -469,6 +483,23 @@ class TransitNetwork:
                     f.id,
                 )
         self._roads = roads
+
+    def _access(self, p: XY, q: XY, own: int | None) -> tuple[XY, ...]:
+        """The way from the garage or a gate of field ``own`` at ``p`` to the road point
+        ``q``: straight, unless that crosses another field (a gate behind a neighbour, a
+        garage beside a field away from the road): then around the fields."""
+        if self._fields_tree is None:
+            self._inner = [f.boundary.buffer(-ACCESS_MARGIN_M) for f in self.farm.fields]
+            self._fields_tree = shapely.STRtree(self._inner)
+        segment = LineString([p, q])
+        crossed = [
+            int(k)
+            for k in self._fields_tree.query(segment, predicate="intersects")
+            if int(k) != own
+        ]
+        if not crossed:
+            return ()
+        return self._free.route(p, q, own, None)[1]
 
     def interior(self, field_id: str) -> FieldInterior:
         """The in-field router of one field (built on first use)."""

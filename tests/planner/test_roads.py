@@ -391,3 +391,17 @@ def test_no_way_around_is_said_with_the_fields_it_is_between(caplog):
         "<memory>: no way around the other fields from field 'C' to the garage (or a point "
         "off the fields)"
     ) in caplog.text
+
+
+def test_the_way_from_a_gate_onto_the_road_goes_around_a_field_in_between():
+    """A's gate faces B, and the road runs beyond B: the way from the gate onto the road
+    went straight through B; it goes around it, and so does the garage's."""
+    fields = {"A": box(0, 0, 100, 100), "B": box(0, 150, 100, 250), "C": box(300, 150, 400, 250)}
+    road = [(-100.0, 300.0), (500.0, 300.0)]
+    farm = farm_of(fields, (50, -60), [road], [("A", (50, 100)), ("C", (350, 250))])
+    net = TransitNetwork(farm)
+    length, via = net.route((50, 50), (350, 200), "A", "C")
+    assert not crosses([(50, 50), *via, (350, 200)], fields["B"])
+    assert length == pytest.approx(LineString([(50, 50), *via, (350, 200)]).length)
+    back = net.route((50, 200), (50, -60), "B", None)  # the garage, behind A from the road
+    assert not crosses([(50, 200), *back[1], (50, -60)], fields["A"])
