@@ -2,6 +2,7 @@
 
 import importlib
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -290,3 +291,37 @@ def test_sim_help_is_the_simulators(capsys):
         main(["sim", "--help"])
     assert stop.value.code == 0
     assert "usage: agrifleet sim" in capsys.readouterr().out
+
+
+def test_bad_numbers_and_unusable_paths_exit_2_naming_them(tmp_path, capsys):
+    """--time-limit and --speedup are checked when parsed (a negative one was a traceback,
+    0 meant the scenario's, 1e9 ran); an --out that is a file is named, not a traceback."""
+    for value in ("-5", "nan", "0", "1e9"):
+        with pytest.raises(SystemExit) as stop:
+            main(["plan", str(TINY), "--json", "--time-limit", value])
+        assert stop.value.code == 2
+        assert "argument --time-limit" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        main(["demo", "--speedup", "-5", "--no-foxglove"])
+    assert stop.value.code == 2 and "argument --speedup" in capsys.readouterr().err
+    taken = tmp_path / "a file"
+    taken.write_text("mine")
+    assert main(["plan", str(TINY), "--out", str(taken), "--time-limit", "1"]) == 2
+    assert f"agrifleet: error: {taken}: File exists" in capsys.readouterr().err
+    assert taken.read_text() == "mine"
+
+
+def test_a_scenario_as_windows_and_other_languages_write_it(tmp_path, capsys):
+    """A byte-order mark (Notepad), and a file name with spaces and letters beyond ASCII:
+    the farm id is made of it (it was refused as a farm id)."""
+    folder = tmp_path / "Ферма Ünï"
+    folder.mkdir()
+    scenario = folder / "моя ферма.toml"
+    text = TINY.read_text().replace(
+        'farm = "tiny-farm.geojson"', f'farm = "{DATA / "tiny-farm.geojson"}"'
+    )
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("farm_id"))
+    scenario.write_text(text, encoding="utf-8-sig")
+    assert main(["plan", str(scenario), "--json", "--time-limit", "1"]) == 0
+    farm_id = json.loads(capsys.readouterr().out)["farm_id"]
+    assert re.fullmatch(r"farm-[0-9a-f]{6}", farm_id), farm_id

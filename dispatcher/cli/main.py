@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -547,10 +548,45 @@ def cmd_bench_scale(args: argparse.Namespace) -> int:
 
 
 def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
-    p.add_argument("--time-limit", type=float, default=time_limit, help="seconds per run")
+    p.add_argument("--time-limit", type=seconds, default=time_limit, help="seconds per run")
     p.add_argument("--runs", type=int, default=5, help="our seeds per cell")
     p.add_argument("--seed", type=int, default=1, help="our first seed (and the peer's)")
     add_algorithm_argument(p)
+
+
+def seconds(text: str) -> float:
+    """An argument that is a number of seconds > 0 (argparse's ``type``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text} must be a number of seconds > 0")
+    return value
+
+
+def speedup_factor(text: str) -> float:
+    """A simulator's speedup: a number > 0 (argparse's ``type``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
+    return value
+
+
+def plan_seconds(text: str) -> float:
+    """A plan's time limit: seconds within the bounds of ``[solver] time_limit_s``."""
+    from dispatcher.config.scenario import LIMITS
+
+    value, bounds = seconds(text), LIMITS["time_limit_s"]
+    if not bounds.low <= value <= bounds.high:
+        raise argparse.ArgumentTypeError(
+            f"{text} is out of bounds: {bounds.low:g} to {bounds.high:g} s "
+            f"({bounds.why_low if value < bounds.low else bounds.why_high})"
+        )
+    return value
 
 
 def add_algorithm_argument(p: argparse.ArgumentParser) -> None:
@@ -585,10 +621,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_plan_arguments(p, scenario_default="the demo farm, config/changji.toml")
     p.add_argument(
         "--speedup",
-        type=float,
+        type=speedup_factor,
         default=None,
         metavar="X",
-        help="simulated seconds per wall second (default: fit the run into ~45 s, at most 1200x)",
+        help="simulated seconds per wall second, > 0 (default: fit the run into ~45 s, at "
+        "most 1200x)",
     )
     add_log_dir_argument(p)
     g = p.add_argument_group("fault injection (docs/demo.md)")
@@ -755,7 +792,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_algorithm_argument(p)
     p.add_argument(
-        "--time-limit", type=float, default=None, metavar="S", help="solver wall-clock seconds"
+        "--time-limit", type=seconds, default=None, metavar="S", help="solver wall-clock seconds"
     )
     p.add_argument("--generations", type=int, default=2000, help="at most this many (default 2000)")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
@@ -776,7 +813,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--runs", type=int, default=5, help="seeds per cell (default 5)")
     p.add_argument(
-        "--time-limit", type=float, default=30.0, metavar="S", help="seconds per run (default 30)"
+        "--time-limit", type=seconds, default=30.0, metavar="S", help="seconds per run (default 30)"
     )
     p.add_argument(
         "--generations", type=int, default=2000, help="at most this many per run (default 2000)"
@@ -838,7 +875,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--instances", default=SCALE_INSTANCES, help="INSTANCE,… (default %(default)s)")
     p.add_argument("-m", "--salesmen", type=int, default=3, help="salesmen (default 3)")
     p.add_argument(
-        "--time-limit", type=float, default=20.0, metavar="S", help="seconds per instance (20)"
+        "--time-limit", type=seconds, default=20.0, metavar="S", help="seconds per instance (20)"
     )
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     add_algorithm_argument(p)
@@ -923,9 +960,10 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
     )
     p.add_argument(
         "--time-limit",
-        type=float,
+        type=plan_seconds,
         metavar="S",
-        help="wall-clock seconds for the whole plan (default: the scenario's time_limit_s)",
+        help="wall-clock seconds for the whole plan, 0.1 to 3600 (default: the scenario's "
+        "time_limit_s)",
     )
     p.add_argument("--seed", type=int, help="the solver's random seed (default: the scenario's)")
     p.add_argument(
@@ -970,6 +1008,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Output piped into `head` and the like: stop quietly, as Unix tools do.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except OSError as exc:
+        # A path given that cannot be written or read (--out an existing file, a folder
+        # that is not there): named, without a traceback.
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"agrifleet: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("agrifleet: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

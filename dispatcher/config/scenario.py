@@ -9,6 +9,7 @@ is a number), a number outside :data:`LIMITS`.
 from __future__ import annotations
 
 import difflib
+import hashlib
 import logging
 import math
 import re
@@ -401,8 +402,14 @@ class Scenario:
 
 def farm_id_for(path: str | Path) -> str:
     """A farm id (a Zenoh key segment) from a file's name: what :data:`SAFE_ID` does not
-    allow becomes '-' ("Home farm.geojson" is "Home-farm")."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(path).stem).strip("-") or "farm"
+    allow becomes '-' ("Home farm.geojson" is "Home-farm"); a name with letters beyond
+    ASCII gets a short hash of it too, so that two such names do not become one ("поля
+    1.geojson" is "1-" and six hex digits, not "1")."""
+    stem = Path(path).stem
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", stem).strip("-") or "farm"
+    if stem.isascii():
+        return safe
+    return f"{safe}-{hashlib.sha256(stem.encode()).hexdigest()[:6]}"
 
 
 def load_scenario(
@@ -419,7 +426,7 @@ def load_scenario(
     doc = _read_toml(path)
     src = str(path)
     _check_keys(doc, TOP_KEYS, src, "the top level", _ELSEWHERE_AT_TOP)
-    farm_id = doc.get("farm_id", path.stem)
+    farm_id = doc.get("farm_id", farm_id_for(path))  # "my farm.toml": "my-farm"
     if not isinstance(farm_id, str) or not SAFE_ID.fullmatch(farm_id):
         raise ConfigError(
             f"{src}: farm_id {_shown(farm_id)} must be letters, digits, '_', '-' or '.' "
@@ -536,7 +543,7 @@ def _keys_dir(doc: dict[str, Any], path: Path, src: str) -> Path | None:
 
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark or none
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:

@@ -7,6 +7,7 @@ only when all of them are written, so a failure leaves nothing half-done behind.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import tempfile
@@ -242,11 +243,11 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
         write_plan_kml(dispatch, staging / "plan.kml")
         draw_plan_map(dispatch.plan, staging / "map.png", title=dispatch.scenario.farm_id)
         out_dir.mkdir(exist_ok=True)
-        # Missions of machines no longer in the plan must not stay beside it.
+        # Missions of machines no longer in the plan must not stay beside it: those the
+        # plan.json there (an earlier plan's) lists; any other file is the user's, kept.
         new = {item.name for item in staging.iterdir()}
-        for old in out_dir.iterdir():
-            if old.suffix in (".waypoints", ".plan") and old.name not in new:
-                old.unlink()
+        for name in _earlier_missions(out_dir / "plan.json") - new:
+            (out_dir / name).unlink(missing_ok=True)
         written = []
         for item in sorted(staging.iterdir()):
             target = out_dir / item.name
@@ -255,6 +256,17 @@ def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
         return written
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _earlier_missions(plan_json: Path) -> set[str]:
+    """The mission files (``<machine>.waypoints``, ``<machine>.plan``) of the plan that
+    ``plan_json`` holds; none when there is none, or it is not a plan of ours."""
+    try:
+        machines = json.loads(plan_json.read_text())["machines"]
+        ids = {str(m["id"]) for m in machines}
+    except (OSError, ValueError, KeyError, TypeError):
+        return set()
+    return {f"{vid}{suffix}" for vid in ids for suffix in (".waypoints", ".plan")}
 
 
 def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:

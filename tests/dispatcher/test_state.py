@@ -43,14 +43,19 @@ def test_a_vehicle_lost_for_good_ends_the_run_after_the_grace(dispatch):
 
 
 def test_replanning_into_the_same_folder_leaves_no_stale_mission(dispatch, tmp_path):
+    """The missions of a machine the earlier plan there had are gone; mission files that
+    no plan of ours wrote (the user's own) are kept."""
     out = tmp_path / "out"
     out.mkdir()
+    (out / "plan.json").write_text('{"machines": [{"id": "old-tractor"}, {"id": "v1"}]}')
     (out / "old-tractor.waypoints").write_text("QGC WPL 110\n")
     (out / "old-tractor.plan").write_text("{}")
+    (out / "north field by hand.waypoints").write_text("QGC WPL 110\n")
     write_plan_files(dispatch, out)
     names = sorted(p.name for p in out.iterdir())
     assert names == [
         "map.png",
+        "north field by hand.waypoints",
         "plan.geojson",
         "plan.json",
         "plan.kml",
