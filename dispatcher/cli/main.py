@@ -554,26 +554,25 @@ def add_bench_arguments(p: argparse.ArgumentParser, time_limit: float) -> None:
     add_algorithm_argument(p)
 
 
-def seconds(text: str) -> float:
-    """An argument that is a number of seconds > 0 (argparse's ``type``)."""
+def _positive(text: str, what: str) -> float:
+    """``text`` as a finite number > 0, or argparse's error saying it is not ``what``."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
     if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"{text} must be a number of seconds > 0")
+        raise argparse.ArgumentTypeError(f"{text} must be {what} > 0")
     return value
+
+
+def seconds(text: str) -> float:
+    """An argument that is a number of seconds > 0 (argparse's ``type``)."""
+    return _positive(text, "a number of seconds")
 
 
 def speedup_factor(text: str) -> float:
     """A simulator's speedup: a number > 0 (argparse's ``type``)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
-    return value
+    return _positive(text, "a number")
 
 
 def plan_seconds(text: str) -> float:
