@@ -14,6 +14,7 @@ from pathlib import Path
 import zenoh
 
 from dispatcher.config.errors import DispatcherError
+from dispatcher.config.scenario import add_fields_argument
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments, signing_keys
 from sim_vehicles.impairment import add_impairment_arguments, impairment_of
@@ -25,6 +26,7 @@ EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use .
 def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__)
     p.add_argument("scenario", type=Path, help="scenario TOML (farm and fleet)")
+    add_fields_argument(p)
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--vehicle", action="append", metavar="ID", help="machine id (repeatable)")
     who.add_argument("--all", action="store_true", help="the whole fleet in one process")
@@ -138,7 +140,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
 
     log = logging.getLogger("sim_vehicles")
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = load_scenario(args.scenario, args.fields)
         ids = (
             [v.id for v in scenario.vehicles]
             if args.all

@@ -1,5 +1,6 @@
 """The command line, called in-process through main()."""
 
+import argparse
 import importlib
 import json
 import re
@@ -325,3 +326,34 @@ def test_a_scenario_as_windows_and_other_languages_write_it(tmp_path, capsys):
     assert main(["plan", str(scenario), "--json", "--time-limit", "1"]) == 0
     farm_id = json.loads(capsys.readouterr().out)["farm_id"]
     assert re.fullmatch(r"farm-[0-9a-f]{6}", farm_id), farm_id
+
+
+def test_the_demo_gives_its_simulators_the_farm_it_was_given(tmp_path):
+    """demo --fields FARM ran the dispatcher on FARM (farm id its name) and the simulators on
+    the scenario's own farm (another farm id: every tractor "never came alive")."""
+    from dispatcher.tools.bridge import add_bridge_arguments
+    from dispatcher.tools.demo import sim_command
+    from sim_vehicles.__main__ import build_parser
+
+    farm = tmp_path / "North farm.geojson"
+    cmd = sim_command(TINY, "v1", "tcp/127.0.0.1:7447", 10.0, fields=farm)
+    assert cmd[cmd.index("--fields") + 1] == str(farm)
+    assert "--fields" not in sim_command(TINY, "v1", "tcp/127.0.0.1:7447", 10.0)
+    args = build_parser().parse_args([str(TINY), "--all", "--fields", str(farm)])
+    assert args.fields == farm
+    bridge = argparse.ArgumentParser()
+    add_bridge_arguments(bridge)
+    assert (
+        bridge.parse_args(
+            [
+                str(TINY),
+                "--vehicle",
+                "v1",
+                "--fields",
+                str(farm),
+                "--mavlink",
+                "udpin:0.0.0.0:14550",
+            ]
+        ).fields
+        == farm
+    )

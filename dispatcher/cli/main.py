@@ -435,6 +435,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         delay_ms=args.delay,
         radio_seed=args.radio_seed,
     )
+    foxglove = foxglove_address(args)  # checked before planning too
     dispatch = plan_scenario(args, scenario)
     print_plan_table(dispatch)
     result = run_demo(
@@ -443,7 +444,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         args.speedup,
         args.log_dir,
         faults=faults,
-        foxglove=foxglove_address(args),
+        foxglove=foxglove,
+        fields=args.fields,
     )
     print(summary(result.daemon, result))
     print(f"log: {result.daemon.log_path}")

@@ -8,6 +8,7 @@ is a number), a number outside :data:`LIMITS`.
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import hashlib
 import logging
@@ -398,6 +399,18 @@ class Scenario:
             farm_options=options,
             farm_id=self.farm_id if in_memory else farm_id_for(farm.source),
         )
+
+
+def add_fields_argument(p: argparse.ArgumentParser) -> None:
+    """``--fields FARM`` of a simulator or a bridge: the farm file the dispatcher was given
+    (``load_scenario(scenario, args.fields)``), whose name is then the farm id."""
+    p.add_argument(
+        "--fields",
+        type=Path,
+        default=None,
+        metavar="FARM",
+        help="the farm file the dispatcher was given with --fields (its farm id and garage)",
+    )
 
 
 def farm_id_for(path: str | Path) -> str:

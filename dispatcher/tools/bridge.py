@@ -47,7 +47,7 @@ from types import MappingProxyType
 import zenoh
 
 from dispatcher.config.errors import ConfigError
-from dispatcher.config.scenario import Scenario, Vehicle
+from dispatcher.config.scenario import Scenario, Vehicle, add_fields_argument
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments, signing_keys
@@ -477,6 +477,7 @@ class _Bridge:
 def add_bridge_arguments(p: argparse.ArgumentParser) -> None:
     """The bridge's own options (the Zenoh ones come from ``add_zenoh_arguments``)."""
     p.add_argument("scenario", type=Path, help="scenario TOML (farm and fleet)")
+    add_fields_argument(p)
     p.add_argument("--vehicle", required=True, metavar="ID", help="the machine this autopilot is")
     p.add_argument(
         "--mavlink",
@@ -533,7 +534,7 @@ def bridge_command(args: argparse.Namespace, options: wire.ZenohOptions) -> int:
     from dispatcher.config.scenario import load_scenario
 
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = load_scenario(args.scenario, args.fields)
         keys = signing_keys(args, scenario, [scenario.vehicle(args.vehicle).id])
         if args.setup_signing and keys is None:
             raise ValueError("--setup-signing needs the vehicle's key: drop --unsigned")

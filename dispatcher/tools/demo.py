@@ -173,14 +173,17 @@ def sim_command(
     radio: Impairment | None = None,
     radio_seed: int = 1,
     keys_dir: Path | None = None,
+    fields: Path | None = None,
 ) -> list[str]:
     """``python -m sim_vehicles`` for one tractor (with every fault-injection option);
-    signed with the keys of ``keys_dir``, else unsigned."""
+    signed with the keys of ``keys_dir``, else unsigned; on the farm file ``fields`` when
+    the demo was given one (its farm id and garage, as the dispatcher's)."""
     cmd = [
         sys.executable,
         "-m",
         "sim_vehicles",
         str(scenario),
+        *(("--fields", str(fields)) if fields is not None else ()),
         "--connect",
         endpoint,
         "--speedup",
@@ -479,11 +482,13 @@ def run_demo(
     heartbeat_timeout_s: float = 10.0,
     faults: DemoFaults | None = None,
     foxglove: tuple[str, int] | None = None,
+    fields: Path | None = None,
 ) -> DemoResult:
     """Run the demo with ``faults`` injected; a simulator that exits early is reported and
     the run goes on (the dispatcher sees its tractor lost). Returns the dispatcher's exit
     code with what happened, for the summary. ``foxglove``: serve the run live to Foxglove
-    there (the default port taken: any free one, said loudly)."""
+    there (the default port taken: any free one, said loudly). ``fields``: the farm file
+    the demo was given (``--fields``), which the simulators are given too."""
     faults = faults or DemoFaults()
     for fault in faults.faults:
         if fault.vehicle not in dispatch.missions:
@@ -557,7 +562,14 @@ def run_demo(
         children = Supervisor.start(
             [
                 sim_command(
-                    scenario_path, vid, endpoint, speed, faults.radio, faults.radio_seed, keys_dir
+                    scenario_path,
+                    vid,
+                    endpoint,
+                    speed,
+                    faults.radio,
+                    faults.radio_seed,
+                    keys_dir,
+                    fields,
                 )
                 for vid in vids
             ],
