@@ -150,6 +150,9 @@ def zenoh_options(
     process is ``identity`` of the farm's TLS folder (:mod:`dispatcher.link.access`)."""
     tls = None
     listen = tuple(args.listen or ())
+    for flag, endpoints in (("--listen", listen), ("--connect", tuple(args.connect or ()))):
+        for endpoint in endpoints:
+            check_endpoint(endpoint, flag)
     exposed = [e for e in listen if not e.startswith("tls/") and not is_loopback(e)]
     if exposed and not getattr(args, "insecure_listen", False):
         raise ConfigError(
@@ -220,6 +223,33 @@ def add_zenoh_arguments(
         action="store_true",
         help="allow listening beyond loopback without TLS (a closed test bench only)",
     )
+
+
+ENDPOINT_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws")
+"""The Zenoh link protocols an endpoint may name (``proto/host:port``)."""
+
+
+def check_endpoint(endpoint: str, flag: str) -> None:
+    """:class:`ConfigError` naming ``flag`` unless ``endpoint`` is ``proto/host:port`` with a
+    protocol of :data:`ENDPOINT_PROTOCOLS` and a port of 1-65535 (0 for ``--listen``: any
+    free one). Said before anything is planned or stored: Zenoh refuses a bad one only when
+    the session opens, with a traceback."""
+    proto, sep, address = endpoint.partition("/")
+    host, colon, port = address.rpartition(":")
+    lowest = 0 if flag == "--listen" else 1
+    if (
+        not sep
+        or proto not in ENDPOINT_PROTOCOLS
+        or not colon
+        or not host.strip("[]")
+        or not port.isdigit()
+        or not lowest <= int(port) <= 65535
+    ):
+        raise ConfigError(
+            f"{flag} {endpoint!r}: an endpoint is PROTOCOL/HOST:PORT, the protocol one of "
+            f"{', '.join(ENDPOINT_PROTOCOLS)}, the port {lowest} to 65535 "
+            f"(e.g. {DEFAULT_ENDPOINT})"
+        )
 
 
 def is_loopback(endpoint: str) -> bool:

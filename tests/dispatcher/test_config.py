@@ -8,6 +8,7 @@ exit code 2 for them.
 import copy
 import json
 import math
+import re
 import subprocess
 import sys
 import time
@@ -515,3 +516,24 @@ def test_one_figure_in_two_units_is_refused(tmp_path):
     assert "machine 'v1': give turn_time_h or turn_time_s, not both" in refused(tmp_path, doc)
     del doc["machine"][0]["turn_time_s"], doc["machine"][0]["capacity_m2h"]
     assert "missing key(s) capacity_m2h or capacity_hah" in refused(tmp_path, doc)
+
+
+@pytest.mark.parametrize(
+    "endpoint", ["garbage", "tcp/127.0.0.1:99999", "tcp/127.0.0.1", "pigeon/127.0.0.1:7447"]
+)
+def test_a_bad_endpoint_is_named_before_anything_is_planned(endpoint):
+    """Zenoh refused a bad --listen only when the session opened, after planning and
+    storing a run, with a traceback."""
+    import argparse
+
+    from dispatcher.config.errors import ConfigError
+    from dispatcher.link import wire
+
+    parser = argparse.ArgumentParser()
+    wire.add_zenoh_arguments(parser)
+    for flag in ("--listen", "--connect"):
+        args = parser.parse_args([flag, endpoint])
+        with pytest.raises(ConfigError, match=f"{flag} '{re.escape(endpoint)}': an endpoint is"):
+            wire.zenoh_options(args, default_listen=flag == "--listen")
+    ok = parser.parse_args(["--listen", "tcp/[::1]:0", "--connect", "tls/farm.example:7447"])
+    wire.zenoh_options(ok, default_listen=True)
