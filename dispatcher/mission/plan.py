@@ -266,7 +266,8 @@ def _earlier_missions(plan_json: Path) -> set[str]:
         ids = {str(m["id"]) for m in machines}
     except (OSError, ValueError, KeyError, TypeError):
         return set()
-    return {f"{vid}{suffix}" for vid in ids for suffix in (".waypoints", ".plan")}
+    names = {f"{vid}{suffix}" for vid in ids for suffix in (".waypoints", ".plan")}
+    return {name for name in names if Path(name).name == name}  # in that folder only
 
 
 def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:

@@ -47,7 +47,10 @@ def test_replanning_into_the_same_folder_leaves_no_stale_mission(dispatch, tmp_p
     no plan of ours wrote (the user's own) are kept."""
     out = tmp_path / "out"
     out.mkdir()
-    (out / "plan.json").write_text('{"machines": [{"id": "old-tractor"}, {"id": "v1"}]}')
+    (out / "plan.json").write_text(
+        '{"machines": [{"id": "old-tractor"}, {"id": "v1"}, {"id": "../outside"}]}'
+    )
+    (tmp_path / "outside.plan").write_text("{}")  # not ours to delete, whatever plan.json says
     (out / "old-tractor.waypoints").write_text("QGC WPL 110\n")
     (out / "old-tractor.plan").write_text("{}")
     (out / "north field by hand.waypoints").write_text("QGC WPL 110\n")
@@ -64,6 +67,7 @@ def test_replanning_into_the_same_folder_leaves_no_stale_mission(dispatch, tmp_p
         "v2.plan",
         "v2.waypoints",
     ]
+    assert (tmp_path / "outside.plan").exists()
 
 
 @pytest.mark.parametrize(("key", "value"), [("farm_id", "north#2"), ("id", "JD 6R/1")])
