@@ -318,6 +318,7 @@ class MissionUpload(_Transfer):
         if not 0 <= seq < len(self.items):
             self.stats.stray += 1
             return []
+        repeat = seq == self._highest
         out = []
         if seq < self._highest:
             # A late duplicate of an earlier request, or the vehicle started the transfer
@@ -350,6 +351,8 @@ class MissionUpload(_Transfer):
         for k in range(seq, last):
             if k >= self._next or self._lost(k, now, seq):
                 out.append(self._item(k, now))
+        if repeat and not out:
+            self.stats.stray += 1  # the last request again (a duplicate): its item is on its way
         return out
 
     def _lost(self, seq: int, now: float, asked: int) -> bool:

@@ -182,6 +182,13 @@ def protocol_frame(msg: mc.MAVLinkMessage) -> bool:
         )
     ],
 )
+@example(  # the same request twice at once (a radio's duplicate): neither answered nor counted
+    n=1,
+    feed=[
+        (VEHICLE, mc.message("MISSION_REQUEST_INT", target_system=255, target_component=190,
+                             seq=0, mission_type=0)),
+    ] * 2,
+)  # fmt: skip
 def test_an_upload_fed_anything_never_raises_and_counts_strays(n, feed):
     up = MissionUpload(mission(n), VEHICLE[0])
     now = 0.0
