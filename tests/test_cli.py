@@ -357,3 +357,9 @@ def test_the_demo_gives_its_simulators_the_farm_it_was_given(tmp_path):
         ).fields
         == farm
     )
+
+
+def test_minsum_is_an_objective_on_the_command_line_as_in_a_scenario(capsys):
+    args = ["plan", str(TINY), "--objective", "minsum", "--json", "--time-limit", "1"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["objective"] == "distance"

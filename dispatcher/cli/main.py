@@ -493,7 +493,9 @@ def exit_codes_text() -> str:
     )
 
 
-OBJECTIVES = ["makespan", "distance", "time", "fuel", "minmax"]
+OBJECTIVES = ["makespan", "distance", "time", "fuel", "minmax", "minsum"]
+"""What ``--objective`` takes: planner.choices.Objective's names and "minsum" (distance,
+TSPLIB's name, as a scenario's ``objective`` takes it)."""
 
 
 def cmd_bench_peer(args: argparse.Namespace) -> int:
@@ -956,8 +958,8 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
     p.add_argument(
         "--objective",
         choices=OBJECTIVES,
-        help="what to minimise: makespan (when the farm is done), distance on roads, time "
-        "or fuel of the fleet, minmax (the longest route); default: the scenario's",
+        help="what to minimise: makespan (when the farm is done), distance on roads (minsum), "
+        "time or fuel of the fleet, minmax (the longest route); default: the scenario's",
     )
     p.add_argument(
         "--time-limit",
