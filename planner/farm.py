@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
@@ -64,7 +65,8 @@ DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many charac
 log = logging.getLogger(__name__)
 
 CROSSING_M = 0.5
-"""A road runs through a field (a warning) where it lies deeper inside than this."""
+"""A road, a gate or a way onto the roads is in a field where it lies deeper inside than
+this (a lane along the fence is not)."""
 OVERLAP_WARN_M2 = 1.0
 """Fields overlapping by more than this many square metres are named in a warning."""
 
@@ -301,15 +303,17 @@ def farm_from_geojson(
         )
     _warn_of_overlaps(source, fields)
     by_id = {f.id: f for f in fields}
+    # Each field shrunk by CROSSING_M, once: what a road or a gate is in when inside it.
+    inner = {f.id: f.boundary.buffer(-CROSSING_M) for f in fields}
     roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
     gates = tuple(
-        _gate(frame, by_id, aliases.get(fid, [fid]), where, lonlat)
+        _gate(frame, by_id, inner, aliases.get(fid, [fid]), where, lonlat)
         for fid, where, lonlat in raw_gates
     )
     for road in roads:
         for f in fields:
             # Through it, not along its border (a lane beside the fence is what roads are).
-            if road.line.intersection(f.boundary.buffer(-CROSSING_M)).length > 1.0:
+            if road.line.intersection(inner[f.id]).length > 1.0:
                 log.warning(
                     "%s: road %r crosses field %r; transit may drive through it",
                     source,
@@ -371,11 +375,13 @@ def _road(frame: LocalFrame, road_id: str, where: str, points: list[tuple[float,
 def _gate(
     frame: LocalFrame,
     fields: dict[str, Field],
+    inner: dict[str, BaseGeometry],
     field_ids: list[str],
     where: str,
     lonlat: tuple[float, float],
 ) -> Gate:
-    """A gate of the field it names (of the nearest part of a split MultiPolygon)."""
+    """A gate of the field it names (of the nearest part of a split MultiPolygon); said
+    when it lies in another field (``inner``: each field shrunk by :data:`CROSSING_M`)."""
     x, y = frame.to_local(*lonlat)
     named = [fields[f] for f in field_ids if f in fields]
     if not named:
@@ -390,7 +396,7 @@ def _gate(
             f"(limit {MAX_GATE_DISTANCE_M:.0f} m); a gate lies on its field's boundary"
         )
     for other in fields.values():
-        if other.id != field_id and other.boundary.buffer(-CROSSING_M).contains(Point(x, y)):
+        if other.id != field_id and inner[other.id].contains(Point(x, y)):
             log.warning(
                 "%s: the gate lies inside field %r: transit to field %r drives through it "
                 "(is the gate where it should be?)",

@@ -40,7 +40,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points, substring
 
 from planner.coverage import _InFieldDistance
-from planner.farm import Farm
+from planner.farm import CROSSING_M, Farm
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,6 @@ Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly betwee
 CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
-ACCESS_MARGIN_M = 0.5  # a straight way onto the roads deeper into a field than this goes around
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -427,8 +426,9 @@ class TransitNetwork:
         self.gates: dict[str, tuple[XY, ...]] = {}
         self._gate_nodes: dict[str, tuple[int, ...]] = {}
         self._garage_node = -1
-        self._inner: list[BaseGeometry] = []  # the fields shrunk by ACCESS_MARGIN_M
-        self._fields_tree: shapely.STRtree | None = None  # of those, built on first use
+        # The fields shrunk by CROSSING_M (what a way onto the roads must not cross), indexed
+        # on first use.
+        self._fields_tree: shapely.STRtree | None = None
         if farm.roads:
             self._build_roads()
 
@@ -489,15 +489,10 @@ class TransitNetwork:
         ``q``: straight, unless that crosses another field (a gate behind a neighbour, a
         garage beside a field away from the road): then around the fields."""
         if self._fields_tree is None:
-            self._inner = [f.boundary.buffer(-ACCESS_MARGIN_M) for f in self.farm.fields]
-            self._fields_tree = shapely.STRtree(self._inner)
-        segment = LineString([p, q])
-        crossed = [
-            int(k)
-            for k in self._fields_tree.query(segment, predicate="intersects")
-            if int(k) != own
-        ]
-        if not crossed:
+            inner = [f.boundary.buffer(-CROSSING_M) for f in self.farm.fields]
+            self._fields_tree = shapely.STRtree(inner)
+        crossed = self._fields_tree.query(LineString([p, q]), predicate="intersects")
+        if all(int(k) == own for k in crossed):
             return ()
         return self._free.route(p, q, own, None)[1]
 
