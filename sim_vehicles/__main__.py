@@ -22,9 +22,14 @@ from sim_vehicles.impairment import add_impairment_arguments, impairment_of
 EXIT_BAD_INPUT = 2
 EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
 
+DESCRIPTION = (
+    "Simulated tractors on Zenoh, as the dispatcher sees real ones through the bridge; with "
+    "--mavlink URL one tractor on a plain MAVLink socket instead, as ArduPilot SITL."
+)
+
 
 def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__)
+    p = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
     p.add_argument("scenario", type=Path, help="scenario TOML (farm and fleet)")
     add_fields_argument(p)
     who = p.add_mutually_exclusive_group(required=True)

@@ -211,6 +211,35 @@ def test_interrupted_exits_130(monkeypatch, capsys):
     assert "interrupted" in capsys.readouterr().err
 
 
+def test_sigterm_interrupts_a_command_as_ctrl_c_does(monkeypatch, capsys):
+    """`agrifleet plan` stopped by SIGTERM (a service manager, `timeout`) exits 130 as with
+    Ctrl-C, not with the signal's 143; the handler is put back afterwards."""
+    import os
+    import signal
+    import time
+
+    cli = importlib.import_module("dispatcher.cli.main")
+    before = signal.getsignal(signal.SIGTERM)
+
+    def terminated(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)  # the handler raises long before
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_review", terminated)
+    assert main(["review", "nothing.mcap"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_router_has_no_mode_to_choose(capsys):
+    """A router runs in router mode: `--mode peer` was offered and ended in a traceback."""
+    with pytest.raises(SystemExit) as stop:
+        main(["router", "--mode", "peer"])
+    assert stop.value.code == 2
+    assert "--mode" in capsys.readouterr().err
+
+
 def test_exit_codes_are_documented_and_agree_with_the_code(capsys):
     """--help and the README list every exit code; the daemon's and the simulator's
     constants are the ones listed."""

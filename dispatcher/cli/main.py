@@ -16,9 +16,11 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,12 +39,14 @@ EXIT_INCOMPLETE = 3  # dispatcher.daemon.server's (tests/test_cli.py checks they
 EXIT_LINK_DOWN = 4  # sim_vehicles' --mavlink socket
 EXIT_INTERRUPTED = 130
 EXIT_CODES = {
-    EXIT_OK: "done (serve, demo: every field done)",
+    EXIT_OK: "done (serve, demo: every field done; sim, bridge, router: stopped by Ctrl-C or "
+    "SIGTERM)",
     EXIT_FAILURE: "an unexpected error (a bug: please report it with the traceback)",
     EXIT_BAD_INPUT: "bad input: a file, key or option, named in the message; nothing written",
     EXIT_INCOMPLETE: "serve, demo: the run ended with fields not done (vehicles failed or lost)",
     EXIT_LINK_DOWN: "sim --mavlink: the MAVLink socket could not be opened",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); a run's log is finished first",
+    EXIT_INTERRUPTED: "serve, demo, plan, bench: interrupted (Ctrl-C, SIGTERM); a run's log is "
+    "finished first",
 }
 """What the exit codes mean, in `agrifleet --help` and the README."""
 
@@ -772,7 +776,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_review)
 
     p = sub.add_parser("router", help="a Zenoh router (for several gateways or farms)")
-    wire.add_zenoh_arguments(p, mode="router")
+    wire.add_zenoh_arguments(p, mode="router", modes=("router",))
     p.set_defaults(handler=cmd_router)
 
     p = sub.add_parser(
@@ -1002,6 +1006,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    restore_sigterm = _sigterm_interrupts()
     try:
         return int(args.handler(args))
     except (PlannerError, DispatcherError) as exc:
@@ -1020,6 +1025,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("agrifleet: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        restore_sigterm()
+
+
+def _sigterm_interrupts() -> Callable[[], None]:
+    """SIGTERM stops a command as Ctrl-C does (exit 130, not the signal's 143), where the
+    command does not take it itself (the daemons do: ``dispatcher.link.signals``); returns
+    a function that puts the previous handler back. Nothing off the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+
+    def restore() -> None:
+        signal.signal(signal.SIGTERM, previous)
+
+    return restore
 
 
 if __name__ == "__main__":

@@ -181,16 +181,27 @@ def zenoh_options(
     )
 
 
+ZENOH_MODES = ("peer", "client", "router")
+
+
 def add_zenoh_arguments(
-    p: argparse.ArgumentParser, mode: str = "peer", title: str = "zenoh"
+    p: argparse.ArgumentParser,
+    mode: str = "peer",
+    title: str = "zenoh",
+    modes: Sequence[str] = ZENOH_MODES,
 ) -> None:
+    """The Zenoh options of a command that runs in one of ``modes`` (default ``mode``);
+    with one mode there is no ``--mode`` to choose (a router is a router)."""
     g = p.add_argument_group(title)
-    g.add_argument(
-        "--mode",
-        choices=["peer", "client", "router"],
-        default=mode,
-        help=f"Zenoh session mode (default {mode}; client to go through a router)",
-    )
+    if len(modes) > 1:
+        g.add_argument(
+            "--mode",
+            choices=list(modes),
+            default=mode,
+            help=f"Zenoh session mode (default {mode}; client to go through a router)",
+        )
+    else:
+        p.set_defaults(mode=mode)
     g.add_argument(
         "--listen",
         action="append",

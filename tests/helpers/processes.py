@@ -4,9 +4,11 @@ waiting on a condition, the dispatcher's status and its log path."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -63,7 +65,9 @@ def keys_for(scenario: Path, folder: Path | None = None) -> str:
 
 @functools.cache
 def _session_keys() -> Path:
-    return Path(tempfile.mkdtemp(prefix="agrifleet-test-keys-")) / "keys"
+    folder = Path(tempfile.mkdtemp(prefix="agrifleet-test-keys-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)  # removed with the session
+    return folder / "keys"
 
 
 class Processes:
