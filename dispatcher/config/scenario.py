@@ -447,10 +447,11 @@ def load_scenario(
         )
     farm_key = doc.get("farm")
     if farm_key is None:
-        raise ConfigError(f"{src}: missing key 'farm' (the farm GeoJSON file)")
-    if not isinstance(farm_key, str):
+        raise ConfigError(f"{src}: missing key 'farm' (the farm file: GeoJSON, KML, ...)")
+    if not isinstance(farm_key, str) or not farm_key.strip():
         raise ConfigError(
-            f"{src}: key 'farm' must name the farm GeoJSON file (a string), not {_shown(farm_key)}"
+            f"{src}: key 'farm' must name the farm file (GeoJSON, KML, ...), not "
+            f"{_shown(farm_key)}"
         )
     farm_options = _farm_options(doc, src)
     farm_options = replace(
@@ -471,7 +472,7 @@ def load_scenario(
             raise ConfigError(
                 f"{src}: give either 'fleet' (a file) or [[machine]] tables, not both"
             )
-        if not isinstance(doc["fleet"], str):
+        if not isinstance(doc["fleet"], str) or not doc["fleet"].strip():
             raise ConfigError(
                 f"{src}: key 'fleet' must name a fleet file (a string), not {_shown(doc['fleet'])}"
             )
@@ -487,6 +488,8 @@ def load_scenario(
         )
         machines = fleet_doc.get("machine")
     vehicles = _vehicles(machines, fleet_src)
+    if not vehicles and fleet_src == src:
+        raise ConfigError(f"{src}: no fleet: give 'fleet' (a fleet file) or [[machine]] tables")
     if not vehicles:
         raise ConfigError(f"{fleet_src}: the fleet is empty (no [[machine]] tables)")
     chosen = doc.get("machines")
@@ -706,13 +709,13 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
             machine = Machine(ident, **params)
         except PlannerError as exc:
             raise ConfigError(f"{src}: {exc}") from exc
+        if ident in {v.id for v in out}:
+            raise ConfigError(f"{where}: duplicate machine id")
         sysid = _integer(entry, "system_id", where)
         if sysid in system_ids:
             raise ConfigError(
                 f"{where}: system_id {sysid} is already used by {system_ids[sysid]!r}"
             )
-        if ident in {v.id for v in out}:
-            raise ConfigError(f"{where}: duplicate machine id")
         system_ids[sysid] = ident
         out.append(Vehicle(machine, sysid, _implement(entry.get("implement"), where)))
     return tuple(out)

@@ -457,6 +457,28 @@ def test_the_machine_list_names_each_machine_once(tmp_path):
     assert "unknown machine 'V2' (did you mean 'v2'?)" in refused(tmp_path, doc)
 
 
+def test_a_copied_machine_is_named_a_duplicate_not_a_system_id_clash(tmp_path):
+    doc = scenario_doc()
+    doc["machine"].append(dict(doc["machine"][0]))
+    assert "machine 'v1': duplicate machine id" in refused(tmp_path, doc)
+
+
+@pytest.mark.parametrize("key", ["farm", "fleet"])
+def test_an_empty_file_name_is_named(tmp_path, key):
+    """`farm = ""` was read as the scenario's folder ("'.' not recognized as ...")."""
+    doc = scenario_doc()
+    if key == "fleet":
+        del doc["machine"], doc["machines"]
+    doc[key] = ""
+    assert f"key '{key}' must name " in refused(tmp_path, doc)
+
+
+def test_a_scenario_without_a_fleet_says_how_to_give_one(tmp_path):
+    doc = scenario_doc()
+    del doc["machine"], doc["machines"]
+    assert "no fleet: give 'fleet' (a fleet file) or [[machine]] tables" in refused(tmp_path, doc)
+
+
 def test_missing_implement_keys_are_named(tmp_path):
     doc = scenario_doc()
     del doc["machine"][0]["implement"]["kind"]

@@ -174,7 +174,7 @@ BAD_CASES = {
         "'x'",
     ),
     "no garage": (lambda: [field("f", rect(87.300, 44.001, 100, 60))], None, "", "no garage"),
-    "empty fleet": (good_features, [], "", "fleet is empty"),
+    "empty fleet": (good_features, [], "", "no fleet"),
 }
 
 
