@@ -450,8 +450,7 @@ def load_scenario(
         raise ConfigError(f"{src}: missing key 'farm' (the farm file: GeoJSON, KML, ...)")
     if not isinstance(farm_key, str) or not farm_key.strip():
         raise ConfigError(
-            f"{src}: key 'farm' must name the farm file (GeoJSON, KML, ...), not "
-            f"{_shown(farm_key)}"
+            f"{src}: key 'farm' must name the farm file (GeoJSON, KML, ...), not {_shown(farm_key)}"
         )
     farm_options = _farm_options(doc, src)
     farm_options = replace(
