@@ -71,15 +71,19 @@ def test_bench_paper_fleet_table(capsys):
     assert "OUR positions" in out
 
 
-def _run_logs(directory, starts_s):
-    """One run in several log files (a dispatcher restarted), one file per start time."""
-    from dispatcher.recording.mcap_file import Recorder
+def _run_logs(directory, starts_s, run_started=None):
+    """One run in several log files (a dispatcher restarted), one file per start time;
+    the run's start in their metadata when given, as the daemon writes it."""
+    from dispatcher.recording.mcap_file import RUN_STARTED_KEY, Recorder
 
     t0 = 1_704_067_200_000_000_000  # 2024-01-01T00:00:00Z
     paths = []
+    metadata = {RUN_STARTED_KEY: run_started} if run_started else None
     for start_s in starts_s:
         start = t0 + start_s * 10**9
-        with Recorder.create_in(directory, "changji", clock=lambda start=start: start) as rec:
+        with Recorder.create_in(
+            directory, "changji", metadata, clock=lambda start=start: start
+        ) as rec:
             rec.record_status({"vehicles": {}}, start + 1)
             rec.record_log("info", f"started at {start_s}", start + 2)
         paths.append(rec.path)
@@ -106,6 +110,26 @@ def test_review_reads_a_directory_and_names_a_file_cut_short(tmp_path, capsys):
     assert last.name in out["problem"]
     assert main(["review", str(tmp_path)]) == 0  # the table too
     assert capsys.readouterr().out.strip()
+
+
+def test_review_of_a_log_folder_of_several_runs_reviews_the_latest_and_says_so(tmp_path, capsys):
+    """A dispatcher's --log-dir holds a run a day: read as one, their tracks and events
+    were merged into one review."""
+    monday = _run_logs(tmp_path, [0, 600], "2024-01-01T00:00:00+00:00")
+    tuesday = _run_logs(tmp_path, [86_400], "2024-01-02T00:00:00+00:00")
+    assert main(["review", str(tmp_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert out["log_start"] == "2024-01-02 00:00:00 UTC"
+    assert out["log_end"] == "2024-01-02 00:00:00 UTC"
+    assert "holds 2 runs; reviewing the latest" in captured.err
+    assert all(p.name in captured.err for p in monday)
+    # Files given by name are of one run, or named as two.
+    assert main(["review", str(monday[0]), str(monday[1]), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["log_end"] == "2024-01-01 00:10:00 UTC"
+    assert main(["review", str(monday[1]), str(tuesday[0])]) == 2
+    err = capsys.readouterr().err
+    assert "different runs" in err and "2024-01-01" in err and "2024-01-02" in err
 
 
 def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):

@@ -74,7 +74,10 @@ def events(tmp_path: Path) -> list[tuple[str, str]]:
 
 
 def review_run(tmp_path: Path) -> Review:
-    return review_contents(read_logs([tmp_path / "logs"]))
+    log = read_logs([tmp_path / "logs"])
+    assert log.note is None, log.note  # the restarted dispatcher's log is of the same run
+    assert len(list((tmp_path / "logs").glob("*.mcap"))) > 1
+    return review_contents(log)
 
 
 def check_worked_once(review: Review, tight: set[str]) -> None:

@@ -477,6 +477,8 @@ def cmd_review(args: argparse.Namespace) -> int:
     from dispatcher.review.report import review_contents, review_json, review_table
 
     log = read_logs(args.logs)  # several files (or a directory) of one run read as one
+    if log.note:
+        print(f"agrifleet: {log.note}", file=sys.stderr)
     review = review_contents(log)
     if args.plot:
         from dispatcher.review.plot import plot_review

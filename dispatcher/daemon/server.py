@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +63,7 @@ from dispatcher.mission.build import implement_down_after
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.window import shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
-from dispatcher.recording.mcap_file import Recorder
+from dispatcher.recording.mcap_file import RUN_STARTED_KEY, Recorder
 
 log = logging.getLogger(__name__)
 
@@ -296,8 +297,13 @@ class Dispatcher:
     def startup(self) -> None:
         cfg = self.config
         self._started = time.monotonic()
+        # The logs of one run share when it began, a resumed run's too (read_logs).
+        run_started = self.store.run_started if self.store is not None else None
+        began = datetime.fromtimestamp(run_started or time.time(), UTC).isoformat()
         self.recorder = Recorder.create_in(
-            cfg.log_dir, self.farm, metadata={"plan_id": self.job.plan_id}
+            cfg.log_dir,
+            self.farm,
+            metadata={"plan_id": self.job.plan_id, RUN_STARTED_KEY: began},
         )
         self.log_path = Path(self.recorder.path) if self.recorder.path else None
         log.info("recording to %s", self.log_path)

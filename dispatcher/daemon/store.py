@@ -148,6 +148,7 @@ class Store:
         self.conn = conn
         self.farm_id = farm_id
         self.run_id: int | None = None
+        self.run_started: float | None = None  # when that run began (time.time())
         self._in_transaction = False
         self._touched: set[str] = set()
         self.commits = 0
@@ -263,6 +264,7 @@ class Store:
         with self._transaction():
             if self.conn.execute("SELECT 1 FROM runs WHERE outcome IS NULL").fetchone():
                 raise StoreError(f"{self.path}: a run is unfinished; resume it or abandon it")
+            started = time.time() if started is None else started
             cur = self.conn.execute(
                 "INSERT INTO runs(plan_id, farm_id, fingerprint, started, document, geojson) "
                 "VALUES (?, ?, ?, ?, ?, ?)",
@@ -270,7 +272,7 @@ class Store:
                     job.plan_id,
                     job.farm_id,
                     fingerprint,
-                    time.time() if started is None else started,
+                    started,
                     job.document.to_json(),
                     json.dumps(job.geojson),
                 ),
@@ -281,6 +283,7 @@ class Store:
                 [(run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions],
             )
         self.run_id = run_id
+        self.run_started = started
         return run_id
 
     def replace_missions(self, job: DispatchJob) -> None:
@@ -298,6 +301,7 @@ class Store:
     def resume_run(self, run: StoredRun) -> None:
         """Append to ``run`` from now on."""
         self.run_id = run.id
+        self.run_started = run.started
 
     def end_run(self, outcome: str, run_id: int | None = None) -> None:
         """Mark a run ended (``done``, or ``abandoned`` by ``--fresh``); it is not resumed."""

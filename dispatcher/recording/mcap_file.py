@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import copy
+import dataclasses
 import io
 import json
 import logging
@@ -72,6 +73,10 @@ logger = logging.getLogger(__name__)
 
 PROFILE: Final = "agrifleet"
 METADATA_NAME: Final = "agrifleet"
+# The metadata key that says which run a log is of: when the run began (ISO 8601, UTC). A
+# dispatcher restarted mid-run writes the run's own start again in its new log, so the logs
+# of one run share it and a log folder's runs are told apart (read_logs).
+RUN_STARTED_KEY: Final = "run_started"
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_CHUNK_SIZE: Final = 256 * 1024
 # A record is in the file (handed to the OS) at most FLUSH_BOUND_S after its record call:
@@ -850,6 +855,8 @@ class LogContents:
     records: list[LogRecord]
     complete: bool
     problem: str | None
+    # What the reader chose and left out (read_logs on a folder of several runs), or None.
+    note: str | None = None
 
     def topic_counts(self) -> dict[str, int]:
         """Number of messages per topic."""
@@ -1123,17 +1130,41 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
     and events would count twice). Header and metadata are those of the first file;
     ``complete`` is that of the last (an earlier one cut short is where the dispatcher was
     restarted); ``problem`` joins the problems of every file, each naming its file.
-    Raises :class:`RecordingError` for a file that is not an agrifleet log, or for logs of
-    different farms."""
+
+    A run is the logs of one farm with the same :data:`RUN_STARTED_KEY` (logs written
+    before it was kept count as one run). One folder given that holds several runs (a
+    dispatcher's ``--log-dir`` over days) is read as its latest run, and ``note`` says so
+    and names the others. Raises :class:`RecordingError` for a file that is not an
+    agrifleet log, or for files given of different farms or runs."""
     given = [Path(p) for p in paths]
     logs = [read_log(path) for path in log_files(given)]
     if len(logs) == 1:
         return logs[0]
     logs.sort(key=_start_key)
-    farms = {log.metadata.get("farm_id") for log in logs}
-    if len(farms) > 1:
-        listing = ", ".join(f"{log.source} ({log.metadata.get('farm_id')})" for log in logs)
-        raise RecordingError(f"these logs are of different farms, not one run: {listing}")
+    one_folder = len(given) == 1 and given[0].is_dir()
+    runs: dict[tuple[str | None, str | None], list[LogContents]] = {}
+    for log in logs:
+        runs.setdefault(_run_of(log), []).append(log)
+    note = None
+    if len(runs) > 1 and one_folder:
+        latest = max(runs.values(), key=lambda run: _start_key(run[0]))
+        others = [run for run in runs.values() if run is not latest]
+        note = (
+            f"{given[0]} holds {len(runs)} runs; reviewing the latest, "
+            f"{_run_listing(latest)}; the others: "
+            + "; ".join(_run_listing(run) for run in others)
+            + " (give a run's files to review it)"
+        )
+        logs = latest
+    elif len(runs) > 1:
+        farms = {log.metadata.get("farm_id") for log in logs}
+        what = "farms" if len(farms) > 1 else "runs"
+        raise RecordingError(
+            f"these logs are of different {what}, not one run: "
+            + "; ".join(_run_listing(run) for run in runs.values())
+        )
+    if len(logs) == 1:
+        return dataclasses.replace(logs[0], note=note)
     first, last = logs[0], logs[-1]
     # Each file is in log-time order (or nearly, if cut short): a stable sort merges them.
     seen: set[LogRecord] = set()
@@ -1143,7 +1174,7 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
         seen.update(log.records)
     records = sorted(merged, key=lambda r: r.log_time_ns)
     problems = [log.problem for log in logs if log.problem]
-    if len(given) == 1 and given[0].is_dir():
+    if one_folder and note is None:
         source = str(given[0])
     else:
         source = f"{first.source} (+{len(logs) - 1} more)"
@@ -1155,7 +1186,22 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
         records=records,
         complete=last.complete,
         problem="; ".join(problems) if problems else None,
+        note=note,
     )
+
+
+def _run_of(log: LogContents) -> tuple[str | None, str | None]:
+    """Which run a log is of: its farm and when its run began (None for a log written
+    before that was kept)."""
+    return log.metadata.get("farm_id"), log.metadata.get(RUN_STARTED_KEY)
+
+
+def _run_listing(run: list[LogContents]) -> str:
+    """A run for a message: its farm, when it began, its files."""
+    farm, started = _run_of(run[0])
+    when = f"begun {started}" if started else "begun before runs were told apart"
+    files = ", ".join(Path(log.source).name for log in run)
+    return f"farm {farm!r} {when} ({files})"
 
 
 def _start_key(log: LogContents) -> tuple[int, str]:
