@@ -30,7 +30,7 @@ by then (:class:`planner.solve.UntilDeadline`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from planner.cost import Objective
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
-from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
+from planner.errors import NO_DEADLINE, Deadline, GeometryError, PlannerError, TimeLimitError
 from planner.farm import Farm, Field
 from planner.problem import Machine, Problem, Task
 from planner.roads import TransitNetwork
@@ -48,6 +48,30 @@ log = logging.getLogger(__name__)
 
 CORNERS = 4
 FloatArray = NDArray[np.float64]
+
+UNABLE_H = 1e6
+"""The hours a machine is taken to spend on a field it cannot work (narrower than its
+implement: :func:`cover_farm`): no plan that gives it one is kept under the objectives that
+count hours or litres (makespan, time, fuel), and :func:`check_able` refuses one that does
+under the others, which count only the road."""
+
+
+class FarmCoverage(dict[tuple[str, str], FieldCoverage]):
+    """Coverage keyed (machine id, field id) for the pairs where the machine can work the
+    field; ``unable`` says why for the others (a mixed fleet: a 12 m sprayer does not fit
+    a 6 m strip that the 3 m mower does)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.unable: dict[tuple[str, str], str] = {}
+
+    def merged(self, newer: FarmCoverage) -> FarmCoverage:
+        """This coverage with ``newer``'s added (its pairs win)."""
+        out = FarmCoverage()
+        for part in (self, newer):
+            out.update(part)
+            out.unable.update(part.unable)
+        return out
 
 
 @dataclass(frozen=True)
@@ -117,9 +141,7 @@ class FarmPlan:
     solver: Result
     # What the plan was made from, kept so that a re-plan need not compute it again: every
     # field's coverage per machine (as cover_farm keys it) and the transit network.
-    coverage: Mapping[tuple[str, str], FieldCoverage] = field(
-        default_factory=dict, repr=False, compare=False
-    )
+    coverage: FarmCoverage = field(default_factory=FarmCoverage, repr=False, compare=False)
     network: TransitNetwork | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -142,21 +164,29 @@ class FarmPlan:
 def cover_farm(
     farm: Farm,
     machines: Sequence[Machine],
-    known: Mapping[tuple[str, str], FieldCoverage] | None = None,
+    known: FarmCoverage | None = None,
     deadline: Deadline = NO_DEADLINE,
-) -> dict[tuple[str, str], FieldCoverage]:
-    """Coverage of every field for every machine, keyed (machine id, field id); computed
-    once per distinct working width and turning radius, and not at all when ``known``
-    (an earlier result for the same farm) has it. Raises
+    every_field: bool = True,
+) -> FarmCoverage:
+    """Coverage of every field for every machine that can work it, keyed (machine id,
+    field id); computed once per distinct working width and turning radius, and not at all
+    when ``known`` (an earlier result for the same farm) has it. A field a machine cannot
+    work (:func:`planner.coverage.cover_field` refuses it for its width: too narrow) is
+    left to the others, with a warning, and the reason in :attr:`FarmCoverage.unable`;
+    one that no machine can work raises the first machine's
+    :class:`~planner.errors.GeometryError`, naming the farm, machine and field (without
+    ``every_field``, it is in ``unable`` for every machine: a re-plan leaves it). Raises
     :class:`~planner.errors.TimeLimitError` naming the field once ``deadline`` passes."""
-    by_width: dict[tuple[float, float], dict[str, FieldCoverage]] = {}
-    out: dict[tuple[str, str], FieldCoverage] = {}
-    known = known or {}
+    by_width: dict[tuple[float, float], dict[str, FieldCoverage | GeometryError]] = {}
+    out = FarmCoverage()
+    known = known or FarmCoverage()
     for machine in machines:
         width = machine.working_width_m
         key = (width, machine.min_turn_radius_m)
-        if all((machine.id, f.id) in known for f in farm.fields):
-            out.update({(machine.id, f.id): known[(machine.id, f.id)] for f in farm.fields})
+        pairs = [(machine.id, f.id) for f in farm.fields]
+        if all(pair in known or pair in known.unable for pair in pairs):
+            out.update({pair: known[pair] for pair in pairs if pair in known})
+            out.unable.update({pair: known.unable[pair] for pair in pairs if pair not in known})
             continue
         if key not in by_width:
             by_width[key] = {}
@@ -173,19 +203,68 @@ def cover_farm(
                         turn_radius_m=machine.min_turn_radius_m,
                         deadline=deadline,
                     )
-                except (GeometryError, TimeLimitError) as exc:
-                    raise type(exc)(
+                except TimeLimitError as exc:
+                    raise TimeLimitError(
                         f"{farm.source}: machine {machine.id!r} ({width:g} m wide): {exc}"
                     ) from exc
+                except GeometryError as exc:
+                    by_width[key][f.id] = exc
         for f in farm.fields:
-            out[(machine.id, f.id)] = by_width[key][f.id]
+            cov = by_width[key][f.id]
+            if isinstance(cov, GeometryError):
+                out.unable[(machine.id, f.id)] = (
+                    f"{farm.source}: machine {machine.id!r} ({width:g} m wide): {cov}"
+                )
+            else:
+                out[(machine.id, f.id)] = cov
+    for f in farm.fields:
+        reasons = [out.unable.get((m.id, f.id)) for m in machines]
+        if machines and all(reasons) and every_field:
+            raise GeometryError(str(reasons[0]))
+        fresh = [  # said once, not again at each re-plan
+            m for m in machines if (m.id, f.id) in out.unable and (m.id, f.id) not in known.unable
+        ]
+        if fresh and not all(reasons):
+            able = [m.id for m in machines if (m.id, f.id) in out]
+            log.warning(
+                "%s; the field is left to %s, the machines that can work it%s",
+                out.unable[(fresh[0].id, f.id)],
+                ", ".join(able),
+                f" (nor can {', '.join(m.id for m in fresh[1:])})" if fresh[1:] else "",
+            )
     return out
+
+
+def check_able(
+    routes: Sequence[Sequence[int]],
+    machines: Sequence[Machine],
+    fields: Sequence[Field],
+    coverage: FarmCoverage,
+    objective: Objective,
+) -> None:
+    """:class:`~planner.errors.PlannerError` if ``routes`` (field indices per machine) give
+    a machine a field it cannot work: the objectives of road alone do not see
+    :data:`UNABLE_H`, the others only with too little time to search."""
+    for machine, route in zip(machines, routes, strict=True):
+        for j in route:
+            reason = coverage.unable.get((machine.id, fields[j].id))
+            if reason is None:
+                continue
+            if objective in (Objective.DISTANCE, Objective.MINMAX):
+                hint = (
+                    f"the objective {objective.name.lower()} counts only the road, not which "
+                    "machine works a field: plan with makespan, time or fuel, or without "
+                    "that machine"
+                )
+            else:
+                hint = "the solver had too little time to move it to a machine that can"
+            raise PlannerError(f"{reason}; the plan gives it to that machine: {hint}")
 
 
 def farm_problem(
     farm: Farm,
     machines: Sequence[Machine],
-    coverage: dict[tuple[str, str], FieldCoverage],
+    coverage: FarmCoverage,
     network: TransitNetwork | None = None,
 ) -> Problem:
     """The solver's view of the farm: centroids, areas, real turn counts per machine, and
@@ -199,8 +278,9 @@ def farm_problem(
         tasks.append(Task(f.id, float(c.x), float(c.y), f.area_m2, sides[0], sides[1]))
     turns, work_hours = field_work(farm, machines, coverage)
     # The paper has every machine work (its assumption 2: more tasks than machines); with
-    # more machines than fields the spare ones simply stay in the garage.
-    min_tasks = 1 if len(tasks) >= len(machines) else 0
+    # more machines than fields, or machines too wide for some fields, the spare ones
+    # simply stay in the garage.
+    min_tasks = 1 if len(tasks) >= len(machines) and not coverage.unable else 0
     dist = depot_dist = None
     if network is not None:
         points = [farm.garage] + [field_anchor(f) for f in farm.fields]
@@ -220,7 +300,7 @@ def farm_problem(
 
 
 def field_work(
-    farm: Farm, machines: Sequence[Machine], coverage: dict[tuple[str, str], FieldCoverage]
+    farm: Farm, machines: Sequence[Machine], coverage: FarmCoverage
 ) -> tuple[FloatArray, FloatArray]:
     """The solver's turns and work hours per (machine, field), priced as
     :func:`machine_figures` does. Where the coverage plans the turns, their hours (mean over
@@ -228,11 +308,12 @@ def field_work(
     hours / t_T, so that formulas (5)-(6) charge them at the road fuel rate; with t_T = 0
     they are added to the work hours instead."""
     shape = (len(machines), len(farm.fields))
-    turns, work_hours = np.zeros(shape), np.zeros(shape)
+    turns, work_hours = np.zeros(shape), np.full(shape, UNABLE_H)
     for i, machine in enumerate(machines):
         for j, f in enumerate(farm.fields):
-            cov = coverage[(machine.id, f.id)]
-            turns[i, j], work_hours[i, j] = work_of(machine, f.area_m2, cov)
+            cov = coverage.get((machine.id, f.id))
+            if cov is not None:
+                turns[i, j], work_hours[i, j] = work_of(machine, f.area_m2, cov)
     return turns, work_hours
 
 
@@ -304,6 +385,7 @@ def plan_farm(
         makespan_slack=makespan_slack,
         finish_within_h=finish_within_h,
     )
+    check_able(result.routes, machines, farm.fields, coverage, obj)
     plans = []
     for i, route in enumerate(result.routes):
         machine = machines[i]

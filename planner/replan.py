@@ -42,10 +42,12 @@ from planner.coverage import XY, FieldCoverage, Swath
 from planner.errors import ProblemError
 from planner.farm import Farm, Field
 from planner.field_plan import (
+    UNABLE_H,
     FarmPlan,
     MachinePlan,
     Visit,
     best_corners,
+    check_able,
     cover_farm,
     field_anchor,
     lay_out,
@@ -242,10 +244,23 @@ def replan_farm(
     known = previous.coverage if previous is not None and same_farm else None
     network = previous.network if previous is not None and same_farm else None
     network = network or TransitNetwork(farm)
-    coverage = cover_farm(dataclasses.replace(farm, fields=tuple(todo)), fleet, known)
+    coverage = cover_farm(
+        dataclasses.replace(farm, fields=tuple(todo)), fleet, known, every_field=False
+    )
+    for f in [f for f in todo if all((mc.id, f.id) in coverage.unable for mc in fleet)]:
+        log.warning(
+            "field %s: no machine left can work it (%s); it stays undone",
+            f.id,
+            coverage.unable[(fleet[0].id, f.id)],
+        )
+        todo.remove(f)
+    if not todo:
+        raise ProblemError("no tasks: no machine left can work the fields that are not done")
 
     m, n = len(fleet), len(todo)
-    covs: list[list[FieldCoverage]] = [[coverage[(mc.id, f.id)] for f in todo] for mc in fleet]
+    covs: list[list[FieldCoverage | None]] = [
+        [coverage.get((mc.id, f.id)) for f in todo] for mc in fleet
+    ]
     shares = np.ones(n)
     anchors: list[XY] = [field_anchor(f) for f in todo]
     orders: dict[int, list[list[int]]] = {}
@@ -285,11 +300,14 @@ def replan_farm(
     lengths = network.length_matrix([farm.garage, *anchors], ids)
     inside = [_field_at(farm, s.position) for s in machines]
     start = network.lengths([s.position for s in machines], inside, anchors, ids[1:])
-    turns, work_hours = np.zeros((m, n)), np.zeros((m, n))
+    turns, work_hours = np.zeros((m, n)), np.full((m, n), UNABLE_H)
     for i, mc in enumerate(fleet):
         for j, f in enumerate(todo):
-            share = shares[j] if covs[i][j] is rest_of.get(j) else 1.0
-            turns[i, j], work_hours[i, j] = work_of(mc, f.area_m2 * share, covs[i][j])
+            laid = covs[i][j]
+            if laid is None:
+                continue  # it cannot work that field (UNABLE_H)
+            share = shares[j] if laid is rest_of.get(j) else 1.0
+            turns[i, j], work_hours[i, j] = work_of(mc, f.area_m2 * share, laid)
     tasks = [
         Task(f.id, anchors[j][0], anchors[j][1], f.area_m2 * shares[j]) for j, f in enumerate(todo)
     ]
@@ -319,11 +337,12 @@ def replan_farm(
         finish_within_h=finish_within_h,
     )
 
+    check_able(result.routes, fleet, todo, coverage, result.objective)
     plans: list[MachinePlan] = []
     for i, route in enumerate(result.routes):
         state = machines[i]
         fields: list[Field] = [todo[j] for j in route]
-        route_covs = [covs[i][j] for j in route]
+        route_covs = [_able(covs[i][j]) for j in route]
         corners, road = best_corners(
             farm.garage, route_covs, network, start=state.position, start_field=inside[i]
         )
@@ -354,9 +373,15 @@ def replan_farm(
         machines=tuple(plans),
         objective=result.objective,
         solver=result,
-        coverage={**(known or {}), **coverage},
+        coverage=known.merged(coverage) if known is not None else coverage,
         network=network,
     )
+
+
+def _able(cov: FieldCoverage | None) -> FieldCoverage:
+    """A planned visit's coverage (check_able has made sure there is one)."""
+    assert cov is not None
+    return cov
 
 
 def _composed(visit: Visit, order: Sequence[int]) -> tuple[int, ...]:

@@ -11,12 +11,16 @@ import pytest
 import shapely
 from shapely.geometry import Polygon
 
+from planner.choices import Objective
 from planner.cost import figures
 from planner.coverage import cover_field, rectangle_field
+from planner.errors import GeometryError, PlannerError
 from planner.farm import Farm, Field, load_farm
 from planner.field_plan import (
+    UNABLE_H,
     Visit,
     best_corners,
+    check_able,
     cover_farm,
     farm_problem,
     field_anchor,
@@ -253,3 +257,48 @@ def test_a_work_angle_is_a_true_direction_far_from_the_zones_central_meridian(tm
         assert min(abs(azimuth), 180.0 - abs(azimuth)) < 0.05
         assert length > 900.0  # along the field, not across it
     assert farm.true_angle_deg("N", cov.angle_deg) == pytest.approx(90.0, abs=1e-6)
+
+
+def strip_farm() -> Farm:
+    """Four 50 x 80 m fields and a 5 m strip: a 6 m machine cannot work the strip."""
+    frame = LocalFrame.around(87.3, 44.0)
+    polys = [rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)) for k in range(4)]
+    polys.append(rectangle_field(5.0, 200.0, 0.0, (0.0, 150.0)))
+    fields = tuple(Field(f"f{k}", f"f{k}", p, p) for k, p in enumerate(polys))
+    return Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+
+
+NARROW = Machine("n", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)
+
+
+@pytest.mark.parametrize("algorithm", ["ighoa", "hybrid"])
+def test_a_field_too_narrow_for_one_machine_of_a_mixed_fleet_goes_to_another(algorithm, caplog):
+    """A mixed fleet: the strip is refused for the 6 m machine only; it was the whole
+    farm refused. The warning names both."""
+    with caplog.at_level("WARNING", logger="planner.field_plan"):
+        plan = plan_farm(strip_farm(), [MACHINE, NARROW], "makespan", algorithm, stop_after(30))
+    assert "machine 'm' (6 m wide)" in caplog.text and "f4" in caplog.text
+    assert "the field is left to n, the machines that can work it" in caplog.text
+    by_id = {m.machine.id: m.field_ids for m in plan.machines}
+    assert "f4" in by_id["n"] and "f4" not in by_id["m"]
+    assert sorted(f for ids in by_id.values() for f in ids) == [f"f{k}" for k in range(5)]
+    assert plan.coverage.unable.keys() == {("m", "f4")}
+    assert plan.solver.problem.work_hours[0, 4] == UNABLE_H
+
+
+def test_a_plan_that_gives_a_machine_a_field_it_cannot_work_is_refused():
+    """Under an objective of road alone the solver does not see which machine works a
+    field: a plan that gives the strip to the 6 m machine is refused, saying why."""
+    farm = strip_farm()
+    coverage = cover_farm(farm, [MACHINE, NARROW])
+    routes = [[4, 0], [1, 2, 3]]
+    with pytest.raises(PlannerError, match="counts only the road"):
+        check_able(routes, [MACHINE, NARROW], farm.fields, coverage, Objective.DISTANCE)
+    with pytest.raises(PlannerError, match="too little time"):
+        check_able(routes, [MACHINE, NARROW], farm.fields, coverage, Objective.MAKESPAN)
+    check_able([[0], [4, 1, 2, 3]], [MACHINE, NARROW], farm.fields, coverage, Objective.DISTANCE)
+
+
+def test_a_field_no_machine_can_work_still_refuses_the_farm():
+    with pytest.raises(GeometryError, match=r"machine 'm' \(6 m wide\).*less than the working"):
+        cover_farm(strip_farm(), [MACHINE, Machine("w", 8.0, 6000.0, 10.0, 0.003, 2.5, 5.0)])

@@ -181,3 +181,27 @@ def test_the_rest_may_be_any_segments_left_with_moves_across_the_gaps(corner: in
         assert gaps and all(rest.turn(c)[k] == () for k in gaps)
     with pytest.raises(ProblemError, match="segments left"):
         remaining_coverage(visit, [])
+
+
+def test_a_field_only_a_machine_gone_could_work_stays_undone_and_the_rest_is_planned(caplog):
+    """A mixed fleet: the narrow machine, the only one that fits the strip, broke down;
+    the strip stays undone (a warning says why) and the rest goes to the others, where the
+    re-plan failed whole."""
+    farm = row_farm(3)
+    strip = rectangle_field(5.0, 200.0, 0.0, (0.0, 150.0))
+    farm = Farm(
+        fields=(*farm.fields, Field("strip", "strip", strip, strip)),
+        garage=farm.garage,
+        garage_lonlat=farm.garage_lonlat,
+        frame=farm.frame,
+    )
+    plan = plan_farm(farm, [WIDE, NARROW], "makespan", "ighoa", stop_after(20), seed=1)
+    assert "strip" in next(m for m in plan.machines if m.machine.id == "c").field_ids
+    with caplog.at_level(logging.WARNING, logger="planner.replan"):
+        new = replan_farm(
+            farm, [MachineState(WIDE, (0.0, 0.0))], (), (), stop=stop_after(5), previous=plan
+        )
+    assert "field strip: no machine left can work it" in caplog.text
+    assert "stays undone" in caplog.text
+    assert new.machines[0].field_ids and "strip" not in new.machines[0].field_ids
+    assert sorted(new.machines[0].field_ids) == ["f0", "f1", "f2"]
