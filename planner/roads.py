@@ -21,10 +21,15 @@ Without roads (or when the roads do not connect two fields) a route goes around 
 fields: the shortest path in the plane with every field, grown by :data:`CLEARANCE_M`, as an
 obstacle, except ``from_field`` for the leg that leaves it and ``to_field`` for the leg that
 enters it (a visibility graph over the obstacles' convex corners, all pairs precomputed).
+A field with declared gates is left and entered through one of them there too, whichever
+gives the shortest route: inside the field to the gate, straight out to a point
+:data:`DOOR_M` beyond the clearance, and around every field from there, its own included
+(a fenced field is not crossed to reach the far side of it).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -51,6 +56,7 @@ Route = tuple[float, tuple[XY, ...]]  # length in metres, points strictly betwee
 CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
+DOOR_M = 0.5  # off the roads, a gated field is left this far beyond CLEARANCE_M of its gate
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -78,6 +84,18 @@ class FieldInterior:
             return p
         q = nearest_points(self.polygon.boundary, Point(p))[0]
         return (float(q.x), float(q.y))
+
+
+@dataclass(frozen=True)
+class _Exit:
+    """One way from a point of a route's end into free space or from there to it: the
+    point in free space (``at``), the obstacle it may cross (``own``: its field, or none
+    once out through a gate), the length up to it and the points strictly between."""
+
+    at: XY
+    own: int | None
+    length_m: float
+    via: tuple[XY, ...]
 
 
 @dataclass(frozen=True)
@@ -421,6 +439,7 @@ class TransitNetwork:
         self._clearance_m = clearance_m
         self._free_space: _FreeSpace | None = None  # built on first use
         self._known: dict[tuple[XY, XY, str | None, str | None], Route] = {}
+        self._doors: dict[tuple[str, XY], XY] = {}
         self._roads: _RoadGraph | None = None
         # Per field, its gates as (gate point, road-graph node); the garage's node.
         self.gates: dict[str, tuple[XY, ...]] = {}
@@ -525,9 +544,78 @@ class TransitNetwork:
         return self._free_route(a, b, from_field, to_field)
 
     def _free_route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
-        own_a = None if from_field is None else self._index[from_field]
-        own_b = None if to_field is None else self._index[to_field]
-        return self._free.route(a, b, own_a, own_b)
+        best: tuple[float, list[XY]] | None = None
+        for out in self._exits(a, from_field, leaving=True):
+            for into in self._exits(b, to_field, leaving=False):
+                length, via = self._free.route(out.at, into.at, out.own, into.own)
+                total = out.length_m + length + into.length_m
+                if best is None or total < best[0]:
+                    points = [a, *out.via, out.at, *via, into.at, *into.via, b]
+                    best = (total, points)
+        assert best is not None
+        return best[0], _strictly_between(a, best[1], b)
+
+    def _exits(self, p: XY, field_id: str | None, leaving: bool) -> list[_Exit]:
+        """The ways from ``p`` in ``field_id`` out into free space (``leaving``) or from
+        there to it: through each of the field's declared gates, or (none declared, or off
+        the fields) from ``p`` itself across its own field."""
+        if field_id is None or not self.farm.gates_of(field_id):
+            own = None if field_id is None else self._index[field_id]
+            return [_Exit(p, own, 0.0, ())]
+        out = []
+        for gate in self.farm.gates_of(field_id):
+            door = self._door(field_id, gate.xy)
+            if leaving:
+                length, via = self.interior(field_id).route(p, gate.xy)
+                points: tuple[XY, ...] = (*via, gate.xy)
+            else:
+                length, via = self.interior(field_id).route(gate.xy, p)
+                points = (gate.xy, *via)
+            out.append(_Exit(door, None, length + math.dist(gate.xy, door), points))
+        return out
+
+    def _door(self, field_id: str, gate: XY) -> XY:
+        """The point :data:`DOOR_M` beyond the clearance straight out of ``field_id`` at
+        ``gate``: of 32 around the gate, the farthest from the field."""
+        key = (field_id, gate)
+        if key not in self._doors:
+            r = self._clearance_m + DOOR_M
+            t = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
+            around = np.column_stack([gate[0] + r * np.cos(t), gate[1] + r * np.sin(t)])
+            away = shapely.distance(self.farm.field(field_id).boundary, shapely.points(around))
+            k = int(np.argmax(away))
+            self._doors[key] = (float(around[k, 0]), float(around[k, 1]))
+        return self._doors[key]
+
+    def _free_lengths(
+        self,
+        sources: Sequence[XY],
+        source_fields: Sequence[str | None],
+        targets: Sequence[XY],
+        target_fields: Sequence[str | None],
+    ) -> FloatArray:
+        """:meth:`_free_route`'s lengths from each source to each target, vectorised: the
+        free-space lengths between all their ways out and in, the shortest per pair."""
+        outs = [self._exits(p, f, True) for p, f in zip(sources, source_fields, strict=True)]
+        ins = [self._exits(p, f, False) for p, f in zip(targets, target_fields, strict=True)]
+        flat_out = [e for ways in outs for e in ways]
+        flat_in = [e for ways in ins for e in ways]
+        free = self._free.lengths(
+            [e.at for e in flat_out],
+            [e.own for e in flat_out],
+            [e.at for e in flat_in],
+            [e.own for e in flat_in],
+        )
+        total = (
+            np.array([e.length_m for e in flat_out])[:, None]
+            + free
+            + np.array([e.length_m for e in flat_in])[None, :]
+        )
+        rows = np.cumsum([0, *(len(w) for w in outs[:-1])])
+        cols = np.cumsum([0, *(len(w) for w in ins[:-1])])
+        if not len(sources) or not len(targets):
+            return np.zeros((len(sources), len(targets)))
+        return np.minimum.reduceat(np.minimum.reduceat(total, rows, axis=0), cols, axis=1)
 
     def _road_route(
         self, a: XY, b: XY, from_field: str | None, to_field: str | None
@@ -593,12 +681,7 @@ class TransitNetwork:
                     for a, f in zip(sources, source_fields, strict=True)
                 ]
             ).reshape(len(sources), len(targets))
-        out = self._free.lengths(
-            sources,
-            [None if f is None else self._index[f] for f in source_fields],
-            targets,
-            [None if f is None else self._index[f] for f in target_fields],
-        )
+        out = self._free_lengths(sources, source_fields, targets, target_fields)
         for r, (a, f) in enumerate(zip(sources, source_fields, strict=True)):
             for c, (b, g) in enumerate(zip(targets, target_fields, strict=True)):
                 if f is not None and f == g:  # within one field: its own router
@@ -609,9 +692,17 @@ class TransitNetwork:
         """Route lengths between all pairs of ``points`` (point k in ``field_ids[k]``),
         symmetric; what the solver gets as its distance matrix."""
         m = len(points)
-        if self._roads is None:
+        if self._roads is None and not self.farm.gates:
             owners = [None if f is None else self._index[f] for f in field_ids]
             return self._free.length_matrix(points, owners)
+        if self._roads is None:
+            out = self._free_lengths(points, field_ids, points, field_ids)
+            out = np.minimum(out, out.T)  # the same way back, to the rounding
+            np.fill_diagonal(out, 0.0)
+            for i, j in itertools.combinations(range(m), 2):
+                if field_ids[i] is not None and field_ids[i] == field_ids[j]:
+                    out[i, j] = out[j, i] = self.length(points[i], points[j], field_ids[i], None)
+            return out
         out = np.zeros((m, m))
         for i in range(m):
             for j in range(i + 1, m):

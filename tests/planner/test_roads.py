@@ -194,8 +194,12 @@ def test_a_field_the_roads_do_not_reach_is_reached_around_the_fields(caplog):
         net = TransitNetwork(farm)
     assert "do not connect field 'B' to the garage" in caplog.text
     length, via = net.route((-50, 120), (350, 50), None, "B")
-    assert via == ((101.0, 101.0),)  # around A's corner, grown by 1 m
-    assert length == pytest.approx(math.dist((-50, 120), via[0]) + math.dist(via[0], (350, 50)))
+    assert via[0] == (101.0, 101.0)  # around A's corner, grown by 1 m
+    # ... and round B to its gate on the south side, not across B's fence.
+    assert via[-1] == (350.0, 0.0)
+    path = [(-50, 120), *via, (350, 50)]
+    assert not crosses(path[:-1], SQUARES["B"])
+    assert length == pytest.approx(LineString(path).length)
     # A is still reached along its road.
     assert net.route((-50, 120), (50, 50), None, "A")[0] == pytest.approx(100 + 20 + 50)
 
@@ -405,3 +409,34 @@ def test_the_way_from_a_gate_onto_the_road_goes_around_a_field_in_between():
     assert length == pytest.approx(LineString([(50, 50), *via, (350, 200)]).length)
     back = net.route((50, 200), (50, -60), "B", None)  # the garage, behind A from the road
     assert not crosses([(50, 200), *back[1], (50, -60)], fields["A"])
+
+
+def test_without_roads_a_gated_field_is_left_and_entered_through_its_gate():
+    """A fenced field with its gate on the far side from the garage: the transit goes
+    round to the gate (it went straight through the fence), and from one gated field to
+    the next through both gates; every way agrees with the matrix the solver gets."""
+    fields = {"A": box(0, 0, 100, 100), "B": box(200, 0, 300, 100)}
+    gates = [("A", (50.0, 100.0)), ("B", (300.0, 50.0))]
+    net = TransitNetwork(farm_of(fields, (50, -50), gates=gates))
+    garage, a, b = (50.0, -50.0), (50.0, 50.0), (250.0, 50.0)
+    length, via = net.route(garage, a, None, "A")
+    path = [garage, *via, a]
+    assert (50.0, 100.0) in via
+    assert not crosses(path[: path.index((50.0, 100.0)) + 1], fields["A"])  # round A, not across
+    assert length == pytest.approx(LineString(path).length)
+    assert length > 150 + 100  # round a corner to the north side, then in to the middle
+    length, via = net.route(a, b, "A", "B")
+    path = [a, *via, b]
+    assert (50.0, 100.0) in via and (300.0, 50.0) in via
+    assert via.index((50.0, 100.0)) < via.index((300.0, 50.0))
+    between = path[path.index((50.0, 100.0)) : path.index((300.0, 50.0)) + 1]
+    assert not crosses(between, fields["A"]) and not crosses(between, fields["B"])
+    assert length == pytest.approx(LineString(path).length)
+    points, owners = [garage, a, b], [None, "A", "B"]
+    matrix = net.length_matrix(points, owners)
+    for i, j in itertools.permutations(range(3), 2):
+        assert matrix[i, j] == pytest.approx(net.length(points[i], points[j], owners[i], owners[j]))
+    assert net.lengths(points, owners, points[1:], owners[1:]) == pytest.approx(matrix[:, 1:])
+    # A field without a gate is still entered straight from wherever is nearest.
+    open_field = TransitNetwork(farm_of(fields, (50, -50), gates=[("B", (300.0, 50.0))]))
+    assert open_field.route(garage, a, None, "A") == (pytest.approx(100.0), ())
