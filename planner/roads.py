@@ -33,6 +33,7 @@ import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 
 import networkx as nx
@@ -232,6 +233,13 @@ class _FreeSpace:
             for p in outlines
         ]
         self._blocks = [g.buffer(-_TOUCH_M, join_style="mitre") for g in grown]
+        # The fields themselves (a hair smaller): what a point within the clearance of a
+        # field, but outside it (a garage beside a fence), must still go around.
+        self._fields = np.array(
+            [Polygon(p.exterior).buffer(-_TOUCH_M, join_style="mitre") for p in outlines],
+            dtype=object,
+        )
+        shapely.prepare(self._fields)
         self._tree = shapely.STRtree(self._blocks)
         self._unions: dict[frozenset[int], BaseGeometry] = {}
         self._prepared = np.array(self._blocks, dtype=object)  # each tested against many lines
@@ -269,17 +277,29 @@ class _FreeSpace:
         self._dist = dist
         self._reach: dict[tuple[XY, int | None], tuple[FloatArray, FloatArray]] = {}
 
-    def _visible(self, a: FloatArray, b: FloatArray, ignore: set[int]) -> NDArray[np.bool_]:
-        """For each segment a[k]-b[k], whether it stays off every obstacle not in ``ignore``."""
+    def _visible(
+        self, a: FloatArray, b: FloatArray, ignore: set[int], near: AbstractSet[int] = frozenset()
+    ) -> NDArray[np.bool_]:
+        """For each segment a[k]-b[k], whether it stays off every obstacle not in
+        ``ignore``, and off the field itself of those in ``near`` (an end lies within
+        their clearance)."""
         a, b = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
         lines = shapely.linestrings(np.stack([a, b], axis=-2).reshape(-1, 2, 2))
+        near = set(near) - set(ignore)
         if len(lines) >= _MANY_LINES:  # from one point to the corners: one union, prepared
-            return np.asarray(~shapely.intersects(self._blocks_but(frozenset(ignore)), lines))
+            union = self._blocks_but(frozenset(ignore | near))
+            blocked = np.asarray(shapely.intersects(union, lines))
+            for k in near:
+                blocked |= np.asarray(shapely.intersects(self._fields[k], lines))
+            return ~blocked
         hit_line, hit_block = self._tree.query(lines)  # bounding boxes that meet
         keep = np.array([int(k) not in ignore for k in hit_block], dtype=bool)
         hit_line, hit_block = hit_line[keep], hit_block[keep]
+        shapes = np.where(
+            np.isin(hit_block, list(near)), self._fields[hit_block], self._prepared[hit_block]
+        )
         blocked = np.zeros(len(lines), dtype=bool)
-        blocked[hit_line[shapely.intersects(self._prepared[hit_block], lines[hit_line])]] = True
+        blocked[hit_line[shapely.intersects(shapes, lines[hit_line])]] = True
         return ~blocked
 
     def _blocks_but(self, ignore: frozenset[int]) -> BaseGeometry:
@@ -302,8 +322,17 @@ class _FreeSpace:
         return np.asarray(side_p * side_q >= -1e-9, dtype=bool)
 
     def _ignored(self, p: XY, own: int | None) -> set[int]:
+        """The obstacles ``p`` may cross: its own, and any field it stands in."""
         inside = {int(k) for k in self._tree.query(Point(p), predicate="intersects")}
-        return inside | ({own} if own is not None else set())
+        return {k for k in inside if self._fields[k].intersects(Point(p))} | (
+            {own} if own is not None else set()
+        )
+
+    def _near(self, p: XY, own: int | None) -> set[int]:
+        """The obstacles whose clearance ``p`` lies in, outside the field (a garage by a
+        fence): their fields are still in the way, their clearance not."""
+        inside = {int(k) for k in self._tree.query(Point(p), predicate="intersects")}
+        return inside - self._ignored(p, own)
 
     def reach(self, p: XY, own: int | None) -> tuple[FloatArray, FloatArray]:
         """From ``p`` (in obstacle ``own``, which it may cross): the straight distance to
@@ -314,8 +343,15 @@ class _FreeSpace:
             seen = np.full(n, np.inf)
             if n:
                 here = np.asarray(p, dtype=float)
-                k = np.flatnonzero(self._tangent(np.arange(n), np.broadcast_to(here, (n, 2))))
-                ok = self._visible(here[None, :], self.nodes[k], self._ignored(p, own))
+                near = self._near(p, own)
+                # Only corners the way hugs (see __init__); from within a clearance, the
+                # corners of that clearance are reached from inside it: any corner.
+                k = (
+                    np.arange(n)
+                    if near
+                    else np.flatnonzero(self._tangent(np.arange(n), np.broadcast_to(here, (n, 2))))
+                )
+                ok = self._visible(here[None, :], self.nodes[k], self._ignored(p, own), near)
                 seen[k[ok]] = np.hypot(*(self.nodes[k[ok]] - here).T)
                 best = (seen[:, None] + self._dist).min(axis=0)
             else:
@@ -325,8 +361,9 @@ class _FreeSpace:
 
     def route(self, a: XY, b: XY, own_a: int | None, own_b: int | None) -> Route:
         ignore = self._ignored(a, own_a) | self._ignored(b, own_b)
+        near = self._near(a, own_a) | self._near(b, own_b)
         straight = math.dist(a, b)
-        if straight < _SAME_M or self._visible(np.asarray(a), np.asarray(b), ignore)[0]:
+        if straight < _SAME_M or self._visible(np.asarray(a), np.asarray(b), ignore, near)[0]:
             return straight, ()
         seen_a, reach_a = self.reach(a, own_a)
         seen_b, _ = self.reach(b, own_b)
@@ -403,16 +440,24 @@ class _FreeSpace:
         hit_line, hit_block = self._tree.query(lines)  # bounding boxes that meet
         inside_a = [self._ignored(p, o) for p, o in zip(a, own_a, strict=True)]
         inside_b = [self._ignored(p, o) for p, o in zip(b, own_b, strict=True)]
+        near_a = [self._near(p, o) for p, o in zip(a, own_a, strict=True)]
+        near_b = [self._near(p, o) for p, o in zip(b, own_b, strict=True)]
+        pairs = list(zip(hit_line.tolist(), hit_block.tolist(), strict=True))
         keep = np.array(
             [
                 block not in inside_a[i[line]] and block not in inside_b[j[line]]
-                for line, block in zip(hit_line.tolist(), hit_block.tolist(), strict=True)
+                for line, block in pairs
             ],
             dtype=bool,
         )
-        hit_line, hit_block = hit_line[keep], hit_block[keep]
+        by_field = np.array(
+            [block in near_a[i[line]] or block in near_b[j[line]] for line, block in pairs],
+            dtype=bool,
+        )
+        hit_line, hit_block, by_field = hit_line[keep], hit_block[keep], by_field[keep]
+        shapes = np.where(by_field, self._fields[hit_block], self._prepared[hit_block])
         blocked = np.zeros(len(i), dtype=bool)
-        blocked[hit_line[shapely.intersects(self._prepared[hit_block], lines[hit_line])]] = True
+        blocked[hit_line[shapely.intersects(shapes, lines[hit_line])]] = True
         blocked &= out >= _SAME_M
         k = np.flatnonzero(blocked)
         if len(self.nodes) and len(k):

@@ -384,17 +384,37 @@ def test_a_road_logged_every_two_metres_is_driven_as_a_few_points():
 
 
 def test_no_way_around_is_said_with_the_fields_it_is_between(caplog):
-    """Three fields in a row, touching, the middle one long: from inside the east one, half
-    a metre from the fence, there is no way around within the clearance; the warning names
-    the farm and the places, not local metres."""
-    fields = {"A": box(0, 0, 60, 60), "B": box(60, -300, 120, 360), "C": box(120, 0, 180, 60)}
-    net = TransitNetwork(farm_of(fields, (-60, 30)))
+    """A yard closed all round by four fields, the garage in it: from a field outside
+    there is no way around; the warning names the farm and the places, not local metres."""
+    fields = {
+        "S": box(-100, -100, 200, 0),
+        "N": box(-100, 100, 200, 200),
+        "W": box(-100, 0, 0, 100),
+        "E": box(100, 0, 200, 100),
+        "C": box(300, 0, 360, 60),
+    }
+    net = TransitNetwork(farm_of(fields, (50, 50)))
     with caplog.at_level(logging.WARNING, logger="planner.roads"):
-        net.route((120.5, 30.0), (-60.0, 30.0), "C", None)
+        net.route((330.0, 30.0), (50.0, 50.0), "C", None)
     assert (
         "<memory>: no way around the other fields from field 'C' to the garage (or a point "
         "off the fields)"
     ) in caplog.text
+
+
+def test_a_garage_by_a_fence_goes_around_that_field_too():
+    """Half a metre from a field's fence (within its clearance, outside the field) the
+    garage went straight across that field: it was no obstacle for the garage's legs."""
+    fields = {"A": box(0, 0, 100, 100), "B": box(200, 0, 300, 100)}
+    garage, north = (50.0, -0.5), (50.0, 150.0)
+    net = TransitNetwork(farm_of(fields, garage))
+    length, via = net.route(garage, north, None, None)
+    assert not crosses([garage, *via, north], fields["A"])
+    assert via == ((101.0, -1.0), (101.0, 101.0))  # round A's grown corners
+    assert length == pytest.approx(LineString([garage, *via, north]).length)
+    matrix = net.length_matrix([garage, (250.0, 50.0), north], [None, "B", None])
+    assert matrix[0, 2] == pytest.approx(length)
+    assert matrix[0, 1] == pytest.approx(net.length(garage, (250.0, 50.0), None, "B"))
 
 
 def test_the_way_from_a_gate_onto_the_road_goes_around_a_field_in_between():
