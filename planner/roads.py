@@ -379,10 +379,14 @@ class _FreeSpace:
             return straight, ()
         i = int(np.argmin(seen_a + self._dist[:, j]))
         nodes = [i]
+        visited = np.zeros(len(self.nodes), dtype=bool)
         while nodes[-1] != j:  # walk the all-pairs table: the next hop on a shortest path
             k = nodes[-1]
+            visited[k] = True
             step = self._weights[k] + self._dist[:, j]
-            step[k] = np.inf
+            # Never back: fields 2 m apart have corners that coincide once grown, joined at
+            # no length, and the walk went from one to the other for ever.
+            step[visited] = np.inf
             nodes.append(int(np.argmin(step)))
         via = tuple((float(self.nodes[k][0]), float(self.nodes[k][1])) for k in nodes)
         return float(total[j]), via

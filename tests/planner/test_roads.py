@@ -460,3 +460,23 @@ def test_without_roads_a_gated_field_is_left_and_entered_through_its_gate():
     # A field without a gate is still entered straight from wherever is nearest.
     open_field = TransitNetwork(farm_of(fields, (50, -50), gates=[("B", (300.0, 50.0))]))
     assert open_field.route(garage, a, None, "A") == (pytest.approx(100.0), ())
+
+
+def test_fields_two_metres_apart_do_not_hang_the_router():
+    """Grown by 1 m each, fields 2 m apart have corners that coincide: the walk along the
+    shortest paths went from one to the other for ever (a plan hung past its time limit)."""
+    polys = {
+        f"f{r}_{c}": box(82.0 * c, 82.0 * r, 82.0 * c + 80, 82.0 * r + 80)
+        for r in range(3)
+        for c in range(4)
+    }
+    net = TransitNetwork(farm_of(polys, (-20.0, -20.0)))
+    points = [(-20.0, -20.0)] + [(p.centroid.x, p.centroid.y) for p in polys.values()]
+    ids = [None, *polys]
+    for i, j in itertools.permutations(range(len(points)), 2):
+        length, via = net.route(points[i], points[j], ids[i], ids[j])
+        path = [points[i], *via, points[j]]
+        assert length == pytest.approx(LineString(path).length)
+        assert not any(
+            crosses(path, p) for f, p in polys.items() if f not in (ids[i], ids[j])
+        )
