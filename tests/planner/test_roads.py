@@ -477,6 +477,4 @@ def test_fields_two_metres_apart_do_not_hang_the_router():
         length, via = net.route(points[i], points[j], ids[i], ids[j])
         path = [points[i], *via, points[j]]
         assert length == pytest.approx(LineString(path).length)
-        assert not any(
-            crosses(path, p) for f, p in polys.items() if f not in (ids[i], ids[j])
-        )
+        assert not any(crosses(path, p) for f, p in polys.items() if f not in (ids[i], ids[j]))
