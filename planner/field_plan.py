@@ -29,6 +29,7 @@ by then (:class:`planner.solve.UntilDeadline`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,9 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.cost import Objective
+from planner.cost import CostTables, Objective, figures
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
-from planner.errors import NO_DEADLINE, Deadline, GeometryError, PlannerError, TimeLimitError
+from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
 from planner.farm import Farm, Field
 from planner.problem import Machine, Problem, Task
 from planner.roads import TransitNetwork
@@ -52,8 +53,8 @@ FloatArray = NDArray[np.float64]
 UNABLE_H = 1e6
 """The hours a machine is taken to spend on a field it cannot work (narrower than its
 implement: :func:`cover_farm`): no plan that gives it one is kept under the objectives that
-count hours or litres (makespan, time, fuel), and :func:`check_able` refuses one that does
-under the others, which count only the road."""
+count hours or litres (makespan, time, fuel), and :func:`settle_unable` moves such a field
+to a machine that can under the others, which count only the road."""
 
 
 class FarmCoverage(dict[tuple[str, str], FieldCoverage]):
@@ -235,30 +236,95 @@ def cover_farm(
     return out
 
 
-def check_able(
-    routes: Sequence[Sequence[int]],
-    machines: Sequence[Machine],
-    fields: Sequence[Field],
-    coverage: FarmCoverage,
-    objective: Objective,
-) -> None:
-    """:class:`~planner.errors.PlannerError` if ``routes`` (field indices per machine) give
-    a machine a field it cannot work: the objectives of road alone do not see
-    :data:`UNABLE_H`, the others only with too little time to search."""
-    for machine, route in zip(machines, routes, strict=True):
-        for j in route:
-            reason = coverage.unable.get((machine.id, fields[j].id))
-            if reason is None:
+def settle_unable(result: Result, coverage: FarmCoverage) -> Result:
+    """``result`` with every field the search gave to a machine that cannot work it
+    (:data:`UNABLE_H` hours in its problem) moved to the machine, and the place in its
+    route, where it costs the objective least among those that can (after a pinned first
+    field), with a warning; ``result`` itself when there is none. The objectives of road
+    alone (distance, min-max) do not see which machine can work a field; the others see
+    it, and leave one there only when stopped very early."""
+    problem = result.problem
+    unable = problem.work_hours >= UNABLE_H
+    routes = [list(route) for route in result.routes]
+    wrong = [(i, j) for i, route in enumerate(routes) for j in route if unable[i, j]]
+    if not wrong:
+        return result
+    tables = CostTables.of(problem)
+    obj = result.objective
+    for i, j in wrong:
+        routes[i].remove(j)
+    for was, j in wrong:
+        best: tuple[tuple[float, float], int, int] | None = None
+        lengths = [_route_m(tables, k, route) for k, route in enumerate(routes)]
+        hours = [
+            lengths[k] * tables.road_hours_per_m[k]
+            + sum(tables.task_hours[k, t] for t in route)
+            + (tables.ready_h[k] if route else 0.0)
+            for k, route in enumerate(routes)
+        ]
+        for k, route in enumerate(routes):
+            if unable[k, j]:
                 continue
-            if objective in (Objective.DISTANCE, Objective.MINMAX):
-                hint = (
-                    f"the objective {objective.name.lower()} counts only the road, not which "
-                    "machine works a field: plan with makespan, time or fuel, or without "
-                    "that machine"
-                )
-            else:
-                hint = "the solver had too little time to move it to a machine that can"
-            raise PlannerError(f"{reason}; the plan gives it to that machine: {hint}")
+            first = 1 if route and problem.pinned_machine[route[0]] == k else 0
+            for at in range(first, len(route) + 1):
+                added = _inserted_m(tables, k, route, at, j)
+                others = max((h for q, h in enumerate(hours) if q != k), default=0.0)
+                longest = max((x for q, x in enumerate(lengths) if q != k), default=0.0)
+                drive_h = added * tables.road_hours_per_m[k]
+                ready = 0.0 if route else tables.ready_h[k]
+                key = {
+                    Objective.DISTANCE: (added, 0.0),
+                    Objective.MINMAX: (max(lengths[k] + added, longest), added),
+                    Objective.TIME: (drive_h + tables.task_hours[k, j] + ready, added),
+                    Objective.FUEL: (
+                        drive_h * tables.road_fuel_lh[k] + tables.task_fuel[k, j],
+                        added,
+                    ),
+                    Objective.MAKESPAN: (
+                        max(hours[k] + drive_h + tables.task_hours[k, j] + ready, others),
+                        added,
+                    ),
+                }[obj]
+                if best is None or key < best[0]:
+                    best = (key, k, at)
+        assert best is not None  # cover_farm leaves no field without a machine that can
+        _, k, at = best
+        routes[k].insert(at, j)
+        machine, field_id = problem.machines[was].id, problem.tasks[j].id
+        log.warning(
+            "%s; the search gave it to that machine (%s), so it goes to %s",
+            coverage.unable.get(
+                (machine, field_id), f"machine {machine!r} cannot work {field_id!r}"
+            ),
+            f"the objective {obj.name.lower()} counts only the road"
+            if obj in (Objective.DISTANCE, Objective.MINMAX)
+            else "stopped early",
+            problem.machines[k].id,
+        )
+    settled = tuple(tuple(route) for route in routes)
+    return dataclasses.replace(result, routes=settled, figures=figures(problem, settled))
+
+
+def _route_m(tables: CostTables, k: int, route: Sequence[int]) -> float:
+    if not route:
+        return 0.0
+    inner = sum(float(tables.dist[a, b]) for a, b in zip(route, route[1:], strict=False))
+    return float(tables.start_dist[k, route[0]] + tables.end_dist[k, route[-1]]) + inner
+
+
+def _inserted_m(tables: CostTables, k: int, route: Sequence[int], at: int, j: int) -> float:
+    """The metres machine k's route grows by with task j put at position ``at``."""
+    if not route:
+        return float(tables.start_dist[k, j] + tables.end_dist[k, j])
+    before = tables.start_dist[k, j] if at == 0 else tables.dist[route[at - 1], j]
+    after = tables.end_dist[k, j] if at == len(route) else tables.dist[j, route[at]]
+    if at == 0:
+        was = tables.start_dist[k, route[0]]
+    elif at == len(route):
+        was = tables.end_dist[k, route[-1]]
+    else:
+        was = tables.dist[route[at - 1], route[at]]
+    return float(before + after - was)
 
 
 def farm_problem(
@@ -385,7 +451,7 @@ def plan_farm(
         makespan_slack=makespan_slack,
         finish_within_h=finish_within_h,
     )
-    check_able(result.routes, machines, farm.fields, coverage, obj)
+    result = settle_unable(result, coverage)
     plans = []
     for i, route in enumerate(result.routes):
         machine = machines[i]

@@ -47,11 +47,11 @@ from planner.field_plan import (
     MachinePlan,
     Visit,
     best_corners,
-    check_able,
     cover_farm,
     field_anchor,
     lay_out,
     machine_figures,
+    settle_unable,
     work_of,
 )
 from planner.problem import NOT_PINNED, Machine, Problem, Task
@@ -337,7 +337,7 @@ def replan_farm(
         finish_within_h=finish_within_h,
     )
 
-    check_able(result.routes, fleet, todo, coverage, result.objective)
+    result = settle_unable(result, coverage)
     plans: list[MachinePlan] = []
     for i, route in enumerate(result.routes):
         state = machines[i]
@@ -379,7 +379,7 @@ def replan_farm(
 
 
 def _able(cov: FieldCoverage | None) -> FieldCoverage:
-    """A planned visit's coverage (check_able has made sure there is one)."""
+    """A planned visit's coverage (settle_unable has made sure there is one)."""
     assert cov is not None
     return cov
 

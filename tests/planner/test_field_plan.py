@@ -11,26 +11,25 @@ import pytest
 import shapely
 from shapely.geometry import Polygon
 
-from planner.choices import Objective
 from planner.cost import figures
 from planner.coverage import cover_field, rectangle_field
-from planner.errors import GeometryError, PlannerError
+from planner.errors import GeometryError
 from planner.farm import Farm, Field, load_farm
 from planner.field_plan import (
     UNABLE_H,
     Visit,
     best_corners,
-    check_able,
     cover_farm,
     farm_problem,
     field_anchor,
     machine_figures,
     plan_farm,
+    settle_unable,
 )
 from planner.geo import LocalFrame
 from planner.problem import Machine, Problem, Task, rectangle_turns
 from planner.roads import TransitNetwork
-from planner.solve import stop_after
+from planner.solve import MaxGenerations, solve, stop_after
 
 MACHINE = Machine("m", 6.0, 5000.0, 10.0, 0.003, 2.5, 5.0, work_speed_kmh=0.83)
 
@@ -286,17 +285,39 @@ def test_a_field_too_narrow_for_one_machine_of_a_mixed_fleet_goes_to_another(alg
     assert plan.solver.problem.work_hours[0, 4] == UNABLE_H
 
 
-def test_a_plan_that_gives_a_machine_a_field_it_cannot_work_is_refused():
-    """Under an objective of road alone the solver does not see which machine works a
-    field: a plan that gives the strip to the 6 m machine is refused, saying why."""
+@pytest.mark.parametrize("objective", ["distance", "minmax"])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_under_the_road_alone_the_field_still_goes_to_a_machine_that_can_work_it(
+    objective, seed, caplog
+):
+    """The objectives of road alone do not see which machine can work a field: the search
+    gives the strip to the 6 m machine as often as not, and the plan was refused. It is
+    moved to the narrow machine, at its cheapest place, with a warning."""
+    with caplog.at_level("WARNING", logger="planner.field_plan"):
+        plan = plan_farm(strip_farm(), [MACHINE, NARROW], objective, "ighoa", stop_after(20), seed)
+    by_id = {m.machine.id: m.field_ids for m in plan.machines}
+    assert "f4" in by_id["n"] and "f4" not in by_id["m"]
+    assert sorted(f for ids in by_id.values() for f in ids) == [f"f{k}" for k in range(5)]
+    assert plan.solver.route_ids() == [by_id["m"], by_id["n"]]
+    assert plan.solver.cost == pytest.approx(
+        figures(plan.solver.problem, plan.solver.routes).value(plan.objective)
+    )
+
+
+def test_a_field_is_moved_to_where_it_costs_the_objective_least():
     farm = strip_farm()
     coverage = cover_farm(farm, [MACHINE, NARROW])
-    routes = [[4, 0], [1, 2, 3]]
-    with pytest.raises(PlannerError, match="counts only the road"):
-        check_able(routes, [MACHINE, NARROW], farm.fields, coverage, Objective.DISTANCE)
-    with pytest.raises(PlannerError, match="too little time"):
-        check_able(routes, [MACHINE, NARROW], farm.fields, coverage, Objective.MAKESPAN)
-    check_able([[0], [4, 1, 2, 3]], [MACHINE, NARROW], farm.fields, coverage, Objective.DISTANCE)
+    problem = farm_problem(farm, [MACHINE, NARROW], coverage)
+    solved = solve(problem, "distance", "ighoa", MaxGenerations(1))
+    wrong = ((0, 4, 1), (2, 3))
+    given = dataclasses.replace(solved, routes=wrong, figures=figures(problem, wrong))
+    settled = settle_unable(given, coverage)
+    assert settled.routes[0] == (0, 1)
+    best = min(
+        figures(problem, [[0, 1], [2, 3][:at] + [4] + [2, 3][at:]]).distance_m for at in range(3)
+    )
+    assert settled.figures.distance_m == pytest.approx(best)
+    assert settle_unable(settled, coverage) is settled  # nothing more to move
 
 
 def test_a_field_no_machine_can_work_still_refuses_the_farm():
