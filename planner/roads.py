@@ -488,7 +488,8 @@ class TransitNetwork:
         self._clearance_m = clearance_m
         self._free_space: _FreeSpace | None = None  # built on first use
         self._known: dict[tuple[XY, XY, str | None, str | None], Route] = {}
-        self._doors: dict[tuple[str, XY], XY] = {}
+        self._doors: dict[tuple[str, XY], tuple[XY, XY | None]] = {}
+        self._outlines: shapely.STRtree | None = None  # the fields, holes filled
         self._roads: _RoadGraph | None = None
         # Per field, its gates as (gate point, road-graph node); the garage's node.
         self.gates: dict[str, tuple[XY, ...]] = {}
@@ -606,34 +607,52 @@ class TransitNetwork:
 
     def _exits(self, p: XY, field_id: str | None, leaving: bool) -> list[_Exit]:
         """The ways from ``p`` in ``field_id`` out into free space (``leaving``) or from
-        there to it: through each of the field's declared gates, or (none declared, or off
-        the fields) from ``p`` itself across its own field."""
+        there to it: through each of the field's declared gates that opens onto free space,
+        or (none, or off the fields) from ``p`` itself across its own field."""
         if field_id is None or not self.farm.gates_of(field_id):
             own = None if field_id is None else self._index[field_id]
             return [_Exit(p, own, 0.0, ())]
         out = []
+        own = self._index[field_id]
         for gate in self.farm.gates_of(field_id):
-            door = self._door(field_id, gate.xy)
+            at, door = self._door(field_id, gate.xy)
             if leaving:
-                length, via = self.interior(field_id).route(p, gate.xy)
-                points: tuple[XY, ...] = (*via, gate.xy)
+                length, via = self.interior(field_id).route(p, at)
+                points: tuple[XY, ...] = (*via, at)
             else:
-                length, via = self.interior(field_id).route(gate.xy, p)
-                points = (gate.xy, *via)
-            out.append(_Exit(door, None, length + math.dist(gate.xy, door), points))
-        return out
+                length, via = self.interior(field_id).route(at, p)
+                points = (at, *via)
+            if door is not None:  # else it leads into another field, or a hole: not out
+                out.append(_Exit(door, None, length + math.dist(at, door), points))
+        return out or [_Exit(p, own, 0.0, ())]  # no way out through a gate: as if none
 
-    def _door(self, field_id: str, gate: XY) -> XY:
-        """The point :data:`DOOR_M` beyond the clearance straight out of ``field_id`` at
-        ``gate``: of 32 around the gate, the farthest from the field."""
+    def _door(self, field_id: str, gate: XY) -> tuple[XY, XY | None]:
+        """Where the gate is on the field's outline (a gate drawn a little inside is moved
+        out to it), and the point :data:`DOOR_M` beyond the clearance straight out of the
+        field there: of 32 around it, the farthest from the field, holes filled, that lies
+        in no other field; None where there is none (a gate on the ring of a hole, or in a
+        fence shared with another field)."""
         key = (field_id, gate)
         if key not in self._doors:
+            outline = Polygon(self.farm.field(field_id).boundary.exterior)
+            at = gate
+            if outline.contains(Point(gate)):
+                q = nearest_points(outline.exterior, Point(gate))[0]
+                at = (float(q.x), float(q.y))
             r = self._clearance_m + DOOR_M
             t = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
-            around = np.column_stack([gate[0] + r * np.cos(t), gate[1] + r * np.sin(t)])
-            away = shapely.distance(self.farm.field(field_id).boundary, shapely.points(around))
+            around = np.column_stack([at[0] + r * np.cos(t), at[1] + r * np.sin(t)])
+            points = shapely.points(around)
+            away = shapely.distance(outline, points)
+            if self._outlines is None:
+                self._outlines = shapely.STRtree(
+                    [Polygon(f.boundary.exterior) for f in self.farm.fields]
+                )
+            hit_point, hit_field = self._outlines.query(points, predicate="intersects")
+            away[hit_point[hit_field != self._index[field_id]]] = -1.0
             k = int(np.argmax(away))
-            self._doors[key] = (float(around[k, 0]), float(around[k, 1]))
+            door = (float(around[k, 0]), float(around[k, 1])) if away[k] > r / 2 else None
+            self._doors[key] = (at, door)
         return self._doors[key]
 
     def _free_lengths(

@@ -478,3 +478,26 @@ def test_fields_two_metres_apart_do_not_hang_the_router():
         path = [points[i], *via, points[j]]
         assert length == pytest.approx(LineString(path).length)
         assert not any(crosses(path, p) for f, p in polys.items() if f not in (ids[i], ids[j]))
+
+
+def test_a_gate_drawn_inside_its_field_is_used_where_the_fence_is():
+    """A gate digitised 3 m inside the field: its way out was inside the field too, and the
+    transit went straight across the field again."""
+    fields = {"A": box(0, 0, 100, 100)}
+    net = TransitNetwork(farm_of(fields, (50, -50), gates=[("A", (50.0, 97.0))]))
+    length, via = net.route((50.0, -50.0), (50.0, 50.0), None, "A")
+    assert (50.0, 100.0) in via  # on the fence
+    path = [(50.0, -50.0), *via]
+    assert not crosses(path[: path.index((50.0, 100.0)) + 1], fields["A"])
+    assert length > 250
+
+
+def test_a_gate_into_a_neighbouring_field_is_no_way_out():
+    """A's only gate is in the fence it shares with B: leaving by it is driving into B, so A
+    is left and entered as a field without a gate, and B is not crossed."""
+    fields = {"A": box(0, 0, 100, 100), "B": box(100, 0, 200, 100), "C": box(300, 0, 400, 100)}
+    gates = [("A", (100.0, 50.0)), ("B", (150.0, 0.0))]
+    net = TransitNetwork(farm_of(fields, (-50, 50), gates=gates))
+    assert net.route((-50.0, 50.0), (50.0, 50.0), None, "A") == (pytest.approx(100.0), ())
+    length, via = net.route((50.0, 50.0), (350.0, 50.0), "A", "C")
+    assert not crosses([(50.0, 50.0), *via, (350.0, 50.0)], fields["B"])
