@@ -132,6 +132,18 @@ def test_review_of_a_log_folder_of_several_runs_reviews_the_latest_and_says_so(t
     assert "different runs" in err and "2024-01-01" in err and "2024-01-02" in err
 
 
+def test_a_log_that_holds_nothing_is_left_out_of_a_folders_review(tmp_path, capsys):
+    """A dispatcher killed as it started leaves a log with the MCAP header alone: it was
+    taken for the latest run (its start unknown) and the real run was not reviewed."""
+    first, restarted = _run_logs(tmp_path, [0, 600], "2024-01-01T00:00:00+00:00")
+    (tmp_path / "changji-20231231-120000.mcap").write_bytes(first.read_bytes()[:120])
+    assert main(["review", str(tmp_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert out["log_end"] == "2024-01-01 00:10:00 UTC" and out["source"] == str(tmp_path)
+    assert "left out, as they hold nothing: changji-20231231-120000.mcap" in captured.err
+
+
 def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):
     assert main(["review", str(tmp_path)]) == 2
     assert "holds no .mcap log" in capsys.readouterr().err

@@ -1140,20 +1140,27 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
     logs = [read_log(path) for path in log_files(given)]
     if len(logs) == 1:
         return logs[0]
+    notes = []
+    empty = [log for log in logs if not log.metadata and not log.records]
+    if empty and len(empty) < len(logs):  # a dispatcher killed as it started, a full disk
+        logs = [log for log in logs if log not in empty]
+        notes.append(
+            "left out, as they hold nothing: " + ", ".join(Path(e.source).name for e in empty)
+        )
     logs.sort(key=_start_key)
     one_folder = len(given) == 1 and given[0].is_dir()
     runs: dict[tuple[str | None, str | None], list[LogContents]] = {}
     for log in logs:
         runs.setdefault(_run_of(log), []).append(log)
-    note = None
     if len(runs) > 1 and one_folder:
         latest = max(runs.values(), key=lambda run: _start_key(run[0]))
         others = [run for run in runs.values() if run is not latest]
-        note = (
+        notes.insert(
+            0,
             f"{given[0]} holds {len(runs)} runs; reviewing the latest, "
             f"{_run_listing(latest)}; the others: "
             + "; ".join(_run_listing(run) for run in others)
-            + " (give a run's files to review it)"
+            + " (give a run's files to review it)",
         )
         logs = latest
     elif len(runs) > 1:
@@ -1163,6 +1170,7 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
             f"these logs are of different {what}, not one run: "
             + "; ".join(_run_listing(run) for run in runs.values())
         )
+    note = "; ".join(notes) or None
     if len(logs) == 1:
         return dataclasses.replace(logs[0], note=note)
     first, last = logs[0], logs[-1]
@@ -1174,7 +1182,7 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
         seen.update(log.records)
     records = sorted(merged, key=lambda r: r.log_time_ns)
     problems = [log.problem for log in logs if log.problem]
-    if one_folder and note is None:
+    if one_folder and len(runs) == 1:
         source = str(given[0])
     else:
         source = f"{first.source} (+{len(logs) - 1} more)"
