@@ -221,7 +221,11 @@ def cover_farm(
     for f in farm.fields:
         reasons = [out.unable.get((m.id, f.id)) for m in machines]
         if machines and all(reasons) and every_field:
-            raise GeometryError(str(reasons[0]))
+            others = ", ".join(repr(m.id) for m in machines[1:])
+            raise GeometryError(
+                f"{reasons[0]}"
+                + (f"; no machine of the fleet can work it (nor {others})" if others else "")
+            )
         fresh = [  # said once, not again at each re-plan
             m for m in machines if (m.id, f.id) in out.unable and (m.id, f.id) not in known.unable
         ]

@@ -359,7 +359,16 @@ class _FreeSpace:
             self._reach[key] = (seen, best)
         return self._reach[key]
 
-    def route(self, a: XY, b: XY, own_a: int | None, own_b: int | None) -> Route:
+    def route(
+        self,
+        a: XY,
+        b: XY,
+        own_a: int | None,
+        own_b: int | None,
+        ends: tuple[int | None, int | None] | None = None,
+    ) -> Route:
+        """The shortest way from ``a`` (in obstacle ``own_a``, which it may cross) to ``b``;
+        ``ends``: the fields to name in a warning (default: the owners)."""
         ignore = self._ignored(a, own_a) | self._ignored(b, own_b)
         near = self._near(a, own_a) | self._near(b, own_b)
         straight = math.dist(a, b)
@@ -373,8 +382,8 @@ class _FreeSpace:
             log.warning(
                 "%s: no way around the other fields from %s to %s; counting the straight line",
                 self._source,
-                self._where(own_a),
-                self._where(own_b),
+                self._where(own_a if ends is None else ends[0]),
+                self._where(own_b if ends is None else ends[1]),
             )
             return straight, ()
         i = int(np.argmin(seen_a + self._dist[:, j]))
@@ -597,7 +606,11 @@ class TransitNetwork:
         best: tuple[float, list[XY]] | None = None
         for out in self._exits(a, from_field, leaving=True):
             for into in self._exits(b, to_field, leaving=False):
-                length, via = self._free.route(out.at, into.at, out.own, into.own)
+                named = (
+                    None if from_field is None else self._index[from_field],
+                    None if to_field is None else self._index[to_field],
+                )
+                length, via = self._free.route(out.at, into.at, out.own, into.own, named)
                 total = out.length_m + length + into.length_m
                 if best is None or total < best[0]:
                     points = [a, *out.via, out.at, *via, into.at, *into.via, b]

@@ -473,7 +473,7 @@ def load_scenario(
             )
         if not isinstance(doc["fleet"], str) or not doc["fleet"].strip():
             raise ConfigError(
-                f"{src}: key 'fleet' must name a fleet file (a string), not {_shown(doc['fleet'])}"
+                f"{src}: key 'fleet' must name a fleet file, not {_shown(doc['fleet'])}"
             )
         fleet_path = path.parent / doc["fleet"]
         fleet_src = str(fleet_path)

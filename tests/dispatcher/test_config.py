@@ -290,7 +290,7 @@ TYPES = {
     ),
     "number for the fleet file": (
         lambda d: (d.pop("machine"), d.update(fleet=1)),
-        "key 'fleet' must name a fleet file (a string), not 1",
+        "key 'fleet' must name a fleet file, not 1",
     ),
 }
 

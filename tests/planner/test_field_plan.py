@@ -321,5 +321,9 @@ def test_a_field_is_moved_to_where_it_costs_the_objective_least():
 
 
 def test_a_field_no_machine_can_work_still_refuses_the_farm():
-    with pytest.raises(GeometryError, match=r"machine 'm' \(6 m wide\).*less than the working"):
+    with pytest.raises(
+        GeometryError,
+        match=r"machine 'm' \(6 m wide\).*less than the working.*no machine of the fleet can "
+        r"work it \(nor 'w'\)",
+    ):
         cover_farm(strip_farm(), [MACHINE, Machine("w", 8.0, 6000.0, 10.0, 0.003, 2.5, 5.0)])
