@@ -474,14 +474,15 @@ class _FreeSpace:
         blocked &= out >= _SAME_M
         k = np.flatnonzero(blocked)
         if len(self.nodes) and len(k):
-            reach_a = {r: self.reach(a[r], own_a[r])[1] for r in set(i[k].tolist())}
-            seen_b = {c: self.reach(b[c], own_b[c])[0] for c in set(j[k].tolist())}
-            around = np.array(
-                [
-                    np.min(reach_a[r] + seen_b[c])
-                    for r, c in zip(i[k].tolist(), j[k].tolist(), strict=True)
-                ]
-            )
+            rows, row_of = np.unique(i[k], return_inverse=True)
+            cols, col_of = np.unique(j[k], return_inverse=True)
+            reach_a = np.stack([self.reach(a[r], own_a[r])[1] for r in rows.tolist()])
+            seen_b = np.stack([self.reach(b[c], own_b[c])[0] for c in cols.tolist()])
+            around = np.empty(len(k))
+            step = max(1, 2**22 // len(self.nodes))  # pairs at once: 32 MB of sums
+            for lo in range(0, len(k), step):
+                hi = lo + step
+                around[lo:hi] = (reach_a[row_of[lo:hi]] + seen_b[col_of[lo:hi]]).min(axis=1)
             found = np.isfinite(around)
             out[k[found]] = around[found]
         return out
@@ -776,9 +777,17 @@ class TransitNetwork:
         if self._roads is None and not self.farm.gates:
             owners = [None if f is None else self._index[f] for f in field_ids]
             return self._free.length_matrix(points, owners)
-        if self._roads is None:
-            out = self._free_lengths(points, field_ids, points, field_ids)
-            out = np.minimum(out, out.T)  # the same way back, to the rounding
+        if self._roads is None and m:
+            # A way out and the way back in through the same gate are as long (the field's
+            # router is symmetric), so the free lengths between the gates are needed one
+            # way only: half the pairs of _free_lengths.
+            exits = [self._exits(p, f, True) for p, f in zip(points, field_ids, strict=True)]
+            flat = [e for ways in exits for e in ways]
+            free = self._free.length_matrix([e.at for e in flat], [e.own for e in flat])
+            inner = np.array([e.length_m for e in flat])
+            total = inner[:, None] + free + inner[None, :]
+            starts = np.cumsum([0, *(len(ways) for ways in exits[:-1])])
+            out = np.minimum.reduceat(np.minimum.reduceat(total, starts, axis=0), starts, axis=1)
             np.fill_diagonal(out, 0.0)
             for i, j in itertools.combinations(range(m), 2):
                 if field_ids[i] is not None and field_ids[i] == field_ids[j]:
