@@ -566,13 +566,22 @@ class TransitNetwork:
     def _access(self, p: XY, q: XY, own: int | None) -> tuple[XY, ...]:
         """The way from the garage or a gate of field ``own`` at ``p`` to the road point
         ``q``: straight, unless that crosses another field (a gate behind a neighbour, a
-        garage beside a field away from the road): then around the fields."""
+        garage beside a field away from the road) or its own (a gate on the side away from
+        the road): then around the fields, out of a gate straight away from its field."""
         if self._fields_tree is None:
             inner = [f.boundary.buffer(-CROSSING_M) for f in self.farm.fields]
             self._fields_tree = shapely.STRtree(inner)
-        crossed = self._fields_tree.query(LineString([p, q]), predicate="intersects")
-        if all(int(k) == own for k in crossed):
+        crossed = {
+            int(k) for k in self._fields_tree.query(LineString([p, q]), predicate="intersects")
+        }
+        if not crossed:
             return ()
+        if own is not None and own in crossed:
+            at, door = self._door(self.farm.fields[own].id, p)
+            if door is not None:
+                return _strictly_between(
+                    p, [at, door, *self._free.route(door, q, None, None)[1]], q
+                )
         return self._free.route(p, q, own, None)[1]
 
     def interior(self, field_id: str) -> FieldInterior:

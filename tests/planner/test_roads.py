@@ -501,3 +501,16 @@ def test_a_gate_into_a_neighbouring_field_is_no_way_out():
     assert net.route((-50.0, 50.0), (50.0, 50.0), None, "A") == (pytest.approx(100.0), ())
     length, via = net.route((50.0, 50.0), (350.0, 50.0), "A", "C")
     assert not crosses([(50.0, 50.0), *via, (350.0, 50.0)], fields["B"])
+
+
+def test_a_gate_on_the_side_away_from_the_road_is_reached_around_its_field():
+    """The road runs north of the field, its gate is in the south fence: the way from the
+    road to the gate went straight across the field."""
+    fields = {"A": box(0, 0, 100, 100)}
+    road = [(-60.0, 120.0), (160.0, 120.0)]
+    net = TransitNetwork(farm_of(fields, (-60, 120), [road], [("A", (50.0, 0.0))]))
+    length, via = net.route((-60.0, 120.0), (50.0, 50.0), None, "A")
+    path = [(-60.0, 120.0), *via]
+    assert (50.0, 0.0) in via
+    assert not crosses(path[: path.index((50.0, 0.0)) + 1], fields["A"])
+    assert length == pytest.approx(LineString([*path, (50.0, 50.0)]).length)
