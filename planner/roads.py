@@ -393,10 +393,17 @@ class _FreeSpace:
             k = nodes[-1]
             visited[k] = True
             step = self._weights[k] + self._dist[:, j]
-            # Never back: fields 2 m apart have corners that coincide once grown, joined at
-            # no length, and the walk went from one to the other for ever.
+            # Fields 2 m apart have corners that coincide once grown, joined at no length:
+            # never back (the walk went from one to the other for ever), and of the hops on
+            # a shortest path one that gets nearer first (the other corner of the pair may
+            # lead only back, and then round the long way).
             step[visited] = np.inf
-            nodes.append(int(np.argmin(step)))
+            best = float(step.min())
+            if not math.isfinite(best):
+                break  # cannot happen on a shortest-path table; never loop
+            ties = np.flatnonzero(step <= best + 1e-9)
+            nearer = ties[self._dist[ties, j] < self._dist[k, j] - 1e-9]
+            nodes.append(int(nearer[0] if len(nearer) else ties[0]))
         via = tuple((float(self.nodes[k][0]), float(self.nodes[k][1])) for k in nodes)
         return float(total[j]), via
 
@@ -651,16 +658,21 @@ class TransitNetwork:
 
     def _door(self, field_id: str, gate: XY) -> tuple[XY, XY | None]:
         """Where the gate is on the field's outline (a gate drawn a little inside is moved
-        out to it), and the point :data:`DOOR_M` beyond the clearance straight out of the
-        field there: of 32 around it, the farthest from the field, holes filled, that lies
-        in no other field; None where there is none (a gate on the ring of a hole, or in a
-        fence shared with another field)."""
+        out to it), and a point :data:`DOOR_M` beyond the clearance out of the field there:
+        of 32 around it, the farthest from the field, holes filled, that lies in no other
+        field; None where there is none (a gate on the ring of a hole, or in a fence shared
+        with another field), with a warning: off the roads it is no way out."""
         key = (field_id, gate)
         if key not in self._doors:
-            outline = Polygon(self.farm.field(field_id).boundary.exterior)
-            at = gate
-            if outline.contains(Point(gate)):
-                q = nearest_points(outline.exterior, Point(gate))[0]
+            field = self.farm.field(field_id).boundary
+            outline = Polygon(field.exterior)
+            at: XY = gate
+            to_hole = min(
+                (ring.distance(Point(gate)) for ring in field.interiors), default=math.inf
+            )
+            in_hole = to_hole < field.exterior.distance(Point(gate))
+            if outline.contains(Point(gate)) and not in_hole:
+                q = nearest_points(field.exterior, Point(gate))[0]
                 at = (float(q.x), float(q.y))
             r = self._clearance_m + DOOR_M
             t = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
@@ -674,7 +686,23 @@ class TransitNetwork:
             hit_point, hit_field = self._outlines.query(points, predicate="intersects")
             away[hit_point[hit_field != self._index[field_id]]] = -1.0
             k = int(np.argmax(away))
-            door = (float(around[k, 0]), float(around[k, 1])) if away[k] > r / 2 else None
+            # Out of the field, however little (the tip of a narrow inlet), and in no other.
+            door = (float(around[k, 0]), float(around[k, 1])) if away[k] > _SAME_M else None
+            if in_hole or door is None:
+                door = None
+                lon, lat = next(
+                    (g.lonlat for g in self.farm.gates_of(field_id) if g.xy == gate),
+                    (math.nan,) * 2,
+                )
+                log.warning(
+                    "%s: the gate of field %r at lon %.7f, lat %.7f opens %s; off the roads "
+                    "the field is left and entered as if it had no gate there",
+                    self.farm.source,
+                    field_id,
+                    lon,
+                    lat,
+                    "onto a hole in the field" if in_hole else "into another field",
+                )
             self._doors[key] = (at, door)
         return self._doors[key]
 

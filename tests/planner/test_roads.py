@@ -514,3 +514,22 @@ def test_a_gate_on_the_side_away_from_the_road_is_reached_around_its_field():
     assert (50.0, 0.0) in via
     assert not crosses(path[: path.index((50.0, 0.0)) + 1], fields["A"])
     assert length == pytest.approx(LineString([*path, (50.0, 50.0)]).length)
+
+
+def test_a_gate_on_a_pond_in_the_field_is_no_way_out_and_is_said_so(caplog):
+    field = box(0, 0, 100, 100).difference(box(30, 30, 60, 60))
+    net = TransitNetwork(farm_of({"A": field}, (50, 150), gates=[("A", (45.0, 30.0))]))
+    with caplog.at_level(logging.WARNING, logger="planner.roads"):
+        length, via = net.route((50.0, 150.0), (20.0, 20.0), None, "A")
+    assert "the gate of field 'A'" in caplog.text and "opens onto a hole" in caplog.text
+    assert length == pytest.approx(math.dist((50.0, 150.0), (20.0, 20.0)))  # as if none
+
+
+def test_a_gate_at_the_tip_of_a_narrow_inlet_is_used():
+    """An inlet of 50 degrees into the field from the north, its gate at the tip: the way
+    out lies in the inlet, close to both fences; it was taken for no way out."""
+    inlet = Polygon([(40, 100), (50, 80), (60, 100)]).buffer(0)
+    field = box(0, 0, 100, 100).difference(inlet)
+    net = TransitNetwork(farm_of({"A": field}, (50, -50), gates=[("A", (50.0, 80.0))]))
+    length, via = net.route((50.0, -50.0), (20.0, 20.0), None, "A")
+    assert (50.0, 80.0) in via and length > 250  # round to the north, in at the tip
