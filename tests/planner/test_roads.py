@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 from shapely.geometry import LineString, Polygon, box
 
 from planner.coverage import cover_field
@@ -462,11 +463,15 @@ def test_without_roads_a_gated_field_is_left_and_entered_through_its_gate():
     assert open_field.route(garage, a, None, "A") == (pytest.approx(100.0), ())
 
 
-def test_fields_two_metres_apart_do_not_hang_the_router():
+@pytest.mark.parametrize("angle", [0.0, 45.0])
+def test_fields_two_metres_apart_do_not_hang_the_router(angle):
     """Grown by 1 m each, fields 2 m apart have corners that coincide: the walk along the
-    shortest paths went from one to the other for ever (a plan hung past its time limit)."""
+    shortest paths went from one to the other for ever (a plan hung past its time limit),
+    then, turned 45 degrees, round a long way that the length did not count."""
     polys = {
-        f"f{r}_{c}": box(82.0 * c, 82.0 * r, 82.0 * c + 80, 82.0 * r + 80)
+        f"f{r}_{c}": shapely.affinity.rotate(
+            box(82.0 * c, 82.0 * r, 82.0 * c + 80, 82.0 * r + 80), angle, origin=(0, 0)
+        )
         for r in range(3)
         for c in range(4)
     }
