@@ -135,13 +135,20 @@ def test_review_of_a_log_folder_of_several_runs_reviews_the_latest_and_says_so(t
 def test_a_log_that_holds_nothing_is_left_out_of_a_folders_review(tmp_path, capsys):
     """A dispatcher killed as it started leaves a log with the MCAP header alone: it was
     taken for the latest run (its start unknown) and the real run was not reviewed."""
+    from dispatcher.recording.mcap_file import RUN_STARTED_KEY, Recorder
+
     first, restarted = _run_logs(tmp_path, [0, 600], "2024-01-01T00:00:00+00:00")
     (tmp_path / "changji-20231231-120000.mcap").write_bytes(first.read_bytes()[:120])
+    # Killed after the metadata was written (it is flushed at once), a day later.
+    later = 1_704_067_200_000_000_000 + 86_400 * 10**9
+    metadata = {RUN_STARTED_KEY: "2024-01-02T00:00:00+00:00"}
+    Recorder.create_in(tmp_path, "changji", metadata, clock=lambda: later).finish()
     assert main(["review", str(tmp_path), "--json"]) == 0
     captured = capsys.readouterr()
     out = json.loads(captured.out)
     assert out["log_end"] == "2024-01-01 00:10:00 UTC" and out["source"] == str(tmp_path)
     assert "left out, as they hold nothing: changji-20231231-120000.mcap" in captured.err
+    assert "changji-20240102-000000.mcap" in captured.err
 
 
 def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):

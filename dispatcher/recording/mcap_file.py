@@ -1141,7 +1141,7 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
     if len(logs) == 1:
         return logs[0]
     notes = []
-    empty = [log for log in logs if not log.metadata and not log.records]
+    empty = [log for log in logs if not log.records]
     if empty and len(empty) < len(logs):  # a dispatcher killed as it started, a full disk
         logs = [log for log in logs if log not in empty]
         notes.append(
