@@ -241,22 +241,67 @@ def cover_farm(
 
 
 def settle_unable(result: Result, coverage: FarmCoverage) -> Result:
-    """``result`` with every field the search gave to a machine that cannot work it
-    (:data:`UNABLE_H` hours in its problem) moved to the machine, and the place in its
-    route, where it costs the objective least among those that can (after a pinned first
-    field), with a warning; ``result`` itself when there is none. The objectives of road
-    alone (distance, min-max) do not see which machine can work a field; the others see
-    it, and leave one there only when stopped very early."""
+    """``result`` with no machine keeping a field it cannot work (:data:`UNABLE_H` hours
+    in its problem), with a warning; ``result`` itself when there is none. The objectives
+    of road alone (distance, min-max) do not see which machine can work a field; the
+    others see it, and leave one there only when stopped very early. The better, for the
+    objective, of two ways: the routes handed round the machines as they stand, so that
+    none keeps a field it cannot work (:func:`_handed_round`: the search laid out good
+    routes for the wrong machines); and each such field moved to the machine, and the
+    place in its route, where it costs the objective least (after a pinned first field)."""
     problem = result.problem
     unable = problem.work_hours >= UNABLE_H
-    routes = [list(route) for route in result.routes]
-    wrong = [(i, j) for i, route in enumerate(routes) for j in route if unable[i, j]]
+    wrong = [(i, j) for i, route in enumerate(result.routes) for j in route if unable[i, j]]
     if not wrong:
         return result
     tables = CostTables.of(problem)
     obj = result.objective
+    moved, moves = _moved(problem, tables, obj, result.routes, wrong)
+    options = [moved]
+    handed = _handed_round(problem, tables, obj, result.routes)
+    if handed is not None:
+        options.append(handed)
+    best = min(options, key=lambda routes: _figure(problem, obj, routes))
+    for was, j, to in moves if best is moved else [(i, j, -1) for i, j in wrong]:
+        machine, field_id = problem.machines[was].id, problem.tasks[j].id
+        log.warning(
+            "%s; the search gave it to that machine (%s), so %s",
+            coverage.unable.get(
+                (machine, field_id), f"machine {machine!r} cannot work {field_id!r}"
+            ),
+            f"the objective {obj.name.lower()} counts only the road"
+            if obj in (Objective.DISTANCE, Objective.MINMAX)
+            else "stopped early",
+            f"it goes to {problem.machines[to].id}"
+            if to >= 0
+            else "the routes are handed round the machines",
+        )
+    settled = tuple(tuple(route) for route in best)
+    return dataclasses.replace(result, routes=settled, figures=figures(problem, settled))
+
+
+def _figure(
+    problem: Problem, obj: Objective, routes: Sequence[Sequence[int]]
+) -> tuple[float, float]:
+    """The objective's figure of ``routes``, then their road metres."""
+    found = figures(problem, [list(route) for route in routes])
+    return found.value(obj), found.distance_m
+
+
+def _moved(
+    problem: Problem,
+    tables: CostTables,
+    obj: Objective,
+    given: Sequence[Sequence[int]],
+    wrong: Sequence[tuple[int, int]],
+) -> tuple[list[list[int]], list[tuple[int, int, int]]]:
+    """``given`` with each (machine, task) of ``wrong`` moved in turn to where it costs the
+    objective least among the machines that can work it; and the moves (from, task, to)."""
+    unable = problem.work_hours >= UNABLE_H
+    routes = [list(route) for route in given]
     for i, j in wrong:
         routes[i].remove(j)
+    moves = []
     for was, j in wrong:
         best: tuple[tuple[float, float], int, int] | None = None
         lengths = [_route_m(tables, k, route) for k, route in enumerate(routes)]
@@ -294,19 +339,63 @@ def settle_unable(result: Result, coverage: FarmCoverage) -> Result:
         assert best is not None  # cover_farm leaves no field without a machine that can
         _, k, at = best
         routes[k].insert(at, j)
-        machine, field_id = problem.machines[was].id, problem.tasks[j].id
-        log.warning(
-            "%s; the search gave it to that machine (%s), so it goes to %s",
-            coverage.unable.get(
-                (machine, field_id), f"machine {machine!r} cannot work {field_id!r}"
-            ),
-            f"the objective {obj.name.lower()} counts only the road"
-            if obj in (Objective.DISTANCE, Objective.MINMAX)
-            else "stopped early",
-            problem.machines[k].id,
-        )
-    settled = tuple(tuple(route) for route in routes)
-    return dataclasses.replace(result, routes=settled, figures=figures(problem, settled))
+        moves.append((was, j, k))
+    return routes, moves
+
+
+def _handed_round(
+    problem: Problem, tables: CostTables, obj: Objective, given: Sequence[Sequence[int]]
+) -> list[list[int]] | None:
+    """The routes of ``given``, each whole, handed to the machines so that none has a field
+    it cannot work (a route with a pinned field stays with its machine) at the least cost:
+    under a sum the least total of the routes' figures on their new machines, under min-max
+    and the makespan the least longest, then the least total (an assignment problem,
+    :func:`scipy.optimize.linear_sum_assignment`); None if there is no such way."""
+    from scipy.optimize import linear_sum_assignment
+
+    unable = problem.work_hours >= UNABLE_H
+    m = len(given)
+    cost = np.full((m, m), np.inf)  # [route, machine]
+    for r, route in enumerate(given):
+        pinned = any(problem.pinned_machine[t] == r for t in route)
+        for k in range(m):
+            if any(unable[k, t] for t in route) or (pinned and k != r):
+                continue
+            metres = _route_m(tables, k, route)
+            drive_h = metres * tables.road_hours_per_m[k]
+            service = sum(tables.task_hours[k, t] for t in route)
+            cost[r, k] = {
+                Objective.DISTANCE: metres,
+                Objective.MINMAX: metres,
+                Objective.TIME: drive_h + service + (tables.ready_h[k] if route else 0.0),
+                Objective.FUEL: drive_h * tables.road_fuel_lh[k]
+                + sum(tables.task_fuel[k, t] for t in route),
+                Objective.MAKESPAN: drive_h + service + (tables.ready_h[k] if route else 0.0),
+            }[obj]
+    finite = np.isfinite(cost)
+    big = 1.0 + 2.0 * m * float(np.abs(cost[finite]).max(initial=1.0))
+    if obj in (Objective.MINMAX, Objective.MAKESPAN):
+        # The least bottleneck: the least threshold under which an assignment exists.
+        levels = np.unique(cost[finite])
+        lo, hi = 0, len(levels) - 1
+        while lo < hi:
+            mid = (lo + hi) // 2
+            under = np.where(cost <= levels[mid], 0.0, 1.0)
+            rows, cols = linear_sum_assignment(under)
+            if under[rows, cols].sum() == 0.0:
+                hi = mid
+            else:
+                lo = mid + 1
+        if not len(levels):
+            return None
+        finite &= cost <= levels[lo]
+    rows, cols = linear_sum_assignment(np.where(finite, cost, big))
+    if not finite[rows, cols].all():
+        return None
+    out: list[list[int]] = [[] for _ in range(m)]
+    for r, k in zip(rows.tolist(), cols.tolist(), strict=True):
+        out[k] = list(given[r])
+    return out
 
 
 def _route_m(tables: CostTables, k: int, route: Sequence[int]) -> float:

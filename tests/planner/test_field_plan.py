@@ -327,3 +327,33 @@ def test_a_field_no_machine_can_work_still_refuses_the_farm():
         r"work it \(nor 'w'\)",
     ):
         cover_farm(strip_farm(), [MACHINE, Machine("w", 8.0, 6000.0, 10.0, 0.003, 2.5, 5.0)])
+
+
+def test_routes_laid_out_for_the_wrong_machines_are_handed_round():
+    """Min-max, two clusters east and west of the garage, a strip in the west one that only
+    the narrow machine can work. The search, blind to who can work what, splits by cluster;
+    when it gave the wide machine the west, the strip alone was moved to the narrow one,
+    which then drove to both clusters (2 407 m against 1 371 m with the routes swapped)."""
+    frame = LocalFrame.around(87.3, 44.0)
+    polys = {f"w{k}": rectangle_field(50.0, 80.0, 0.0, (-560.0 + 70.0 * k, 0.0)) for k in range(3)}
+    polys |= {f"e{k}": rectangle_field(50.0, 80.0, 0.0, (500.0 + 70.0 * k, 0.0)) for k in range(3)}
+    polys["ws"] = rectangle_field(5.0, 100.0, 0.0, (-560.0, 120.0))
+    fields = tuple(Field(k, k, p, p) for k, p in polys.items())
+    farm = Farm(fields=fields, garage=(0.0, 0.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    coverage = cover_farm(farm, [MACHINE, NARROW])
+    problem = farm_problem(farm, [MACHINE, NARROW], coverage)
+    index = {f.id: j for j, f in enumerate(fields)}
+    west = [index[f] for f in ("w2", "w1", "w0", "ws")]
+    east = [index[f] for f in ("e0", "e1", "e2")]
+    solved = solve(problem, "minmax", "ighoa", MaxGenerations(1))
+    given = dataclasses.replace(
+        solved, routes=(tuple(west), tuple(east)), figures=figures(problem, [west, east])
+    )
+    settled = settle_unable(given, coverage)
+    assert settled.routes == (tuple(east), tuple(west))
+    assert settled.figures.max_distance_m == pytest.approx(
+        figures(problem, [east, west]).max_distance_m
+    )
+    for seed in (1, 2, 3):  # and whatever the search gives
+        plan = plan_farm(farm, [MACHINE, NARROW], "minmax", "hybrid", stop_after(30), seed=seed)
+        assert sorted(plan.machines[1].field_ids) == ["w0", "w1", "w2", "ws"]
