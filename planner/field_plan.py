@@ -232,10 +232,11 @@ def cover_farm(
         if fresh and not all(reasons):
             able = [m.id for m in machines if (m.id, f.id) in out]
             log.warning(
-                "%s; the field is left to %s, the machines that can work it%s",
+                "%s%s; the field is left to %s, %s",
                 out.unable[(fresh[0].id, f.id)],
+                f" (and {', '.join(m.id for m in fresh[1:])} cannot either)" if fresh[1:] else "",
                 ", ".join(able),
-                f" (nor can {', '.join(m.id for m in fresh[1:])})" if fresh[1:] else "",
+                "the machines that can work it" if len(able) > 1 else "the one that can work it",
             )
     return out
 

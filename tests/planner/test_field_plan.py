@@ -277,7 +277,7 @@ def test_a_field_too_narrow_for_one_machine_of_a_mixed_fleet_goes_to_another(alg
     with caplog.at_level("WARNING", logger="planner.field_plan"):
         plan = plan_farm(strip_farm(), [MACHINE, NARROW], "makespan", algorithm, stop_after(30))
     assert "machine 'm' (6 m wide)" in caplog.text and "f4" in caplog.text
-    assert "the field is left to n, the machines that can work it" in caplog.text
+    assert "the field is left to n, the one that can work it" in caplog.text
     by_id = {m.machine.id: m.field_ids for m in plan.machines}
     assert "f4" in by_id["n"] and "f4" not in by_id["m"]
     assert sorted(f for ids in by_id.values() for f in ids) == [f"f{k}" for k in range(5)]
