@@ -621,12 +621,12 @@ class TransitNetwork:
 
     def _free_route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
         best: tuple[float, list[XY]] | None = None
+        named = (  # for a warning: the fields, also where the ways start outside them
+            None if from_field is None else self._index[from_field],
+            None if to_field is None else self._index[to_field],
+        )
         for out in self._exits(a, from_field, leaving=True):
             for into in self._exits(b, to_field, leaving=False):
-                named = (
-                    None if from_field is None else self._index[from_field],
-                    None if to_field is None else self._index[to_field],
-                )
                 length, via = self._free.route(out.at, into.at, out.own, into.own, named)
                 total = out.length_m + length + into.length_m
                 if best is None or total < best[0]:
@@ -715,6 +715,8 @@ class TransitNetwork:
     ) -> FloatArray:
         """:meth:`_free_route`'s lengths from each source to each target, vectorised: the
         free-space lengths between all their ways out and in, the shortest per pair."""
+        if not len(sources) or not len(targets):
+            return np.zeros((len(sources), len(targets)))
         outs = [self._exits(p, f, True) for p, f in zip(sources, source_fields, strict=True)]
         ins = [self._exits(p, f, False) for p, f in zip(targets, target_fields, strict=True)]
         flat_out = [e for ways in outs for e in ways]
@@ -732,8 +734,6 @@ class TransitNetwork:
         )
         rows = np.cumsum([0, *(len(w) for w in outs[:-1])])
         cols = np.cumsum([0, *(len(w) for w in ins[:-1])])
-        if not len(sources) or not len(targets):
-            return np.zeros((len(sources), len(targets)))
         return np.minimum.reduceat(np.minimum.reduceat(total, rows, axis=0), cols, axis=1)
 
     def _road_route(
