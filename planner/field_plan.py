@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.cost import CostTables, Objective, figures
+from planner.cost import CostTables, Objective, figures, route_distance, route_value
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
 from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
 from planner.farm import Farm, Field
@@ -257,9 +257,9 @@ def settle_unable(result: Result, coverage: FarmCoverage) -> Result:
         return result
     tables = CostTables.of(problem)
     obj = result.objective
-    moved, moves = _moved(problem, tables, obj, result.routes, wrong)
+    moved, moves = _moved(problem, tables, obj, unable, result.routes, wrong)
     options = [moved]
-    handed = _handed_round(problem, tables, obj, result.routes)
+    handed = _handed_round(problem, tables, obj, unable, result.routes)
     if handed is not None:
         options.append(handed)
     best = min(options, key=lambda routes: _figure(problem, obj, routes))
@@ -289,52 +289,67 @@ def _figure(
     return found.value(obj), found.distance_m
 
 
+def _metres(tables: CostTables, k: int, route: Sequence[int]) -> float:
+    """Machine k's road metres along ``route`` (formula (1))."""
+    perm = np.asarray(route, dtype=np.int64)
+    return float(
+        route_distance(perm, 0, len(route), k, tables.dist, tables.start_dist, tables.end_dist)
+    )
+
+
+def _share(
+    tables: CostTables, obj: Objective, k: int, route: Sequence[int], metres: float
+) -> float:
+    """Machine k's share of the objective for ``route`` of ``metres``, as the solver
+    counts it (:func:`planner.cost.route_value`)."""
+    in_field = tables.task_fuel if obj is Objective.FUEL else tables.task_hours
+    extra = float(sum(in_field[k, t] for t in route))
+    return float(
+        route_value(
+            int(obj),
+            k,
+            metres,
+            extra,
+            tables.road_hours_per_m,
+            tables.road_fuel_lh,
+            tables.ready_h,
+            len(route),
+        )
+    )
+
+
 def _moved(
     problem: Problem,
     tables: CostTables,
     obj: Objective,
+    unable: NDArray[np.bool_],
     given: Sequence[Sequence[int]],
     wrong: Sequence[tuple[int, int]],
 ) -> tuple[list[list[int]], list[tuple[int, int, int]]]:
     """``given`` with each (machine, task) of ``wrong`` moved in turn to where it costs the
-    objective least among the machines that can work it; and the moves (from, task, to)."""
-    unable = problem.work_hours >= UNABLE_H
+    objective least among the machines that can work it (under a sum the least it adds,
+    under min-max and the makespan the least longest route; then the least road); and the
+    moves (from, task, to)."""
     routes = [list(route) for route in given]
     for i, j in wrong:
         routes[i].remove(j)
     moves = []
     for was, j in wrong:
         best: tuple[tuple[float, float], int, int] | None = None
-        lengths = [_route_m(tables, k, route) for k, route in enumerate(routes)]
-        hours = [
-            lengths[k] * tables.road_hours_per_m[k]
-            + sum(tables.task_hours[k, t] for t in route)
-            + (tables.ready_h[k] if route else 0.0)
-            for k, route in enumerate(routes)
-        ]
+        lengths = [_metres(tables, k, route) for k, route in enumerate(routes)]
+        shares = [_share(tables, obj, k, r, lengths[k]) for k, r in enumerate(routes)]
         for k, route in enumerate(routes):
             if unable[k, j]:
                 continue
+            others = max((v for q, v in enumerate(shares) if q != k), default=0.0)
             first = 1 if route and problem.pinned_machine[route[0]] == k else 0
             for at in range(first, len(route) + 1):
                 added = _inserted_m(tables, k, route, at, j)
-                others = max((h for q, h in enumerate(hours) if q != k), default=0.0)
-                longest = max((x for q, x in enumerate(lengths) if q != k), default=0.0)
-                drive_h = added * tables.road_hours_per_m[k]
-                ready = 0.0 if route else tables.ready_h[k]
-                key = {
-                    Objective.DISTANCE: (added, 0.0),
-                    Objective.MINMAX: (max(lengths[k] + added, longest), added),
-                    Objective.TIME: (drive_h + tables.task_hours[k, j] + ready, added),
-                    Objective.FUEL: (
-                        drive_h * tables.road_fuel_lh[k] + tables.task_fuel[k, j],
-                        added,
-                    ),
-                    Objective.MAKESPAN: (
-                        max(hours[k] + drive_h + tables.task_hours[k, j] + ready, others),
-                        added,
-                    ),
-                }[obj]
+                share = _share(tables, obj, k, [*route, j], lengths[k] + added)
+                if obj in (Objective.MINMAX, Objective.MAKESPAN):
+                    key = (max(share, others), added)
+                else:
+                    key = (share - shares[k], added)
                 if best is None or key < best[0]:
                     best = (key, k, at)
         assert best is not None  # cover_farm leaves no field without a machine that can
@@ -345,7 +360,11 @@ def _moved(
 
 
 def _handed_round(
-    problem: Problem, tables: CostTables, obj: Objective, given: Sequence[Sequence[int]]
+    problem: Problem,
+    tables: CostTables,
+    obj: Objective,
+    unable: NDArray[np.bool_],
+    given: Sequence[Sequence[int]],
 ) -> list[list[int]] | None:
     """The routes of ``given``, each whole, handed to the machines so that none has a field
     it cannot work (a route with a pinned field stays with its machine) at the least cost:
@@ -354,30 +373,20 @@ def _handed_round(
     :func:`scipy.optimize.linear_sum_assignment`); None if there is no such way."""
     from scipy.optimize import linear_sum_assignment
 
-    unable = problem.work_hours >= UNABLE_H
     m = len(given)
     cost = np.full((m, m), np.inf)  # [route, machine]
     for r, route in enumerate(given):
         pinned = any(problem.pinned_machine[t] == r for t in route)
         for k in range(m):
-            if any(unable[k, t] for t in route) or (pinned and k != r):
-                continue
-            metres = _route_m(tables, k, route)
-            drive_h = metres * tables.road_hours_per_m[k]
-            service = sum(tables.task_hours[k, t] for t in route)
-            cost[r, k] = {
-                Objective.DISTANCE: metres,
-                Objective.MINMAX: metres,
-                Objective.TIME: drive_h + service + (tables.ready_h[k] if route else 0.0),
-                Objective.FUEL: drive_h * tables.road_fuel_lh[k]
-                + sum(tables.task_fuel[k, t] for t in route),
-                Objective.MAKESPAN: drive_h + service + (tables.ready_h[k] if route else 0.0),
-            }[obj]
+            if not (any(unable[k, t] for t in route) or (pinned and k != r)):
+                cost[r, k] = _share(tables, obj, k, route, _metres(tables, k, route))
     finite = np.isfinite(cost)
     big = 1.0 + 2.0 * m * float(np.abs(cost[finite]).max(initial=1.0))
     if obj in (Objective.MINMAX, Objective.MAKESPAN):
         # The least bottleneck: the least threshold under which an assignment exists.
         levels = np.unique(cost[finite])
+        if not len(levels):
+            return None
         lo, hi = 0, len(levels) - 1
         while lo < hi:
             mid = (lo + hi) // 2
@@ -387,8 +396,6 @@ def _handed_round(
                 hi = mid
             else:
                 lo = mid + 1
-        if not len(levels):
-            return None
         finite &= cost <= levels[lo]
     rows, cols = linear_sum_assignment(np.where(finite, cost, big))
     if not finite[rows, cols].all():
@@ -397,13 +404,6 @@ def _handed_round(
     for r, k in zip(rows.tolist(), cols.tolist(), strict=True):
         out[k] = list(given[r])
     return out
-
-
-def _route_m(tables: CostTables, k: int, route: Sequence[int]) -> float:
-    if not route:
-        return 0.0
-    inner = sum(float(tables.dist[a, b]) for a, b in zip(route, route[1:], strict=False))
-    return float(tables.start_dist[k, route[0]] + tables.end_dist[k, route[-1]]) + inner
 
 
 def _inserted_m(tables: CostTables, k: int, route: Sequence[int], at: int, j: int) -> float:
