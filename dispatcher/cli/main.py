@@ -16,17 +16,16 @@ import json
 import logging
 import math
 import os
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments
+from dispatcher.link.signals import sigterm_interrupts
 from planner.choices import SLACK_SHARE
 from planner.errors import PlannerError
 
@@ -1008,7 +1007,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
-    restore_sigterm = _sigterm_interrupts()
+    restore_sigterm = sigterm_interrupts()
     try:
         return int(args.handler(args))
     except (PlannerError, DispatcherError) as exc:
@@ -1029,24 +1028,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     finally:
         restore_sigterm()
-
-
-def _sigterm_interrupts() -> Callable[[], None]:
-    """SIGTERM stops a command as Ctrl-C does (exit 130, not the signal's 143), where the
-    command does not take it itself (the daemons do: ``dispatcher.link.signals``); returns
-    a function that puts the previous handler back. Nothing off the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-
-    def restore() -> None:
-        signal.signal(signal.SIGTERM, previous)
-
-    return restore
 
 
 if __name__ == "__main__":
