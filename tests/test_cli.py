@@ -274,6 +274,18 @@ def test_sigterm_interrupts_a_command_as_ctrl_c_does(monkeypatch, capsys):
     assert "interrupted" in capsys.readouterr().err
     assert signal.getsignal(signal.SIGTERM) is before
 
+    # Inside the solver the interrupt comes out of a numba kernel's call back into Python
+    # as a SystemError caused by it (a traceback and exit 1, with Ctrl-C too).
+    def in_a_kernel(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("returned a result with an exception set") from exc
+
+    monkeypatch.setattr(cli, "cmd_review", in_a_kernel)
+    assert main(["review", "nothing.mcap"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+
 
 def test_the_router_has_no_mode_to_choose(capsys):
     """A router runs in router mode: `--mode peer` was offered and ended in a traceback."""

@@ -1026,6 +1026,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("agrifleet: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except SystemError as exc:
+        # Ctrl-C or SIGTERM while a numba kernel called back into Python (the solver's
+        # clock) comes out as a SystemError caused by the KeyboardInterrupt.
+        if not isinstance(exc.__cause__, KeyboardInterrupt):
+            raise
+        print("agrifleet: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         restore_sigterm()
 
