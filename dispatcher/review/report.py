@@ -492,9 +492,10 @@ def _read_events(
     """Positions, items reached with their time, heartbeats, from the vehicle's frames.
 
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
-    it when that position is at the waypoint (the simulator sends one right away),
-    else the last time heard; other items take the last time heard. A report of the item
-    reported last is a repeat, and left out.
+    it when that position is at the waypoint (the simulator sends one right away), else
+    the last time heard when it was reported (not when the next frame came: after a gap in
+    the recording that is the clock after it); other items take the last time heard. A
+    report of the item reported last is a repeat, and left out.
 
     Frames are taken in the order they were received. The vehicle's clock
     (``time_boot_ms``) restarts from zero when its autopilot reboots: that is one reboot
@@ -517,10 +518,13 @@ def _read_events(
     # say nothing of where it heads in this one.
     this_mission = True
 
-    def settle(t: float | None) -> None:
+    def settle(at_waypoint: float | None = None) -> None:
+        """The pending nav item reached: at ``at_waypoint`` (a position there), else when
+        it was reported."""
         nonlocal pending
         if pending is not None:
-            reached.append((pending[0], t, pending[1]))
+            t = at_waypoint if at_waypoint is not None else pending[2]
+            reached.append((pending[0], clock.now if t is None else t, pending[1]))
             pending = None
 
     def run_clock(raw: float, log_ns: int) -> float:
@@ -544,7 +548,7 @@ def _read_events(
                 at_waypoint = (
                     valid and _metres((lat, lon), (item.lat, item.lon)) <= WAYPOINT_MATCH_M
                 )
-                settle(t if at_waypoint or pending[2] is None else pending[2])
+                settle(t if at_waypoint else None)
             if valid:
                 vx, vy = _num(msg.get("vx")), _num(msg.get("vy"))
                 speed = math.hypot(vx, vy) / 100.0 if vx is not None and vy is not None else None
@@ -561,7 +565,7 @@ def _read_events(
                 # its waypoint, and the track would go to the waypoint and back.
                 continue
             last_reached = seq
-            settle(clock.now)
+            settle()
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
@@ -591,7 +595,7 @@ def _read_events(
             severity = msg.get("severity")
             if text and isinstance(severity, int):
                 texts.append((clock.now, severity, text))
-    settle(clock.now)
+    settle()
     return _Events(points, reached, heartbeats, clock.now, reboots, texts, heading_to, caught_up)
 
 

@@ -34,7 +34,7 @@ from dispatcher.mission.document import (
     PlannedItem,
     PlannedMachine,
 )
-from dispatcher.recording.mcap_file import Recorder, RecordingError, read_log
+from dispatcher.recording.mcap_file import LogRecord, Recorder, RecordingError, read_log
 from dispatcher.review.plot import plot_review
 from dispatcher.review.report import (
     Review,
@@ -393,6 +393,42 @@ def test_an_item_reached_reported_twice_is_reached_once(
         assert again.distance_m == pytest.approx(v.distance_m, rel=1e-9)
         assert again.time_h == pytest.approx(v.time_h, rel=1e-9)
         assert again.fields_done == v.fields_done
+
+
+def test_an_item_reached_just_before_a_gap_in_the_recording_keeps_its_time(
+    review: Review, run_log: tuple[bytes, dict[str, Mission]]
+) -> None:
+    # The dispatcher killed between a MISSION_ITEM_REACHED and the position after it; the
+    # restarted one first hears the vehicle's SYSTEM_TIME, then an item reached: the first
+    # item was reached before the gap, not at the clock after it. Timed after it, its
+    # waypoint came after the gap's (the mission's waypoints put in), and the track went back
+    # to it and forth again: a SITL run's 0.78 km came out 0.99 km.
+    log = read_log(io.BytesIO(run_log[0]))
+    ours = "/vehicle/v1/mavlink/from/json"
+
+    def kind(record: LogRecord) -> str | None:
+        if not record.topic.endswith(ours):
+            return None
+        return str(record.decode_json().get("mavpackettype"))
+
+    records = list(log.records)
+    reached = [k for k, r in enumerate(records) if kind(r) == "MISSION_ITEM_REACHED"]
+    cut = reached[len(reached) // 4]  # v1's last frame before the gap
+    # Heard again 1.5 s (15 steps) later or more, at an item reached; its SYSTEM_TIME first.
+    back = next(k for k in reached if records[k].log_time_ns >= records[cut].log_time_ns + 15e8)
+    clock = next(k for k in range(back, len(records)) if kind(records[k]) == "SYSTEM_TIME")
+    gapped = [
+        r
+        for k, r in enumerate(records)
+        if k != clock and not (cut < k < back and "/vehicle/v1/" in r.topic)
+    ]
+    at = gapped.index(records[back])
+    gapped.insert(at, records[clock]._replace(log_time_ns=records[back].log_time_ns - 1))
+    after = review_contents(dataclasses.replace(log, records=gapped)).vehicle("v1")
+    whole = review.vehicle("v1")
+    assert after.fields_done == whole.fields_done
+    # Across the gap the mission's own waypoints are put in: the same path.
+    assert after.distance_m == pytest.approx(whole.distance_m, rel=1e-3)
 
 
 def test_upload_figures_from_the_frames_without_a_status(review: Review) -> None:
