@@ -151,6 +151,27 @@ def test_spare_machines_stay_in_the_garage():
     assert idle.road_m == 0.0 and idle.time_h == 0.0
 
 
+@pytest.mark.parametrize("algorithm", ["ighoa", "hybrid"])
+def test_a_machine_that_would_only_delay_the_work_stays_in_the_garage(algorithm):
+    # Three fields, a tractor and a robot at a twelfth of its rate: forced to take a field
+    # (the paper's rule, every machine works), the robot would set the makespan alone.
+    frame = LocalFrame.around(87.3, 44.0)
+    fields = tuple(
+        Field(f"f{k}", f"f{k}", rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)), Polygon())
+        for k in range(3)
+    )
+    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    robot = Machine("robot", 1.5, 400.0, 5.0, 0.002, 1.0, 2.0)
+    machines = [MACHINE, robot]
+    plan = plan_farm(farm, machines, "makespan", algorithm, stop_after(30), seed=1)
+    by_id = {m.machine.id: m for m in plan.machines}
+    assert len(by_id["m"].field_ids) == 3 and not by_id["robot"].field_ids
+    assert plan.makespan_h < 3 * 4000.0 / 5000.0 + 0.2  # the tractor's three and its road
+    # The sums keep the paper's rule: with the fleet in the garage a sum is least.
+    plan = plan_farm(farm, machines, "distance", algorithm, stop_after(30), seed=1)
+    assert all(m.field_ids for m in plan.machines)
+
+
 def test_planned_turns_are_priced_by_length_at_working_speed():
     poly = rectangle_field(60.0, 100.0)
     cov = cover_field(poly, MACHINE.working_width_m, field_id="f")
