@@ -107,9 +107,11 @@ def dispatch_for(
     from planner.kernels import compile_kernels
     from planner.solve import stop_after
 
+    if objective is not None:
+        scenario = scenario.with_objective(objective)  # checked as in the file
     solver = scenario.solver
     machines = [v.machine for v in scenario.vehicles]
-    objective = objective or solver.objective
+    objective = solver.objective
     seed = solver.seed if seed is None else seed
     # Compile (first run) or load the kernels before the clock starts: the time limit is
     # then the plan's alone, and the first plan after installing is the one later runs make.

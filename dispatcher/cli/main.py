@@ -217,8 +217,8 @@ def cmd_bench_paper(args: argparse.Namespace) -> int:
 
 
 def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    """The scenario with the command line's overrides (--fields, --machines,
-    --finish-within)."""
+    """The scenario with the command line's overrides (--fields, --machines, --objective,
+    --finish-within), each checked as in the file."""
     from agrifleet.api import scenario_for
 
     scenario = scenario_for(
@@ -228,6 +228,8 @@ def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def
         id_field=getattr(args, "id_field", None),
         name_field=getattr(args, "name_field", None),
     )
+    if getattr(args, "objective", None) is not None:
+        scenario = scenario.with_objective(args.objective)
     if getattr(args, "finish_within", None) is not None:
         scenario = scenario.with_deadline(args.finish_within)
     return scenario

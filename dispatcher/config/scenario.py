@@ -364,6 +364,25 @@ class Scenario:
             )
         return replace(self, vehicles=self.vehicles[:count])
 
+    def with_objective(self, name: str) -> Scenario:
+        """The scenario with ``[solver] objective = name`` (``--objective``), checked as in
+        the file: a known objective, and the file's makespan slack or deadline only with the
+        makespan (else it would be dropped without a word)."""
+        where = f"{self.source}: --objective {name}"
+        try:
+            Objective.parse(name)
+        except ValueError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+        solver = replace(self.solver, objective=name)
+        for key in ("makespan_slack", "finish_within_h"):
+            value = getattr(solver, key)
+            if value > 0.0 and Objective.parse(name) is not Objective.MAKESPAN:
+                raise ConfigError(
+                    f"{where}: the scenario's solver.{key} = {value:g} applies to the "
+                    "makespan only; drop it from [solver] or plan with --objective makespan"
+                )
+        return replace(self, solver=solver)
+
     def with_deadline(self, hours: float) -> Scenario:
         """The scenario with ``[solver] finish_within_h = hours`` (``--finish-within H``),
         checked as in the file: its bounds, the hybrid and the makespan, no slack."""

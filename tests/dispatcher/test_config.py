@@ -344,6 +344,23 @@ def test_a_makespan_slack_and_a_deadline_together_are_refused(tmp_path):
     assert with_slack.with_deadline(0.0).solver.finish_within_h == 0.0
 
 
+@pytest.mark.parametrize(("key", "value"), [("makespan_slack", 0.01), ("finish_within_h", 40.0)])
+def test_another_objective_from_the_command_line_is_checked_as_in_the_file(tmp_path, key, value):
+    """``--objective``: a name the file would refuse is refused, and so is an objective the
+    file's makespan cap cannot apply to (the cap was dropped without a word)."""
+    doc = scenario_doc()
+    doc["solver"].update({key: value})
+    scenario = load_scenario(write(tmp_path, doc))
+    assert scenario.with_objective("makespan").solver == scenario.solver
+    for name in ("distance", "fuel", "minmax"):
+        with pytest.raises(ConfigError, match=f"--objective {name}: the scenario's solver.{key}"):
+            scenario.with_objective(name)
+    with pytest.raises(ConfigError, match="--objective makespam: unknown objective"):
+        scenario.with_objective("makespam")
+    plain = load_scenario(write(tmp_path, scenario_doc()))
+    assert plain.with_objective("fuel").solver.objective == "fuel"
+
+
 # --- bounds ------------------------------------------------------------------------------
 
 
