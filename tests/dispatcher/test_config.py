@@ -410,15 +410,42 @@ def test_every_bound_is_enforced_naming_file_and_key(tmp_path, limit_key):
     assert any(word in message for word in ("is below", "must not be negative", "positive"))
 
 
+def room_for(doc: dict[str, Any], path: tuple[Any, ...]) -> dict[str, Any]:
+    """``doc`` with the machine at ``path`` (if any) given a width and work speed that
+    cover any capacity, or a capacity any width and speed cover, whichever ``path`` sets."""
+    if path[0] != "machine":
+        return doc
+    machine = doc["machine"][path[1]]
+    if path[-1] in ("capacity_m2h", "capacity_hah"):
+        machine.update(working_width_m=LIMITS["working_width_m"].high, work_speed_kmh=40.0)
+    elif path[-1] in ("working_width_m", "work_speed_kmh"):
+        machine["capacity_m2h"] = LIMITS["capacity_m2h"].low
+    return doc
+
+
 @pytest.mark.parametrize("limit_key", sorted(LIMITS))
 def test_the_bounds_themselves_are_allowed(tmp_path, limit_key):
     path, _, _ = where_is(limit_key)
     limit = LIMITS[limit_key]
     for value in (limit.low, limit.high):
-        doc = put(scenario_doc(), path, value)
+        doc = room_for(put(scenario_doc(), path, value), path)
         if limit_key == "system_id" and value == 12:
             continue  # v2's
         load_scenario(write(tmp_path, doc))
+
+
+def test_a_capacity_the_implement_cannot_reach_at_its_work_speed_is_refused(tmp_path):
+    # 6 m at 5 km/h covers 3 ha/h: 10 ha/h planned, the swaths would take 3.3 times as long.
+    doc = scenario_doc()
+    doc["machine"][0].update(working_width_m=6.0, work_speed_kmh=5.0, capacity_m2h=100_000)
+    message = refused(tmp_path, doc)
+    assert "machine 'v1': capacity_m2h = 10 ha/h is more than the implement covers" in message
+    assert "6 m x 5 km/h = 3 ha/h" in message
+    doc["machine"][0].pop("capacity_m2h")
+    doc["machine"][0]["capacity_hah"] = 3.02  # rounding: within 1 %
+    assert load_scenario(write(tmp_path, doc)).vehicles[0].machine.capacity_m2h == 30_200.0
+    doc["machine"][0]["capacity_hah"] = 3.1
+    assert "machine 'v1': capacity_hah = 3.1 ha/h is more" in refused(tmp_path, doc)
 
 
 ABSURD = {
