@@ -32,8 +32,10 @@ logger = logging.getLogger(__name__)
 DEMO_SCENARIO = Path(str(files("agrifleet_config") / "changji.toml"))
 """The demo farm's scenario, shipped with agrifleet (config/ in a checkout)."""
 
-# Ids become Zenoh key segments and file names: nothing that either would misread.
-SAFE_ID = re.compile(r"[A-Za-z0-9_.-]+")
+# Ids become Zenoh key segments and file names: nothing that either would misread, and
+# no leading '.' or '-' ("." and ".." are folders, ".x" a hidden file, "-x" an option).
+SAFE_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+SAFE_ID_RULE = "letters, digits, '_', '-' or '.', and begin with a letter, digit or '_'"
 
 MACHINE_PARAMS = (
     "working_width_m",
@@ -441,7 +443,7 @@ def farm_id_for(path: str | Path) -> str:
     ASCII gets a short hash of it too, so that two such names do not become one ("поля
     1.geojson" is "1-" and six hex digits, not "1")."""
     stem = Path(path).stem
-    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", stem).strip("-") or "farm"
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", stem).strip("-.") or "farm"
     if stem.isascii():
         return safe
     return f"{safe}-{hashlib.sha256(stem.encode()).hexdigest()[:6]}"
@@ -464,8 +466,8 @@ def load_scenario(
     farm_id = doc.get("farm_id", farm_id_for(path))  # "my farm.toml": "my-farm"
     if not isinstance(farm_id, str) or not SAFE_ID.fullmatch(farm_id):
         raise ConfigError(
-            f"{src}: farm_id {_shown(farm_id)} must be letters, digits, '_', '-' or '.' "
-            "(it is a Zenoh key segment)"
+            f"{src}: farm_id {_shown(farm_id)} must be {SAFE_ID_RULE} "
+            "(it is a Zenoh key segment and names the run's files)"
         )
     farm_key = doc.get("farm")
     if farm_key is None:
@@ -717,8 +719,7 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
         _check_keys(entry, MACHINE_KEYS, where, "[[machine]]", _ELSEWHERE_IN_MACHINE)
         if not isinstance(ident, str) or not SAFE_ID.fullmatch(ident):
             raise ConfigError(
-                f"{where}: key 'id' must be letters, digits, '_', '-' or '.' "
-                "(it names Zenoh keys and mission files)"
+                f"{where}: key 'id' must be {SAFE_ID_RULE} (it names Zenoh keys and mission files)"
             )
         params = _machine_params(entry, where)
         if "min_turn_radius_m" not in entry:

@@ -28,6 +28,7 @@ from dispatcher.config.scenario import (
     WATCH_KEYS,
     SolverSettings,
     WatchSettings,
+    farm_id_for,
     load_scenario,
 )
 from planner.choices import DEFAULT_ALGORITHM
@@ -505,6 +506,26 @@ def test_a_copied_machine_is_named_a_duplicate_not_a_system_id_clash(tmp_path):
     doc = scenario_doc()
     doc["machine"].append(dict(doc["machine"][0]))
     assert "machine 'v1': duplicate machine id" in refused(tmp_path, doc)
+
+
+@pytest.mark.parametrize("ident", [".", "..", ".hidden", "-x"])
+def test_an_id_that_a_path_or_a_command_line_would_misread_is_refused(tmp_path, ident):
+    """Ids name folders and files (the store, the mission files): "." and ".." wrote the
+    state database outside its folder, ".x" a file that file dialogs hide."""
+    doc = scenario_doc()
+    doc["farm_id"] = ident
+    assert f'farm_id "{ident}" must be letters, digits' in refused(tmp_path, doc)
+    doc = scenario_doc()
+    doc["machine"][0]["id"] = doc["machines"][0] = ident
+    message = refused(tmp_path, doc)
+    assert "key 'id' must be letters, digits, '_', '-' or '.', and begin with a letter" in message
+    doc["machine"][0]["id"] = doc["machines"][0] = "v1.a-b_c"
+    assert load_scenario(write(tmp_path, doc)).vehicles[0].id == "v1.a-b_c"
+
+
+def test_a_farm_id_from_a_file_name_never_begins_with_a_dot(tmp_path):
+    for name, expected in ((".farm.toml", "farm"), ("...toml", "farm"), ("-x-.toml", "x")):
+        assert farm_id_for(tmp_path / name) == expected
 
 
 @pytest.mark.parametrize("key", ["farm", "fleet"])
