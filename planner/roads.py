@@ -13,7 +13,10 @@ whose edges weigh their length. A route is then
 
 taking the pair of gates that gives the shortest total. A field without a gate is entered at
 the point of its boundary nearest the roads, the garage and the gates reach the nearest road
-point by a straight access segment. The legs inside a field are straight when that stays
+point by a straight access segment. Where those access segments, driven off the roads, are
+longer than the whole way around the fields (a road far from both ends), the route goes
+around the fields instead; a garage or field more than :data:`FAR_FROM_ROADS_M` from the
+roads is warned of. The legs inside a field are straight when that stays
 inside, else go around notches and holes (:class:`FieldInterior`). One Dijkstra per gate and
 the garage is run once, up front; the routes themselves are cached.
 
@@ -58,6 +61,7 @@ CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
 DOOR_M = 0.5  # off the roads, a gated field is left this far beyond CLEARANCE_M of its gate
+FAR_FROM_ROADS_M = 100.0  # a garage or field farther than this from the roads is said so
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
 
@@ -108,6 +112,7 @@ class _Option:
     node: int
     length_m: float
     via: tuple[XY, ...]
+    off_road_m: float  # of length_m, what is driven off the roads (the access leg)
 
 
 class _RoadGraph:
@@ -130,6 +135,7 @@ class _RoadGraph:
         tree = shapely.STRtree(segments)
         cuts: dict[int, list[tuple[float, int]]] = {k: [] for k in range(len(segments))}
         self.anchor_nodes: list[int] = []
+        self.access_m: dict[int, float] = {}  # per anchor node, its way onto the roads
         for n, p in enumerate(anchors):
             k = int(tree.query_nearest(Point(p))[0])
             seg = segments[k]
@@ -141,6 +147,9 @@ class _RoadGraph:
             if here != on_road:
                 via = () if access is None else access(n, p, self.xy[on_road])
                 self._edge(here, on_road, (p, *via, self.xy[on_road]))
+            self.access_m[here] = (
+                float(self.graph.edges[here, on_road]["weight"]) if here != on_road else 0.0
+            )
             self.anchor_nodes.append(here)
         for k, seg in enumerate(segments):
             coords = list(seg.coords)
@@ -559,6 +568,20 @@ class TransitNetwork:
             k += count
         for node in set(roads.anchor_nodes):  # one Dijkstra per gate and the garage
             roads.shortest_from(node)
+        far = [
+            (f"field {f.id!r}", min(roads.access_m[n] for n in self._gate_nodes[f.id]))
+            for f in farm.fields
+        ]
+        for what, metres in [("the garage", roads.access_m[self._garage_node]), *far]:
+            if metres > FAR_FROM_ROADS_M:
+                log.warning(
+                    "%s: %s is %.0f m from the nearest road; where getting onto the roads "
+                    "drives more off them than the way around the fields, its transit "
+                    "goes around the fields",
+                    farm.source,
+                    what,
+                    metres,
+                )
         reached = roads.shortest_from(self._garage_node)[1]
         for f in farm.fields:
             if not any(n in reached for n in self._gate_nodes[f.id]):
@@ -616,7 +639,15 @@ class TransitNetwork:
         if self._roads is not None:
             found = self._road_route(a, b, from_field, to_field)
             if found is not None:
-                return found
+                road, off_road = found
+                # The roads are driven, unless getting onto and off them drives more off
+                # the roads than the whole way around the fields (a road far from both
+                # ends: 12 times the road km, silently). No way around is shorter than
+                # the straight line: then it need not be looked for.
+                if off_road <= math.dist(a, b):
+                    return road
+                free = self._free_route(a, b, from_field, to_field)
+                return free if free[0] < off_road else road
         return self._free_route(a, b, from_field, to_field)
 
     def _free_route(self, a: XY, b: XY, from_field: str | None, to_field: str | None) -> Route:
@@ -738,7 +769,9 @@ class TransitNetwork:
 
     def _road_route(
         self, a: XY, b: XY, from_field: str | None, to_field: str | None
-    ) -> Route | None:
+    ) -> tuple[Route, float] | None:
+        """The shortest route along the roads, and how much of it is off them (the ways
+        onto and off the roads), or None if the roads do not connect the two."""
         assert self._roads is not None
         best: tuple[float, _Option, _Option] | None = None
         starts = self._options(a, from_field, leaving=True)
@@ -752,7 +785,7 @@ class TransitNetwork:
             return None
         total, s, e = best
         points = [a, *s.via, *self._roads.path(s.node, e.node), *e.via, b]
-        return total, _strictly_between(a, points, b)
+        return (total, _strictly_between(a, points, b)), s.off_road_m + e.off_road_m
 
     def _options(self, p: XY, field_id: str | None, leaving: bool) -> list[_Option]:
         """The ways from ``p`` onto the road graph (``leaving``) or from it to ``p``."""
@@ -761,15 +794,16 @@ class TransitNetwork:
         if field_id is not None:
             out = []
             for gate, node in zip(self.gates[field_id], self._gate_nodes[field_id], strict=True):
+                off = roads.access_m[node]
                 if leaving:
                     length, via = self.interior(field_id).route(p, gate)
-                    out.append(_Option(node, length, (*via, gate)))
+                    out.append(_Option(node, length, (*via, gate), off))
                 else:
                     length, via = self.interior(field_id).route(gate, p)
-                    out.append(_Option(node, length, (gate, *via)))
+                    out.append(_Option(node, length, (gate, *via), off))
             return out
         if math.dist(p, self.farm.garage) < _SAME_M:
-            return [_Option(self._garage_node, 0.0, ())]
+            return [_Option(self._garage_node, 0.0, (), roads.access_m[self._garage_node])]
         u, v, along, foot = roads.nearest_edge(p)
         edge = roads.edge_points(u, v)
         line = LineString(edge)
@@ -781,7 +815,7 @@ class TransitNetwork:
             pts = tuple((float(x), float(y)) for x, y in getattr(part, "coords", [foot]))
             if not leaving:
                 pts = pts[::-1]
-            out.append(_Option(node, access + float(part.length), pts))
+            out.append(_Option(node, access + float(part.length), pts, access))
         return out
 
     def lengths(

@@ -205,6 +205,25 @@ def test_a_field_the_roads_do_not_reach_is_reached_around_the_fields(caplog):
     assert net.route((-50, 120), (50, 50), None, "A")[0] == pytest.approx(100 + 20 + 50)
 
 
+def test_a_road_far_from_the_fields_is_not_driven_to_and_is_said_so(caplog):
+    # Two fields 50 m apart, the garage beside them, one road 1 km away (a stray piece of a
+    # GIS layer): every leg went out to it and back, 12 times the road km.
+    fields = {"A": box(0, 0, 100, 100), "B": box(150, 0, 250, 100)}
+    stray = [[(1000, 1000), (1200, 1000)]]
+    with caplog.at_level("WARNING", logger="planner.roads"):
+        net = TransitNetwork(farm_of(fields, (125, -30), stray))
+    plain = TransitNetwork(farm_of(fields, (125, -30)))
+    for what in ("the garage is", "field 'A' is", "field 'B' is"):
+        assert f"{what} " in caplog.text and "m from the nearest road" in caplog.text
+    for a, b, f, g in [((125, -30), (50, 50), None, "A"), ((50, 50), (200, 50), "A", "B")]:
+        assert net.route(a, b, f, g) == plain.route(a, b, f, g)
+    # A road beside the fields is still driven, though going straight would be shorter.
+    near = TransitNetwork(farm_of(fields, (125, -30), [[(-20, 120), (270, 120)]]))
+    length, via = near.route((50, 50), (200, 50), "A", "B")
+    assert length > plain.length((50, 50), (200, 50), "A", "B")
+    assert all(y >= 100 for _, y in via)
+
+
 def test_a_point_off_the_roads_joins_the_nearest_road_point():
     farm = farm_of(SQUARES, (-50, 120), [ROAD], [("B", (350, 100))])
     net = TransitNetwork(farm)
