@@ -305,6 +305,16 @@ def farm_from_geojson(
     by_id = {f.id: f for f in fields}
     # Each field shrunk by CROSSING_M, once: what a road or a gate is in when inside it.
     inner = {f.id: f.boundary.buffer(-CROSSING_M) for f in fields}
+    for f in fields:
+        if inner[f.id].contains(Point(gx, gy)):
+            log.warning(
+                "%s: the garage (%.7f, %.7f) lies inside field %r: the way out of the garage "
+                "and back to it drives across that field (is the garage where it should be?)",
+                source,
+                glon,
+                glat,
+                f.id,
+            )
     roads = tuple(_road(frame, rid, where, points) for rid, where, points in raw_roads)
     gates = tuple(
         _gate(frame, by_id, inner, aliases.get(fid, [fid]), where, lonlat)

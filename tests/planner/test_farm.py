@@ -298,6 +298,20 @@ def test_a_road_far_from_the_farm_is_named(tmp_path):
     assert "every field and road of a farm must lie within 50 km of its garage" in message
 
 
+def test_a_garage_inside_a_field_is_said_so(tmp_path, caplog):
+    # Every way out of it and back drives across the field: a farmyard drawn into a field,
+    # or a point in the wrong place.
+    doc = farm_doc()
+    doc["features"][2]["geometry"]["coordinates"] = [LON0 + 0.0008, LAT0 + 0.0004]
+    with caplog.at_level("WARNING", logger="planner.farm"):
+        load_farm(write(tmp_path, doc))
+    assert "the garage (10.0008000, 50.0004000) lies inside field 'F1'" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="planner.farm"):
+        load_farm(write(tmp_path, farm_doc()))
+    assert "lies inside field" not in caplog.text
+
+
 def test_a_swapped_garage_is_named(tmp_path):
     doc = farm_doc()
     doc["features"][2]["geometry"]["coordinates"] = [LAT0, LON0]
