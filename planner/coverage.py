@@ -180,6 +180,10 @@ class FieldCoverage:
     headland_passes: int = 0  # as laid out (given, or as many as the turns need)
     # The field's area neither a swath nor a headland ring sweeps (:func:`_unworked_m2`).
     unworked_m2: float = 0.0
+    # What the farmer should hear of this coverage (corners left unworked, turns driven as
+    # hops, fewer headland passes than the turns need), for :func:`cover_field`'s caller to
+    # say once it knows the coverage is used: a fleet's other widths are covered too.
+    notes: tuple[str, ...] = field(repr=False, default=())
 
     def path(self, corner: int) -> tuple[Swath, ...]:
         """Swaths in driving order, each oriented as driven, when starting at ``corner``."""
@@ -275,6 +279,7 @@ def cover_field(
     simplify_m: float | None = None,
     turn_radius_m: float = 0.0,
     deadline: Deadline = NO_DEADLINE,
+    quiet: bool = False,
 ) -> FieldCoverage:
     """Plan boustrophedon coverage of ``polygon`` (local metres) for one working width.
 
@@ -291,7 +296,10 @@ def cover_field(
     at once when it is more than :data:`MAX_SWATHS` working widths across; with a
     ``deadline``, :class:`~planner.errors.TimeLimitError` naming it once that has passed
     (looked at in every loop of the angle search, the layout and the turn planning).
+    What the farmer should hear of it (:attr:`FieldCoverage.notes`) is logged as warnings,
+    unless ``quiet``: then the caller says it, for the coverages it uses.
     """
+    notes: list[str] = []
     radius = _checked_radius(turn_radius_m, field_id)
     field_poly = _checked_field(
         polygon,
@@ -307,7 +315,7 @@ def cover_field(
     if headland_passes is None:  # as many as the turns need (none for hops)
         passes = headland_passes_for_turns(w, radius, w)
         rings_by_pass, region, lane, angle, cells, ref = _layout_fitting_turns(
-            field_poly, w, passes, radius, angle_deg, simplify_m, field_id, clock
+            field_poly, w, passes, radius, angle_deg, simplify_m, field_id, clock, notes
         )
         passes = len(rings_by_pass)  # as laid out: fewer where the field has no room
     else:
@@ -349,14 +357,11 @@ def cover_field(
         transits.append(_transit_m(corner_path, rings, distance, turns, moves))
         clock.check("planning the moves between swaths")
     if fits.hops:
-        logger.warning(
-            "field %r: %d of %d moves between swaths and onto the headland (all start"
-            " corners) have no drivable path of radius %g m inside the field; driven as hops"
-            " (give the field more headland passes)",
-            field_id,
-            fits.hops,
-            fits.planned + fits.hops,
-            radius,
+        notes.append(
+            f"field {field_id!r}: {fits.hops} of {fits.planned + fits.hops} moves between "
+            "swaths and onto the headland (all start corners) have no drivable path of "
+            f"radius {radius:g} m inside the field; driven as hops (give the field more "
+            "headland passes)"
         )
 
     cell_polys = tuple(_to_polygon(cell.outline, angle, ref) for cell in cells)
@@ -364,15 +369,15 @@ def cover_field(
     clock.check("measuring the land left unworked")
     unworked = _unworked_m2(field_poly, paths[0], headland_paths[0], w)
     if unworked > UNWORKED_WARN_SHARE * field_poly.area:
-        logger.warning(
-            "field %r: %.0f m2 (%.1f %%) left unworked at a working width of %g m: corners"
-            " narrower than the swaths and the headland reach (give the field a work angle"
-            " or more headland passes, or work those corners by hand)",
-            field_id,
-            unworked,
-            100.0 * unworked / field_poly.area,
-            w,
+        notes.append(
+            f"field {field_id!r}: {unworked:.0f} m2 ({100.0 * unworked / field_poly.area:.1f} %) "
+            f"left unworked at a working width of {w:g} m: corners narrower than the swaths "
+            "and the headland reach (give the field a work angle or more headland passes, "
+            "or work those corners by hand)"
         )
+    if not quiet:
+        for note in notes:
+            logger.warning("%s", note)
     coverage = FieldCoverage(
         field_id=field_id,
         working_width_m=w,
@@ -394,6 +399,7 @@ def cover_field(
         turn_radius_m=radius,
         headland_passes=passes,
         unworked_m2=unworked,
+        notes=tuple(notes),
     )
     logger.debug(
         "field %r: %d swaths in %d cells at %.3f deg, %d headland rings",
@@ -483,8 +489,10 @@ def _layout_fitting_turns(
     simplify_m: float | None,
     field_id: str,
     clock: _Clock | None = None,
+    notes: list[str] | None = None,
 ) -> _Layout:
-    """:func:`_layout` with as many headland passes as the turns need.
+    """:func:`_layout` with as many headland passes as the turns need (each pass given up
+    for want of room said in ``notes``).
 
     Sized first for swaths a full width apart, then again for the closest pair the layout
     gives (evenly spread swaths may be closer, down to half a width, and a bulb turn
@@ -500,12 +508,9 @@ def _layout_fitting_turns(
         except GeometryError:
             if passes == 0:
                 raise
-            logger.warning(
-                "field %r: no room for %d headland passes for turns of radius %g m; trying %d",
-                field_id,
-                passes,
-                radius,
-                passes - 1,
+            (notes if notes is not None else []).append(
+                f"field {field_id!r}: no room for {passes} headland passes for turns of "
+                f"radius {radius:g} m; laid out with {passes - 1}"
             )
             most = passes = passes - 1
             continue

@@ -196,6 +196,7 @@ def cover_farm(
                     by_width[key][f.id] = cover_field(
                         f.boundary,
                         width,
+                        quiet=True,  # its notes said for the machines planned to use it
                         field_id=f.id,
                         angle_deg=None
                         if f.work_angle_deg is None
@@ -239,6 +240,18 @@ def cover_farm(
                 "the machines that can work it" if len(able) > 1 else "the one that can work it",
             )
     return out
+
+
+def say_notes(coverage: FarmCoverage, planned: Sequence[tuple[str, str]]) -> None:
+    """Warn of what the coverages of the ``planned`` (machine id, field id) pairs leave to
+    be said (:attr:`~planner.coverage.FieldCoverage.notes`), each once, naming the machines:
+    not of the coverages no machine is given (another width of the fleet's)."""
+    machines: dict[str, list[str]] = {}
+    for pair in planned:
+        for note in coverage[pair].notes:
+            machines.setdefault(note, []).append(pair[0])
+    for note, ids in machines.items():
+        log.warning("%s (%s)", note, ", ".join(f"machine {m!r}" for m in dict.fromkeys(ids)))
 
 
 def settle_unable(result: Result, coverage: FarmCoverage) -> Result:
@@ -553,6 +566,8 @@ def plan_farm(
         finish_within_h=finish_within_h,
     )
     result = settle_unable(result, coverage)
+    said = [(machines[i].id, farm.fields[j].id) for i, r in enumerate(result.routes) for j in r]
+    say_notes(coverage, said)
     plans = []
     for i, route in enumerate(result.routes):
         machine = machines[i]

@@ -172,6 +172,32 @@ def test_a_machine_that_would_only_delay_the_work_stays_in_the_garage(algorithm)
     assert all(m.field_ids for m in plan.machines)
 
 
+def test_what_a_coverage_leaves_unworked_is_said_for_the_machine_given_it_only(caplog):
+    # A wedge whose 10-degree apex a 6.9 m implement with 6 m turns leaves unworked (~19 %),
+    # which a 1.5 m one does not: said only when the wide machine is given the field.
+    frame = LocalFrame.around(87.3, 44.0)
+    apex = Polygon([(0, 0), (400, 0), (400, 400 * math.tan(math.radians(10.0)))])
+    farm = Farm(
+        fields=(Field("wedge", "wedge", apex, Polygon()),),
+        garage=(-60.0, 20.0),
+        garage_lonlat=(87.3, 44.0),
+        frame=frame,
+    )
+    wide = Machine("wide", 6.9, 400.0, 5.0, 0.002, 1.0, 2.0, min_turn_radius_m=6.0)
+    narrow = Machine("narrow", 1.5, 9000.0, 10.0, 0.002, 1.0, 2.0, work_speed_kmh=8.0)
+    with caplog.at_level("WARNING"):
+        plan = plan_farm(farm, [narrow, wide], "makespan", "hybrid", stop_after(10), seed=1)
+    assert list(plan.machines[0].field_ids) == ["wedge"] and not plan.machines[1].field_ids
+    assert "unworked" not in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        plan_farm(farm, [wide], "makespan", "hybrid", stop_after(10), seed=1)
+    assert "field 'wedge': " in caplog.text and "left unworked at a working width of 6.9 m" in (
+        caplog.text
+    )
+    assert "(machine 'wide')" in caplog.text
+
+
 def test_planned_turns_are_priced_by_length_at_working_speed():
     poly = rectangle_field(60.0, 100.0)
     cov = cover_field(poly, MACHINE.working_width_m, field_id="f")
