@@ -524,7 +524,7 @@ def _field_name(props: dict[str, Any], name_field: str | None, field_id: str, wh
 
 def _shown(value: Any) -> str:
     """A JSON value as the file wrote it, shortened, for messages."""
-    text = json.dumps(value) if value is not None else "null"
+    text = json.dumps(value, default=str) if value is not None else "null"
     return text if len(text) <= 40 else text[:37] + "..."
 
 

@@ -14,10 +14,12 @@
 
 from __future__ import annotations
 
+import datetime
 import io
 import json
 import logging
 import math
+import warnings
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
@@ -107,6 +109,7 @@ def read_gdal(path: Path) -> Document:
     if not path.exists():
         raise GeometryError(f"{path}: cannot read the farm: No such file or directory")
     source: Path | str = path
+    _check_shapefiles_whole(path, source)
     try:
         layers = [str(name) for name, geom in pyogrio.list_layers(path) if geom is not None]
     except (DataSourceError, DataLayerError, OSError) as exc:
@@ -116,6 +119,7 @@ def read_gdal(path: Path) -> Document:
                 f"{path}: not a farm file GDAL can read ({_first_line(exc)})"
             ) from exc
         source = f"/vsizip/{path}/{folder}"  # a zipped folder of shapefiles
+        _check_shapefiles_whole(path, source)
         layers = [str(name) for name, geom in pyogrio.list_layers(source) if geom is not None]
     if path.is_dir():
         layers.sort()  # a folder lists its files in whatever order its file system keeps
@@ -124,17 +128,19 @@ def read_gdal(path: Path) -> Document:
     features: list[dict[str, Any]] = []
     for layer in layers:
         try:
-            meta, _, geometry, values = pyogrio.raw.read(source, layer=layer)
+            with warnings.catch_warnings():  # the rings GDAL finds open: closed below
+                warnings.filterwarnings("ignore", "Non closed ring", RuntimeWarning)
+                meta, _, geometry, values = pyogrio.raw.read(source, layer=layer)
         except (DataSourceError, DataLayerError, OSError) as exc:
             raise GeometryError(
                 f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
             ) from exc
-        names = [str(n) for n in meta["fields"]]
+        names = _column_names(path, [str(n) for n in meta["fields"]])
+        where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
         # Rings as RFC 7946 has them (outline counter-clockwise), whatever the format's
         # rule (a shapefile's outline is clockwise): the same farm gives the same plan.
-        geoms = shapely.orient_polygons(shapely.from_wkb(geometry))
+        geoms = shapely.orient_polygons(_from_wkb(geometry, f"{path}: {where}"))
         geoms = _to_wgs84(geoms, meta.get("crs"), f"{path}: layer {layer!r}")
-        where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
         for k, geom in enumerate(geoms):
             props = {name: _plain(column[k]) for name, column in zip(names, values, strict=True)}
             features.append(
@@ -148,9 +154,75 @@ def read_gdal(path: Path) -> Document:
     return {"type": "FeatureCollection", "features": features}
 
 
+def _from_wkb(geometry: Any, where: str) -> Any:
+    """GDAL's WKB as shapely geometries, rings left open closed (a KML drawn by hand, a
+    GeoJSON of 2008); a geometry that cannot be one (a ring of two points) named by its
+    feature, not a traceback."""
+    try:
+        return shapely.from_wkb(geometry, on_invalid="fix")
+    except shapely.errors.GEOSException:
+        pass
+    for k, wkb in enumerate(geometry):
+        try:
+            shapely.from_wkb(wkb, on_invalid="fix")
+        except shapely.errors.GEOSException as exc:
+            raise GeometryError(
+                f"{where} #{k}: its geometry is not one ({_first_line(exc)}): a ring needs "
+                "at least three distinct points"
+            ) from exc
+    raise AssertionError("unreachable: one geometry failed together but none alone")
+
+
+def _column_names(path: Path, names: list[str]) -> list[str]:
+    """The columns as the file's author named them. A KML written by GDAL (QGIS's "Save
+    as KML") holds each placemark's XML id, which GDAL reads back as column ``id``, and the
+    author's ``id`` in its ExtendedData, read as ``id2``: the author's is ``id``."""
+    if path.suffix.lower() in (".kml", ".kmz") and "id" in names and "id2" in names:
+        return ["kml_placemark_id" if n == "id" else "id" if n == "id2" else n for n in names]
+    return names
+
+
+def _check_shapefiles_whole(path: Path, source: Path | str) -> None:
+    """A shapefile without its ``.shx`` beside it, which GDAL skips without a word (a copy
+    by mail or USB stick that dropped it): refused, naming it, rather than its fields
+    lost."""
+    if isinstance(source, str):  # a folder in a zip
+        with zipfile.ZipFile(path) as archive:
+            names = [n for n in archive.namelist() if not _macos_extra(n)]
+        folder = source.split("/vsizip/", 1)[1][len(str(path)) + 1 :]
+        files = [Path(n).name for n in names if str(Path(n).parent) == folder]
+    elif path.is_dir():
+        files = [p.name for p in path.iterdir()]
+    elif path.suffix.lower() == ".shp":
+        files = [p.name for p in path.parent.iterdir()]
+        files = [f for f in files if Path(f).stem == path.stem] or [path.name]
+    elif path.suffix.lower() == ".zip":
+        try:
+            with zipfile.ZipFile(path) as archive:
+                files = [n for n in archive.namelist() if "/" not in n and not _macos_extra(n)]
+        except (OSError, zipfile.BadZipFile):
+            return
+    else:
+        return
+    lower = {f.lower() for f in files}
+    for f in sorted(files):
+        stem, suffix = Path(f).stem, Path(f).suffix.lower()
+        if suffix == ".shp" and not _macos_extra(f) and f"{stem.lower()}.shx" not in lower:
+            raise GeometryError(
+                f"{path}: {f} has no {stem}.shx beside it (a shapefile is its .shp, .shx, "
+                ".dbf and .prj together: copy them all), so its features cannot be read"
+            )
+
+
+def _macos_extra(name: str) -> bool:
+    """What macOS's Finder adds to a zip: ``__MACOSX/`` and ``._`` files (resource forks)."""
+    return name.startswith("__MACOSX/") or Path(name).name.startswith("._")
+
+
 def _shapefile_folder_in_zip(path: Path) -> str | None:
     """The one folder of a .zip that holds its shapefiles (zipping a folder puts them there,
-    where GDAL, opening the archive's top, does not look); None if not exactly one."""
+    where GDAL, opening the archive's top, does not look; macOS's ``__MACOSX`` copies left
+    out); None if not exactly one."""
     if path.suffix.lower() != ".zip":
         return None
     try:
@@ -158,7 +230,9 @@ def _shapefile_folder_in_zip(path: Path) -> str | None:
             names = archive.namelist()
     except (OSError, zipfile.BadZipFile):
         return None
-    folders = {str(Path(n).parent) for n in names if n.lower().endswith(".shp")}
+    folders = {
+        str(Path(n).parent) for n in names if n.lower().endswith(".shp") and not _macos_extra(n)
+    }
     folders.discard(".")
     return folders.pop() if len(folders) == 1 else None
 
@@ -180,9 +254,14 @@ def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
 
 
 def _plain(value: Any) -> Any:
-    """A value of a GDAL column as JSON would hold it: None for a missing value."""
+    """A value of a GDAL column as JSON would hold it: None for a missing value, a date
+    or time as ISO 8601 text."""
+    if isinstance(value, np.datetime64):
+        return None if np.isnat(value) else str(value)
     if isinstance(value, np.generic):
         value = value.item()
+    if isinstance(value, datetime.date | datetime.time):
+        return value.isoformat()
     if isinstance(value, float) and math.isnan(value):
         return None
     if isinstance(value, bytes):

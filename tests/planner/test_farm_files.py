@@ -9,7 +9,14 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from helpers.farm_formats import convert, farm_features, write_gdal, write_isoxml
+from helpers.farm_formats import (
+    convert,
+    farm_features,
+    write_gdal,
+    write_isoxml,
+    write_shapefiles,
+    zip_folder,
+)
 
 from planner.errors import GeometryError
 from planner.farm import Farm, FarmOptions, load_farm
@@ -278,3 +285,71 @@ def test_several_unmarked_points_are_named_and_the_scenario_garage_settles_it(tm
     )
     farm = load_farm(path, FarmOptions(garage=(9.999, 49.999)))
     assert farm.garage_lonlat == (9.999, 49.999)
+
+
+# --- files as farmers' tools write them ---------------------------------------------------
+
+
+def test_a_kml_saved_by_qgis_keeps_its_authors_ids(tmp_path, reference):
+    """QGIS (GDAL) writes each placemark's XML id beside the author's id in ExtendedData;
+    read back, GDAL names the first ``id`` and the author's ``id2``: every field was
+    renamed "fields.N" and every gate refused."""
+    path = tmp_path / "farm.kml"
+    write_gdal(farm_features(CHANGJI), path, "KML", layer="fields")
+    assert 'id="fields.1"' in path.read_text()
+    same_farm(load_farm(path), reference)
+
+
+def test_an_unclosed_ring_read_through_gdal_is_closed(tmp_path):
+    # A KML drawn by hand; the same ring in plain GeoJSON was taken already.
+    text = GOOGLE_EARTH_KML.replace("10.0,50.001,0 10.0,50.0,0\n", "10.0,50.001,0\n")
+    assert text != GOOGLE_EARTH_KML
+    path = tmp_path / "farm.kml"
+    path.write_text(text)
+    farm = load_farm(path)
+    assert farm.fields[0].id == "North 40"
+    assert farm.fields[0].area_m2 == pytest.approx(143.0 * 111.2, rel=0.02)
+
+
+def test_a_shapefile_without_its_shx_is_named_not_skipped(tmp_path):
+    """GDAL skips a .shp whose .shx a copy dropped: its fields were lost without a word."""
+    folder = tmp_path / "farm"
+    folder.mkdir()
+    features = farm_features(CHANGJI)
+    fields = [f for f in features if f["geometry"]["type"] == "Polygon"]
+    write_gdal(fields[:5], folder / "north.shp", "ESRI Shapefile")
+    write_gdal(fields[5:], folder / "south.shp", "ESRI Shapefile")
+    write_gdal(
+        [f for f in features if f["geometry"]["type"] == "Point"],
+        folder / "points.shp",
+        "ESRI Shapefile",
+    )
+    (folder / "south.shx").unlink()
+    for path in (folder, folder / "south.shp", zip_folder(folder, tmp_path / "farm.zip")):
+        with pytest.raises(GeometryError, match=r"south\.shp has no south\.shx beside it"):
+            load_farm(path)
+
+
+def test_a_zipped_folder_from_a_mac_and_a_date_column_read(tmp_path):
+    """Finder's zip adds ``__MACOSX/farm/._*.shp``: two folders of shapefiles, refused as
+    "not recognized"; a column of dates made a traceback in a message."""
+    import zipfile
+
+    folder = write_shapefiles(farm_features(CHANGJI), tmp_path / "farm")
+    archive = tmp_path / "farm.zip"
+    with zipfile.ZipFile(archive, "w") as z:  # as Finder zips a folder: farm/..., __MACOSX/
+        for file in sorted(folder.iterdir()):
+            z.write(file, f"farm/{file.name}")
+            z.writestr(f"__MACOSX/farm/._{file.name}", b"\0\5\26\7")
+    assert len(load_farm(archive).fields) == 15
+    ring = [[10.0, 50.0], [10.002, 50.0], [10.002, 50.001], [10.0, 50.001], [10.0, 50.0]]
+    import datetime
+
+    feature = {
+        "type": "Feature",
+        "properties": {"sown": datetime.date(2024, 5, 1)},
+        "geometry": {"type": "Polygon", "coordinates": [ring]},
+    }
+    write_gdal([feature], tmp_path / "dated.gpkg", "GPKG")
+    farm = load_farm(tmp_path / "dated.gpkg", FarmOptions(id_field="sown", garage=(9.999, 49.999)))
+    assert [f.id for f in farm.fields] == ["2024-05-01"]
