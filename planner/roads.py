@@ -61,6 +61,7 @@ CLEARANCE_M = 1.0  # fields grow by this much as obstacles to free-space transit
 ROAD_JOIN_M = 0.5  # a road ending this close to another road (or its end) joins it
 ROAD_SIMPLIFY_M = 0.5  # roads are simplified to within this (Douglas-Peucker) before use
 DOOR_M = 0.5  # off the roads, a gated field is left this far beyond CLEARANCE_M of its gate
+MANY_CORNERS = 64  # a field outline of more corners is simplified as an obstacle (_grown)
 FAR_FROM_ROADS_M = 100.0  # a garage or field farther than this from the roads is said so
 _SAME_M = 1e-6  # points closer than this are one
 _TOUCH_M = 1e-3  # obstacles shrink by this much so that running along their edge is allowed
@@ -237,10 +238,7 @@ class _FreeSpace:
     ) -> None:
         self._names = list(names) or [f"#{k}" for k in range(len(outlines))]  # for messages
         self._source = source
-        grown = [
-            orient(Polygon(p.exterior).buffer(clearance_m, join_style="mitre"), 1.0)
-            for p in outlines
-        ]
+        grown = [orient(_grown(p, clearance_m), 1.0) for p in outlines]
         self._blocks = [g.buffer(-_TOUCH_M, join_style="mitre") for g in grown]
         # The fields themselves (a hair smaller): what a point within the clearance of a
         # field, but outside it (a garage beside a fence), must still go around.
@@ -870,6 +868,22 @@ class TransitNetwork:
                 d = self.length(points[i], points[j], field_ids[i], field_ids[j])
                 out[i, j] = out[j, i] = d
         return out
+
+
+def _grown(outline: Polygon, clearance_m: float) -> Polygon:
+    """A field's outline grown by ``clearance_m``, as an obstacle to transit. One of more
+    than :data:`MANY_CORNERS` corners (a pivot's circle of 360, a boundary logged by GPS)
+    is grown by twice that and simplified to within it (Douglas-Peucker), so that it stays
+    at least ``clearance_m`` off the field with a few dozen corners: every convex corner is
+    a node of the visibility graph, whose all-pairs table is n x n (12 circles of 360
+    corners took 100 s and 1.4 GB)."""
+    shell = Polygon(outline.exterior)
+    grown = shell.buffer(clearance_m, join_style="mitre")
+    if len(grown.exterior.coords) - 1 <= MANY_CORNERS:
+        return grown
+    wider = shell.buffer(2.0 * clearance_m, join_style="mitre")
+    simple = wider.simplify(clearance_m, preserve_topology=True)
+    return simple if isinstance(simple, Polygon) and not simple.is_empty else grown
 
 
 def joined(roads: Sequence[LineString], tolerance_m: float = ROAD_JOIN_M) -> list[LineString]:

@@ -20,7 +20,7 @@ from planner.farm import Farm, Field, Gate, Road, farm_from_geojson, load_farm
 from planner.field_plan import best_corners, plan_farm
 from planner.geo import LocalFrame
 from planner.problem import Machine
-from planner.roads import TransitNetwork
+from planner.roads import MANY_CORNERS, TransitNetwork
 from planner.solve import stop_after
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -222,6 +222,29 @@ def test_a_road_far_from_the_fields_is_not_driven_to_and_is_said_so(caplog):
     length, via = near.route((50, 50), (200, 50), "A", "B")
     assert length > plain.length((50, 50), (200, 50), "A", "B")
     assert all(y >= 100 for _, y in via)
+
+
+def test_fields_of_many_corners_are_gone_around_with_few():
+    # Centre pivots drawn as GIS circles, 360 corners each: every convex corner was a node
+    # of the visibility graph (12 such took 100 s and 1.4 GB before a plan could start).
+    angles = np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)
+    circles = {
+        f"P{k}": Polygon(
+            np.column_stack([820.0 * k + 400.0 * np.cos(angles), 400.0 * np.sin(angles)])
+        )
+        for k in range(3)
+    }
+    net = TransitNetwork(farm_of(circles, (-500.0, 0.0)))
+    length, via = net.route((-500.0, 0.0), (2140.0, 0.0), None, None)
+    path = [(-500.0, 0.0), *via, (2140.0, 0.0)]
+    assert len(net._free.nodes) <= 3 * MANY_CORNERS  # not 3 x 360
+    assert not any(crosses(path, c, margin=-0.99) for c in circles.values())  # 1 m clear
+    # A taut string over the three, 1 m clear: a tangent from each end (500 m from the
+    # centre), an arc down to it from the top of each end circle, 820 m between the tops.
+    r = 401.0
+    tangent = math.sqrt(500.0**2 - r**2)
+    arc = r * (math.pi / 2 - math.acos(r / 500.0))
+    assert 2 * (tangent + arc + 820.0) <= length < 1.005 * 2 * (tangent + arc + 820.0)
 
 
 def test_a_point_off_the_roads_joins_the_nearest_road_point():
