@@ -45,6 +45,7 @@ the ~1e-8 degrees of a datum shift there and back (OSGB36, EPSG:27700; DHDN, EPS
 
 # ISO 11783-10 codes read (ISOXML attributes are one-letter names in the element's order).
 PLN_BOUNDARY = "1"  # PLN A: partfield boundary
+PLN_NOT_WORKED = ("3", "4", "6")  # PLN A: water surface, building, obstacle: out of the field
 LSG_EXTERIOR = "1"  # LSG A: polygon exterior
 LSG_INTERIOR = "2"  # LSG A: polygon interior (a hole)
 PNT_FIELD_ACCESS = "3"  # PNT A: field access (our gate)
@@ -309,6 +310,7 @@ def read_isoxml(path: Path) -> Document:
     PLNs make a multi-part field. PNTs of type 3 (field access) in a PFD are its gates, a
     PNT of type 11 (home base) is the garage."""
     source = path
+    read_sibling: Any = None  # an external file (XFR) of the same folder or archive
     try:
         if path.is_dir():
             found = _isoxml_in_dir(path)
@@ -316,25 +318,37 @@ def read_isoxml(path: Path) -> Document:
                 raise GeometryError(f"{path}: no {ISOXML_NAME} in this folder")
             source = found
             data = found.read_bytes()
+            read_sibling = lambda name: _sibling(found.parent, name).read_bytes()  # noqa: E731
         elif path.suffix.lower() == ".zip":
             with zipfile.ZipFile(path) as archive:
                 name = _isoxml_in_zip(path)
                 if name is None:
                     raise GeometryError(f"{path}: no {ISOXML_NAME} in this archive")
                 data = archive.read(name)
+            folder = str(Path(name).parent)
+
+            def read_sibling(other: str) -> bytes:
+                with zipfile.ZipFile(path) as archive:
+                    wanted = str(Path(folder) / other).upper().removeprefix("./")
+                    match = [n for n in archive.namelist() if n.upper() == wanted]
+                    if not match:
+                        raise FileNotFoundError(f"no {other} in the archive")
+                    return archive.read(match[0])
         else:
             data = path.read_bytes()
+            read_sibling = lambda name: _sibling(path.parent, name).read_bytes()  # noqa: E731
     except (OSError, zipfile.BadZipFile) as exc:
         raise GeometryError(f"{path}: cannot read the farm: {exc}") from exc
-    try:
-        root = ET.parse(io.BytesIO(data)).getroot()
-    except ET.ParseError as exc:
-        raise GeometryError(f"{source}: not XML ({exc})") from exc
-    if root.tag != "ISO11783_TaskData":
-        raise GeometryError(
-            f"{source}: not ISO 11783-10 TaskData (the root element is {root.tag!r}, "
-            "not 'ISO11783_TaskData')"
-        )
+    root = _isoxml_root(data, source, "ISO11783_TaskData")
+    for xfr in root.findall("XFR"):  # partfields and the rest kept in external files
+        name = f"{xfr.get('A', '')}.XML"
+        try:
+            external = _isoxml_root(read_sibling(name), f"{source}: {name}", "XFC")
+        except (OSError, zipfile.BadZipFile) as exc:
+            raise GeometryError(
+                f"{source}: the external file {name} it names (XFR) cannot be read: {exc}"
+            ) from exc
+        root.extend(list(external))
     features: list[dict[str, Any]] = []
     for k, pfd in enumerate(root.iter("PFD")):
         pfd_id = pfd.get("A") or f"PFD#{k}"
@@ -345,6 +359,13 @@ def read_isoxml(path: Path) -> Document:
             for n, pln in enumerate(pfd.findall("PLN"))
             if pln.get("A") == PLN_BOUNDARY
         ]
+        obstacles = [
+            (_isoxml_polygon(pln, f"{where} polygon #{n}"), pln.get("B") or f"polygon #{n}")
+            for n, pln in enumerate(pfd.findall("PLN"))
+            if pln.get("A") in PLN_NOT_WORKED
+        ]
+        if polygons and obstacles:
+            polygons = _without(polygons, obstacles, where)
         if polygons:
             geometry = (
                 {"type": "Polygon", "coordinates": polygons[0]}
@@ -376,6 +397,62 @@ def read_isoxml(path: Path) -> Document:
         if pnt.get("A") == PNT_HOMEBASE:
             features.append(_isoxml_point(pnt, "home base", source, {"kind": "garage"}))
     return {"type": "FeatureCollection", "features": features}
+
+
+def _sibling(folder: Path, name: str) -> Path:
+    """The file ``name`` of ``folder``, in whatever case a terminal wrote it."""
+    for child in folder.iterdir():
+        if child.name.upper() == name.upper():
+            return child
+    raise FileNotFoundError(f"no {name} in {folder}")
+
+
+def _isoxml_root(data: bytes, source: Path | str, tag: str) -> ET.Element:
+    """The root element of an ISOXML file, which must be ``tag``."""
+    try:
+        root = ET.parse(io.BytesIO(data)).getroot()
+    except ET.ParseError as exc:
+        raise GeometryError(f"{source}: not XML ({exc})") from exc
+    for element in root.iter():  # a namespace some writers give: the names are the same
+        element.tag = element.tag.rpartition("}")[2]
+    if root.tag != tag:
+        raise GeometryError(
+            f"{source}: not ISO 11783-10 TaskData (the root element is {root.tag!r}, not {tag!r})"
+        )
+    return root
+
+
+def _without(
+    polygons: list[list[list[list[float]]]],
+    obstacles: list[tuple[list[list[list[float]]], str]],
+    where: str,
+) -> list[list[list[list[float]]]]:
+    """The boundary polygons with the partfield's water, buildings and obstacles taken out
+    (holes, or a smaller outline where one crosses the boundary): no swath drives there."""
+    from shapely.geometry import Polygon, mapping
+
+    def shape(rings: list[list[list[float]]]) -> Polygon:
+        return Polygon(rings[0], rings[1:])
+
+    field = shapely.union_all([shape(p) for p in polygons])
+    for rings, name in obstacles:
+        obstacle = shape(rings)
+        if not field.intersects(obstacle):
+            log.warning(
+                "%s: %s (water, building or obstacle) lies outside the field; not read",
+                where,
+                name,
+            )
+            continue
+        field = field.difference(obstacle)
+        log.info("%s: %s taken out of the field (not worked)", where, name)
+    parts = [field] if field.geom_type == "Polygon" else list(getattr(field, "geoms", []))
+    out = []
+    for part in parts:
+        if part.geom_type == "Polygon" and not part.is_empty:
+            doc = mapping(part)
+            out.append([[list(xy)[:2] for xy in ring] for ring in doc["coordinates"]])
+    return out
 
 
 def _isoxml_polygon(pln: ET.Element, where: str) -> list[list[list[float]]]:

@@ -353,3 +353,44 @@ def test_a_zipped_folder_from_a_mac_and_a_date_column_read(tmp_path):
     write_gdal([feature], tmp_path / "dated.gpkg", "GPKG")
     farm = load_farm(tmp_path / "dated.gpkg", FarmOptions(id_field="sown", garage=(9.999, 49.999)))
     assert [f.id for f in farm.fields] == ["2024-05-01"]
+
+
+ISOXML_PFD = """<PFD A="PFD1" C="Schlag 1"><PLN A="1"><LSG A="1">
+<PNT A="2" C="50.0" D="10.0"/><PNT A="2" C="50.0" D="10.003"/>
+<PNT A="2" C="50.002" D="10.003"/><PNT A="2" C="50.002" D="10.0"/></LSG></PLN>{more}</PFD>"""
+POND = """<PLN A="3" B="Teich"><LSG A="1"><PNT A="2" C="50.0005" D="10.001"/>
+<PNT A="2" C="50.0005" D="10.002"/><PNT A="2" C="50.0015" D="10.002"/>
+<PNT A="2" C="50.0015" D="10.001"/></LSG></PLN>"""
+TASKDATA = """<?xml version="1.0" encoding="UTF-8"?>
+<ISO11783_TaskData VersionMajor="4" VersionMinor="2" DataTransferOrigin="1"{ns}>
+{body}<PNT A="11" C="49.999" D="9.999"/></ISO11783_TaskData>"""
+
+
+def test_isoxml_water_and_obstacles_are_not_worked(tmp_path):
+    """A pond (PLN type 3) in a partfield was read as land: swaths drove through it."""
+    path = tmp_path / "TASKDATA.XML"
+    path.write_text(TASKDATA.format(ns="", body=ISOXML_PFD.format(more=POND)))
+    (field,) = load_farm(path).fields
+    assert len(field.boundary.interiors) == 1
+    plain = tmp_path / "plain" / "TASKDATA.XML"
+    plain.parent.mkdir()
+    plain.write_text(TASKDATA.format(ns="", body=ISOXML_PFD.format(more="")))
+    whole = load_farm(plain).fields[0]
+    pond = 71.7 * 111.2  # 0.001 degrees of longitude by 0.001 of latitude, at 50 N
+    assert whole.area_m2 - field.area_m2 == pytest.approx(pond, rel=0.01)
+
+
+def test_isoxml_partfields_in_external_files_and_a_namespace_are_read(tmp_path):
+    """Terminals keep partfields in files the TASKDATA names (XFR): "no fields" before."""
+    folder = tmp_path / "TASKDATA"
+    folder.mkdir()
+    xfr = '<XFR A="PFD00001" B="1"/>'
+    ns = ' xmlns="http://www.isobus.net/taskdata"'
+    (folder / "TASKDATA.XML").write_text(TASKDATA.format(ns=ns, body=xfr))
+    (folder / "PFD00001.XML").write_text(f"<XFC>{ISOXML_PFD.format(more=POND)}</XFC>")
+    for path in (folder, zip_folder(folder, tmp_path / "taskdata.zip")):
+        (field,) = load_farm(path).fields
+        assert field.name == "Schlag 1" and len(field.boundary.interiors) == 1
+    (folder / "PFD00001.XML").unlink()
+    with pytest.raises(GeometryError, match="the external file PFD00001.XML it names"):
+        load_farm(folder)
