@@ -230,10 +230,11 @@ def _write(
 def fence_polygons(
     dispatch: DispatchPlan,
 ) -> tuple[list[list[tuple[float, float]]], list[list[tuple[float, float]]]]:
-    """The farm as fence polygons in (lat, lon): inclusion polygons around the fields, the
-    roads, the garage and every planned path, :data:`FENCE_MARGIN_M` outside them (without
-    holes), and an exclusion polygon for each hole of a field (a pond), shrunk by the
-    margin and less the planned paths. Each is a simple polygon in (lon, lat) as written,
+    """The farm as fence polygons in (lat, lon): one inclusion polygon around the fields,
+    the roads, the garage and every planned path, :data:`FENCE_MARGIN_M` outside them
+    (without holes; of fields and roads apart from the rest, none), and an exclusion
+    polygon for each hole of a field (a pond), shrunk by the margin and less the planned
+    paths. Each is a simple polygon in (lon, lat) as written,
     rounded (:func:`_fence_rings`)."""
     farm = dispatch.scenario.farm
     paths: list[BaseGeometry] = [Point(farm.garage)]
@@ -245,6 +246,12 @@ def fence_polygons(
     driven = shapely.union_all([p.buffer(FENCE_MARGIN_M) for p in paths])
     farm_parts = [f.boundary for f in farm.fields] + [r.line for r in farm.roads]
     area = shapely.union_all([driven, *(p.buffer(FENCE_MARGIN_M) for p in farm_parts)])
+    # One inclusion polygon: ArduPilot keeps a vehicle inside every inclusion polygon at
+    # once (AC_PolyFence_loader::breached, unless FENCE_OPTIONS asks for their union), so
+    # two apart put it in breach everywhere. Every planned path leaves the garage: the part
+    # with the garage holds them all; the rest (a road or field apart that no path reaches)
+    # is not driven.
+    area = next(p for p in _polygons(area) if p.intersects(paths[0]))
     ponds = [
         Polygon(hole).buffer(-FENCE_MARGIN_M).difference(driven)
         for f in farm.fields

@@ -129,7 +129,7 @@ def test_the_plan_files_fence_the_farm_and_rally_at_the_garage(written, dispatch
         fence = doc["geoFence"]
         assert fence["version"] == QGC_GEOFENCE_VERSION and fence["circles"] == []
         inclusion = [p for p in fence["polygons"] if p["inclusion"] is True]
-        assert inclusion
+        assert len(inclusion) == 1  # ArduPilot keeps a vehicle inside every one at once
         for p in fence["polygons"]:
             assert p["version"] == QGC_FENCE_POLYGON_VERSION and len(p["polygon"]) >= 3
             assert p["polygon"][0] != p["polygon"][-1]  # QGroundControl's are not closed
@@ -207,6 +207,31 @@ def test_a_road_at_twice_the_margin_from_a_field_leaves_every_fence_simple(tmp_p
         assert not any(a.contains(point) for a in exclusion), point
     assert any(a.contains(field) for a in inclusion)
     assert any(a.contains(garage) for a in inclusion)
+
+
+def test_a_road_apart_from_the_rest_makes_no_second_inclusion_polygon(tmp_path):
+    # ArduPilot is in breach outside any of its inclusion polygons: a stray road 1 km off
+    # (in no path) made a second one, and the rover was in breach everywhere.
+    farm = road_at_the_margins_farm((87.3, 44.0), 10.0)
+    frame = LocalFrame.around(87.3, 44.0)
+    stray = [[float(v) for v in frame.to_lonlat(x, 1000.0)] for x in (0.0, 200.0)]
+    farm["features"].append(
+        {
+            "type": "Feature",
+            "properties": {"kind": "road", "id": "stray"},
+            "geometry": {"type": "LineString", "coordinates": stray},
+        }
+    )
+    (tmp_path / "farm.geojson").write_text(json.dumps(farm))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "farm.geojson")]
+    assert main([*args, "--machines", "1", "--out", str(out), "--time-limit", "5"]) == 0
+    doc = json.loads((out / "v1.plan").read_text())
+    (inclusion,) = [p for p in doc["geoFence"]["polygons"] if p["inclusion"]]
+    area = Polygon([(lon, lat) for lat, lon in inclusion["polygon"]])
+    items = [i for i in doc["mission"]["items"] if i["command"] == 16]
+    assert all(area.contains(Point(i["params"][5], i["params"][4])) for i in items)
+    assert not area.intersects(Point(stray[0]))
 
 
 def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
