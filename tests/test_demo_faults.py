@@ -20,6 +20,8 @@ from dispatcher.cli.main import main as cli_main
 from dispatcher.config.errors import ConfigError
 from dispatcher.daemon.state import FieldState, Phase, VehicleState
 from dispatcher.mission.document import PlannedItem
+from dispatcher.recording.mcap_file import read_logs
+from dispatcher.review.report import review_contents, review_table
 from dispatcher.tools.demo import (
     MAX_AUTO_SPEEDUP,
     TARGET_WALL_S,
@@ -276,6 +278,16 @@ def test_a_killed_simulator_does_not_stop_the_demo(tmp_path: Path) -> None:
     assert "log: " in output
     (endpoint,) = re.findall(r"simulating at \d+x on (tcp/\S+)", output)
     assert not _processes_with(endpoint), "a simulator outlived the demo"
+    # Reviewed: v1's mission went on through the re-plan, which counts from where v1 was;
+    # its planned fields and hours are of the whole mission (before: "fields 3/2", and a
+    # vehicle that kept its mission "took 12 % more than planned", the re-plan's rest).
+    review = review_contents(read_logs([log_dir]))
+    v1r = review.vehicle("v1")
+    assert sorted(v1r.fields_done) == sorted(v1r.fields_planned), review_table(review)
+    assert v1r.planned_time_h > v1r.time_h / 2, review_table(review)
+    assert review.planned_makespan_h == max(
+        v.planned_time_h for v in review.vehicles if not v.left_out
+    )
 
 
 def _processes_with(word: str) -> list[int]:

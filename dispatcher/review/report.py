@@ -860,7 +860,12 @@ def _review_vehicle(
     since_ns: int,
     end_ns: int | None,
     fields: Mapping[str, Sequence[Sequence[float]]],
+    replanned_ns: int | None = None,
 ) -> _VehicleResult:
+    """One vehicle's traffic set against ``machine``, its last mission. With
+    ``replanned_ns``, that mission went on through a re-plan made then, whose figures for the
+    machine count from where it was: the plan's time, fuel and turns are then what it had
+    done by the re-plan plus what the re-plan planned for the rest."""
     items = machine.items
     warnings: list[str] = []
     frames_from = [(ns, m) for ns, m in traffic.from_vehicle if ns >= since_ns]
@@ -997,6 +1002,18 @@ def _review_vehicle(
             f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
         )
     planned_s = machine.planned_times()
+    plan_h, plan_fuel, plan_turns = machine.time_h, machine.fuel_l, float(machine.turns)
+    if replanned_ns is not None and start is not None:
+        done = _done_by(track, replanned_ns, start, activities, times, turn_seqs)
+        if done is not None:
+            done_h, done_work_h, done_turns = done
+            plan_h += done_h
+            plan_turns += done_turns
+            if fuel is not None:
+                c_v, c_w = machine.param("road_fuel_lh"), machine.param("work_fuel_lh")
+                t_turn = machine.param("turn_time_h")
+                road_h = done_h - done_work_h
+                plan_fuel += road_h * c_v + done_turns * t_turn * c_v + done_work_h * c_w
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
     planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())
@@ -1046,12 +1063,12 @@ def _review_vehicle(
         warnings.append(f"{vid}: no heartbeat for the last {trailing:.1f} s of the log (wall)")
     elif gaps > 0:
         warnings.append(f"{vid}: {gaps:.1f} s (wall) in heartbeat gaps over {HEARTBEAT_GAP_S:g} s")
-    if complete and machine.time_h > 0:
+    if complete and plan_h > 0:
         actual_h = (end - start) / 3600.0 if end is not None and start is not None else 0.0
-        if actual_h > machine.time_h * (1 + SLOWER_WARNING):
+        if actual_h > plan_h * (1 + SLOWER_WARNING):
             warnings.append(
-                f"{vid}: took {actual_h:.2f} h, {100 * (actual_h / machine.time_h - 1):.0f} % "
-                f"more than the planned {machine.time_h:.2f} h"
+                f"{vid}: took {actual_h:.2f} h, {100 * (actual_h / plan_h - 1):.0f} % "
+                f"more than the planned {plan_h:.2f} h"
             )
         if planned_distance > 0 and distance > planned_distance * (1 + SLOWER_WARNING):
             warnings.append(
@@ -1088,7 +1105,8 @@ def _review_vehicle(
     review = VehicleReview(
         id=vid,
         phase=phase,
-        fields_planned=machine.fields,
+        # Its mission's fields: with those it had worked when a re-plan added to it.
+        fields_planned=tuple(dict.fromkeys(i.field_id for i in items if i.field_id)),
         fields_done=tuple(computed),
         items_reached=last,
         items_total=n,
@@ -1106,10 +1124,10 @@ def _review_vehicle(
         fuel_l=fuel,
         planned_distance_m=planned_distance,
         planned_road_m=machine.distance_m,
-        planned_time_h=machine.time_h,
+        planned_time_h=plan_h,
         mission_time_h=planned_s[-1] / 3600.0 if planned_s else None,
-        planned_fuel_l=machine.fuel_l,
-        planned_turns=round(machine.turns),
+        planned_fuel_l=plan_fuel,
+        planned_turns=round(plan_turns),
         upload_attempts=attempts,
         upload_retries=retries,
         upload_source=source,
@@ -1305,6 +1323,9 @@ def review_contents(log: LogContents) -> Review:
     for machine in plan.machines:
         t = traffic.get(machine.id, _Traffic([], [], []))
         vstatus = status.get(machine.id) if status else None
+        # Its mission went on through the last re-plan (not sent out again by it): the
+        # re-plan's figures count from where it was then.
+        went_on = plan is not plans[base] and fresh.get(machine.id, 0) < plan.log_ns
         result = _review_vehicle(
             machine.id,
             machine,
@@ -1313,6 +1334,7 @@ def review_contents(log: LogContents) -> Review:
             reviewed_from(machine.id),
             end_ns,
             {fid: f.polygon for fid, f in plan.fields.items()},
+            plan.log_ns if went_on else None,
         )
         results[machine.id] = result
         vehicles.append(result.review)
@@ -1381,7 +1403,10 @@ def review_contents(log: LogContents) -> Review:
         garage=plan.garage,
         vehicles=tuple(vehicles),
         fields=tuple(fields),
-        planned_makespan_h=plan.makespan_h,
+        # After a re-plan, each vehicle's planned hours from when it set off.
+        planned_makespan_h=plan.makespan_h
+        if plan is plans[base]
+        else max((v.planned_time_h for v in vehicles if not v.left_out), default=None),
         warnings=tuple(warnings),
         replans=tuple(replan_reviews),
         losses=tuple(losses),
@@ -1534,6 +1559,26 @@ def _last_position(traffic: _Traffic | None, ns: int) -> tuple[float | None, flo
 
 def _ago(ns: int, start_ns: int | None) -> str:
     return f"{(ns - start_ns) / 1e9:.0f} s into the log" if start_ns is not None else "later"
+
+
+def _done_by(
+    track: Sequence[_Point],
+    log_ns: int,
+    start: float,
+    activities: Sequence[Activity],
+    times: Mapping[int, float],
+    turn_seqs: Iterable[int],
+) -> tuple[float, float, int] | None:
+    """What a vehicle had done when the log was at ``log_ns`` (by its last position
+    received by then): hours since it set off, of them working, and turns; None if it had
+    not set off."""
+    heard = [p.t for p in track if p.log_ns is not None and p.log_ns <= log_ns]
+    if not heard or heard[-1] <= start:
+        return None
+    at = heard[-1] - start
+    work_s = sum(max(min(a.end_s, at) - a.start_s, 0.0) for a in activities if a.kind == "work")
+    turns = sum(1 for s in turn_seqs if s in times and times[s] - start <= at)
+    return at / 3600.0, work_s / 3600.0, turns
 
 
 def _replay_events(log: LogContents, plan: _Plan) -> tuple[FleetState | None, dict[str, int]]:
