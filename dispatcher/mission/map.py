@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -15,6 +17,8 @@ from shapely.geometry import LineString  # noqa: E402
 
 from planner.farm import Farm  # noqa: E402
 from planner.field_plan import FarmPlan, MachinePlan  # noqa: E402
+
+logger = logging.getLogger(__name__)
 
 COLOURS = [
     "#1f77b4",
@@ -266,6 +270,28 @@ def draw_plan_map(plan: FarmPlan, path: str | Path, title: str = "") -> None:
         f"{plan.fuel_l:.0f} L fuel (objective: {plan.objective.name.lower()})",
         fontsize=11,
     )
-    fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path, tight=True)
+
+
+def save_figure(fig: plt.Figure, path: str | Path, tight: bool = False) -> None:
+    """Lay ``fig`` out (``tight``: matplotlib's tight layout), write it to ``path`` and
+    close it. Names in scripts the installed fonts lack (a field called 畑 on a machine
+    without CJK fonts) are drawn as boxes, said once, not in one matplotlib warning per
+    character and drawing."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if tight:
+            fig.tight_layout()
+        fig.savefig(path)
     plt.close(fig)
+    missing = [w for w in caught if "missing from font" in str(w.message)]
+    for w in caught:
+        if w not in missing:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if missing:
+        logger.warning(
+            "%s: %d character(s) of the names have no glyph in the installed fonts; drawn as "
+            "boxes (install a font with them, e.g. Noto Sans CJK, for such names)",
+            Path(path).name,
+            len({str(w.message) for w in missing}),
+        )

@@ -24,7 +24,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from shapely.geometry import Polygon  # noqa: E402
 
-from dispatcher.mission.map import colour, draw_scale_bar  # noqa: E402
+from dispatcher.mission.map import colour, draw_scale_bar, save_figure  # noqa: E402
 from dispatcher.review.report import FieldReview, Review, VehicleReview  # noqa: E402
 from planner.geo import LocalFrame  # noqa: E402
 
@@ -80,8 +80,7 @@ def plot_review(review: Review, path: str | Path, title: str = "") -> Path:
             fontsize=11,
             color="#b00000",
         )
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)
     return path
 
 

@@ -481,6 +481,21 @@ def test_plot_writes_a_png(review: Review, tmp_path: Path) -> None:
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_names_the_fonts_lack_are_said_once_not_warned_per_character(
+    review: Review, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Field ids in CJK on a machine without such fonts: six UserWarnings on stderr before.
+    fields = tuple(dataclasses.replace(f, id=f"畑{f.id}") for f in review.fields)
+    cjk = dataclasses.replace(review, fields=fields, plan_id="畑畑")
+    with caplog.at_level("WARNING", logger="dispatcher.mission.map"):
+        out = plot_review(cjk, tmp_path / "review.png", title="畑の地図")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    said = [r for r in caplog.records if "no glyph in the installed fonts" in r.message]
+    assert len(said) <= 1  # none where a CJK font is installed
+    if said:
+        assert said[0].message.startswith("review.png: ")
+
+
 def test_review_from_a_path(run_log: tuple[bytes, dict[str, Mission]], tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     path.write_bytes(run_log[0])
