@@ -31,6 +31,7 @@ import difflib
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,6 +177,7 @@ def farm_from_geojson(
     raw_fields: list[tuple[str, dict[str, Any], list[Any]]] = []
     garages: list[tuple[float, float]] = []
     garage_wheres: list[str] = []
+    said_garage: list[bool] = []  # by its kind, not taken for one as a point without
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: dict[str, str] = {}  # field id -> the feature it came from (for messages)
@@ -200,8 +202,9 @@ def farm_from_geojson(
         if not isinstance(props, dict):
             raise GeometryError(f"{where}: 'properties' must be an object, not {_shown(props)}")
         geom = feature.get("geometry")
-        if geom is None:
-            geom = {}
+        if geom is None:  # RFC 7946's unlocated feature; a shapefile's null record
+            log.warning("%s%s: no geometry; left out", where, _named(props))
+            continue
         if not isinstance(geom, dict):
             raise GeometryError(f"{where}: 'geometry' must be an object, not {_shown(geom)}")
         kind = _kind(props, geom, where)
@@ -211,6 +214,7 @@ def farm_from_geojson(
             lon, lat = _lonlat(geom.get("coordinates"), f"{where} (garage)")
             garages.append((lon, lat))
             garage_wheres.append(where.removeprefix(f"{source}: "))
+            said_garage.append(_prop(props, "kind") is not None)
         elif kind == "field":
             if _prop(props, "id") is None and feature.get("id") is not None:
                 props = {**props, "id": feature["id"]}  # RFC 7946's id of the feature
@@ -278,9 +282,20 @@ def farm_from_geojson(
             f"{source}: no garage (a Point feature with properties.kind 'garage', "
             "or the scenario's garage = [longitude, latitude])"
         )
+    if len(garages) > 1 and said_garage.count(True) == 1:
+        # One point says it is the garage; the others say nothing (soil samples, a well).
+        k = said_garage.index(True)
+        log.warning(
+            "%s: %d points without a kind left out (%s); the garage is %s",
+            source,
+            len(garages) - 1,
+            _some([w for j, w in enumerate(garage_wheres) if j != k]),
+            garage_wheres[k],
+        )
+        garages = [garages[k]]
     if len(garages) > 1:
         raise GeometryError(
-            f"{source}: {len(garages)} garages ({', '.join(garage_wheres)}); exactly one is "
+            f"{source}: {len(garages)} garages ({_some(garage_wheres)}); exactly one is "
             "supported: give the other points a kind (a gate names its field), or the "
             "scenario's garage = [longitude, latitude]"
         )
@@ -434,6 +449,21 @@ def _prop(props: dict[str, Any], key: str) -> Any:
     return None
 
 
+def _some(names: Sequence[str], most: int = 5) -> str:
+    """``names`` for a message: the first ``most``, and how many more."""
+    shown = ", ".join(names[:most])
+    return shown if len(names) <= most else f"{shown} and {len(names) - most} more"
+
+
+def _named(props: dict[str, Any]) -> str:
+    """`` (id 'X')`` or `` (name 'X')`` of a feature, for a message; '' if it has neither."""
+    for key in ("id", "name"):
+        value = _prop(props, key)
+        if value is not None:
+            return f" ({key} {value!r})"
+    return ""
+
+
 def _kind(props: dict[str, Any], geom: dict[str, Any], where: str) -> str:
     """The feature's kind: ``properties.kind``, else what its geometry says (a polygon is
     a field, a line a road, a point with ``properties.field`` a gate, any other point the
@@ -449,8 +479,7 @@ def _kind(props: dict[str, Any], geom: dict[str, Any], where: str) -> str:
             return "road"
         if gtype == "Point":
             return "gate" if _prop(props, "field") is not None else "garage"
-    ident = _prop(props, "id")
-    named = f"{where} (id {ident!r})" if ident is not None else f"{where} (no id)"
+    named = f"{where}{_named(props) or ' (no id)'}"
     what = (
         f"no properties.kind and no geometry that tells it ({_shown(geom.get('type'))})"
         if kind is None

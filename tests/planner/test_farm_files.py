@@ -394,3 +394,46 @@ def test_isoxml_partfields_in_external_files_and_a_namespace_are_read(tmp_path):
     (folder / "PFD00001.XML").unlink()
     with pytest.raises(GeometryError, match="the external file PFD00001.XML it names"):
         load_farm(folder)
+
+
+def test_a_garage_said_so_wins_over_points_without_a_kind_and_long_lists_are_cut(tmp_path, caplog):
+    """A GeoPackage with a layer of 300 soil samples beside its garage: "301 garages (...)"
+    in a message of 10 kB."""
+    ring = [[10.0, 50.0], [10.002, 50.0], [10.002, 50.001], [10.0, 50.001], [10.0, 50.0]]
+    field = {"properties": {"id": "A"}, "geometry": {"type": "Polygon", "coordinates": [ring]}}
+    samples = [
+        {"properties": {"depth": 30}, "geometry": {"type": "Point", "coordinates": [10.0, 50.0]}}
+        for _ in range(300)
+    ]
+    garage = {
+        "properties": {"kind": "garage"},
+        "geometry": {"type": "Point", "coordinates": [9.999, 49.999]},
+    }
+    path = tmp_path / "farm.gpkg"
+    write_gdal([{"type": "Feature", **field}], path, "GPKG", layer="fields")
+    write_gdal([{"type": "Feature", **f} for f in samples], path, "GPKG", layer="soil", append=True)
+    with pytest.raises(GeometryError) as err:  # no point says it is the garage
+        load_farm(path)
+    message = str(err.value)
+    assert "300 garages (layer 'soil' feature #0, " in message and "and 295 more)" in message
+    assert len(message) < 600
+    write_gdal([{"type": "Feature", **garage}], path, "GPKG", layer="yard", append=True)
+    with caplog.at_level("WARNING", logger="planner.farm"):
+        farm = load_farm(path)
+    assert farm.garage_lonlat == (9.999, 49.999)
+    assert "300 points without a kind left out (layer 'soil' feature #0" in caplog.text
+    assert "the garage is layer 'yard' feature #0" in caplog.text
+
+
+def test_a_feature_without_geometry_is_left_out_and_named(tmp_path, caplog):
+    """RFC 7946 allows a feature without geometry (a shapefile's null record): it refused
+    the whole farm, "(no id)" though it had a name."""
+    doc = json.loads(CHANGJI.read_text())
+    doc["features"].append({"type": "Feature", "properties": {"name": "Hecke"}, "geometry": None})
+    path = tmp_path / "farm.geojson"
+    path.write_text(json.dumps(doc))
+    with caplog.at_level("WARNING", logger="planner.farm"):
+        farm = load_farm(path)
+    assert len(farm.fields) == 15
+    n = len(doc["features"]) - 1
+    assert f"feature #{n} (name 'Hecke'): no geometry; left out" in caplog.text
