@@ -67,7 +67,14 @@ def read_farm_document(path: Path) -> Document:
     if suffix in GEOJSON_SUFFIXES:
         doc = read_json(path)
         if isinstance(doc, dict) and doc.get("crs") is not None and not _crs_is_wgs84(doc["crs"]):
-            return read_gdal(path)
+            converted = read_gdal(path)
+            # The features' own ids (RFC 7946), which GDAL takes as its feature numbers.
+            given = doc.get("features")
+            if isinstance(given, list) and len(given) == len(converted["features"]):
+                for feature, original in zip(converted["features"], given, strict=True):
+                    if isinstance(original, dict) and original.get("id") is not None:
+                        feature["id"] = original["id"]
+            return converted
         return doc  # type: ignore[no-any-return]
     if suffix == ".xml" or (suffix == ".zip" and _isoxml_in_zip(path) is not None):
         return read_isoxml(path)
@@ -131,12 +138,17 @@ def read_gdal(path: Path) -> Document:
         try:
             with warnings.catch_warnings():  # the rings GDAL finds open: closed below
                 warnings.filterwarnings("ignore", "Non closed ring", RuntimeWarning)
-                meta, _, geometry, values = pyogrio.raw.read(source, layer=layer)
+                meta, fids, geometry, values = pyogrio.raw.read(
+                    source, layer=layer, return_fids=True
+                )
+                key = str(pyogrio.read_info(source, layer=layer).get("fid_column") or "")
         except (DataSourceError, DataLayerError, OSError) as exc:
             raise GeometryError(
                 f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
             ) from exc
         names = _column_names(path, [str(n) for n in meta["fields"]])
+        if key and key not in names:  # a GeoPackage's primary key named by its author
+            names, values = [*names, key], [*values, fids]
         where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
         # Rings as RFC 7946 has them (outline counter-clockwise), whatever the format's
         # rule (a shapefile's outline is clockwise): the same farm gives the same plan.

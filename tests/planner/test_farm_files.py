@@ -8,6 +8,7 @@ import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 from helpers.farm_formats import (
     convert,
@@ -437,3 +438,27 @@ def test_a_feature_without_geometry_is_left_out_and_named(tmp_path, caplog):
     assert len(farm.fields) == 15
     n = len(doc["features"]) - 1
     assert f"feature #{n} (name 'Hecke'): no geometry; left out" in caplog.text
+
+
+def test_a_geopackages_primary_key_named_id_is_the_field_id(tmp_path):
+    """GDAL takes a GeoPackage's primary key column as its feature numbers, not a column:
+    the ids fell back to the names, and --id-field id was refused."""
+    import pyogrio
+    import shapely
+
+    ring = [(10.0, 50.0), (10.002, 50.0), (10.002, 50.001), (10.0, 50.001), (10.0, 50.0)]
+    fields = [shapely.Polygon([(x + 0.003 * k, y) for x, y in ring]) for k in range(2)]
+    path = tmp_path / "farm.gpkg"
+    pyogrio.raw.write(
+        path,
+        shapely.to_wkb(fields),
+        [np.array(["Schlag 1", "Schlag 2"], dtype=object)],
+        ["name"],
+        driver="GPKG",
+        layer="fields",
+        geometry_type="Polygon",
+        crs="EPSG:4326",
+        layer_options={"FID": "id"},
+    )
+    farm = load_farm(path, FarmOptions(garage=(9.999, 49.999)))
+    assert [(f.id, f.name) for f in farm.fields] == [("1", "Schlag 1"), ("2", "Schlag 2")]
