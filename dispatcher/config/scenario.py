@@ -605,7 +605,10 @@ def _shown(value: Any) -> str:
     if isinstance(value, dict):
         return "a table"
     if isinstance(value, list):
-        return "an array"
+        if value and all(isinstance(v, dict) for v in value):
+            return "an array of tables ([[...]])"
+        text = "[" + ", ".join(_shown(v) for v in value) + "]"
+        return text if len(text) <= 60 else text[:56] + " ...]"
     if value is None:
         return "nothing"
     return repr(value)

@@ -502,6 +502,18 @@ def test_the_machine_list_names_each_machine_once(tmp_path):
     assert "unknown machine 'V2' (did you mean 'v2'?)" in refused(tmp_path, doc)
 
 
+def test_a_wrong_array_is_shown_as_written(tmp_path):
+    # "must be a list of machine ids, not an array": the message said what it refused.
+    doc = scenario_doc()
+    doc["machines"] = ["v1", 3]
+    assert "key 'machines' must be a list of machine ids, not [\"v1\", 3]" in refused(tmp_path, doc)
+    doc = scenario_doc()
+    doc["garage"] = [10.0, 52.0, 100]
+    assert "key 'garage' must be [longitude, latitude] in degrees, not [10.0, 52.0, 100]" in (
+        refused(tmp_path, doc)
+    )
+
+
 def test_a_copied_machine_is_named_a_duplicate_not_a_system_id_clash(tmp_path):
     doc = scenario_doc()
     doc["machine"].append(dict(doc["machine"][0]))
