@@ -725,11 +725,6 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
                 f"{where}: key 'id' must be {SAFE_ID_RULE} (it names Zenoh keys and mission files)"
             )
         params = _machine_params(entry, where)
-        if "min_turn_radius_m" not in entry:
-            logger.warning(
-                "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
-                where,
-            )
         try:
             machine = Machine(ident, **params)
         except PlannerError as exc:
@@ -746,6 +741,11 @@ def _vehicles(machines: Any, src: str) -> tuple[Vehicle, ...]:
             )
         system_ids[sysid] = ident
         out.append(Vehicle(machine, sysid, _implement(entry.get("implement"), where)))
+        if "min_turn_radius_m" not in entry:  # once the machine is known good
+            logger.warning(
+                "%s: no min_turn_radius_m: turns are planned as hops between swath ends",
+                where,
+            )
     return tuple(out)
 
 
