@@ -487,7 +487,8 @@ def load_scenario(
     try:
         farm = load_farm(path.parent / farm_key if fields is None else fields, farm_options)
     except PlannerError as exc:
-        raise ConfigError(str(exc)) from exc
+        pointed = " (the farm its key 'farm' names)" if fields is None else ""
+        raise ConfigError(f"{exc}\n  read for {src}{pointed}") from exc
     machines = doc.get("machine")
     fleet_src = src
     if "fleet" in doc:
@@ -501,7 +502,10 @@ def load_scenario(
             )
         fleet_path = path.parent / doc["fleet"]
         fleet_src = str(fleet_path)
-        fleet_doc = _read_toml(fleet_path)
+        try:
+            fleet_doc = _read_toml(fleet_path)
+        except ConfigError as exc:
+            raise ConfigError(f"{exc}\n  read for {src} (the fleet its key 'fleet' names)") from exc
         _check_keys(
             fleet_doc,
             FLEET_KEYS,

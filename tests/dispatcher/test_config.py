@@ -514,6 +514,19 @@ def test_a_wrong_array_is_shown_as_written(tmp_path):
     )
 
 
+@pytest.mark.parametrize("key", ["farm", "fleet"])
+def test_a_bad_file_a_key_names_is_said_with_the_scenario_and_key(tmp_path, key):
+    # "../basic.geojson: not valid TOML", of a file the user had not named on the command line.
+    doc = scenario_doc()
+    if key == "fleet":
+        del doc["machine"], doc["machines"]
+    doc[key] = "wrong.txt"
+    (tmp_path / "wrong.txt").write_text("= not this\n")
+    message = refused(tmp_path, doc)
+    assert message.startswith(str(tmp_path / "wrong.txt"))
+    assert f"read for {tmp_path / 'scenario.toml'} (the {key} its key '{key}' names)" in message
+
+
 def test_a_copied_machine_is_named_a_duplicate_not_a_system_id_clash(tmp_path):
     doc = scenario_doc()
     doc["machine"].append(dict(doc["machine"][0]))
