@@ -514,15 +514,20 @@ def test_a_wrong_array_is_shown_as_written(tmp_path):
     )
 
 
-@pytest.mark.parametrize("key", ["farm", "fleet"])
-def test_a_bad_file_a_key_names_is_said_with_the_scenario_and_key(tmp_path, key):
-    # "../basic.geojson: not valid TOML", of a file the user had not named on the command line.
+def naming(key: str, value: str) -> dict[str, Any]:
+    """The scenario with its ``farm`` or ``fleet`` (in place of its machines) ``value``."""
     doc = scenario_doc()
     if key == "fleet":
         del doc["machine"], doc["machines"]
-    doc[key] = "wrong.txt"
+    doc[key] = value
+    return doc
+
+
+@pytest.mark.parametrize("key", ["farm", "fleet"])
+def test_a_bad_file_a_key_names_is_said_with_the_scenario_and_key(tmp_path, key):
+    # "../basic.geojson: not valid TOML", of a file the user had not named on the command line.
     (tmp_path / "wrong.txt").write_text("= not this\n")
-    message = refused(tmp_path, doc)
+    message = refused(tmp_path, naming(key, "wrong.txt"))
     assert message.startswith(str(tmp_path / "wrong.txt"))
     assert f"read for {tmp_path / 'scenario.toml'} (the {key} its key '{key}' names)" in message
 
@@ -556,11 +561,7 @@ def test_a_farm_id_from_a_file_name_never_begins_with_a_dot(tmp_path):
 @pytest.mark.parametrize("key", ["farm", "fleet"])
 def test_an_empty_file_name_is_named(tmp_path, key):
     """`farm = ""` was read as the scenario's folder ("'.' not recognized as ...")."""
-    doc = scenario_doc()
-    if key == "fleet":
-        del doc["machine"], doc["machines"]
-    doc[key] = ""
-    assert f"key '{key}' must name " in refused(tmp_path, doc)
+    assert f"key '{key}' must name " in refused(tmp_path, naming(key, ""))
 
 
 def test_a_scenario_without_a_fleet_says_how_to_give_one(tmp_path):
