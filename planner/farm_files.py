@@ -254,6 +254,17 @@ def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
     """The geometries in WGS84 lon/lat; a layer in another CRS is converted, said in a
     message. A layer without a CRS is taken as WGS84 (the checks of lon/lat follow)."""
     if not crs:
+        bounds = shapely.total_bounds(geoms)
+        if np.all(np.isfinite(bounds)) and (
+            max(abs(bounds[0]), abs(bounds[2])) > 180.0
+            or max(abs(bounds[1]), abs(bounds[3])) > 90.0
+        ):
+            raise GeometryError(
+                f"{where}: no coordinate system (a shapefile's .prj beside it, or the "
+                f"layer's CRS), and coordinates that are not longitude and latitude "
+                f"(x {bounds[0]:.0f} to {bounds[2]:.0f}, y {bounds[1]:.0f} to {bounds[3]:.0f}): "
+                "copy its .prj with it, or save it with its CRS"
+            )
         return geoms
     source = pyproj.CRS.from_user_input(crs)
     if source.equals(WGS84, ignore_axis_order=True):
