@@ -277,6 +277,8 @@ def farm_from_geojson(
             log.warning("%s: the scenario's garage replaces the garage in the farm file", source)
         lon, lat = _lonlat(list(options.garage), f"{source}: the scenario's garage")
         garages = [(lon, lat)]
+    if not raw_fields:  # before the garage: a file of no fields has no garage either
+        raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
     if not garages:
         raise GeometryError(
             f"{source}: no garage (a Point feature with properties.kind 'garage', "
@@ -299,8 +301,6 @@ def farm_from_geojson(
             "supported: give the other points a kind (a gate names its field), or the "
             "scenario's garage = [longitude, latitude]"
         )
-    if not raw_fields:
-        raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
 
     _check_extent(source, garages[0], raw_fields, raw_roads)
     lons = [p[0] for _, _, rings in raw_fields for p in rings[0]]
@@ -365,7 +365,8 @@ def _road_parts(
         raise GeometryError(
             f"{where} (road): properties.id must be a string, not {_shown(road_id)}"
         )
-    road_id = str(road_id) if road_id is not None else f"road#{k}"
+    name = _text(_prop(props, "name"))  # a KML placemark's, a GIS layer's
+    road_id = str(road_id) if road_id is not None else name or f"road#{k}"
     where = f"{where} (road {road_id!r})"
     kind = geom.get("type")
     coords = geom.get("coordinates")

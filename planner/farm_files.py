@@ -500,6 +500,8 @@ def _isoxml_ring(lsg: ET.Element, where: str) -> list[list[float]]:
 def _isoxml_lonlat(pnt: ET.Element, where: str) -> list[float]:
     try:
         lat, lon = float(pnt.get("C", "")), float(pnt.get("D", ""))
+        if not (math.isfinite(lat) and math.isfinite(lon)):
+            raise ValueError
     except ValueError:
         raise GeometryError(
             f"{where}: a point needs its latitude in C and longitude in D as numbers, "

@@ -477,3 +477,28 @@ def test_a_projected_shapefile_without_its_prj_is_named(tmp_path):
         (folder / f"{name}.prj").unlink()
     with pytest.raises(GeometryError, match=r"no coordinate system \(a shapefile's \.prj beside"):
         load_farm(folder)
+
+
+def test_small_things_farm_files_say_better(tmp_path):
+    # A file of no features: "no fields", not "no garage".
+    empty = tmp_path / "empty.geojson"
+    empty.write_text('{"type": "FeatureCollection", "features": []}')
+    with pytest.raises(GeometryError, match="no fields"):
+        load_farm(empty)
+    # A KML road's name is its id (it was "road#1").
+    lane = (
+        "<Placemark><name>Feldweg Nord</name><LineString><coordinates>"
+        "9.999,49.999 10.004,49.999</coordinates></LineString></Placemark>"
+    )
+    path = tmp_path / "farm.kml"
+    path.write_text(GOOGLE_EARTH_KML.replace("</Document>", lane + "</Document>"))
+    assert [r.id for r in load_farm(path).roads] == ["Feldweg Nord"]
+    # An ISOXML point of NaN: not a number, not "swapped".
+    taskdata = tmp_path / "TASKDATA.XML"
+    taskdata.write_text(
+        TASKDATA.format(ns="", body=ISOXML_PFD.format(more="")).replace(
+            'C="50.002" D="10.003"', 'C="NaN" D="10.003"'
+        )
+    )
+    with pytest.raises(GeometryError, match="latitude in C and longitude in D as numbers"):
+        load_farm(taskdata)
