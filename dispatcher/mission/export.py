@@ -17,6 +17,7 @@ calls ``id`` :data:`KML_ID_PROPERTY` (see there).
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import re
@@ -122,7 +123,9 @@ def machine_features(dispatch: DispatchPlan) -> dict[str, list[PlanFeature]]:
                     "kind": "route",
                     "name": f"{machine.id} route",
                     "machine": machine.id,
-                    "fields": " ".join(machine.fields),
+                    # A JSON array as text (ids may hold spaces): GDAL writes it into
+                    # GeoJSON as the array, into KML as the text.
+                    "fields": json.dumps(list(machine.fields), ensure_ascii=False),
                     "start_s": 0.0,
                     "end_s": _seconds(times[-1]),
                     "time_h": machine.time_h,
