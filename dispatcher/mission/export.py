@@ -271,6 +271,15 @@ def fence_polygons(
         for p in _polygons(pond.simplify(FENCE_SIMPLIFY_M))
         for ring in _fence_rings(p, farm.frame, inclusion=False)
     ]
+    longitudes = [lon for ring in inclusion + exclusion for _, lon in ring]
+    if longitudes and max(longitudes) - min(longitudes) > 180.0:
+        # ArduPilot tests a fence on raw longitudes: one across ±180 would go round the
+        # world the other way (and QGroundControl's file has no other way to say it).
+        logger.warning(
+            "the farm's fence crosses longitude 180 (the antimeridian), which an ArduPilot "
+            "fence cannot hold: left out of the .plan files (set one by hand if needed)"
+        )
+        return [], []
     return inclusion, exclusion
 
 

@@ -240,6 +240,28 @@ def test_a_road_apart_from_the_rest_makes_no_second_inclusion_polygon(tmp_path):
     assert not area.intersects(Point(stray[0]))
 
 
+def test_a_farm_across_the_antimeridian_gets_no_fence(tmp_path, caplog):
+    # A fence ring across longitude 180 jumped from 179.99 to -179.99: ArduPilot, testing
+    # raw longitudes, took its inside as the rest of the world.
+    farm = road_at_the_margins_farm((179.9993, -17.0), 10.0)
+    for feature in farm["features"]:  # as GeoJSON has it: within [-180, 180]
+        geometry = feature["geometry"]
+        geometry["coordinates"] = json.loads(
+            json.dumps(geometry["coordinates"]),
+            parse_float=lambda v: float(v) - 360.0 if float(v) > 180.0 else float(v),
+        )
+    (tmp_path / "farm.geojson").write_text(json.dumps(farm))
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(tmp_path / "farm.geojson")]
+    with caplog.at_level("WARNING", logger="dispatcher.mission.export"):
+        assert main([*args, "--machines", "1", "--out", str(out), "--time-limit", "5"]) == 0
+    lons = [c[0] for c in farm["features"][0]["geometry"]["coordinates"][0]]
+    assert max(lons) - min(lons) > 180.0  # the field itself crosses it
+    assert (out / "v1.waypoints").exists()
+    assert json.loads((out / "v1.plan").read_text())["geoFence"]["polygons"] == []
+    assert "the farm's fence crosses longitude 180" in caplog.text
+
+
 def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
     def broken(*_args):
         raise OSError("disk full")
