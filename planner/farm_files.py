@@ -123,6 +123,13 @@ def read_gdal(path: Path) -> Document:
     except (DataSourceError, DataLayerError, OSError) as exc:
         folder = _shapefile_folder_in_zip(path)
         if folder is None:
+            folders = _shapefile_folders_in_zip(path)
+            if len(folders) > 1:
+                raise GeometryError(
+                    f"{path}: shapefiles in {len(folders)} folders of the archive "
+                    f"({', '.join(sorted(folders)[:5])}{', ...' if len(folders) > 5 else ''}): "
+                    "a farm is one folder of them (fields, roads, points); put them together"
+                ) from exc
             raise GeometryError(
                 f"{path}: not a farm file GDAL can read ({_first_line(exc)})"
             ) from exc
@@ -236,18 +243,23 @@ def _shapefile_folder_in_zip(path: Path) -> str | None:
     """The one folder of a .zip that holds its shapefiles (zipping a folder puts them there,
     where GDAL, opening the archive's top, does not look; macOS's ``__MACOSX`` copies left
     out); None if not exactly one."""
+    folders = _shapefile_folders_in_zip(path)
+    folders.discard(".")
+    return folders.pop() if len(folders) == 1 else None
+
+
+def _shapefile_folders_in_zip(path: Path) -> set[str]:
+    """The folders of a .zip that hold shapefiles ("." its top; macOS's copies left out)."""
     if path.suffix.lower() != ".zip":
-        return None
+        return set()
     try:
         with zipfile.ZipFile(path) as archive:
             names = archive.namelist()
     except (OSError, zipfile.BadZipFile):
-        return None
-    folders = {
+        return set()
+    return {
         str(Path(n).parent) for n in names if n.lower().endswith(".shp") and not _macos_extra(n)
     }
-    folders.discard(".")
-    return folders.pop() if len(folders) == 1 else None
 
 
 def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:

@@ -502,3 +502,18 @@ def test_small_things_farm_files_say_better(tmp_path):
     )
     with pytest.raises(GeometryError, match="latitude in C and longitude in D as numbers"):
         load_farm(taskdata)
+
+
+def test_a_zip_of_one_folder_a_field_says_so(tmp_path):
+    """Some farm-management exports: one folder per field. GDAL said "not recognized"."""
+    import zipfile
+
+    features = farm_features(CHANGJI)
+    archive = tmp_path / "export.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for k, name in enumerate(("north", "south")):
+            folder = write_shapefiles(features[k : k + 1], tmp_path / name)
+            for file in folder.iterdir():
+                z.write(file, f"farm/{name}/{file.name}")
+    with pytest.raises(GeometryError, match=r"shapefiles in 2 folders of the archive \(farm/north"):
+        load_farm(archive)
