@@ -282,7 +282,10 @@ def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
             "properties": {"kind": "field", "id": f.id, "name": f.name},
             "geometry": {
                 "type": "Polygon",
-                "coordinates": [[list(map(_round7, p)) for p in f.boundary_lonlat.exterior.coords]],
+                "coordinates": [  # the outline, then the holes (a pond is not worked)
+                    [list(map(_round7, p)) for p in ring.coords]
+                    for ring in (f.boundary_lonlat.exterior, *f.boundary_lonlat.interiors)
+                ],
             },
         }
         for f in farm.fields

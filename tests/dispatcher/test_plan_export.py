@@ -16,12 +16,13 @@ from helpers.farm_formats import convert
 from shapely.geometry import Point, Polygon
 from shapely.validation import explain_validity
 
+from agrifleet.api import dispatch_for
 from dispatcher.cli.main import main
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
 from dispatcher.mission import export
 from dispatcher.mission.files import QGC_FENCE_POLYGON_VERSION, QGC_GEOFENCE_VERSION
-from dispatcher.mission.plan import write_plan_files
+from dispatcher.mission.plan import plan_geojson, write_plan_files
 from planner.geo import LocalFrame
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -368,3 +369,8 @@ def test_a_pond_in_a_field_is_an_exclusion_no_path_enters(tmp_path):
     assert pond.area > 0
     items = [i for i in plan["mission"]["items"] if i["command"] == 16]
     assert not any(pond.contains(Point(i["params"][5], i["params"][4])) for i in items)
+    # The map the live view and a GIS read shows it too (the outline alone before).
+    scenario = load_scenario(DATA / "tiny.toml", tmp_path / "pond.geojson")
+    shown = plan_geojson(dispatch_for(scenario.with_machines(1), time_limit_s=2))
+    (field,) = [f for f in shown["features"] if f["properties"]["kind"] == "field"]
+    assert len(field["geometry"]["coordinates"]) == 2
