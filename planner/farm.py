@@ -169,6 +169,8 @@ def farm_from_geojson(
 ) -> Farm:
     """Build a :class:`Farm` from a parsed GeoJSON FeatureCollection (see :func:`load_farm`)."""
     options = options or FarmOptions()
+    if isinstance(doc, dict) and doc.get("type") == "Feature":  # one field, as some tools save
+        doc = {"type": "FeatureCollection", "features": [doc]}
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
         raise GeometryError(f"{source}: expected a GeoJSON FeatureCollection")
     features = doc.get("features")
@@ -207,6 +209,7 @@ def farm_from_geojson(
             continue
         if not isinstance(geom, dict):
             raise GeometryError(f"{where}: 'geometry' must be an object, not {_shown(geom)}")
+        geom = _simplest(geom)
         kind = _kind(props, geom, where)
         if kind == "garage":
             if geom.get("type") != "Point":
@@ -448,6 +451,34 @@ def _prop(props: dict[str, Any], key: str) -> Any:
             if have.lower() == name:
                 return value
     return None
+
+
+def _simplest(geom: dict[str, Any]) -> dict[str, Any]:
+    """A geometry as the farm reads it: a MultiPoint of one point is that Point (a layer of
+    multi-points holding a garage); a GeometryCollection with polygons is their
+    (Multi)Polygon, its points and lines (a KML placemark's label point) left out."""
+    kind, coords = geom.get("type"), geom.get("coordinates")
+    if kind == "MultiPoint" and isinstance(coords, list) and len(coords) == 1:
+        return {"type": "Point", "coordinates": coords[0]}
+    parts = geom.get("geometries")
+    if kind == "GeometryCollection" and isinstance(parts, list):
+        rings = [
+            c
+            for g in parts
+            if isinstance(g, dict)
+            for c in (
+                [g.get("coordinates")]
+                if g.get("type") == "Polygon"
+                else g.get("coordinates") or []
+                if g.get("type") == "MultiPolygon"
+                else []
+            )
+        ]
+        if len(rings) == 1:
+            return {"type": "Polygon", "coordinates": rings[0]}
+        if rings:
+            return {"type": "MultiPolygon", "coordinates": rings}
+    return geom
 
 
 def _some(names: Sequence[str], most: int = 5) -> str:

@@ -126,7 +126,8 @@ def test_a_feature_without_kind_takes_it_from_its_geometry(tmp_path):
 def test_a_feature_without_kind_nor_telling_geometry_is_refused(tmp_path):
     doc = farm_doc()
     del doc["features"][2]["properties"]["kind"]
-    doc["features"][2]["geometry"] = {"type": "MultiPoint", "coordinates": [[LON0, LAT0]]}
+    points = [[LON0, LAT0], [LON0 + 0.001, LAT0]]  # (one point is taken as a Point)
+    doc["features"][2]["geometry"] = {"type": "MultiPoint", "coordinates": points}
     message = refused(tmp_path, doc)
     assert "feature #2 (no id): no properties.kind and no geometry that tells it" in message
     assert "field, garage, road, gate" in message

@@ -517,3 +517,40 @@ def test_a_zip_of_one_folder_a_field_says_so(tmp_path):
                 z.write(file, f"farm/{name}/{file.name}")
     with pytest.raises(GeometryError, match=r"shapefiles in 2 folders of the archive \(farm/north"):
         load_farm(archive)
+
+
+def test_shapes_other_tools_save_a_farm_in_are_read(tmp_path):
+    """A KML placemark of a polygon and its label point (a GeometryCollection), a garage
+    as a MultiPoint of one point, a GeoJSON of one Feature: each refused the farm."""
+    label = GOOGLE_EARTH_KML.replace(
+        "<Placemark><name>North 40</name><Polygon>",
+        "<Placemark><name>North 40</name><MultiGeometry>"
+        "<Point><coordinates>10.001,50.0005</coordinates></Point><Polygon>",
+    ).replace(
+        "</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>\n<Placemark>"
+        "<name>Creek</name>",
+        "</coordinates></LinearRing></outerBoundaryIs></Polygon></MultiGeometry></Placemark>"
+        "\n<Placemark><name>Creek</name>",
+    )
+    assert label.count("<MultiGeometry>") == 2
+    path = tmp_path / "farm.kml"
+    path.write_text(label)
+    farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["North 40", "Creek.0", "Creek.1"]
+    ring = [[10.0, 50.0], [10.002, 50.0], [10.002, 50.001], [10.0, 50.001], [10.0, 50.0]]
+    field = {
+        "type": "Feature",
+        "properties": {"id": "A"},
+        "geometry": {"type": "Polygon", "coordinates": [ring]},
+    }
+    garage = {
+        "type": "Feature",
+        "properties": {"kind": "garage"},
+        "geometry": {"type": "MultiPoint", "coordinates": [[9.999, 49.999]]},
+    }
+    doc = tmp_path / "farm.geojson"
+    doc.write_text(json.dumps({"type": "FeatureCollection", "features": [field, garage]}))
+    assert load_farm(doc).garage_lonlat == (9.999, 49.999)
+    doc.write_text(json.dumps(field))
+    one = load_farm(doc, FarmOptions(garage=(9.999, 49.999)))
+    assert [f.id for f in one.fields] == ["A"]
