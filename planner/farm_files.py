@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pyproj
 import shapely
+from shapely.geometry import Polygon, mapping
 
 from planner.errors import GeometryError
 
@@ -207,36 +208,36 @@ def _check_shapefiles_whole(path: Path, source: Path | str) -> None:
     by mail or USB stick that dropped it): refused, naming it, rather than its fields
     lost."""
     if isinstance(source, str):  # a folder in a zip
-        with zipfile.ZipFile(path) as archive:
-            names = [n for n in archive.namelist() if not _macos_extra(n)]
         folder = source.split("/vsizip/", 1)[1][len(str(path)) + 1 :]
-        files = [Path(n).name for n in names if str(Path(n).parent) == folder]
+        files = [Path(n).name for n in _zip_names(path) if str(Path(n).parent) == folder]
     elif path.is_dir():
         files = [p.name for p in path.iterdir()]
     elif path.suffix.lower() == ".shp":
         files = [p.name for p in path.parent.iterdir()]
         files = [f for f in files if Path(f).stem == path.stem] or [path.name]
-    elif path.suffix.lower() == ".zip":
-        try:
-            with zipfile.ZipFile(path) as archive:
-                files = [n for n in archive.namelist() if "/" not in n and not _macos_extra(n)]
-        except (OSError, zipfile.BadZipFile):
-            return
-    else:
-        return
+    else:  # a zip's top (nothing for any other file)
+        files = [n for n in _zip_names(path) if "/" not in n]
     lower = {f.lower() for f in files}
     for f in sorted(files):
         stem, suffix = Path(f).stem, Path(f).suffix.lower()
-        if suffix == ".shp" and not _macos_extra(f) and f"{stem.lower()}.shx" not in lower:
+        if suffix == ".shp" and f"{stem.lower()}.shx" not in lower:
             raise GeometryError(
                 f"{path}: {f} has no {stem}.shx beside it (a shapefile is its .shp, .shx, "
                 ".dbf and .prj together: copy them all), so its features cannot be read"
             )
 
 
-def _macos_extra(name: str) -> bool:
-    """What macOS's Finder adds to a zip: ``__MACOSX/`` and ``._`` files (resource forks)."""
-    return name.startswith("__MACOSX/") or Path(name).name.startswith("._")
+def _zip_names(path: Path) -> list[str]:
+    """The files of a .zip, without what macOS's Finder adds (``__MACOSX/``, ``._``
+    resource forks); none for anything that is not a zip."""
+    if path.suffix.lower() != ".zip":
+        return []
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return []
+    return [n for n in names if not n.startswith("__MACOSX/") and not Path(n).name.startswith("._")]
 
 
 def _shapefile_folder_in_zip(path: Path) -> str | None:
@@ -250,16 +251,7 @@ def _shapefile_folder_in_zip(path: Path) -> str | None:
 
 def _shapefile_folders_in_zip(path: Path) -> set[str]:
     """The folders of a .zip that hold shapefiles ("." its top; macOS's copies left out)."""
-    if path.suffix.lower() != ".zip":
-        return set()
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = archive.namelist()
-    except (OSError, zipfile.BadZipFile):
-        return set()
-    return {
-        str(Path(n).parent) for n in names if n.lower().endswith(".shp") and not _macos_extra(n)
-    }
+    return {str(Path(n).parent) for n in _zip_names(path) if n.lower().endswith(".shp")}
 
 
 def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
@@ -345,7 +337,7 @@ def read_isoxml(path: Path) -> Document:
     PLNs make a multi-part field. PNTs of type 3 (field access) in a PFD are its gates, a
     PNT of type 11 (home base) is the garage."""
     source = path
-    read_sibling: Any = None  # an external file (XFR) of the same folder or archive
+    main = ISOXML_NAME  # the TASKDATA.XML: in a zip, its name there
     try:
         if path.is_dir():
             found = _isoxml_in_dir(path)
@@ -353,32 +345,23 @@ def read_isoxml(path: Path) -> Document:
                 raise GeometryError(f"{path}: no {ISOXML_NAME} in this folder")
             source = found
             data = found.read_bytes()
-            read_sibling = lambda name: _sibling(found.parent, name).read_bytes()  # noqa: E731
         elif path.suffix.lower() == ".zip":
             with zipfile.ZipFile(path) as archive:
                 name = _isoxml_in_zip(path)
                 if name is None:
                     raise GeometryError(f"{path}: no {ISOXML_NAME} in this archive")
                 data = archive.read(name)
-            folder = str(Path(name).parent)
-
-            def read_sibling(other: str) -> bytes:
-                with zipfile.ZipFile(path) as archive:
-                    wanted = str(Path(folder) / other).upper().removeprefix("./")
-                    match = [n for n in archive.namelist() if n.upper() == wanted]
-                    if not match:
-                        raise FileNotFoundError(f"no {other} in the archive")
-                    return archive.read(match[0])
+            main = name
         else:
             data = path.read_bytes()
-            read_sibling = lambda name: _sibling(path.parent, name).read_bytes()  # noqa: E731
     except (OSError, zipfile.BadZipFile) as exc:
         raise GeometryError(f"{path}: cannot read the farm: {exc}") from exc
     root = _isoxml_root(data, source, "ISO11783_TaskData")
     for xfr in root.findall("XFR"):  # partfields and the rest kept in external files
         name = f"{xfr.get('A', '')}.XML"
         try:
-            external = _isoxml_root(read_sibling(name), f"{source}: {name}", "XFC")
+            beside = _beside(path, source, main, name)
+            external = _isoxml_root(beside, f"{source}: {name}", "XFC")
         except (OSError, zipfile.BadZipFile) as exc:
             raise GeometryError(
                 f"{source}: the external file {name} it names (XFR) cannot be read: {exc}"
@@ -434,12 +417,20 @@ def read_isoxml(path: Path) -> Document:
     return {"type": "FeatureCollection", "features": features}
 
 
-def _sibling(folder: Path, name: str) -> Path:
-    """The file ``name`` of ``folder``, in whatever case a terminal wrote it."""
-    for child in folder.iterdir():
+def _beside(path: Path, source: Path, main: str, name: str) -> bytes:
+    """The file ``name`` beside the TASKDATA.XML (``source``; in the zip ``path``, its
+    member ``main``), in whatever case a terminal wrote it."""
+    if path.suffix.lower() == ".zip" and not path.is_dir():
+        wanted = str(Path(main).parent / name).upper().removeprefix("./")
+        with zipfile.ZipFile(path) as archive:
+            for member in archive.namelist():
+                if member.upper() == wanted:
+                    return archive.read(member)
+        raise FileNotFoundError(f"no {name} in the archive")
+    for child in source.parent.iterdir():
         if child.name.upper() == name.upper():
-            return child
-    raise FileNotFoundError(f"no {name} in {folder}")
+            return child.read_bytes()
+    raise FileNotFoundError(f"no {name} in {source.parent}")
 
 
 def _isoxml_root(data: bytes, source: Path | str, tag: str) -> ET.Element:
@@ -464,7 +455,6 @@ def _without(
 ) -> list[list[list[list[float]]]]:
     """The boundary polygons with the partfield's water, buildings and obstacles taken out
     (holes, or a smaller outline where one crosses the boundary): no swath drives there."""
-    from shapely.geometry import Polygon, mapping
 
     def shape(rings: list[list[list[float]]]) -> Polygon:
         return Polygon(rings[0], rings[1:])
