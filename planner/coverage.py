@@ -488,8 +488,8 @@ def _layout_fitting_turns(
     angle_deg: float | None,
     simplify_m: float | None,
     field_id: str,
-    clock: _Clock | None = None,
-    notes: list[str] | None = None,
+    clock: _Clock | None,
+    notes: list[str],
 ) -> _Layout:
     """:func:`_layout` with as many headland passes as the turns need (each pass given up
     for want of room said in ``notes``).
@@ -508,7 +508,7 @@ def _layout_fitting_turns(
         except GeometryError:
             if passes == 0:
                 raise
-            (notes if notes is not None else []).append(
+            notes.append(
                 f"field {field_id!r}: no room for {passes} headland passes for turns of "
                 f"radius {radius:g} m; laid out with {passes - 1}"
             )

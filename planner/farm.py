@@ -461,24 +461,19 @@ def _simplest(geom: dict[str, Any]) -> dict[str, Any]:
     if kind == "MultiPoint" and isinstance(coords, list) and len(coords) == 1:
         return {"type": "Point", "coordinates": coords[0]}
     parts = geom.get("geometries")
-    if kind == "GeometryCollection" and isinstance(parts, list):
-        rings = [
-            c
-            for g in parts
-            if isinstance(g, dict)
-            for c in (
-                [g.get("coordinates")]
-                if g.get("type") == "Polygon"
-                else g.get("coordinates") or []
-                if g.get("type") == "MultiPolygon"
-                else []
-            )
-        ]
-        if len(rings) == 1:
-            return {"type": "Polygon", "coordinates": rings[0]}
-        if rings:
-            return {"type": "MultiPolygon", "coordinates": rings}
-    return geom
+    if kind != "GeometryCollection" or not isinstance(parts, list):
+        return geom
+    polygons: list[Any] = []  # each a polygon's rings
+    for part in parts:
+        if not isinstance(part, dict):
+            continue
+        if part.get("type") == "Polygon":
+            polygons.append(part.get("coordinates"))
+        elif part.get("type") == "MultiPolygon" and isinstance(part.get("coordinates"), list):
+            polygons += part["coordinates"]
+    if len(polygons) == 1:
+        return {"type": "Polygon", "coordinates": polygons[0]}
+    return {"type": "MultiPolygon", "coordinates": polygons} if polygons else geom
 
 
 def _some(names: Sequence[str], most: int = 5) -> str:

@@ -246,11 +246,11 @@ def say_notes(coverage: FarmCoverage, planned: Sequence[tuple[str, str]]) -> Non
     """Warn of what the coverages of the ``planned`` (machine id, field id) pairs leave to
     be said (:attr:`~planner.coverage.FieldCoverage.notes`), each once, naming the machines:
     not of the coverages no machine is given (another width of the fleet's)."""
-    machines: dict[str, list[str]] = {}
+    by_note: dict[str, list[str]] = {}  # the machine ids a note is said for
     for pair in planned:
         for note in coverage[pair].notes:
-            machines.setdefault(note, []).append(pair[0])
-    for note, ids in machines.items():
+            by_note.setdefault(note, []).append(pair[0])
+    for note, ids in by_note.items():
         log.warning("%s (%s)", note, ", ".join(f"machine {m!r}" for m in dict.fromkeys(ids)))
 
 

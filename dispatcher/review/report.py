@@ -989,15 +989,8 @@ def _review_vehicle(
     turn_seqs = _turn_seqs(items)
     turns = sum(1 for s in turn_seqs if s <= last)
     working_h, transit_h = working_s / 3600.0, transit_s / 3600.0
-    fuel: float | None = None
-    if all(k in machine.params for k in ("road_fuel_lh", "work_fuel_lh", "turn_time_h")):
-        c_v, c_w, t_turn = (
-            machine.param("road_fuel_lh"),
-            machine.param("work_fuel_lh"),
-            machine.param("turn_time_h"),
-        )
-        fuel = transit_h * c_v + turns * t_turn * c_v + working_h * c_w
-    elif machine.fields:
+    fuel = _fuel(machine, transit_h, turns, working_h)
+    if fuel is None and machine.fields:
         warnings.append(
             f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
         )
@@ -1009,11 +1002,7 @@ def _review_vehicle(
             done_h, done_work_h, done_turns = done
             plan_h += done_h
             plan_turns += done_turns
-            if fuel is not None:
-                c_v, c_w = machine.param("road_fuel_lh"), machine.param("work_fuel_lh")
-                t_turn = machine.param("turn_time_h")
-                road_h = done_h - done_work_h
-                plan_fuel += road_h * c_v + done_turns * t_turn * c_v + done_work_h * c_w
+            plan_fuel += _fuel(machine, done_h - done_work_h, done_turns, done_work_h) or 0.0
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
     planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())
@@ -1559,6 +1548,16 @@ def _last_position(traffic: _Traffic | None, ns: int) -> tuple[float | None, flo
 
 def _ago(ns: int, start_ns: int | None) -> str:
     return f"{(ns - start_ns) / 1e9:.0f} s into the log" if start_ns is not None else "later"
+
+
+def _fuel(machine: PlannedMachine, road_h: float, turns: int, work_h: float) -> float | None:
+    """Formula (5) on what was driven: road hours and turns at the road rate, work hours at
+    the work rate; None if the plan gives no rates (an older plan.json)."""
+    if not all(k in machine.params for k in ("road_fuel_lh", "work_fuel_lh", "turn_time_h")):
+        return None
+    road_lh = machine.param("road_fuel_lh")
+    turn_h = turns * machine.param("turn_time_h")
+    return (road_h + turn_h) * road_lh + work_h * machine.param("work_fuel_lh")
 
 
 def _done_by(

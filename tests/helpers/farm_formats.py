@@ -58,13 +58,13 @@ def write_gdal(
     )
 
 
-def write_shapefiles(features: list[dict[str, Any]], folder: Path) -> Path:
-    """One shapefile per geometry type (a shapefile holds one) in ``folder``."""
+def write_shapefiles(features: list[dict[str, Any]], folder: Path, crs: str = "EPSG:4326") -> Path:
+    """One shapefile per geometry type (a shapefile holds one) in ``folder``, in ``crs``."""
     folder.mkdir(parents=True, exist_ok=True)
     for gtype, name in GEOMETRY_LAYERS.items():
         part = [f for f in features if f["geometry"]["type"] == gtype]
         if part:
-            write_gdal(part, folder / f"{name}.shp", "ESRI Shapefile")
+            write_gdal(part, folder / f"{name}.shp", "ESRI Shapefile", crs=crs)
     return folder
 
 

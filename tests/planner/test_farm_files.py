@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers.farm_formats import (
-    GEOMETRY_LAYERS,
     convert,
     farm_features,
     write_gdal,
@@ -468,13 +467,9 @@ def test_a_geopackages_primary_key_named_id_is_the_field_id(tmp_path):
 def test_a_projected_shapefile_without_its_prj_is_named(tmp_path):
     """A copy that dropped the .prj: its UTM metres read as degrees, and the message spoke
     of GeoJSON and swapped coordinates."""
-    folder = tmp_path / "farm"
-    folder.mkdir()
-    features = farm_features(CHANGJI)
-    for gtype, name in GEOMETRY_LAYERS.items():
-        part = [f for f in features if f["geometry"]["type"] == gtype]
-        write_gdal(part, folder / f"{name}.shp", "ESRI Shapefile", crs="EPSG:32645")
-        (folder / f"{name}.prj").unlink()
+    folder = write_shapefiles(farm_features(CHANGJI), tmp_path / "farm", crs="EPSG:32645")
+    for prj in folder.glob("*.prj"):
+        prj.unlink()
     with pytest.raises(GeometryError, match=r"no coordinate system \(a shapefile's \.prj beside"):
         load_farm(folder)
 
