@@ -4,7 +4,8 @@
 * GeoJSON (``.geojson``, ``.json``): parsed as JSON, so that every error names the feature
   at fault (GDAL unifies the properties of all features into typed columns and refuses a
   bad feature without saying which). A GeoJSON file with a ``crs`` member (GeoJSON 2008)
-  in another CRS is read through GDAL, as below.
+  in another CRS is read through GDAL, as below; so is an Esri JSON file (ArcGIS's export
+  of a layer: features of ``attributes`` and ``geometry``, in its ``spatialReference``).
 * Everything GDAL reads (through pyogrio): KML/KMZ, shapefile (``.shp``, a folder of
   them, or a ``.zip`` of them), GeoPackage, and the rest; every layer with geometry, each
   reprojected from its CRS to WGS84 with a message.
@@ -67,6 +68,8 @@ def read_farm_document(path: Path) -> Document:
     suffix = path.suffix.lower()
     if suffix in GEOJSON_SUFFIXES:
         doc = read_json(path)
+        if _is_esri_json(doc):
+            return read_gdal(path)
         if isinstance(doc, dict) and doc.get("crs") is not None and not _crs_is_wgs84(doc["crs"]):
             converted = read_gdal(path)
             # The features' own ids (RFC 7946), which GDAL takes as its feature numbers.
@@ -94,6 +97,19 @@ def read_json(path: Path) -> Any:
         raise GeometryError(f"{path}: not JSON (line {exc.lineno}: {exc.msg})") from exc
     except ValueError as exc:  # e.g. an integer of more digits than Python reads
         raise GeometryError(f"{path}: not JSON we can read ({exc})") from exc
+
+
+def _is_esri_json(doc: Any) -> bool:
+    """Whether ``doc`` is Esri JSON (a FeatureSet: ``geometryType``, ``spatialReference``,
+    features of ``attributes`` and ``geometry``), which GDAL reads, and not GeoJSON."""
+    if not isinstance(doc, dict) or doc.get("type") is not None:
+        return False
+    features = doc.get("features")
+    if "geometryType" in doc or "spatialReference" in doc:
+        return True
+    return isinstance(features, list) and any(
+        isinstance(f, dict) and "attributes" in f and "type" not in f for f in features
+    )
 
 
 def _crs_is_wgs84(crs: Any) -> bool:

@@ -14,6 +14,7 @@ import numpy as np
 import pyogrio
 import pyproj
 import shapely
+import shapely.geometry
 
 GEOMETRY_LAYERS = {"Polygon": "fields", "LineString": "roads", "Point": "points"}
 
@@ -66,6 +67,37 @@ def write_shapefiles(features: list[dict[str, Any]], folder: Path, crs: str = "E
         if part:
             write_gdal(part, folder / f"{name}.shp", "ESRI Shapefile", crs=crs)
     return folder
+
+
+def write_esri_json(features: list[dict[str, Any]], path: Path, wkid: int = 3857) -> Path:
+    """The polygons of ``features`` as ArcGIS exports a layer (Esri JSON, a FeatureSet in
+    ``wkid``, Web Mercator by default): outlines clockwise, holes counter-clockwise."""
+    to = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{wkid}", always_xy=True)
+    out = []
+    for k, f in enumerate(f for f in features if f["geometry"]["type"] == "Polygon"):
+        polygon = shapely.orient_polygons(shapely.geometry.shape(f["geometry"]), exterior_cw=True)
+        rings = [polygon.exterior, *polygon.interiors]
+        out.append(
+            {
+                "attributes": {"OBJECTID": k + 1, **f["properties"]},
+                "geometry": {
+                    "rings": [[list(to.transform(x, y)) for x, y in ring.coords] for ring in rings]
+                },
+            }
+        )
+    doc = {
+        "displayFieldName": "name",
+        "geometryType": "esriGeometryPolygon",
+        "spatialReference": {"wkid": wkid, "latestWkid": wkid},
+        "fields": [{"name": "OBJECTID", "type": "esriFieldTypeOID", "alias": "OBJECTID"}]
+        + [
+            {"name": key, "type": "esriFieldTypeString", "alias": key, "length": 64}
+            for key in ("kind", "id", "name")
+        ],
+        "features": out,
+    }
+    path.write_text(json.dumps(doc))
+    return path
 
 
 def zip_folder(folder: Path, archive: Path) -> Path:

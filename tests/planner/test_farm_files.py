@@ -13,6 +13,7 @@ import pytest
 from helpers.farm_formats import (
     convert,
     farm_features,
+    write_esri_json,
     write_gdal,
     write_isoxml,
     write_shapefiles,
@@ -549,3 +550,13 @@ def test_shapes_other_tools_save_a_farm_in_are_read(tmp_path):
     doc.write_text(json.dumps(field))
     one = load_farm(doc, FarmOptions(garage=(9.999, 49.999)))
     assert [f.id for f in one.fields] == ["A"]
+
+
+def test_an_esri_json_export_of_the_fields_reads_as_the_same_fields(tmp_path, reference):
+    """ArcGIS's own JSON (a FeatureSet in Web Mercator, features of attributes): the fields
+    as the GeoJSON has them, the garage from the scenario."""
+    path = write_esri_json(farm_features(CHANGJI), tmp_path / "Fields.json")
+    farm = load_farm(path, FarmOptions(garage=reference.garage_lonlat))
+    assert [(f.id, f.name) for f in farm.fields] == [(f.id, f.name) for f in reference.fields]
+    for f, r in zip(farm.fields, reference.fields, strict=True):
+        assert f.boundary_lonlat.hausdorff_distance(r.boundary_lonlat) < CM_DEG, f.id
