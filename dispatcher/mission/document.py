@@ -7,7 +7,8 @@ writes or reads the JSON: ``agrifleet plan`` writes it, the daemon publishes and
 review reads it back from a log. The JSON layout (``schema`` 1)::
 
     {"plan_id", "farm_id", "objective", "algorithm", "seed", "garage": {"lat", "lon"},
-     "fields": {id: {"name", "area_m2", "polygon": [[lon, lat], ...]}},
+     "fields": {id: {"name", "area_m2", "polygon": [[lon, lat], ...],
+                     "holes": [[[lon, lat], ...], ...]}},  # holes only if it has any
      "machines": [{"id", "system_id", "working_width_m", "params": {...}, "fields": [...],
                    "distance_m", "fuel_l", "time_h", "work_h", "turns", "visits": [...],
                    "mission_items", "items": [[seq, field, swath, role, x, y, command,
@@ -152,6 +153,14 @@ class PlannedField:
     name: str
     area_m2: float
     polygon: tuple[tuple[float, float], ...]  # (lon, lat), closed
+    # What inside the outline is not worked (a pond, a building), each ring closed; a key
+    # of the JSON only when there is one, so that plans of fields without keep their ids.
+    holes: tuple[tuple[tuple[float, float], ...], ...] = ()
+
+    @property
+    def rings(self) -> tuple[tuple[tuple[float, float], ...], ...]:
+        """The outline, then the holes."""
+        return (self.polygon, *self.holes)
 
 
 @dataclass(frozen=True)
@@ -203,10 +212,7 @@ class PlanDocument:
             "algorithm": self.algorithm,
             "seed": self.seed,
             "garage": {"lat": self.garage[0], "lon": self.garage[1]},
-            "fields": {
-                fid: {"name": f.name, "area_m2": f.area_m2, "polygon": [list(p) for p in f.polygon]}
-                for fid, f in self.fields.items()
-            },
+            "fields": {fid: _field_json(f) for fid, f in self.fields.items()},
             "machines": [
                 {
                     "id": m.id,
@@ -245,9 +251,11 @@ class PlanDocument:
         planned_fields = {}
         for fid, f in fields_doc.items():
             fr = _Reader(f, f"fields.{fid}")
-            polygon = tuple((float(p[0]), float(p[1])) for p in fr.get("polygon", list) if _pair(p))
             planned_fields[str(fid)] = PlannedField(
-                str(fr.get("name", str, default=fid)), fr.number("area_m2", 0.0), polygon
+                str(fr.get("name", str, default=fid)),
+                fr.number("area_m2", 0.0),
+                _ring(fr.get("polygon", list)),
+                tuple(_ring(h) for h in fr.get("holes", list, default=[]) if isinstance(h, list)),
             )
         machines = []
         for k, m in enumerate(r.get("machines", list)):
@@ -374,6 +382,22 @@ class _Reader:
 
 def _finite(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _field_json(f: PlannedField) -> dict[str, Any]:
+    doc: dict[str, Any] = {
+        "name": f.name,
+        "area_m2": f.area_m2,
+        "polygon": [list(p) for p in f.polygon],
+    }
+    if f.holes:
+        doc["holes"] = [[list(p) for p in hole] for hole in f.holes]
+    return doc
+
+
+def _ring(points: list[Any]) -> tuple[tuple[float, float], ...]:
+    """A ring's (lon, lat) pairs as read, what is not one left out."""
+    return tuple((float(p[0]), float(p[1])) for p in points if _pair(p))
 
 
 def _pair(value: object) -> bool:

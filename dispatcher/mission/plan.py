@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from shapely.geometry import LinearRing
+
 from dispatcher.config.scenario import Scenario, Vehicle
 from dispatcher.mission.build import (
     FieldVisit,
@@ -183,9 +185,8 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
             f.id: PlannedField(
                 name=f.name,
                 area_m2=round(f.area_m2, 2),
-                polygon=tuple(
-                    (_round7(lon), _round7(lat)) for lon, lat in f.boundary_lonlat.exterior.coords
-                ),
+                polygon=_lonlat7(f.boundary_lonlat.exterior),
+                holes=tuple(_lonlat7(hole) for hole in f.boundary_lonlat.interiors),
             )
             for f in farm.fields
         },
@@ -220,6 +221,11 @@ def _segment(original: dict[str, tuple[int, ...]], trace: Trace) -> int | None:
 
 def _round7(value: float) -> float:
     return round(value, 7)
+
+
+def _lonlat7(ring: LinearRing) -> tuple[tuple[float, float], ...]:
+    """A ring's (lon, lat) corners to 1e-7 degrees (a MAVLink position's step)."""
+    return tuple((_round7(lon), _round7(lat)) for lon, lat in ring.coords)
 
 
 def write_plan_files(dispatch: DispatchPlan, out_dir: str | Path) -> list[Path]:
@@ -283,7 +289,7 @@ def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
             "geometry": {
                 "type": "Polygon",
                 "coordinates": [  # the outline, then the holes (a pond is not worked)
-                    [list(map(_round7, p)) for p in ring.coords]
+                    [list(p) for p in _lonlat7(ring)]
                     for ring in (f.boundary_lonlat.exterior, *f.boundary_lonlat.interiors)
                 ],
             },

@@ -152,8 +152,8 @@ def _xy(frame: LocalFrame, lats: Sequence[float], lons: Sequence[float]) -> np.n
 
 
 def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str, str]) -> None:
-    """Field outlines with their ids, tinted by the vehicle that finished them; a field
-    that changed hands in a re-plan says from whom to whom."""
+    """Field outlines (and holes) with their ids, tinted by the vehicle that finished them;
+    a field that changed hands in a re-plan says from whom to whom."""
     moved = {fid: (a, b) for rp in review.replans for fid, a, b in rp.taken_over}
     for f in review.fields:
         if len(f.polygon) < 3:
@@ -173,7 +173,13 @@ def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str,
                 lw=1.0,
                 zorder=1,
             )
-        c = Polygon(xy).representative_point()
+        holes = []
+        for hole in f.holes:  # not worked (a pond): the background, outlined
+            if len(hole) >= 3:
+                hole_lons, hole_lats = zip(*hole, strict=True)
+                holes.append(_xy(frame, hole_lats, hole_lons))
+                ax.fill(*holes[-1].T, facecolor="white", edgecolor=FIELD_EDGE, lw=0.8, zorder=2)
+        c = Polygon(xy, holes).representative_point()
         label = f"{f.id}\n{moved[f.id][0]}→{moved[f.id][1]}" if f.id in moved else f.id
         ax.annotate(
             label,

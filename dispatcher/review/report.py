@@ -182,6 +182,7 @@ class FieldReview:
     name: str
     area_m2: float
     polygon: tuple[tuple[float, float], ...]  # (lon, lat)
+    holes: tuple[tuple[tuple[float, float], ...], ...]  # what inside it is not worked
     vehicle: str | None
     done: bool
     started_s: float | None
@@ -859,7 +860,7 @@ def _review_vehicle(
     status: Mapping[str, Any] | None,
     since_ns: int,
     end_ns: int | None,
-    fields: Mapping[str, Sequence[Sequence[float]]],
+    fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
     replanned_ns: int | None = None,
 ) -> _VehicleResult:
     """One vehicle's traffic set against ``machine``, its last mission. With
@@ -1322,7 +1323,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(machine.id),
             end_ns,
-            {fid: f.polygon for fid, f in plan.fields.items()},
+            {fid: f.rings for fid, f in plan.fields.items()},
             plan.log_ns if went_on else None,
         )
         results[machine.id] = result
@@ -1340,7 +1341,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(vid),
             end_ns,
-            {fid: f.polygon for fid, f in plan.fields.items()},
+            {fid: f.rings for fid, f in plan.fields.items()},
         )
         result.review = dataclasses.replace(result.review, left_out=True)
         results[vid] = result
@@ -1646,14 +1647,14 @@ def _field_reviews(
         start = held.start_clock if held is not None else None
         started = times.started if times is not None else None
         finished = times.finished if times is not None else None
-        polygon = info.polygon if info is not None else ()
         p_start, p_end = planned.get(fid, (None, None))
         out.append(
             FieldReview(
                 id=fid,
                 name=info.name if info is not None else fid,
                 area_m2=info.area_m2 if info is not None else 0.0,
-                polygon=polygon,
+                polygon=info.polygon if info is not None else (),
+                holes=info.holes if info is not None else (),
                 vehicle=holder,
                 done=finished is not None,
                 started_s=_minus(started, start),

@@ -65,11 +65,12 @@ def track_quality(
     items: Sequence[PlannedItem],
     times: Mapping[int, float],
     track: Sequence[tuple[float, float, float]],
-    fields: Mapping[str, Sequence[Sequence[float]]],
+    fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
 ) -> TrackQuality | None:
     """Measure one vehicle's track (``(clock s, lat, lon)`` in time order) against its
     mission ``items``, given when each item was done (``times``, the vehicle's clock) and
-    the fields' outlines (lists of ``(lon, lat)``). None when nothing was driven."""
+    the fields' rings (each field's outline, then its holes: lists of ``(lon, lat)``);
+    a hole (a pond) counts as outside. None when nothing was driven."""
     if len(track) < 2 or not items:
         return None
     frame = LocalFrame.around(float(track[0][2]), float(track[0][1]))
@@ -85,12 +86,16 @@ def track_quality(
         return float(lx), float(ly)
 
     outlines: dict[str, Polygon] = {}
-    for fid, ring in fields.items():
+    for fid, rings in fields.items():
         try:
-            xs, ys = frame.to_local(
-                np.array([float(p[0]) for p in ring]), np.array([float(p[1]) for p in ring])
-            )
-            outlines[fid] = Polygon(np.column_stack([xs, ys])).buffer(OUTSIDE_TOLERANCE_M)
+            local_rings = []
+            for ring in rings:
+                xs, ys = frame.to_local(
+                    np.array([float(p[0]) for p in ring]), np.array([float(p[1]) for p in ring])
+                )
+                local_rings.append(np.column_stack([xs, ys]))
+            polygon = Polygon(local_rings[0], local_rings[1:])
+            outlines[fid] = polygon.buffer(OUTSIDE_TOLERANCE_M)
         except (TypeError, ValueError, IndexError):
             continue
 

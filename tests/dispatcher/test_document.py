@@ -65,3 +65,20 @@ def test_no_infinity_is_written(dispatch):
     bad = replace(dispatch.document, totals={"fuel_l": float("inf")})
     with pytest.raises(ValueError):
         bad.to_json()
+
+
+def test_a_fields_holes_are_kept_and_a_field_without_has_no_key(dispatch):
+    """A pond inside a field goes through plan.json and back; fields without holes are
+    written as before (no ``holes`` key), so that their plans keep their ids."""
+    doc = dispatch.document
+    fid, field = next(iter(doc.fields.items()))
+    lon, lat = field.polygon[0]
+    pond = ((lon, lat), (lon + 1e-4, lat), (lon + 1e-4, lat + 1e-4), (lon, lat))
+    with_pond = replace(doc, fields={**doc.fields, fid: replace(field, holes=(pond,))}).with_id()
+    written = json.loads(with_pond.to_json())
+    assert written["fields"][fid]["holes"] == [[list(p) for p in pond]]
+    assert all("holes" not in f for k, f in written["fields"].items() if k != fid)
+    again = PlanDocument.from_json(with_pond.to_json())
+    assert again == with_pond and again.fields[fid].rings == (field.polygon, pond)
+    assert with_pond.plan_id != doc.plan_id
+    assert "holes" not in json.loads(doc.to_json())["fields"][fid]

@@ -371,6 +371,10 @@ def test_a_pond_in_a_field_is_an_exclusion_no_path_enters(tmp_path):
     assert not any(pond.contains(Point(i["params"][5], i["params"][4])) for i in items)
     # The map the live view and a GIS read shows it too (the outline alone before).
     scenario = load_scenario(DATA / "tiny.toml", tmp_path / "pond.geojson")
-    shown = plan_geojson(dispatch_for(scenario.with_machines(1), time_limit_s=2))
+    dispatch = dispatch_for(scenario.with_machines(1), time_limit_s=2)
+    shown = plan_geojson(dispatch)
     (field,) = [f for f in shown["features"] if f["properties"]["kind"] == "field"]
     assert len(field["geometry"]["coordinates"]) == 2
+    # And so does the plan document, that review reads back from a log.
+    (planned,) = dispatch.document.fields.values()
+    assert [list(map(list, r)) for r in planned.rings] == field["geometry"]["coordinates"]

@@ -43,6 +43,7 @@ from dispatcher.review.report import (
     review_log,
     review_table,
 )
+from dispatcher.review.track import track_quality
 from planner.problem import Machine
 from sim_vehicles.tractor import SimTractor
 
@@ -675,3 +676,31 @@ def test_a_vehicle_sent_out_again_by_a_re_plan_is_reviewed_from_its_fresh_missio
     state, fresh = _replay_events(log, plan)
     assert state is not None
     assert fresh == {"v2": 30}  # v1's mission is the same: not sent out again
+
+
+def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside():
+    """The field's holes are not field: a working line across a pond is time outside."""
+    outline = ((10.0, 50.0), (10.002, 50.0), (10.002, 50.001), (10.0, 50.001), (10.0, 50.0))
+    pond = ((10.0008, 50.0003), (10.0012, 50.0003), (10.0012, 50.0007), (10.0008, 50.0007))
+    pond += pond[:1]
+
+    def item(seq: int, role: str, lon: float, command: int) -> PlannedItem:
+        return PlannedItem(seq, "F", 0, role, round(50.0005e7), round(lon * 1e7), command)
+
+    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
+    items = [
+        item(0, "home", 10.0001, nav),
+        item(1, "swath_start", 10.0001, nav),
+        item(2, "implement_down", 10.0001, servo),
+        item(3, "swath_end", 10.0019, nav),
+        item(4, "implement_up", 10.0019, servo),
+    ]
+    times = {0: 0.0, 1: 10.0, 2: 10.0, 3: 110.0, 4: 110.0}
+    track = [(10.0 + k, 50.0005, 10.0001 + 0.0018 * k / 100) for k in range(101)]
+    without = track_quality(items, times, track, {"F": (outline,)})
+    with_pond = track_quality(items, times, track, {"F": (outline, pond)})
+    assert without is not None and with_pond is not None
+    assert without.outside_down_s == 0.0
+    # The pond is 0.0004 degrees of longitude across (29 m) of the line's 0.0018; less the
+    # tolerance at both of its sides, and a sample's step either side.
+    assert 17.0 <= with_pond.outside_down_s <= 25.0
