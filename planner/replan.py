@@ -51,6 +51,7 @@ from planner.field_plan import (
     field_anchor,
     lay_out,
     machine_figures,
+    say_notes,
     settle_unable,
     work_of,
 )
@@ -338,6 +339,12 @@ def replan_farm(
     )
 
     result = settle_unable(result, coverage)
+    # What a coverage leaves to be said, for the fields a machine is newly given (their own
+    # were said by the plan before; a rest keeps the coverage of the visit it is part of).
+    before = previous.machines if previous is not None else ()
+    had = {(p.machine.id, v.field.id) for p in before for v in p.visits}
+    given = [(fleet[i].id, todo[j].id) for i, r in enumerate(result.routes) for j in r]
+    say_notes(coverage, [pair for pair in given if pair not in had and pair in coverage])
     plans: list[MachinePlan] = []
     for i, route in enumerate(result.routes):
         state = machines[i]

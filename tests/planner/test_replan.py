@@ -5,6 +5,7 @@ import logging
 import math
 
 import pytest
+from shapely.geometry import Polygon
 
 from planner.coverage import rectangle_field
 from planner.errors import ProblemError
@@ -205,3 +206,35 @@ def test_a_field_only_a_machine_gone_could_work_stays_undone_and_the_rest_is_pla
     assert "stays undone" in caplog.text
     assert new.machines[0].field_ids and "strip" not in new.machines[0].field_ids
     assert sorted(new.machines[0].field_ids) == ["f0", "f1", "f2"]
+
+
+def test_what_a_coverage_leaves_unworked_is_said_when_a_replan_hands_it_over(caplog):
+    """The wedge's apex, which the narrow machine works, is left unworked by the wide one:
+    said when the re-plan gives the wedge to the wide machine, not again for a machine
+    that keeps its field."""
+    frame = LocalFrame.around(87.3, 44.0)
+    apex = Polygon([(0, 0), (400, 0), (400, 400 * math.tan(math.radians(10.0)))])
+    square = rectangle_field(60.0, 90.0, 0.0, (0.0, 150.0))
+    farm = Farm(
+        fields=(Field("wedge", "wedge", apex, Polygon()), Field("sq", "sq", square, square)),
+        garage=(-60.0, 20.0),
+        garage_lonlat=(87.3, 44.0),
+        frame=frame,
+    )
+    wide = Machine("wide", 6.9, 400.0, 5.0, 0.002, 1.0, 2.0, min_turn_radius_m=6.0)
+    narrow = Machine("narrow", 1.5, 9000.0, 10.0, 0.002, 1.0, 2.0, work_speed_kmh=8.0)
+    with caplog.at_level(logging.WARNING):
+        plan = plan_farm(farm, [narrow, wide], "makespan", "hybrid", stop_after(10), seed=1)
+    assert "wedge" in plan.machines[0].field_ids and "unworked" not in caplog.text
+    with caplog.at_level(logging.WARNING):
+        replan_farm(
+            farm,
+            [MachineState(narrow, (0.0, 0.0)), MachineState(wide, (0.0, 0.0))],
+            stop=stop_after(10),
+            previous=plan,
+        )
+    assert "unworked" not in caplog.text  # the same machine keeps it
+    with caplog.at_level(logging.WARNING):
+        replan_farm(farm, [MachineState(wide, (0.0, 0.0))], stop=stop_after(10), previous=plan)
+    assert "field 'wedge': " in caplog.text and "(machine 'wide')" in caplog.text
+    assert "left unworked at a working width of 6.9 m" in caplog.text
