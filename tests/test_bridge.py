@@ -383,3 +383,21 @@ def test_the_token_follows_the_autopilot_heartbeat_and_the_link_comes_back(
             assert "links_opened=2" in output, output
         finally:
             watch.close()
+
+
+def test_another_autopilots_heartbeat_is_named_once() -> None:
+    """An autopilot whose MAV_SYSID is not the fleet file's system_id: its HEARTBEAT is
+    told apart (once), a ground station's and our own autopilot's are not."""
+
+    def heartbeat(system: int, component: int = 1, autopilot: int = mc.MAV_AUTOPILOT_ARDUPILOTMEGA):
+        fields = {"type": mc.MAV_TYPE_GROUND_ROVER, "base_mode": 0, "custom_mode": 0}
+        fields |= {"system_status": 3, "mavlink_version": 3, "autopilot": autopilot}
+        return vehicle_msg("HEARTBEAT", system, component, **fields)
+
+    flt = AutopilotFilter(SYSTEM)
+    assert flt.stranger(heartbeat(SYSTEM)) is None
+    assert flt.stranger(heartbeat(1)) == (1, 1)
+    assert flt.stranger(heartbeat(1)) is None  # said once
+    assert flt.stranger(heartbeat(255, 190, mc.MAV_AUTOPILOT_INVALID)) is None  # a GCS
+    assert flt.stranger(vehicle_msg("SYSTEM_TIME", 2, time_unix_usec=0, time_boot_ms=0)) is None
+    assert not flt.admit(heartbeat(1), 0.0)  # and it is not forwarded

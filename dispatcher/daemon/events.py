@@ -140,11 +140,14 @@ class StartRefused(Event):
 
 @dataclass(frozen=True)
 class LeftAuto(Event):
-    """A running vehicle is out of AUTO or disarmed, not by our doing (a failsafe, the
-    operator ...): it does not drive its mission."""
+    """A running vehicle is out of AUTO or disarmed, not by our doing: ``by_operator``
+    when neither its failsafe said so nor we told it to HOLD (left alone until put back in
+    AUTO), else a failsafe's (started again once it hears us). It does not drive its
+    mission."""
 
     kind: ClassVar[str] = "left_auto"
     reason: str
+    by_operator: bool = False
 
 
 @dataclass(frozen=True)

@@ -72,6 +72,10 @@ EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lo
 EXIT_INTERRUPTED = 130
 LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
+OPERATOR_HOLDS = (
+    "left to the operator: not armed or started by the dispatcher, and waited for, until "
+    "put back in AUTO (it then drives on)"
+)
 """Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
 FAILSAFE_CLEAR_WAIT_S = 3.0
 """Wall seconds a vehicle stopped by its ground-station failsafe is to be heard after it
@@ -206,6 +210,9 @@ class _Link:
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
+    # Seen stopped while its clock ran on, by no failsafe's doing nor ours: the operator's,
+    # should it reboot before that is said (LEFT_AUTO_AFTER_S); until it drives again.
+    stopped_by_operator: bool = False
     heard_at: float | None = None  # when this process first heard the vehicle
     round_trip: RoundTrip = field(default_factory=RoundTrip)  # measured by its transfers
 
@@ -487,7 +494,13 @@ class Dispatcher:
         v = self.state.vehicles[vid]
         if msg.get_srcSystem() != v.system_id:
             return
+        link = self.links[vid]
         for event in self.state.on_message(vid, msg, now):
+            if isinstance(event, ev.Rebooted) and link.stopped_by_operator and not v.operator_hold:
+                # It rebooted after the operator stopped it: it stays the operator's.
+                reason = f"{LEFT_AUTO} before it rebooted"
+                self._apply(ev.LeftAuto(vid, reason, by_operator=True), now)
+                self._log("warning", f"{vid}: {reason}; {OPERATOR_HOLDS}")
             self._apply(event, now)
         if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
             self.recorder.record_location(
@@ -498,7 +511,6 @@ class Dispatcher:
                 msg.time_boot_ms / 1000.0,
                 heading_deg=v.heading_deg,
             )
-        link = self.links[vid]
         for machine in link.exchanges():
             if machine is not None and machine.outcome is Outcome.RUNNING:
                 self._send(vid, machine.on_message(msg, now))
@@ -638,6 +650,16 @@ class Dispatcher:
                 self._apply(ev.VehicleStalled(vid, round(idle, 1)), now)
                 self._log("warning", f"{vid}: {v.error}; told to HOLD")
                 self._hold(v, link, now)
+            if v.driving:
+                link.stopped_by_operator = False
+            elif (
+                v.stopped_on_clock
+                and v.phase is Phase.RUNNING
+                and link.hold is None
+                and not v.held_for_route
+                and v.held_by_failsafe is None
+            ):
+                link.stopped_by_operator = True
             if (
                 v.off_auto_since is not None
                 and now - v.off_auto_since > LEFT_AUTO_AFTER_S
@@ -646,9 +668,16 @@ class Dispatcher:
                 reason = f"{LEFT_AUTO}: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
                 if failsafe := v.held_by_failsafe:
                     reason += f", held by its failsafe ({failsafe})"
-                self._apply(ev.LeftAuto(vid, reason), now)
-                self._log("warning", f"{vid}: {reason}; not driving its mission")
-            if v.off_auto_since is None and v.error.startswith(LEFT_AUTO):
+                by_operator = not failsafe and link.hold is None and not v.held_for_route
+                self._apply(ev.LeftAuto(vid, reason, by_operator=by_operator), now)
+                self._log(
+                    "warning",
+                    f"{vid}: {reason}; not driving its mission"
+                    + (f"; {OPERATOR_HOLDS}" if by_operator else ""),
+                )
+            if v.off_auto_since is None and (
+                v.error.startswith(LEFT_AUTO) or (v.operator_hold and v.driving)
+            ):
                 self._apply(ev.BackInAuto(vid), now)
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
@@ -698,7 +727,11 @@ class Dispatcher:
         if v.verify_mission and v.phase in (Phase.RUNNING, Phase.DONE) and not v.switch:
             self._verify(v, link, now)
             return
-        if v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None:
+        if v.operator_hold:
+            pass  # the operator's: nothing is sent to it (module doc, OPERATOR_HOLDS)
+        elif (
+            v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None
+        ):
             self._restart(v, link, now)
         elif failsafe := self._failsafe_over(v, link):
             link.start_item = v.resume_item
@@ -1140,6 +1173,20 @@ class Dispatcher:
         if link.start_item >= v.held:
             # Past the part of its mission it holds (at the end of a window): more first.
             self._upload(v, link, now)
+            return
+        if v.operator_hold:
+            # The operator took it out of AUTO (before a reboot, a restart of ours, or a
+            # re-plan that wants it on): not ours to start. Followed as running, started
+            # at the right item (a restart) once the operator puts it back in AUTO.
+            if v.phase is not Phase.RUNNING:
+                self._apply(ev.MissionStarted(v.id, link.start_item), now)
+            v.needs_restart = True
+            self._log(
+                "warning",
+                f"{v.id}: to go on at item {link.start_item}, but out of AUTO by the "
+                f"operator's hand (mode {v.mode}, {'armed' if v.armed else 'disarmed'}); "
+                f"{OPERATOR_HOLDS}",
+            )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
         self._apply(ev.StartRequested(v.id, link.start_item), now)

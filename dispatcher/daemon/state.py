@@ -160,6 +160,12 @@ class VehicleState:
     lost_at: float | None = None
     phase_before_lost: Phase | None = None  # where to go back to when the link returns
     off_auto_since: float | None = None  # wall clock since a running vehicle left AUTO/armed
+    # Out of AUTO or disarmed while its clock ran on (reported since), not a reboot's doing.
+    stopped_on_clock: bool = False
+    # The operator took it out of AUTO (no failsafe said so): left alone, never armed or
+    # started by us, until it is put back in AUTO (then it drives on; after a reboot
+    # meanwhile, from where it was).
+    operator_hold: bool = False
     lost_s: float = 0.0  # wall seconds without link, over the run
     upload_attempts: int = 0
     upload_retries: int = 0
@@ -169,7 +175,9 @@ class VehicleState:
     system_status: int | None = None  # HEARTBEAT.system_status (MAV_STATE)
     clock: RunClock = field(default_factory=RunClock)  # the vehicle's clock, continuous
     reboots: int = 0
-    needs_restart: bool = False  # rebooted while driving: to be armed again and resumed
+    # Rebooted while driving, or left to the operator when it was to be started: to be
+    # armed again and resumed (the latter once the operator puts it back in AUTO).
+    needs_restart: bool = False
     held_for_route: bool = False  # told to HOLD until its new route is on board (events)
     # MISSION_CURRENT.total: the last item the vehicle holds (in the plan's numbers)
     mission_total: int | None = None
@@ -444,6 +452,7 @@ class FleetState:
                     v.error = reason
             case ev.StartRequested(item=item):
                 v.phase = Phase.STARTING
+                v.operator_hold = False
                 v.resuming = False
                 v.start_from, v.moved_since_start = item, False
             case ev.MissionStarted():
@@ -465,10 +474,14 @@ class FleetState:
                 if v.phase is Phase.FAILED:
                     v.phase, v.error = Phase.ALIVE, ""
                     v.upload_attempts = 0
-            case ev.StartRefused(reason=reason) | ev.LeftAuto(reason=reason):
+            case ev.StartRefused(reason=reason):
                 v.error = reason
+            case ev.LeftAuto(reason=reason, by_operator=by_operator):
+                v.error = reason
+                v.operator_hold = v.operator_hold or by_operator
             case ev.BackInAuto():
                 v.error = ""
+                v.operator_hold = False
             case ev.ItemReached(seq=seq, clock_s=clock_s):
                 self._item_reached(v, seq, clock_s, now)
             case ev.ProgressDoubted() | ev.ForeignCommand():
@@ -483,6 +496,8 @@ class FleetState:
                 if v.phase in (Phase.RUNNING, Phase.STARTING) or (
                     v.phase is Phase.LOST and v.phase_before_lost in (Phase.RUNNING, Phase.STARTING)
                 ):
+                    # To go on from where it was: at once if it was driving, once put back
+                    # in AUTO if the operator had stopped it (the daemon tells which).
                     v.needs_restart = True
 
     def _replace_plan(self, doc: PlanDocument) -> None:
@@ -720,13 +735,18 @@ class FleetState:
                 v.system_status = status
                 if status == mc.MAV_STATE_CRITICAL:
                     v.critical_at = now
-            if v.needs_restart or v.held_for_route:
+            was_off = v.off_auto_since is not None
+            if (v.needs_restart and not v.operator_hold) or v.held_for_route:
                 v.off_auto_since = None  # expected: the daemon starts it again
-            elif v.phase is Phase.RUNNING and (v.mode != ROVER_MODE_AUTO or not v.armed):
+            elif v.phase is Phase.RUNNING and not v.driving:
                 if v.off_auto_since is None:
                     v.off_auto_since = now  # a failsafe, the operator, a reboot ...
             else:
                 v.off_auto_since = None
+            if v.driving:
+                v.stopped_on_clock = False
+                if was_off and v.off_auto_since is None:  # its time out of AUTO: no stall
+                    v.progress_s, v.progress_wall = v.sim_time_s, now
         elif kind == "GLOBAL_POSITION_INT":
             if msg.lat == 0 and msg.lon == 0:
                 # No position yet (an autopilot without a GPS fix reports 0, 0): its clock
@@ -827,6 +847,8 @@ class FleetState:
         """The vehicle's clock; a restart is a reboot, and its time carries on from there."""
         t, rebooted = v.clock.update(clock_s, now)
         v.sim_time_s = max(v.sim_time_s, t)
+        if not rebooted and v.off_auto_since is not None:
+            v.stopped_on_clock = True
         return [ev.Rebooted(v.id)] if rebooted and not v.needs_restart else []
 
     # --- reading -------------------------------------------------------------------------
@@ -845,18 +867,14 @@ class FleetState:
         return min(join, len(v.items) - 1)
 
     def finished(self, now: float, lost_grace_s: float) -> bool:
-        """Nothing more will happen: every vehicle done, failed, or lost or out of AUTO for
-        longer than ``lost_grace_s`` (a short loss of link is not the end of a vehicle; one
-        its failsafe holds is started again once it hears us, however long that takes)."""
+        """Nothing more will happen: every vehicle done, failed, or lost for longer than
+        ``lost_grace_s`` (a short loss of link is not the end of a vehicle). One out of
+        AUTO is waited for, however long that takes: its failsafe's is started again once
+        it hears us, the operator's drives on when put back in AUTO."""
         return all(
             v.phase in (Phase.DONE, Phase.FAILED)
             or v.retired
             or (v.phase is Phase.LOST and v.lost_at is not None and now - v.lost_at >= lost_grace_s)
-            or (
-                v.off_auto_since is not None
-                and now - v.off_auto_since >= lost_grace_s
-                and v.held_by_failsafe is None
-            )
             for v in self.vehicles.values()
         )
 

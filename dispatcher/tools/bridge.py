@@ -134,6 +134,22 @@ class AutopilotFilter:
         self.counts: Counter[str] = Counter()
         self._buckets = {kind: _TokenBucket(hz) for kind, hz in rate_limits.items()}
         self._last_content: dict[str, tuple[object, ...]] = {}
+        self._strangers: set[tuple[int, int]] = set()
+
+    def stranger(self, msg: mc.MAVLinkMessage) -> tuple[int, int] | None:
+        """The (system, component) of an autopilot other than ours that ``msg`` shows
+        (its HEARTBEAT, not a ground station's or a companion's), the first time; else
+        None. An autopilot whose MAV_SYSID is not the fleet file's ``system_id``."""
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if (
+            msg.get_type() != "HEARTBEAT"
+            or msg.autopilot == mc.MAV_AUTOPILOT_INVALID
+            or self.from_autopilot(msg)
+            or source in self._strangers
+        ):
+            return None
+        self._strangers.add(source)
+        return source
 
     def from_autopilot(self, msg: mc.MAVLinkMessage) -> bool:
         return (msg.get_srcSystem(), msg.get_srcComponent()) == (self.system_id, self.component_id)
@@ -445,6 +461,21 @@ class _Bridge:
         for msg in messages:
             if msg.get_type() == "HEARTBEAT" and self.filter.from_autopilot(msg):
                 self.presence.on_heartbeat(now)
+            elif (source := self.filter.stranger(msg)) and not self.presence.present(now):
+                log.warning(
+                    "%s: %s carries the heartbeat of an autopilot as system %d component %d, "
+                    "and none of system %d component %d (the fleet file's system_id): its "
+                    "messages are not forwarded; give %s system_id = %d in the fleet file, "
+                    "or set MAV_SYSID = %d on the autopilot",
+                    self.vehicle.id,
+                    self.url,
+                    *source,
+                    self.filter.system_id,
+                    self.filter.component_id,
+                    self.vehicle.id,
+                    source[0],
+                    self.filter.system_id,
+                )
             if self.filter.admit(msg, now):
                 self.publisher.put(mc.mavlink2_frame(msg, self.signer))
 

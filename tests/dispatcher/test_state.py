@@ -4,7 +4,15 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-from helpers.daemon import Pub, daemon_for, feed, heartbeat, mission_current, running_events
+from helpers.daemon import (
+    Pub,
+    daemon_for,
+    deliver,
+    feed,
+    heartbeat,
+    mission_current,
+    running_events,
+)
 from helpers.messages import command_ack, from_vehicle, position, track
 
 from dispatcher.config.errors import ConfigError
@@ -481,7 +489,8 @@ def test_an_ekf_failsafe_or_an_old_critical_is_left_to_the_operator(dispatch):
 def test_a_vehicle_its_failsafe_holds_is_not_given_up(dispatch):
     """Its failsafe may outlast the grace (a top-up under way on a lossy radio holds the
     start back: a 50 %-loss run ended without it): the run waits for it, and says why it
-    stands; one the operator stopped is given up after the grace."""
+    stands; for one the operator stopped too (it may be put back in AUTO: a run that ended
+    then left it without our heartbeats, so its GCS failsafe held it)."""
     import types
 
     daemon = daemon_driving_v1(dispatch, 7)
@@ -502,7 +511,8 @@ def test_a_vehicle_its_failsafe_holds_is_not_given_up(dispatch):
         feed(operator.state, "v1", holding(11), now)
         operator._tick(now)
     assert operator.state.vehicles["v1"].error == "left AUTO: mode 4, armed"
-    assert operator.state.finished(45.0, lost_grace_s=30.0)
+    assert operator.state.vehicles["v1"].operator_hold
+    assert not operator.state.finished(45.0, lost_grace_s=30.0)
 
 
 def test_a_vehicle_the_operator_stopped_is_left_alone(dispatch):
@@ -531,7 +541,7 @@ def test_a_vehicle_left_in_auto_is_put_in_hold_before_its_next_start(dispatch):
     assert cmds[0].params[1] == 4.0 and cmds[-1].params[1] == 10.0
 
 
-def test_a_running_vehicle_out_of_auto_is_flagged_and_given_up_after_the_grace(dispatch):
+def test_a_running_vehicle_out_of_auto_is_flagged_and_waited_for(dispatch):
     state = FleetState(dispatch.document)
     state.vehicles["v2"].phase = Phase.DONE
     v = state.vehicles["v1"]
@@ -541,7 +551,7 @@ def test_a_running_vehicle_out_of_auto_is_flagged_and_given_up_after_the_grace(d
     feed(state, "v1", hold, 10.0)
     assert v.off_auto_since == 10.0 and not state.finished(20.0, lost_grace_s=30.0)
     assert state.status_doc()["vehicles"]["v1"]["stopped_outside_auto"] is True
-    assert state.finished(41.0, lost_grace_s=30.0)
+    assert not state.finished(41.0, lost_grace_s=30.0)
     auto = heartbeat(11)
     auto.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
     feed(state, "v1", auto, 42.0)  # back in AUTO and armed
@@ -1092,3 +1102,75 @@ def test_renumbered_under_way_and_stopped_at_the_item_driven_from_memory_it_goes
     assert link.start is not None and link.start.outcome is Outcome.RUNNING
     (item,) = [c.params[0] for c in link.start.commands if c.command == SET_CURRENT]
     assert item == driven + 1  # the plan's numbers; sent as the vehicle's driven + 1 - base + 1
+
+
+def stopped(sysid):
+    """A HEARTBEAT of a vehicle in HOLD and disarmed: how the operator parks it."""
+    msg = holding(sysid)
+    msg.base_mode = 0
+    return msg
+
+
+def test_a_vehicle_the_operator_stopped_and_rebooted_is_not_armed_until_put_back_in_auto(
+    dispatch,
+):
+    """The operator holds and disarms a driving tractor and power-cycles its autopilot two
+    seconds later (before "left AUTO" is said): it is not armed or started by us. Put back
+    in AUTO and armed by the operator (ArduPilot then drives its mission from item 1), it
+    is sent on from the item after the last one reached."""
+    daemon = daemon_driving_v1(dispatch, 7)
+    v = daemon.state.vehicles["v1"]
+    deliver(daemon, "v1", position_of_v1(500_000), 0.5)
+    deliver(daemon, "v1", stopped(11), 1.0)
+    deliver(daemon, "v1", position_of_v1(501_000), 1.5)  # its clock runs on, stopped
+    daemon._tick(1.6)
+    deliver(daemon, "v1", position_of_v1(2_000), 3.0)  # rebooted
+    assert v.reboots == 1 and v.operator_hold and v.needs_restart
+    total = mc.message("MISSION_CURRENT", seq=0, total=len(v.items) - 1, mission_state=2)
+    for now in (4.0, 10.0, 40.0, 400.0):
+        deliver(daemon, "v1", stopped(11), now)
+        deliver(daemon, "v1", total, now)
+        daemon._tick(now)
+    assert not commands_to(daemon, "v1", 11)
+    assert not daemon.state.finished(400.0, lost_grace_s=30.0)  # waited for
+    deliver(daemon, "v1", driving_heartbeat(11), 401.0)  # the operator: AUTO, armed
+    daemon._tick(401.0)
+    assert not v.operator_hold
+    daemon._tick(401.1)
+    # Started again: HOLD first (it is in AUTO), then item 8, arm, AUTO.
+    assert v.phase is Phase.STARTING and daemon.links["v1"].start_item == 8
+    assert commands_to(daemon, "v1", 11) == [(mc.MAV_CMD_DO_SET_MODE, 1.0)]
+
+
+def test_a_hold_longer_than_the_stall_limit_is_no_stall_once_back_in_auto(dispatch):
+    """The operator holds a tractor for 100 s of its own time (the stall limit is 60 s),
+    then puts it back in AUTO: it drives on, neither told to HOLD nor given up."""
+    daemon = daemon_driving_v1(dispatch, 7)
+    daemon.config.stall_after_s = 60.0
+    v = daemon.state.vehicles["v1"]
+    deliver(daemon, "v1", position_of_v1(500_000), 0.5)
+    for k in range(11):  # 100 s of its clock, 10 s of wall time
+        deliver(daemon, "v1", holding(11), 1.0 + k)
+        deliver(daemon, "v1", position_of_v1(501_000 + 10_000 * k), 1.0 + k)
+        daemon._tick(1.0 + k)
+    assert v.operator_hold and v.error.startswith("left AUTO")
+    for now in (12.0, 14.0, 16.0):  # still where it was: its first metres take a while
+        deliver(daemon, "v1", driving_heartbeat(11), now)
+        deliver(daemon, "v1", position_of_v1(602_000 + round(1000 * (now - 12.0))), now)
+        daemon._tick(now)
+    assert v.phase is Phase.RUNNING and not v.operator_hold and not v.stalled
+    assert not commands_to(daemon, "v1", 11)
+
+
+def test_after_a_restart_a_vehicle_the_operator_stopped_is_not_started(dispatch, tmp_path):
+    stored = [*running_events("v1", 7), ev.LeftAuto("v1", "left AUTO: mode 4", by_operator=True)]
+    daemon = resumed_daemon(dispatch, tmp_path, stored)
+    v = daemon.state.vehicles["v1"]
+    assert v.operator_hold
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", stopped(11), 0.0)
+    feed(daemon.state, "v1", mission_current(11, 8, len(v.items) - 1, 2), 0.0)
+    read_back(daemon, "v1", 11)
+    assert v.phase is Phase.RUNNING and v.needs_restart
+    assert not [c for c in commands_to(daemon, "v1", 11) if c[0] != mc.MAV_CMD_DO_SET_MODE]
+    assert mc.MAV_CMD_COMPONENT_ARM_DISARM not in [c for c, _ in commands_to(daemon, "v1", 11)]

@@ -60,3 +60,12 @@ def running_events(vid, reached):
 def mission_current(sysid, seq, total, state):
     msg = mc.message("MISSION_CURRENT", seq=seq, total=total, mission_state=state, mission_mode=1)
     return from_vehicle(msg, sysid)
+
+
+def deliver(daemon, vid, msg, now, sysid=11):
+    """A frame from vehicle ``vid`` (system ``sysid``) through the daemon's own handling,
+    as it arrives over Zenoh (recorded, decoded, its events applied, the link moved on)."""
+    from dispatcher.link import wire
+
+    payload = mc.Codec(sysid, 1).encode(msg)
+    daemon._handle(("frame", wire.vehicle_from(daemon.farm, vid), payload, int(now * 1e9)), now)
