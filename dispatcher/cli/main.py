@@ -326,7 +326,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 )
             store.resume_run(run)
             job = run.job
-            replanner = replanner_resumed(scenario, job, run.started)
+            replanner = replanner_resumed(scenario, job, run.started, run.first_document)
             print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
         else:
             dispatch = plan_scenario(args, scenario)

@@ -124,17 +124,20 @@ def default_data_dir(farm_id: str) -> Path:
 
 @dataclass(frozen=True)
 class StoredRun:
-    """An unfinished run read back: its job and its events ``(wall time, event)``."""
+    """An unfinished run read back: its job (after a re-plan, the last plan's document
+    and missions), its first plan's document, and its events ``(wall time, event)``."""
 
     id: int
     job: DispatchJob
     fingerprint: str
     started: float
     events: tuple[tuple[float, ev.Event], ...]
+    first_document: PlanDocument
 
     def replay(self) -> FleetState:
-        """The fleet's state as the events left it (time: each event's wall time)."""
-        state = FleetState(self.job.document)
+        """The fleet's state as the events left it (time: each event's wall time), from
+        the run's first plan on (its re-plans are among the events)."""
+        state = FleetState(self.first_document)
         for wall, event in self.events:
             state.apply(event, wall)
         return state
@@ -233,26 +236,29 @@ class Store:
         run_id, fingerprint, started, document, geojson = row
         where = f"{self.path} run {run_id}"
         try:
-            doc = PlanDocument.from_json(document)
+            first = PlanDocument.from_json(document)
             items = {
                 vid: json.loads(text)
                 for vid, text in self.conn.execute(
                     "SELECT vehicle, items FROM missions WHERE run = ?", (run_id,)
                 )
             }
-            job = DispatchJob.from_parts(doc, items, json.loads(geojson))
             events = tuple(
                 (wall, ev.from_dict(json.loads(body)))
                 for wall, body in self.conn.execute(
                     "SELECT wall, body FROM events WHERE run = ? ORDER BY id", (run_id,)
                 )
             )
+            # The missions stored are the last plan's: after a re-plan, its document.
+            replans = [e.document for _, e in events if isinstance(e, ev.PlanReplaced)]
+            last = PlanDocument.from_json(replans[-1]) if replans else first
+            job = DispatchJob.from_parts(last, items, json.loads(geojson))
         except (PlanDocumentError, ValueError) as exc:
             raise StoreError(f"{where}: {exc}") from exc
-        unknown = {e.vehicle for _, e in events} - {m.id for m in doc.machines}
+        unknown = {e.vehicle for _, e in events} - {m.id for m in first.machines} - {ev.FLEET}
         if unknown:
             raise StoreError(f"{where}: events of vehicles not in its plan: {sorted(unknown)}")
-        return StoredRun(run_id, job, fingerprint, started, events)
+        return StoredRun(run_id, job, fingerprint, started, events, first)
 
     def begin_run(self, job: DispatchJob, fingerprint: str, started: float | None = None) -> int:
         """Keep a new run's job, begun at ``started`` (:func:`time.time`; default now); its
@@ -287,8 +293,9 @@ class Store:
         return run_id
 
     def replace_missions(self, job: DispatchJob) -> None:
-        """The missions of a re-planned job (its document travels in the plan_replaced
-        event; the run's first document stays as it was)."""
+        """The missions and map of a re-planned job (its document travels in the
+        plan_replaced event, stored before: the run's first document stays as it was, for
+        the events to be replayed from)."""
         if self.run_id is None:
             raise StoreError("no run begun or resumed")
         self.commit()
@@ -296,6 +303,9 @@ class Store:
             self.conn.executemany(
                 "INSERT OR REPLACE INTO missions VALUES (?, ?, ?)",
                 [(self.run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions],
+            )
+            self.conn.execute(
+                "UPDATE runs SET geojson = ? WHERE id = ?", (json.dumps(job.geojson), self.run_id)
             )
 
     def resume_run(self, run: StoredRun) -> None:

@@ -341,13 +341,18 @@ def replanner_for(
 
 
 def replanner_resumed(
-    scenario: Scenario, job: DispatchJob, started: float, seconds: float = REPLAN_SOLVER_S
+    scenario: Scenario,
+    job: DispatchJob,
+    started: float,
+    first: PlanDocument,
+    seconds: float = REPLAN_SOLVER_S,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
-    """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the run's
-    first plan document, the missions as last uploaded), ``started`` when the run began (as
-    stored). The fields' first layouts are laid out again from that document (coverage is
-    deterministic; each visit's corner is recorded), at the first re-plan."""
-    return _replanner(scenario, None, job, None, seconds, started)
+    """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the last
+    plan's document, the missions as last uploaded), ``started`` when the run began and
+    ``first`` its first plan's document (as stored). The fields' first layouts are laid out
+    again from that document (coverage is deterministic; each visit's corner is recorded),
+    at the first re-plan."""
+    return _replanner(scenario, None, job, None, seconds, started, first)
 
 
 def run_hours(state: FleetState, started: float, now: float) -> float:
@@ -387,6 +392,7 @@ def _replanner(
     base: dict[str, Visit] | None,
     seconds: float,
     started: float,
+    first: PlanDocument | None = None,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     current = dispatch
     took_s = (
@@ -397,7 +403,7 @@ def _replanner(
         nonlocal current, job, base, took_s
         began = time.monotonic()
         if base is None:
-            base = first_visits(scenario, job.document)
+            base = first_visits(scenario, first or job.document)
         lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
         stop = stop_after(scenario.solver.generations, seconds, flag=cancel)
         left_h = deadline_left_h(

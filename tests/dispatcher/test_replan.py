@@ -300,3 +300,46 @@ def test_the_runs_hours_are_counted_on_the_vehicles_clocks(current):
     assert deadline_left_h(12.0, 10.0) == pytest.approx(2.0)
     assert deadline_left_h(12.0, 12.5) == 0.0  # passed: none
     assert deadline_left_h(0.0, 1.0) == 0.0  # no deadline
+
+
+def test_a_run_re_planned_before_a_restart_resumes_with_the_last_plan(current, tmp_path):
+    """The store keeps the first plan's document and the last plan's missions: read back,
+    the job is the last plan's (its document from the plan_replaced event), and the events
+    replay from the first plan through the re-plan (it failed to read back before)."""
+    from dispatcher.daemon.store import Store
+    from dispatcher.tools.replan import handover
+
+    scenario = current.scenario
+    first = current.job()
+    store = Store.open(tmp_path, scenario.farm_id)
+    store.begin_run(first, "inputs")
+    state = FleetState(current.document)
+    events = []
+    for vid in ("v1", "v2"):
+        events += [
+            ev.VehicleSeen(vid),
+            ev.UploadStarted(vid, 1),
+            ev.UploadAcked(vid),
+            ev.StartRequested(vid, 1),
+            ev.MissionStarted(vid, 1),
+        ]
+    events += [ev.ItemReached("v1", 3, 30.0), ev.VehicleLost("v2", "heartbeats stopped")]
+    for event in events:
+        state.apply(event, 1.0)
+        store.append(event, 1.0)
+    nxt = replan(scenario, current, state, stop=stop_after(5))
+    job = handover(first, state, nxt)
+    store.append(ev.PlanReplaced(ev.FLEET, job.plan_id, "v2 lost", job.document.to_dict()), 2.0)
+    store.replace_missions(job)
+    store.commit()
+    store.close()
+
+    run = Store.open(tmp_path, scenario.farm_id).unfinished_run()
+    assert run is not None and run.first_document == first.document
+    assert run.job.document == job.document and run.job.geojson == job.geojson
+    assert {vid: m.items for vid, m in run.job.missions.items()} == {
+        vid: m.items for vid, m in job.missions.items()
+    }
+    replayed = run.replay()
+    assert replayed.plan_id == job.plan_id and replayed.vehicles["v2"].retired
+    assert replayed.vehicles["v1"].items == job.document.machine("v1").items
