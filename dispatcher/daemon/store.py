@@ -24,8 +24,12 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``application_id`` =
 
     meta(key, value)                 farm_id, created
     runs(id, plan_id, farm_id, fingerprint, started, ended, outcome,
-         document, geojson)          outcome NULL while unfinished
-    missions(run, vehicle, items)    items: JSON arrays (dispatcher.mission.job)
+         document, geojson)          outcome NULL while unfinished; the first plan's
+                                     document, the last plan's GeoJSON
+    missions(run, vehicle, items)    items: JSON arrays (dispatcher.mission.job), as last
+                                     uploaded (a re-plan's document: its plan_replaced event)
+
+One dispatcher a data directory: :meth:`Store.open` locks ``agrifleet.lock`` there.
     events(id, run, wall, vehicle, kind, body)
     vehicles(run, vehicle, phase, reached, items, reboots, error, updated)
     fields(run, field, vehicle, status, started_s, finished_s, swaths_done)
@@ -34,6 +38,7 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``application_id`` =
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import sqlite3
@@ -52,6 +57,7 @@ from dispatcher.mission.job import DispatchJob
 SCHEMA_VERSION = 1
 APPLICATION_ID = 0x41475246  # "AGRF"
 DB_NAME = "agrifleet.sqlite3"
+LOCK_NAME = "agrifleet.lock"  # held by the dispatcher that has the database open
 SYNC_MODES = ("full", "normal")
 
 _SCHEMA = """
@@ -143,12 +149,38 @@ class StoredRun:
         return state
 
 
+def _lock(data_dir: Path) -> int:
+    """``data_dir``'s lock file, locked, with this process's id in it (its descriptor); a
+    :class:`StoreError` naming the holder's when another process holds it (two dispatchers
+    on one store would both command the fleet). The lock goes with the process."""
+    path = data_dir / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise StoreError(f"data directory {data_dir}: {exc.strerror or exc}") from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise StoreError(
+            f"data directory {data_dir}: in use by another dispatcher (process {holder}); "
+            "stop that one first, or give this one another --data-dir"
+        ) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return fd
+
+
 class Store:
     """One farm's database (module doc). Used from the daemon's main thread only."""
 
-    def __init__(self, path: Path, conn: sqlite3.Connection, farm_id: str) -> None:
+    def __init__(
+        self, path: Path, conn: sqlite3.Connection, farm_id: str, lock: int | None = None
+    ) -> None:
         self.path = path
         self.conn = conn
+        self._lock = lock  # held while open: one dispatcher a data directory
         self.farm_id = farm_id
         self.run_id: int | None = None
         self.run_started: float | None = None  # when that run began (time.time())
@@ -168,15 +200,20 @@ class Store:
         except OSError as exc:
             raise StoreError(f"data directory {data_dir}: {exc.strerror or exc}") from exc
         path = data_dir / DB_NAME
+        lock = _lock(data_dir)
         try:
             conn = sqlite3.connect(path, isolation_level=None)
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute(f"PRAGMA synchronous={sync.upper()}")
             conn.execute("PRAGMA foreign_keys=ON")
-            store = cls(path, conn, farm_id)
+            store = cls(path, conn, farm_id, lock)
             store._check_or_create()
         except sqlite3.DatabaseError as exc:
+            os.close(lock)
             raise StoreError(f"{path}: not a database agrifleet can use ({exc})") from exc
+        except StoreError:
+            os.close(lock)
+            raise
         return store
 
     def _check_or_create(self) -> None:
@@ -220,9 +257,15 @@ class Store:
             raise
         self.conn.execute("COMMIT")
 
-    def close(self) -> None:
-        self.commit()
+    def close(self, commit: bool = True) -> None:
+        """Close the database (after a commit unless ``commit`` is false: what is pending
+        is lost, as in a crash) and let another dispatcher have it."""
+        if commit:
+            self.commit()
         self.conn.close()
+        if self._lock is not None:
+            os.close(self._lock)  # and with it the lock
+            self._lock = None
 
     # --- runs ----------------------------------------------------------------------------
     def unfinished_run(self) -> StoredRun | None:

@@ -334,7 +334,9 @@ def test_a_run_re_planned_before_a_restart_resumes_with_the_last_plan(current, t
     store.commit()
     store.close()
 
-    run = Store.open(tmp_path, scenario.farm_id).unfinished_run()
+    store = Store.open(tmp_path, scenario.farm_id)
+    run = store.unfinished_run()
+    store.close()
     assert run is not None and run.first_document == first.document
     assert run.job.document == job.document and run.job.geojson == job.geojson
     assert {vid: m.items for vid, m in run.job.missions.items()} == {

@@ -70,7 +70,9 @@ def test_a_renumbered_vehicle_is_read_back_with_its_numbers(
         store.append(event, 1000.0 + k)
     store.commit()
     store.close()
-    run = Store.open(tmp_path, "tiny").unfinished_run()
+    store = Store.open(tmp_path, "tiny")
+    run = store.unfinished_run()
+    store.close()
     assert run is not None and [e for _, e in run.events] == events
     numbering = run.replay().vehicles[v1.id].numbering
     assert (numbering.base, numbering.count) == (36, len(v1.items) - 35)
@@ -96,8 +98,10 @@ def test_uncommitted_events_are_not_kept(dispatch: DispatchPlan, tmp_path: Path)
     store.append(ev.VehicleSeen("v1"), 1.0)
     store.commit()
     store.append(ev.VehicleLost("v1", "gone"), 2.0)  # the process dies before the commit
-    store.conn.close()
-    run = Store.open(tmp_path, "tiny").unfinished_run()
+    store.close(commit=False)
+    store = Store.open(tmp_path, "tiny")
+    run = store.unfinished_run()
+    store.close()
     assert run is not None and [e for _, e in run.events] == [ev.VehicleSeen("v1")]
 
 
@@ -118,7 +122,9 @@ def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Pa
     assert store.rows("PRAGMA journal_mode") == [("wal",)]
     assert store.rows("PRAGMA synchronous") == [(1,)]  # NORMAL
     store.close()
-    assert Store.open(tmp_path, "tiny").rows("PRAGMA synchronous") == [(2,)]  # FULL
+    store = Store.open(tmp_path, "tiny")
+    assert store.rows("PRAGMA synchronous") == [(2,)]  # FULL
+    store.close()
 
 
 def test_fresh_abandons_the_unfinished_run_and_keeps_it(
@@ -132,6 +138,7 @@ def test_fresh_abandons_the_unfinished_run_and_keeps_it(
     assert store.unfinished_run() is None
     second = store.begin_run(dispatch.job(), "y")
     assert store.rows("SELECT id, outcome FROM runs") == [(first, "abandoned"), (second, None)]
+    store.close()
 
 
 def test_a_database_of_another_farm_is_refused_with_both_names(tmp_path: Path) -> None:
@@ -169,6 +176,7 @@ def test_a_damaged_stored_run_names_the_run(dispatch: DispatchPlan, tmp_path: Pa
     store.conn.execute("UPDATE missions SET items = '[[1, 2]]' WHERE vehicle = 'v1'")
     with pytest.raises(StoreError, match=rf"run {run_id}: machine 'v1': 1 mission items"):
         store.unfinished_run()
+    store.close()
 
 
 def test_default_data_dir_is_under_the_user_state_dir(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -188,3 +196,17 @@ def test_serve_refuses_to_resume_a_run_of_other_inputs(
     assert code == 2
     err = capsys.readouterr().err
     assert "unfinished run 1" in err and "--fresh" in err and str(tmp_path / DB_NAME) in err
+
+
+def test_a_second_dispatcher_on_the_same_data_directory_is_refused(tmp_path: Path) -> None:
+    """Two dispatchers on one store would both command the fleet and both write its runs:
+    the second is refused, naming the first's process; once that closed, it opens."""
+    import os
+
+    first = Store.open(tmp_path, "tiny")
+    with pytest.raises(
+        StoreError, match=rf"in use by another dispatcher \(process {os.getpid()}\)"
+    ):
+        Store.open(tmp_path, "tiny")
+    first.close()
+    Store.open(tmp_path, "tiny").close()
