@@ -682,6 +682,22 @@ class Dispatcher:
             if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
                 self._log("error", f"{vid}: never came alive")
                 self._apply(ev.VehicleLost(vid, "never came alive"), now)
+            elif (
+                v.phase is Phase.ALIVE
+                and v.mode is None  # no HEARTBEAT of it taken
+                and link.heard_at is not None
+                and now - link.heard_at > self.config.alive_timeout_s
+            ):
+                # Its liveliness token is there, but no frame of it was taken: a bridge
+                # whose autopilot is silent, or frames that fail the key check.
+                why = (
+                    f"never heard: {v.frames_refused} frame(s) of it refused, not signed "
+                    "with its key (is its key file the dispatcher's?)"
+                    if v.frames_refused
+                    else "never heard: its liveliness token is there, no frame of it came"
+                )
+                self._log("error", f"{vid}: {why}")
+                self._apply(ev.VehicleLost(vid, why), now)
         self._replan_step(now)
         if now - self._last_status >= self.config.status_period_s:
             self._publish_status(now)

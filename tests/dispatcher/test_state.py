@@ -1174,3 +1174,18 @@ def test_after_a_restart_a_vehicle_the_operator_stopped_is_not_started(dispatch,
     assert v.phase is Phase.RUNNING and v.needs_restart
     assert not [c for c in commands_to(daemon, "v1", 11) if c[0] != mc.MAV_CMD_DO_SET_MODE]
     assert mc.MAV_CMD_COMPONENT_ARM_DISARM not in [c for c, _ in commands_to(daemon, "v1", 11)]
+
+
+def test_a_vehicle_alive_by_its_token_but_never_heard_is_lost_after_the_alive_timeout(dispatch):
+    """Its token is there, no frame of it is taken (signed with another key, say): it is
+    lost once the alive timeout is over, saying why, and its work re-planned; it stood
+    'alive' for ever, the run never ending."""
+    daemon = daemon_for(dispatch)
+    daemon.state.vehicles["v2"].phase = Phase.DONE
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)  # the liveliness token
+    v.frames_refused = 140
+    daemon._tick(30.0)
+    assert v.phase is Phase.ALIVE
+    daemon._tick(61.0)
+    assert v.phase is Phase.LOST and "140 frame(s) of it refused" in v.error
