@@ -394,6 +394,20 @@ def test_bad_numbers_and_unusable_paths_exit_2_naming_them(tmp_path, capsys):
     assert main(["plan", str(TINY), "--out", str(taken), "--time-limit", "1"]) == 2
     assert f"agrifleet: error: {taken}: File exists" in capsys.readouterr().err
     assert taken.read_text() == "mine"
+    # serve's and demo's directories: named, before anything is planned or kept.
+    data = tmp_path / "data"
+    for argv, flag in (
+        (
+            ["serve", str(TINY), "--unsigned", "--data-dir", str(data), "--log-dir", str(taken)],
+            "--log-dir",
+        ),
+        (["serve", str(TINY), "--unsigned", "--data-dir", str(taken)], "--data-dir"),
+        (["demo", str(TINY), "--no-foxglove", "--log-dir", str(taken)], "--log-dir"),
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{flag} {taken}: not a directory" in err and "planned" not in err, err
+    assert not (data / "agrifleet.sqlite3").exists() and taken.read_text() == "mine"
 
 
 def test_a_scenario_as_windows_and_other_languages_write_it(tmp_path, capsys):

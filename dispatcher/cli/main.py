@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from dispatcher.config.errors import DispatcherError
+from dispatcher.config.errors import ConfigError, DispatcherError
 from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments
 from dispatcher.link.signals import sigterm_interrupts
@@ -280,7 +280,6 @@ def print_plan_table(dispatch) -> None:  # type: ignore[no-untyped-def]
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from dispatcher.config.errors import ConfigError
     from dispatcher.mission.plan import write_plan_files
 
     if args.out is None and not args.json:
@@ -309,7 +308,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     keys = signing_keys(args, scenario, ids)
     zenoh = as_hub(wire.zenoh_options(args, True), access_control(scenario.farm_id, ids))
     zenoh.config()  # a missing certificate or a plain endpoint with --tls: said before planning
-    data_dir = args.data_dir or default_data_dir(scenario.farm_id)
+    data_dir = made_dir(args.data_dir or default_data_dir(scenario.farm_id), "--data-dir")
+    made_dir(args.log_dir, "--log-dir")
     fingerprint = inputs_fingerprint(scenario, args)
     store = Store.open(data_dir, scenario.farm_id, args.sync)
     try:
@@ -368,7 +368,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from dispatcher.config.errors import ConfigError
     from dispatcher.config.scenario import load_scenario
     from dispatcher.link.keys import key_path, write_keys
 
@@ -441,6 +440,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         radio_seed=args.radio_seed,
     )
     foxglove = foxglove_address(args)  # checked before planning too
+    made_dir(args.log_dir, "--log-dir")
     dispatch = plan_scenario(args, scenario)
     print_plan_table(dispatch)
     result = run_demo(
@@ -983,6 +983,20 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
         help="a deadline (hybrid, makespan): the shortest roads among plans done within H "
         "hours; 0: none (default: the scenario's finish_within_h)",
     )
+
+
+def made_dir(path: Path, flag: str) -> Path:
+    """``path`` made a directory (with its parents) before anything is planned or written,
+    or a :class:`ConfigError` naming ``flag``: a file there, no permission, ..."""
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{flag} {path}: not a directory (a file of that name is there)")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(
+            f"{flag} {path}: cannot be made a directory ({exc.strerror or exc})"
+        ) from exc
+    return path
 
 
 def add_log_dir_argument(p: argparse.ArgumentParser) -> None:
