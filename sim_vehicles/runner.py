@@ -159,12 +159,12 @@ def run(
     boot_unix_s = time.time()
     try:
         with contextlib.ExitStack() as sessions:
-            shared = None if options.tls else sessions.enter_context(zenoh.open(options.config()))
+            shared = None if options.tls else sessions.enter_context(options.open())
             try:
                 for index, vehicle in enumerate(vehicles):
                     # With TLS each vehicle is its own identity: a session (and certificate) each.
                     session = shared or sessions.enter_context(
-                        zenoh.open(options.as_identity(vehicle.id).config())
+                        options.as_identity(vehicle.id).open()
                     )
                     tractor = SimTractor(
                         vehicle,

@@ -315,7 +315,7 @@ class Dispatcher:
         self.log_path = Path(self.recorder.path) if self.recorder.path else None
         log.info("recording to %s", self.log_path)
         self._start_live_view()
-        self.session = zenoh.open(cfg.zenoh.config())
+        self.session = cfg.zenoh.open()
         s = self.session
         self._entities.append(
             s.declare_subscriber(

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -93,10 +94,30 @@ class ZenohOptions:
             return self
         return replace(self, tls=replace(self.tls, name=name))
 
+    def open(self) -> zenoh.Session:
+        """A Zenoh session of these options; a :class:`ConfigError` naming the endpoints
+        when Zenoh cannot open one (a port in use, a certificate it cannot read)."""
+        conf = self.config()
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            where = ", ".join([*self.listen, *self.connect]) or "the configured endpoints"
+            raise ConfigError(
+                f"Zenoh cannot open a session on {where}: {_zenoh_reason(exc)}"
+            ) from None
+
     def config(self) -> zenoh.Config:
-        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        if self.config_file:
+            try:
+                conf = zenoh.Config.from_file(self.config_file)
+            except zenoh.ZError as exc:
+                raise ConfigError(
+                    f"--zenoh-config {self.config_file}: {_zenoh_reason(exc)}"
+                ) from None
+        else:
+            conf = zenoh.Config()
         if self.mode not in ("peer", "client", "router"):
-            raise ValueError(f"zenoh mode must be peer, client or router, not {self.mode!r}")
+            raise ConfigError(f"zenoh mode must be peer, client or router, not {self.mode!r}")
         conf.insert_json5("mode", json.dumps(self.mode))
         # Loopback and configured endpoints only: never look for peers by multicast, and
         # never listen beyond where asked. A peer's default is every interface (port 0):
@@ -125,9 +146,20 @@ class ZenohOptions:
         for item in self.extra:
             key, sep, value = item.partition(":")
             if not sep:
-                raise ValueError(f"--cfg wants KEY:VALUE, got {item!r}")
-            conf.insert_json5(key, value)
+                raise ConfigError(f"--cfg wants KEY:VALUE, got {item!r}")
+            try:
+                conf.insert_json5(key, value)
+            except zenoh.ZError as exc:
+                raise ConfigError(f"--cfg {item}: {_zenoh_reason(exc)}") from None
         return conf
+
+
+def _zenoh_reason(exc: zenoh.ZError) -> str:
+    """A Zenoh error's message on one line, without its source-file locations."""
+    text = " ".join(str(exc).split())
+    if expected := re.search(r"= (expected [^\"\\]*)", text):  # a JSON5 value
+        return f"not JSON5 ({expected.group(1).strip()})"
+    return re.sub(r"\s*(at )?\S+\.rs:\d+(:\d+)?\.?", "", text).strip() or "no reason given"
 
 
 def dispatcher_options(listen: Sequence[str] = (DEFAULT_ENDPOINT,), **kw: object) -> ZenohOptions:

@@ -246,7 +246,7 @@ def run_bridge(
         scenario.farm_id,
     )
     try:
-        with zenoh.open(options.config()) as session:
+        with options.open() as session:
             bridge = _Bridge(
                 scenario.farm_id,
                 vehicle,

@@ -13,8 +13,6 @@ from __future__ import annotations
 import logging
 import threading
 
-import zenoh
-
 from dispatcher.link.signals import stop_on_signals
 from dispatcher.link.wire import ZenohOptions
 
@@ -32,7 +30,7 @@ def run_router(options: ZenohOptions, stop: threading.Event | None = None) -> in
     stop = stop if stop is not None else threading.Event()
     restore_signals = stop_on_signals(stop, "stopping the router")
     try:
-        with zenoh.open(options.config()) as session:
+        with options.open() as session:
             log.info(
                 "zenoh router %s listening on %s, connected to %s",
                 session.zid(),

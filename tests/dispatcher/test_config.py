@@ -650,3 +650,26 @@ def test_a_bad_endpoint_is_named_before_anything_is_planned(endpoint):
             wire.zenoh_options(args, default_listen=flag == "--listen")
     ok = parser.parse_args(["--listen", "tcp/[::1]:0", "--connect", "tls/farm.example:7447"])
     wire.zenoh_options(ok, default_listen=True)
+
+
+def test_zenoh_refusing_its_configuration_or_a_port_is_named_not_a_traceback(tmp_path):
+    """A --zenoh-config file that is not there or not JSON5, a --cfg value Zenoh refuses,
+    and a listener's port in use: a ConfigError (exit 2) naming the option or endpoint."""
+    import socket
+
+    from dispatcher.config.errors import ConfigError
+    from dispatcher.link import wire
+
+    missing = tmp_path / "none.json5"
+    with pytest.raises(ConfigError, match=f"--zenoh-config {re.escape(str(missing))}: No such"):
+        wire.ZenohOptions(config_file=str(missing)).config()
+    with pytest.raises(ConfigError, match=r"--cfg mode:\[1: not JSON5 \(expected"):
+        wire.ZenohOptions(extra=("mode:[1",)).config()
+    with pytest.raises(ConfigError, match="--cfg wants KEY:VALUE"):
+        wire.ZenohOptions(extra=("mode",)).config()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        with pytest.raises(ConfigError, match=f"on {endpoint}: .*Address already in use"):
+            wire.ZenohOptions(listen=(endpoint,)).open()
