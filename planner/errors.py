@@ -15,6 +15,11 @@ class ProblemError(PlannerError, ValueError):
     """A problem instance (machines, tasks, arrays) is not valid."""
 
 
+class NothingLeftError(ProblemError):
+    """A re-plan finds no work left: every field done, or what is left of it in the part of
+    a mission a vehicle keeps."""
+
+
 class TSPLIBError(PlannerError, ValueError):
     """A TSPLIB file cannot be read; the message names the file and line."""
 

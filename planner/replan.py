@@ -39,7 +39,7 @@ from shapely.geometry import LineString, Point
 
 from planner.choices import Objective
 from planner.coverage import XY, FieldCoverage, Swath
-from planner.errors import ProblemError
+from planner.errors import NothingLeftError, ProblemError
 from planner.farm import Farm, Field
 from planner.field_plan import (
     UNABLE_H,
@@ -236,7 +236,7 @@ def replan_farm(
         progress[entry.field_id] = entry
     todo = [f for f in farm.fields if f.id not in done_ids]
     if not todo:
-        raise ProblemError(
+        raise NothingLeftError(
             "no tasks: every field is done, or what is left of it lies in the part of its "
             "mission a vehicle keeps"
         )

@@ -26,6 +26,7 @@ from typing import Any
 
 import zenoh
 
+from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.plausibility import metres
@@ -96,6 +97,12 @@ RESUME_ASK_S = 5.0
 
 SIGNING_RESERVE = 60 * 100_000
 """Signing timestamps the store keeps ahead of the latest used (a minute, in 10 us)."""
+
+
+class NoWorkLeft(DispatcherError):
+    """What a replanner (``DaemonConfig.replanner``) raises when there is no work left to
+    give: every field done, or what is left of it in the part of a mission kept. The plan
+    goes on as it is; not an error."""
 
 
 @dataclass
@@ -739,6 +746,19 @@ class Dispatcher:
                 if link.hold is None or link.hold.outcome is not Outcome.RUNNING:
                     link.hold = CommandSequence(hold_commands(), v.system_id)
                     self._send(vid, link.hold.start(now))
+            elif (
+                link.rejoin_asked
+                and link.park is None
+                and v.phase not in GONE
+                and v.phase is not Phase.DONE
+                and not self._replan_reason
+                and self._replan is None
+            ):
+                # The re-plan asked for gave it nothing (no work left): parked where it
+                # stands, not left armed in HOLD.
+                link.park = CommandSequence(park_commands(), v.system_id)
+                self._log("info", f"{vid}: back, but no work is left for it; HOLD and disarm")
+                self._send(vid, link.park.start(now))
             return
         if v.verify_mission and v.phase in (Phase.RUNNING, Phase.DONE) and not v.switch:
             self._verify(v, link, now)
@@ -1337,6 +1357,8 @@ class Dispatcher:
             result, self._replanned = self._replanned, None
             if self._replan_cancel.is_set():
                 pass  # superseded: the next one is wanted already
+            elif isinstance(result, NoWorkLeft):
+                self._log("info", f"re-planning: nothing to give out ({result}); going on")
             elif isinstance(result, Exception) or result is None:
                 self._log("error", f"re-planning failed: {result}")
             else:

@@ -31,6 +31,7 @@ from typing import TypeVar
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import Scenario
+from dispatcher.daemon.server import NoWorkLeft
 from dispatcher.daemon.state import GONE, FleetState, Phase, VehicleState
 from dispatcher.link.mission_item import MissionItem
 from dispatcher.mission.build import (
@@ -44,6 +45,7 @@ from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
 from dispatcher.mission.window import ROUTE_ENDS
+from planner.errors import NothingLeftError
 from planner.farm import Farm
 from planner.field_plan import Visit, cover_farm
 from planner.replan import FieldProgress, MachineState, replan_farm, visit_segments
@@ -147,19 +149,22 @@ def replan(
             )
         )
     solver = scenario.solver
-    plan = replan_farm(
-        farm,
-        states,
-        done=done,
-        in_progress=in_progress,
-        objective=current.plan.objective if current else scenario.solver.objective,
-        algorithm=solver.algorithm,
-        stop=stop,
-        seed=solver.seed,
-        previous=current.plan if current else None,
-        makespan_slack=solver.makespan_slack,
-        finish_within_h=finish_within_h,
-    )
+    try:
+        plan = replan_farm(
+            farm,
+            states,
+            done=done,
+            in_progress=in_progress,
+            objective=current.plan.objective if current else scenario.solver.objective,
+            algorithm=solver.algorithm,
+            stop=stop,
+            seed=solver.seed,
+            previous=current.plan if current else None,
+            makespan_slack=solver.makespan_slack,
+            finish_within_h=finish_within_h,
+        )
+    except NothingLeftError as exc:
+        raise NoWorkLeft(str(exc)) from exc
     if cancel is not None and cancel.is_set():
         raise ReplanCancelled("given up")
     kept = {m.machine.id for m in plan.machines}

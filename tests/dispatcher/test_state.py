@@ -1189,3 +1189,26 @@ def test_a_vehicle_alive_by_its_token_but_never_heard_is_lost_after_the_alive_ti
     assert v.phase is Phase.ALIVE
     daemon._tick(61.0)
     assert v.phase is Phase.LOST and "140 frame(s) of it refused" in v.error
+
+
+def test_a_left_out_tractor_back_with_no_work_left_is_parked(dispatch, caplog):
+    """Its work went to the others; back, the re-plan asked for finds nothing left to give
+    it: it is parked (HOLD, disarm), not left armed in HOLD in the field, and the re-plan's
+    'no tasks' is no error."""
+    from dispatcher.daemon.server import NoWorkLeft
+
+    daemon = daemon_for(dispatch)
+    daemon.config.replanner = lambda state, cancel: (_ for _ in ()).throw(NoWorkLeft("no tasks"))
+    v, link = daemon.state.vehicles["v1"], daemon.links["v1"]
+    v.retired, v.phase = True, Phase.ALIVE  # heard again after it was left out
+    daemon._advance("v1", 1.0)
+    assert daemon._replan_reason == "v1 back" and link.park is None
+    daemon._replan_step(1.0)  # the re-plan runs (a thread) ...
+    daemon._replan.join(5.0)
+    with caplog.at_level("INFO"):
+        daemon._replan_step(2.0)  # ... and gave nothing out
+        daemon._advance("v1", 2.0)
+    assert "nothing to give out (no tasks)" in caplog.text and "ERROR" not in caplog.text
+    assert link.park is not None
+    sent = [c for c, _ in commands_to(daemon, "v1", 11)]
+    assert sent[-1] == mc.MAV_CMD_DO_SET_MODE  # HOLD first, then disarm on its answer
