@@ -671,6 +671,7 @@ class Dispatcher:
                 v.off_auto_since is not None
                 and now - v.off_auto_since > LEFT_AUTO_AFTER_S
                 and not v.error.startswith(LEFT_AUTO)
+                and not v.retired  # left out of the plan: we told it to HOLD
             ):
                 reason = f"{LEFT_AUTO}: mode {v.mode}, {'armed' if v.armed else 'disarmed'}"
                 if failsafe := v.held_by_failsafe:
