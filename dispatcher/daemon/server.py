@@ -687,7 +687,7 @@ class Dispatcher:
                 v.error.startswith(LEFT_AUTO) or (v.operator_hold and v.driving)
             ):
                 self._apply(ev.BackInAuto(vid), now)
-            if v.phase is Phase.WAITING and now - self._started > self.config.alive_timeout_s:
+            if v.phase is Phase.WAITING and now - self._started > self._alive_timeout(v):
                 self._log("error", f"{vid}: never came alive")
                 self._apply(ev.VehicleLost(vid, "never came alive"), now)
             elif (
@@ -889,6 +889,14 @@ class Dispatcher:
         if heard and now >= link.probe_at and not link.busy:
             link.hold = CommandSequence(hold_commands(), v.system_id)
             self._send(v.id, link.hold.start(now))
+
+    def _alive_timeout(self, v: VehicleState) -> float:
+        """Wall seconds from the start for a vehicle to be heard: ``alive_timeout_s``; for
+        one lost when a restarted dispatcher stopped, twice the heartbeat timeout (a
+        re-plan of its work waits on it, and the others drive on meanwhile)."""
+        if v.lost_before_restart:
+            return min(self.config.alive_timeout_s, 2.0 * self.config.heartbeat_timeout_s)
+        return self.config.alive_timeout_s
 
     def _failsafe_over(self, v: VehicleState, link: _Link) -> str | None:
         """What said a ground-station failsafe put a running vehicle out of AUTO (its text,

@@ -210,6 +210,7 @@ class VehicleState:
     start_from: int = 0
     moved_since_start: bool = False
     resuming: bool = False  # the dispatcher restarted: to be asked where it is first
+    lost_before_restart: bool = False  # lost when the dispatcher stopped: given less time
     texts: deque[tuple[float, int, str]] = field(default_factory=lambda: deque(maxlen=32))
     critical_at: float | None = None  # wall time of its last HEARTBEAT saying CRITICAL
     witness: ProgressWitness = field(default_factory=ProgressWitness)  # its track vs claims
@@ -366,6 +367,9 @@ class FieldState:
     # twice or never shows here, through any number of re-plans (PlannedItem.segment).
     segments: int = 0
     passes: dict[int, int] = field(default_factory=dict)
+    # (working width, turning radius) of the layout the segments number: a re-plan that
+    # gives the field to a machine of another lays it out anew (planner/replan.py).
+    layout: tuple[float, float] | None = None
 
     @property
     def worked_twice(self) -> list[int]:
@@ -582,16 +586,27 @@ class FleetState:
 
     def _count_segments(self, doc: PlanDocument) -> None:
         """Each field's number of segments, from the plan that lays it out; a field already
-        worked keeps the count of the layout it is worked in."""
+        worked keeps the count of the layout it is worked in, unless the plan lays it out
+        anew (a machine of another width or turning radius works it: planned whole again,
+        its segments numbered anew, what was worked of the old ones forgotten)."""
         ends: dict[str, set[int]] = {}
+        layouts: dict[str, tuple[float, float]] = {}
         for m in doc.machines:
+            layout = (m.working_width_m, m.param("min_turn_radius_m"))
             for item in m.items:
                 if item.role == "swath_end" and item.field_id and item.segment is not None:
                     ends.setdefault(item.field_id, set()).add(item.segment)
+                    layouts[item.field_id] = layout
         for fid, segments in ends.items():
             f = self.fields.get(fid)
-            if f is not None and not f.passes:
+            if f is None:
+                continue
+            anew = f.layout is not None and layouts[fid] != f.layout
+            if anew:
+                f.passes = {}
+            if anew or not f.passes:
                 f.segments = max(segments) + 1
+                f.layout = layouts[fid]
 
     def _lost(self, v: VehicleState, why: str, now: float) -> None:
         if v.phase in (Phase.DONE, Phase.FAILED, Phase.LOST):
@@ -624,6 +639,7 @@ class FleetState:
         stays. A vehicle not done is heard again and asked where it is (the daemon)."""
         if v.phase is Phase.DONE:
             return
+        v.lost_before_restart = v.phase is Phase.LOST and not v.retired
         v.phase = Phase.WAITING
         v.resuming = True
         v.upload_attempts = 0

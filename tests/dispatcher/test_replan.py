@@ -345,3 +345,33 @@ def test_a_run_re_planned_before_a_restart_resumes_with_the_last_plan(current, t
     replayed = run.replay()
     assert replayed.plan_id == job.plan_id and replayed.vehicles["v2"].retired
     assert replayed.vehicles["v1"].items == job.document.machine("v1").items
+
+
+def test_a_field_a_re_plan_lays_out_anew_counts_the_new_layouts_segments(dispatch):
+    """A field half worked by a tractor lost, whose rest no other can drive (another
+    working width), is planned whole again with its segments numbered anew: the status
+    counts the new layout's segments, and once they are worked none is 'never worked' or
+    'worked twice' (the old layout's passes were mixed in: 'segment 6 of 7 never worked')."""
+    from dispatcher.tools.replan import handover
+
+    state = FleetState(dispatch.document)
+    lost, other = (m.id for m in dispatch.document.machines)
+    widths = {m.id: m.working_width_m for m in dispatch.document.machines}
+    assert widths[lost] != widths[other]
+    fid = dispatch.document.machine(lost).fields[0]
+    for vid in (lost, other):
+        started(state, vid)
+    state.apply(ev.ItemReached(lost, swath_end(dispatch, lost, fid, 1), 100.0), 1.0)
+    state.apply(ev.VehicleLost(lost, "heartbeats stopped"), 2.0)
+    assert state.fields[fid].passes
+    nxt = replan(dispatch.scenario, dispatch, state, stop=stop_after(5))
+    job = handover(dispatch.job(), state, nxt)
+    state.apply(ev.PlanReplaced(ev.FLEET, job.plan_id, "lost", job.document.to_dict()), 3.0)
+    items = job.document.machine(other).items
+    new = {i.segment for i in items if i.field_id == fid and i.role == "swath_end"}
+    f = state.fields[fid]
+    assert f.segments == max(new) + 1 and not f.passes
+    for event in (ev.SwitchUploaded(other), ev.UploadAcked(other)):  # its new mission on board
+        state.apply(event, 4.0)
+    state.apply(ev.ItemReached(other, len(items) - 1, 900.0), 5.0)
+    assert f.status == "done" and not f.never_worked and not f.worked_twice

@@ -1212,3 +1212,19 @@ def test_a_left_out_tractor_back_with_no_work_left_is_parked(dispatch, caplog):
     assert link.park is not None
     sent = [c for c, _ in commands_to(daemon, "v1", 11)]
     assert sent[-1] == mc.MAV_CMD_DO_SET_MODE  # HOLD first, then disarm on its answer
+
+
+def test_after_a_restart_a_vehicle_lost_before_is_given_the_heartbeat_timeout(dispatch, tmp_path):
+    """Lost when the dispatcher stopped (its re-plan under way, not kept): its work waited
+    for the 60 s alive timeout after a restart while the others finished; now twice the
+    heartbeat timeout, then it is lost again and its work re-planned."""
+    stored = [*running_events("v1", 7), ev.VehicleLost("v1", "heartbeats stopped")]
+    daemon = resumed_daemon(dispatch, tmp_path, stored)
+    v = daemon.state.vehicles["v1"]
+    assert v.phase is Phase.WAITING and v.lost_before_restart
+    started = daemon._started
+    daemon._tick(started + 9.0)
+    assert v.phase is Phase.WAITING
+    daemon._tick(started + 11.0)
+    assert v.phase is Phase.LOST
+    assert not daemon.state.vehicles["v2"].lost_before_restart
