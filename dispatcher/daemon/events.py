@@ -232,16 +232,23 @@ class ProgressDoubted(Event):
 class ForeignCommand(Event):
     """An alarm: a frame on the vehicle's command key (``…/mavlink/to``) that the
     dispatcher did not send: ``message`` (its type, or "undecodable"), from MAVLink system
-    ``system``, ``signed`` with the vehicle's key or not. The vehicle's mission is read back
-    and restored if it is not the plan's."""
+    ``system``, ``signed`` with the vehicle's key or not, ``replayed``: one of the
+    dispatcher's own frames sent again (its signature's time has passed). The vehicle's
+    mission is read back and restored if it is not the plan's."""
 
     kind: ClassVar[str] = "foreign_command"
     message: str
     system: int
     signed: bool
+    replayed: bool = False
 
     def text(self) -> str:
-        how = "signed with its key: it has leaked" if self.signed else "not signed with its key"
+        if self.replayed:
+            how = "a replay of one of ours: its signature's time has passed, the vehicle refuses it"
+        elif self.signed:
+            how = "signed with its key: it has leaked"
+        else:
+            how = "not signed with its key"
         return (
             f"{self.vehicle}: a {self.message} from system {self.system} on its command key, "
             f"not sent by the dispatcher ({how})"

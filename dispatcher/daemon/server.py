@@ -561,9 +561,10 @@ class Dispatcher:
         self._foreign_alarmed[vid] = now
         check = self.command_checks.get(vid)
         signed = check is not None and check.decode_one(payload) is not None
+        replayed = signed and self.codecs[vid].sent_before(payload)
         what = msg.get_type() if msg is not None else "undecodable frame"
         system = msg.get_srcSystem() if msg is not None else -1
-        self._apply(ev.ForeignCommand(vid, what, system, signed), now)
+        self._apply(ev.ForeignCommand(vid, what, system, signed, replayed), now)
         self._log("error", self.state.alarms[-1][2] + f" ({self.foreign_frames[vid]} so far)")
 
     def _verify(self, v: VehicleState, link: _Link, now: float) -> None:

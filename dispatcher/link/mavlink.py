@@ -15,6 +15,8 @@ drops, instead of printing and reconnecting by itself.
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import functools
 import hashlib
 import heapq
@@ -190,6 +192,9 @@ SIGNING_KEY_BYTES = 32
 _SIGNING_EPOCH_UNIX_S = 1_420_070_400  # 2015-01-01T00:00:00Z, the signing timestamps' zero
 
 
+SIGNATURE_LEN = 13  # a MAVLink 2 signature: link id, 6-byte timestamp, 6-byte hash
+
+
 def signing_timestamp(unix_s: float | None = None) -> int:
     """The MAVLink 2 signing timestamp of ``unix_s`` (default: now): units of 10 us since
     1 January 2015 UTC, as the signing specification counts them."""
@@ -252,6 +257,40 @@ REORDER_WINDOW = 2 * 100_000
 stream and still be taken, once (:class:`_MAVLink`)."""
 
 
+RECENT_FRAMES = 512
+"""Signed frames a codec remembers taking, to tell a radio's copy of one from a forgery."""
+
+
+class _Recent:
+    """The last ``size`` frames added, for ``in``."""
+
+    def __init__(self, size: int) -> None:
+        self._order: collections.deque[bytes] = collections.deque()
+        self._set: set[bytes] = set()
+        self._size = size
+
+    def add(self, frame: bytes) -> None:
+        if frame in self._set:
+            return
+        self._order.append(frame)
+        self._set.add(frame)
+        if len(self._order) > self._size:
+            self._set.discard(self._order.popleft())
+
+    def __contains__(self, frame: object) -> bool:
+        return frame in self._set
+
+
+def frame_signature(frame: bytes) -> tuple[int, int] | None:
+    """A signed MAVLink 2 frame's (link id, timestamp), or None for any other frame."""
+    if len(frame) < 10 + SIGNATURE_LEN or frame[0] != mavlink2.PROTOCOL_MARKER_V2:
+        return None
+    if not frame[2] & mavlink2.MAVLINK_IFLAG_SIGNED:
+        return None
+    tail = frame[-SIGNATURE_LEN:]
+    return tail[0], int.from_bytes(tail[1:7], "little")
+
+
 def _set_signing(mav: Any, key: bytes, link_id: int, timestamp: int | None) -> None:
     if len(key) != SIGNING_KEY_BYTES:
         raise ValueError(f"a signing key is {SIGNING_KEY_BYTES} bytes, got {len(key)}")
@@ -275,12 +314,14 @@ def _stats(mav: Any) -> SigningStats:
 @dataclass(frozen=True)
 class SigningStats:
     """Frames a signing :class:`Codec` took (``good``) and dropped: ``bad`` (a wrong
-    signature, or a replay: a timestamp not newer than that stream's last) and
-    ``unsigned``."""
+    signature, or a replay: a timestamp not newer than that stream's last), ``unsigned``,
+    and ``duplicate``: copies of frames it took (a radio repeats some), no signing matter
+    and not in :attr:`dropped`."""
 
     good: int = 0
     bad: int = 0
     unsigned: int = 0
+    duplicate: int = 0
 
     @property
     def dropped(self) -> int:
@@ -318,6 +359,8 @@ class Codec:
         self.component_id = component_id
         self._mav = _MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self._pending = bytearray()
+        self._taken: _Recent = _Recent(RECENT_FRAMES)  # the last signed frames taken
+        self._duplicates = 0
         if key is not None:
             self.sign(key, link_id, timestamp)
 
@@ -345,7 +388,20 @@ class Codec:
 
     @property
     def signing_stats(self) -> SigningStats:
-        return _stats(self._mav)
+        stats = _stats(self._mav)
+        return dataclasses.replace(
+            stats, bad=stats.bad - self._duplicates, duplicate=self._duplicates
+        )
+
+    def sent_before(self, frame: bytes) -> bool:
+        """Whether ``frame`` carries a signature of this codec's link with a timestamp it
+        has used already: one of its frames again (a replay, which a receiver that heard
+        the first refuses), not a frame signed anew."""
+        signature = frame_signature(frame)
+        if signature is None or not self.signed:
+            return False
+        link_id, stamp = signature
+        return link_id == self._mav.signing.link_id and stamp < self.timestamp
 
     @property
     def next_seq(self) -> int:
@@ -416,11 +472,16 @@ class Codec:
         self._pending = bytearray()
 
     def _decode_frame(self, frame: bytearray) -> MAVLinkMessage | None:
+        bad_before = self._mav.signing.badsig_count
         try:
             msg: MAVLinkMessage = self._mav.decode(frame)
         except (mavlink2.MAVError, struct.error, ValueError, IndexError) as exc:
             logger.debug("skipping bad MAVLink frame: %s", exc)
+            if self._mav.signing.badsig_count > bad_before and bytes(frame) in self._taken:
+                self._duplicates += 1  # a copy of a frame taken: the radio's, not a forgery
             return None
+        if self.signed and frame_signature(bytes(frame)) is not None:
+            self._taken.add(bytes(frame))
         if isinstance(msg, mavlink2.MAVLink_unknown):
             # Unknown ids are returned without a CRC check: cannot tell them from garbage.
             logger.debug("skipping frame with unknown message id %s", msg.get_msgId())
