@@ -689,7 +689,8 @@ class Dispatcher:
             ):
                 self._apply(ev.BackInAuto(vid), now)
             if v.phase is Phase.WAITING and now - self._started > self._alive_timeout(v):
-                self._log("error", f"{vid}: never came alive")
+                # One left out of the plan before a restart: its work is the others'.
+                self._log("info" if v.retired else "error", f"{vid}: never came alive")
                 self._apply(ev.VehicleLost(vid, "never came alive"), now)
             elif (
                 v.phase is Phase.ALIVE

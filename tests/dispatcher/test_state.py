@@ -1228,3 +1228,13 @@ def test_after_a_restart_a_vehicle_lost_before_is_given_the_heartbeat_timeout(di
     daemon._tick(started + 11.0)
     assert v.phase is Phase.LOST
     assert not daemon.state.vehicles["v2"].lost_before_restart
+
+
+def test_a_left_out_vehicle_not_heard_after_a_restart_is_no_error(dispatch, tmp_path, caplog):
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    v.retired = True  # left out of the plan by a re-plan before the restart
+    with caplog.at_level("INFO"):
+        daemon._tick(daemon._started + 61.0)
+    assert v.phase is Phase.LOST and "v1: never came alive" in caplog.text
+    assert not [r for r in caplog.records if r.levelname == "ERROR" and "v1:" in r.message]
