@@ -461,3 +461,17 @@ def test_minsum_is_an_objective_on_the_command_line_as_in_a_scenario(capsys):
     args = ["plan", str(TINY), "--objective", "minsum", "--json", "--time-limit", "1"]
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out)["objective"] == "distance"
+
+
+def test_serve_on_a_port_another_process_listens_on_is_refused_before_planning(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        argv = ["serve", str(TINY), "--unsigned", "--listen", endpoint]
+        assert main([*argv, "--data-dir", str(tmp_path / "data")]) == 2
+    err = capsys.readouterr().err
+    assert f"--listen {endpoint}: Address already in use" in err, err
+    assert not (tmp_path / "data" / "agrifleet.sqlite3").exists()  # nothing planned or kept

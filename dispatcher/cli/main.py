@@ -308,6 +308,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     keys = signing_keys(args, scenario, ids)
     zenoh = as_hub(wire.zenoh_options(args, True), access_control(scenario.farm_id, ids))
     zenoh.config()  # a missing certificate or a plain endpoint with --tls: said before planning
+    zenoh.check_listen_free()  # and a port another process listens on
     data_dir = made_dir(args.data_dir or default_data_dir(scenario.farm_id), "--data-dir")
     made_dir(args.log_dir, "--log-dir")
     fingerprint = inputs_fingerprint(scenario, args)

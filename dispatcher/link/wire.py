@@ -22,6 +22,7 @@ import argparse
 import ipaddress
 import json
 import re
+import socket
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -105,6 +106,31 @@ class ZenohOptions:
             raise ConfigError(
                 f"Zenoh cannot open a session on {where}: {_zenoh_reason(exc)}"
             ) from None
+
+    def check_listen_free(self) -> None:
+        """A :class:`ConfigError` naming a ``--listen`` endpoint whose port another
+        process listens on (a dispatcher or router already running): said before anything
+        is planned or stored, where Zenoh says it only when the session opens."""
+        for endpoint in self.listen:
+            proto, _, address = endpoint.partition("/")
+            host, _, port = address.rpartition(":")
+            if not port.isdigit() or int(port) == 0:
+                continue
+            kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
+            try:
+                infos = socket.getaddrinfo(host.strip("[]"), int(port), type=kind)
+            except OSError:
+                continue  # Zenoh says what is wrong with the address
+            for family, socktype, protocol, _, sockaddr in infos[:1]:
+                with socket.socket(family, socktype, protocol) as probe:
+                    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                    try:
+                        probe.bind(sockaddr)
+                    except OSError as exc:
+                        raise ConfigError(
+                            f"--listen {endpoint}: {exc.strerror or exc} (another dispatcher "
+                            "or router on this port? stop it, or listen on another)"
+                        ) from None
 
     def config(self) -> zenoh.Config:
         if self.config_file:

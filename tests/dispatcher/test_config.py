@@ -673,3 +673,7 @@ def test_zenoh_refusing_its_configuration_or_a_port_is_named_not_a_traceback(tmp
         endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
         with pytest.raises(ConfigError, match=f"on {endpoint}: .*Address already in use"):
             wire.ZenohOptions(listen=(endpoint,)).open()
+        # Said before anything is planned (serve checks it first).
+        with pytest.raises(ConfigError, match=f"--listen {endpoint}: Address already in use"):
+            wire.ZenohOptions(listen=(endpoint,)).check_listen_free()
+    wire.ZenohOptions(listen=(endpoint,)).check_listen_free()  # free again
