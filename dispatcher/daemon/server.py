@@ -73,11 +73,12 @@ EXIT_INCOMPLETE = 3  # the run ended with fields not done (vehicles failed or lo
 EXIT_INTERRUPTED = 130
 LEFT_AUTO = "left AUTO"
 LEFT_AUTO_AFTER_S = 5.0
+"""Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
 OPERATOR_HOLDS = (
     "left to the operator: not armed or started by the dispatcher, and waited for, until "
     "put back in AUTO (it then drives on)"
 )
-"""Wall seconds a running vehicle may be out of AUTO (or disarmed) before it is flagged."""
+"""What the dispatcher does with a vehicle the operator took out of AUTO (docs/bridge.md)."""
 FAILSAFE_CLEAR_WAIT_S = 3.0
 """Wall seconds a vehicle stopped by its ground-station failsafe is to be heard after it
 before it is started again without having said the failsafe is over (the text was lost):
@@ -767,7 +768,7 @@ class Dispatcher:
             self._verify(v, link, now)
             return
         if v.operator_hold:
-            pass  # the operator's: nothing is sent to it (module doc, OPERATOR_HOLDS)
+            pass  # the operator's: not started again by us (OPERATOR_HOLDS)
         elif (
             v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None
         ):

@@ -368,7 +368,7 @@ class FieldState:
     segments: int = 0
     passes: dict[int, int] = field(default_factory=dict)
     # (working width, turning radius) of the layout the segments number: a re-plan that
-    # gives the field to a machine of another lays it out anew (planner/replan.py).
+    # gives the field to a machine of another width or radius lays it out anew.
     layout: tuple[float, float] | None = None
 
     @property
