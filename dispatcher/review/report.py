@@ -1315,16 +1315,17 @@ def review_contents(log: LogContents) -> Review:
         vstatus = status.get(machine.id) if status else None
         # Its mission went on through the last re-plan (not sent out again by it): the
         # re-plan's figures count from where it was then.
-        went_on = plan is not plans[base] and fresh.get(machine.id, 0) < plan.log_ns
+        given, planned = _mission_given(plans[base:], plan, machine.id)
+        went_on = given is not plans[base] and fresh.get(machine.id, 0) < given.log_ns
         result = _review_vehicle(
             machine.id,
-            machine,
+            planned,
             t,
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(machine.id),
             end_ns,
             {fid: f.rings for fid, f in plan.fields.items()},
-            plan.log_ns if went_on else None,
+            given.log_ns if went_on else None,
         )
         results[machine.id] = result
         vehicles.append(result.review)
@@ -1559,6 +1560,17 @@ def _fuel(machine: PlannedMachine, road_h: float, turns: int, work_h: float) -> 
     road_lh = machine.param("road_fuel_lh")
     turn_h = turns * machine.param("turn_time_h")
     return (road_h + turn_h) * road_lh + work_h * machine.param("work_fuel_lh")
+
+
+def _mission_given(plans: Sequence[_Plan], plan: _Plan, vid: str) -> tuple[_Plan, PlannedMachine]:
+    """The plan that gave vehicle ``vid`` its mission in ``plan``, and its entry there: the
+    first of ``plans`` (the run's, in order, ending with ``plan``) whose entry for it has
+    the same items. A re-plan that left its mission as it was (nothing new for it) has no
+    figures of it of its own: 0 h, where its mission takes what the plan that gave it said."""
+    items = next(m.items for m in plan.machines if m.id == vid)
+    return next(
+        (p, m) for p in plans for m in p.machines if m.id == vid and (p is plan or m.items == items)
+    )
 
 
 def _done_by(

@@ -704,3 +704,21 @@ def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside(
     # The pond is 0.0004 degrees of longitude across (29 m) of the line's 0.0018; less the
     # tolerance at both of its sides, and a sample's step either side.
     assert 17.0 <= with_pond.outside_down_s <= 25.0
+
+
+def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it() -> None:
+    """A re-plan that gives a vehicle nothing new keeps its mission item for item, with
+    figures of 0 h (nothing new planned for it): review sets it against the plan that gave
+    it that mission ("took 0.08 h, 651 % more than the planned 0.01 h" before)."""
+    from dispatcher.review.report import _mission_given, _Plan
+
+    def plan(ns: int, machines: tuple[PlannedMachine, ...]) -> _Plan:
+        return _Plan("p", FARM, ns, machines, {}, None, None)
+
+    vid = next(iter(ROUTES))
+    m = PlanDocument.from_json(_plan_doc({vid: _mission(vid)})).machines[0]
+    kept = dataclasses.replace(m, time_h=0.0, fuel_l=0.0, turns=0)
+    changed = dataclasses.replace(m, items=m.items[:3], time_h=0.5)
+    plans = [plan(1, (m,)), plan(2, (kept,)), plan(3, (changed,))]
+    assert _mission_given(plans[:2], plans[1], m.id) == (plans[0], m)
+    assert _mission_given(plans, plans[2], m.id) == (plans[2], changed)
