@@ -104,9 +104,9 @@ def _is_esri_json(doc: Any) -> bool:
     features of ``attributes`` and ``geometry``), which GDAL reads, and not GeoJSON."""
     if not isinstance(doc, dict) or doc.get("type") is not None:
         return False
-    features = doc.get("features")
     if "geometryType" in doc or "spatialReference" in doc:
         return True
+    features = doc.get("features")
     return isinstance(features, list) and any(
         isinstance(f, dict) and "attributes" in f and "type" not in f for f in features
     )

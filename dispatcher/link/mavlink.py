@@ -480,7 +480,7 @@ class Codec:
             if self._mav.signing.badsig_count > bad_before and bytes(frame) in self._taken:
                 self._duplicates += 1  # a copy of a frame taken: the radio's, not a forgery
             return None
-        if self.signed and frame_signature(bytes(frame)) is not None:
+        if self.signed:  # taken signed (a codec that signs takes no other)
             self._taken.add(bytes(frame))
         if isinstance(msg, mavlink2.MAVLink_unknown):
             # Unknown ids are returned without a CRC check: cannot tell them from garbage.

@@ -112,13 +112,12 @@ class ZenohOptions:
         process listens on (a dispatcher or router already running): said before anything
         is planned or stored, where Zenoh says it only when the session opens."""
         for endpoint in self.listen:
-            proto, _, address = endpoint.partition("/")
-            host, _, port = address.rpartition(":")
+            proto, host, port = endpoint_parts(endpoint)
             if not port.isdigit() or int(port) == 0:
                 continue
             kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
             try:
-                infos = socket.getaddrinfo(host.strip("[]"), int(port), type=kind)
+                infos = socket.getaddrinfo(host, int(port), type=kind)
             except OSError:
                 continue  # Zenoh says what is wrong with the address
             for family, socktype, protocol, _, sockaddr in infos[:1]:
@@ -303,14 +302,13 @@ def check_endpoint(endpoint: str, flag: str) -> None:
     protocol of :data:`ENDPOINT_PROTOCOLS` and a port of 1-65535 (0 for ``--listen``: any
     free one). Said before anything is planned or stored: Zenoh refuses a bad one only when
     the session opens, with a traceback."""
-    proto, sep, address = endpoint.partition("/")
-    host, colon, port = address.rpartition(":")
+    proto, host, port = endpoint_parts(endpoint)
     lowest = 0 if flag == "--listen" else 1
     if (
-        not sep
+        "/" not in endpoint
         or proto not in ENDPOINT_PROTOCOLS
-        or not colon
-        or not host.strip("[]")
+        or ":" not in endpoint.partition("/")[2]
+        or not host
         or not port.isdigit()
         or not lowest <= int(port) <= 65535
     ):
@@ -321,9 +319,17 @@ def check_endpoint(endpoint: str, flag: str) -> None:
         )
 
 
+def endpoint_parts(endpoint: str) -> tuple[str, str, str]:
+    """``proto/host:port`` as (proto, host without an IPv6 address's brackets, port), each
+    as written ("" where missing)."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    return proto, host.strip("[]"), port
+
+
 def is_loopback(endpoint: str) -> bool:
     """Whether ``proto/host:port`` is reachable from this machine only."""
-    address = endpoint.partition("/")[2].rsplit(":", 1)[0].strip("[]")
+    address = endpoint_parts(endpoint)[1]
     if address == "localhost":
         return True
     try:

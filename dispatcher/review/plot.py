@@ -151,6 +151,12 @@ def _xy(frame: LocalFrame, lats: Sequence[float], lons: Sequence[float]) -> np.n
     return np.column_stack([x, y])
 
 
+def _ring_xy(frame: LocalFrame, ring: Sequence[tuple[float, float]]) -> np.ndarray:
+    """A ring of (lon, lat) in the frame's metres, [corner, x|y]."""
+    lons, lats = zip(*ring, strict=True)
+    return _xy(frame, lats, lons)
+
+
 def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str, str]) -> None:
     """Field outlines (and holes) with their ids, tinted by the vehicle that finished them;
     a field that changed hands in a re-plan says from whom to whom."""
@@ -158,8 +164,7 @@ def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str,
     for f in review.fields:
         if len(f.polygon) < 3:
             continue
-        lons, lats = zip(*f.polygon, strict=True)
-        xy = _xy(frame, lats, lons)
+        xy = _ring_xy(frame, f.polygon)
         if f.done and f.vehicle in colours:
             ax.fill(xy[:, 0], xy[:, 1], facecolor=colours[f.vehicle], alpha=0.16, zorder=1)
             ax.fill(xy[:, 0], xy[:, 1], facecolor="none", edgecolor=FIELD_EDGE, lw=1.0, zorder=2)
@@ -173,12 +178,9 @@ def _draw_fields(ax: Axes, review: Review, frame: LocalFrame, colours: dict[str,
                 lw=1.0,
                 zorder=1,
             )
-        holes = []
-        for hole in f.holes:  # not worked (a pond): the background, outlined
-            if len(hole) >= 3:
-                hole_lons, hole_lats = zip(*hole, strict=True)
-                holes.append(_xy(frame, hole_lats, hole_lons))
-                ax.fill(*holes[-1].T, facecolor="white", edgecolor=FIELD_EDGE, lw=0.8, zorder=2)
+        holes = [_ring_xy(frame, hole) for hole in f.holes if len(hole) >= 3]
+        for hole in holes:  # not worked (a pond): the background, outlined
+            ax.fill(*hole.T, facecolor="white", edgecolor=FIELD_EDGE, lw=0.8, zorder=2)
         c = Polygon(xy, holes).representative_point()
         label = f"{f.id}\n{moved[f.id][0]}→{moved[f.id][1]}" if f.id in moved else f.id
         ax.annotate(

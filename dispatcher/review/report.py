@@ -1310,6 +1310,7 @@ def review_contents(log: LogContents) -> Review:
             warnings.append(_fresh_mission(vid, given_ns, start_ns))
         return given_ns
 
+    rings = {fid: f.rings for fid, f in plan.fields.items()}
     for machine in plan.machines:
         t = traffic.get(machine.id, _Traffic([], [], []))
         vstatus = status.get(machine.id) if status else None
@@ -1324,7 +1325,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(machine.id),
             end_ns,
-            {fid: f.rings for fid, f in plan.fields.items()},
+            rings,
             given.log_ns if went_on else None,
         )
         results[machine.id] = result
@@ -1342,7 +1343,7 @@ def review_contents(log: LogContents) -> Review:
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(vid),
             end_ns,
-            {fid: f.rings for fid, f in plan.fields.items()},
+            rings,
         )
         result.review = dataclasses.replace(result.review, left_out=True)
         results[vid] = result
