@@ -6,7 +6,8 @@ For machine i driving route r (its tasks in order):
     c_i = s_i / v_i * c_vi + sum_j n_turn(i,j) * t_T(i) * c_vi + sum_j S_j / w_i * c_wi  (5)
     t_i = s_i / v_i + sum_j n_turn(i,j) * t_T(i) + sum_j S_j / w_i                       (6)
 
-with s in metres and v in km/h (so s / v is s / (1000 v) hours). A machine busy for
+with s in metres and v in km/h (so s / v is s / (1000 v) hours); formula (5) is
+:func:`planner.formulas.fuel_l`, shared with the plan's figures and the review. A machine busy for
 ``ready_h[i]`` hours before it can start (a re-plan) has that added to t_i when its route
 has a task; a machine with no task costs nothing (it is not part of the plan), so it never
 sets the makespan. Its fuel is not charged: that work is done whatever the plan. The in-field parts
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from planner import formulas
 from planner.choices import Objective
 from planner.problem import FloatArray, Problem
 
@@ -63,7 +65,9 @@ class CostTables:
         work_fuel = problem.machine_array("work_fuel_lh")
         turn_hours = problem.turns * turn_h[:, None]
         task_hours = turn_hours + problem.work_hours
-        task_fuel = turn_hours * road_fuel[:, None] + problem.work_hours * work_fuel[:, None]
+        task_fuel = formulas.fuel_l(
+            0.0, turn_hours, problem.work_hours, road_fuel[:, None], work_fuel[:, None]
+        )
         return cls(
             dist=np.ascontiguousarray(problem.dist),
             start_dist=np.ascontiguousarray(problem.start_dist),

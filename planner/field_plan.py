@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from planner import formulas
 from planner.cost import CostTables, Objective, figures, route_distance, route_value
 from planner.coverage import XY, FieldCoverage, Swath, cover_field
 from planner.errors import NO_DEADLINE, Deadline, GeometryError, TimeLimitError
@@ -675,7 +676,7 @@ def machine_figures(
         work_h=work_h,
         turns=turns,
         time_h=busy_h + drive_h + turn_h + work_h,
-        fuel_l=(drive_h + turn_h) * machine.road_fuel_lh + work_h * machine.work_fuel_lh,
+        fuel_l=formulas.fuel_l(drive_h, turn_h, work_h, machine.road_fuel_lh, machine.work_fuel_lh),
         return_path=return_path,
         ready_h=busy_h,
     )

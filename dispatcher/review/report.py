@@ -51,6 +51,7 @@ from dispatcher.recording.mcap_file import (
     read_log,
 )
 from dispatcher.review.track import TrackQuality, track_quality
+from planner import formulas
 from planner.geo import LocalFrame
 
 __all__ = [
@@ -1558,9 +1559,10 @@ def _fuel(machine: PlannedMachine, road_h: float, turns: int, work_h: float) -> 
     the work rate; None if the plan gives no rates (an older plan.json)."""
     if not all(k in machine.params for k in ("road_fuel_lh", "work_fuel_lh", "turn_time_h")):
         return None
-    road_lh = machine.param("road_fuel_lh")
     turn_h = turns * machine.param("turn_time_h")
-    return (road_h + turn_h) * road_lh + work_h * machine.param("work_fuel_lh")
+    return formulas.fuel_l(
+        road_h, turn_h, work_h, machine.param("road_fuel_lh"), machine.param("work_fuel_lh")
+    )
 
 
 def _mission_given(plans: Sequence[_Plan], plan: _Plan, vid: str) -> tuple[_Plan, PlannedMachine]:
