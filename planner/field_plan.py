@@ -604,7 +604,8 @@ def lay_out(
         via = network.route(where, cov.entry(corner), inside, f.id)[1] if network else ()
         visits.append(Visit(f, cov, corner, approach=via))
         where, inside = cov.exit(corner), f.id
-    back = network.route(where, garage, inside, None)[1] if network and fields else ()
+    home = network is not None and (fields or start is not None)  # a re-plan's, from the field
+    back = network.route(where, garage, inside, None)[1] if network and home else ()
     return tuple(visits), back
 
 
@@ -618,10 +619,8 @@ def best_corners(
     """The start corner of each field along a fixed order that minimises the road driven
     (garage -> fields -> garage along ``network``'s transit, straight lines without it,
     plus in-field driving between cells); exact DP over 4 corners, 16 cached routes a leg.
-    The route starts at ``start`` (default: the garage), inside ``start_field`` if any."""
-    if not covs:
-        return [], 0.0
-    ids = [cov.field_id for cov in covs]
+    The route starts at ``start`` (default: the garage), inside ``start_field`` if any; with
+    no field it is the drive from there home."""
 
     def legs(
         a: Sequence[XY], a_field: str | None, b: Sequence[XY], b_field: str | None
@@ -631,6 +630,9 @@ def best_corners(
             return network.lengths(a, [a_field] * len(a), b, [b_field] * len(b))
         return np.array([[_straight(p, q, a_field, b_field) for q in b] for p in a])
 
+    if not covs:
+        return [], 0.0 if start is None else float(legs([start], start_field, [garage], None)[0, 0])
+    ids = [cov.field_id for cov in covs]
     n = len(covs)
     cost = np.full((n, CORNERS), np.inf)
     back = np.zeros((n, CORNERS), dtype=np.int64)
@@ -663,10 +665,11 @@ def machine_figures(
     """Formulas (5)-(6) with the coverage's turns: drive ``road_m`` at road speed and rate,
     work S / w at the working rate, and turn at the road fuel rate for the turns' length at
     the working speed when the coverage plans them, else t_T per U-turn. A machine busy
-    for ``ready_h`` hours first has them added to its time when it has a visit."""
+    for ``ready_h`` hours first (a re-plan: the rest of what it is doing) has them added to
+    its time, with or without a visit: a machine a re-plan gives nothing new still drives
+    those hours and then home, and may be the last to finish."""
     turns = sum(v.coverage.turns for v in visits)
     work_h = sum(v.field.area_m2 * v.work_share / machine.capacity_m2h for v in visits)
-    busy_h = ready_h if visits else 0.0
     drive_h = road_m / (1000.0 * machine.road_speed_kmh)
     turn_h = sum(turn_hours(machine, v) for v in visits)
     return MachinePlan(
@@ -675,10 +678,10 @@ def machine_figures(
         road_m=road_m,
         work_h=work_h,
         turns=turns,
-        time_h=busy_h + drive_h + turn_h + work_h,
+        time_h=ready_h + drive_h + turn_h + work_h,
         fuel_l=formulas.fuel_l(drive_h, turn_h, work_h, machine.road_fuel_lh, machine.work_fuel_lh),
         return_path=return_path,
-        ready_h=busy_h,
+        ready_h=ready_h,
     )
 
 

@@ -238,3 +238,31 @@ def test_what_a_coverage_leaves_unworked_is_said_when_a_replan_hands_it_over(cap
         replan_farm(farm, [MachineState(wide, (0.0, 0.0))], stop=stop_after(10), previous=plan)
     assert "field 'wedge': " in caplog.text and "(machine 'wide')" in caplog.text
     assert "left unworked at a working width of 6.9 m" in caplog.text
+
+
+def test_a_machine_given_nothing_new_still_counts_its_hours_and_its_drive_home():
+    """A machine busy for hours with what it is doing (the rest of its old mission up to
+    where its new route would begin) and given no field by the re-plan still finishes
+    then, after its drive home: its figures and the plan's makespan say so (they said 0 h)."""
+    farm, plan = previous_plan()
+    busy = MachineState(WIDE, (130.0 * 4, 150.0), ready_h=50.0)  # far beyond the rest's hours
+    new = replan_farm(
+        farm,
+        [busy, MachineState(NARROW, farm.garage)],
+        [],
+        [],
+        "makespan",
+        "hybrid",
+        stop_after(20),
+        3,
+        previous=plan,
+    )
+    a = new.machines[0]
+    assert a.machine.id == "a" and a.visits == ()
+    home_h = math.hypot(130.0 * 4 - farm.garage[0], 150.0 - farm.garage[1]) / (
+        1000.0 * WIDE.road_speed_kmh
+    )
+    assert a.time_h >= 50.0 + home_h - 1e-9 and a.road_m > 0.0
+    assert new.makespan_h == a.time_h
+    # Home around the fields, not across them (its mission, when it gets this one, drives it).
+    assert new.network is not None and a.return_path
