@@ -125,9 +125,10 @@ class _RoadGraph:
         anchors: Sequence[XY],
         access: Callable[[int, XY, XY], tuple[XY, ...]] | None = None,
     ) -> None:
-        """``access(k, p, q)``: the points strictly between anchor ``k`` at ``p`` and the
-        road point ``q`` it hangs on (default: none, a straight segment)."""
-        merged = shapely.unary_union(joined(roads))
+        """``roads`` with their ends joined (:func:`joined`); ``access(k, p, q)``: the points
+        strictly between anchor ``k`` at ``p`` and the road point ``q`` it hangs on (default:
+        none, a straight segment)."""
+        merged = shapely.unary_union(roads)
         segments = [g for g in shapely.get_parts(merged) if g.length > _SAME_M]
         self.graph: nx.Graph = nx.Graph()
         self.xy: list[XY] = []
@@ -891,12 +892,17 @@ def joined(roads: Sequence[LineString], tolerance_m: float = ROAD_JOIN_M) -> lis
     passing that close to an end given a vertex there, so that T and L junctions drawn with a
     small gap (rounded coordinates) connect."""
     ends: list[XY] = []
+    size = max(tolerance_m, 1e-6)
+    cells: dict[tuple[int, int], list[XY]] = {}  # the ends by square of side ``size``
 
     def end(p: XY) -> XY:
-        for q in ends:
-            if math.dist(p, q) <= tolerance_m:
-                return q
+        cx, cy = math.floor(p[0] / size), math.floor(p[1] / size)
+        for dx, dy in itertools.product((-1, 0, 1), repeat=2):
+            for q in cells.get((cx + dx, cy + dy), ()):
+                if math.dist(p, q) <= tolerance_m:
+                    return q
         ends.append((float(p[0]), float(p[1])))
+        cells.setdefault((cx, cy), []).append(ends[-1])
         return ends[-1]
 
     lines = []
@@ -904,8 +910,15 @@ def joined(roads: Sequence[LineString], tolerance_m: float = ROAD_JOIN_M) -> lis
         coords = [(float(x), float(y)) for x, y in road.coords]
         coords[0], coords[-1] = end(coords[0]), end(coords[-1])
         lines.append(LineString(coords))
-    targets = shapely.MultiPoint(ends)
-    return [shapely.snap(line, targets, tolerance_m) for line in lines]
+    points = shapely.points(ends)
+    near = shapely.STRtree(points).query(lines, predicate="dwithin", distance=tolerance_m)
+    targets: list[list[int]] = [[] for _ in lines]
+    for k, e in zip(*near, strict=True):
+        targets[int(k)].append(int(e))
+    return [
+        shapely.snap(line, shapely.multipoints(points[sorted(t)]), tolerance_m) if t else line
+        for line, t in zip(lines, targets, strict=True)
+    ]
 
 
 def _strictly_between(a: XY, points: Sequence[XY], b: XY) -> tuple[XY, ...]:
