@@ -661,9 +661,49 @@ class TransitNetwork:
                 total = out.length_m + length + into.length_m
                 if best is None or total < best[0]:
                     points = [a, *out.via, out.at, *via, into.at, *into.via, b]
+                    kept = points
+                    if out.own is not None and from_field is not None:
+                        points = self._off_holes(points, from_field, leaving=True)
+                    if into.own is not None and to_field is not None:
+                        points = self._off_holes(points, to_field, leaving=False)
+                    if points is not kept:
+                        total = float(LineString(points).length)
                     best = (total, points)
         assert best is not None
         return best[0], _strictly_between(a, best[1], b)
+
+    def _off_holes(self, points: list[XY], field_id: str, leaving: bool) -> list[XY]:
+        """A way out of (``leaving``) or into a field with no gate crosses the field itself
+        in a straight line; where that part would cross one of the field's holes (a pond,
+        a building), it is driven inside the field around them instead: from the start to
+        where the way last leaves the field's outline, or from where it first meets it to
+        the end."""
+        field = self.farm.field(field_id).boundary
+        if not field.interiors or len(points) < 2:
+            return points
+        line = LineString(points)
+        ring = field.exterior
+        crossings = [
+            line.project(Point(c))
+            for g in shapely.get_parts(line.intersection(ring))
+            for c in g.coords
+        ]
+        if not crossings:
+            return points
+        t = max(crossings) if leaving else min(crossings)
+        part = substring(line, 0.0, t) if leaving else substring(line, t, line.length)
+        holes = shapely.union_all([Polygon(r).buffer(-_TOUCH_M) for r in field.interiors])
+        if not part.intersects(holes):
+            return points
+        x = line.interpolate(t)
+        edge: XY = (float(x.x), float(x.y))
+        if leaving:
+            via = self.interior(field_id).route(points[0], edge)[1]
+            rest = list(substring(line, t, line.length).coords)[1:]
+            return [points[0], *via, edge, *((float(p[0]), float(p[1])) for p in rest)]
+        via = self.interior(field_id).route(edge, points[-1])[1]
+        before = list(substring(line, 0.0, t).coords)[:-1]
+        return [*((float(p[0]), float(p[1])) for p in before), edge, *via, points[-1]]
 
     def _exits(self, p: XY, field_id: str | None, leaving: bool) -> list[_Exit]:
         """The ways from ``p`` in ``field_id`` out into free space (``leaving``) or from

@@ -321,6 +321,28 @@ def test_without_roads_the_garage_leg_goes_around_fields():
     assert length > 300
 
 
+def test_without_a_gate_a_field_is_left_and_entered_around_its_own_holes():
+    """A field with no gate is left (and entered) straight across itself; where that line
+    would cross one of its holes (a pond, a barn) it goes around inside the field instead
+    (it drove 200 m across a pond: review of 2026-11-27)."""
+    pond = box(60, 60, 240, 240)
+    holed = Polygon(box(0, 0, 300, 300).exterior, [pond.exterior.coords[::-1]])
+    fields = {"P": holed, "B": box(400, 0, 500, 300)}
+    net = TransitNetwork(farm_of(fields, (650, 150)))
+    for a, b, f_from, f_to in [
+        ((10.0, 150.0), (410.0, 150.0), "P", "B"),  # out of P, across the pond's line
+        ((410.0, 150.0), (10.0, 150.0), "B", "P"),  # into P from the far side
+        ((650.0, 150.0), (10.0, 150.0), None, "P"),  # from the garage
+    ]:
+        length, via = net.route(a, b, f_from, f_to)
+        path = [a, *via, b]
+        assert not crosses(path, pond), (f_from, f_to, path)
+        assert length == pytest.approx(LineString(path).length)
+        assert length > math.dist(a, b)
+    # A way that misses the hole is left straight.
+    assert net.route((10.0, 20.0), (410.0, 20.0), "P", "B") == (pytest.approx(400.0), ())
+
+
 def test_corner_dp_with_transit_is_the_best_of_all_combinations():
     fields = {"A": box(0, 0, 100, 60), "M": box(150, -80, 250, 140), "B": box(300, 0, 360, 90)}
     farm = farm_of(fields, (-60, 30))
