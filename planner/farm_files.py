@@ -289,8 +289,15 @@ def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
     source = pyproj.CRS.from_user_input(crs)
     if source.equals(WGS84, ignore_axis_order=True):
         return geoms
+    try:
+        to_wgs84 = pyproj.Transformer.from_crs(source, WGS84, always_xy=True)
+    except pyproj.exceptions.ProjError as e:  # a local grid (LOCAL_CS), no datum to go by
+        raise GeometryError(
+            f"{where}: its coordinate system {source.name!r} cannot be converted to WGS84 "
+            f"longitude/latitude ({e}): save the layer in a geographic or projected CRS "
+            "(EPSG:4326, or its UTM zone)"
+        ) from None
     log.warning("%s: converted from %s to WGS84 longitude/latitude", where, source.name)
-    to_wgs84 = pyproj.Transformer.from_crs(source, WGS84, always_xy=True)
     return shapely.transform(
         geoms,
         lambda xy: np.round(np.column_stack(to_wgs84.transform(*xy.T)), CONVERTED_DECIMALS),
@@ -388,18 +395,29 @@ def read_isoxml(path: Path) -> Document:
         pfd_id = pfd.get("A") or f"PFD#{k}"
         where = f"{source}: partfield {pfd_id!r}"
         props = {"kind": "field", "id": pfd_id, "code": pfd.get("B"), "name": pfd.get("C")}
-        polygons = [
-            _isoxml_polygon(pln, f"{where} polygon #{n}")
+        boundaries = [
+            (_isoxml_polygon(pln, f"{where} polygon #{n}"), f"polygon #{n}")
             for n, pln in enumerate(pfd.findall("PLN"))
             if pln.get("A") == PLN_BOUNDARY
         ]
         obstacles = [
-            (_isoxml_polygon(pln, f"{where} polygon #{n}"), pln.get("B") or f"polygon #{n}")
+            (
+                _isoxml_polygon(pln, f"{where} polygon #{n}"),
+                f"polygon #{n}" + (f" ({pln.get('B')})" if pln.get("B") else ""),
+            )
             for n, pln in enumerate(pfd.findall("PLN"))
             if pln.get("A") in PLN_NOT_WORKED
         ]
-        if polygons and obstacles:
-            polygons = _without(polygons, obstacles, where)
+        polygons = [rings for rings, _ in boundaries]
+        if boundaries and obstacles:
+            polygons = _without(boundaries, obstacles, where)
+            if not polygons:
+                log.warning(
+                    "%s: its water, buildings and obstacles cover the whole boundary; skipped, "
+                    "with its gates",
+                    where,
+                )
+                continue
         if polygons:
             geometry = (
                 {"type": "Polygon", "coordinates": polygons[0]}
@@ -465,19 +483,30 @@ def _isoxml_root(data: bytes, source: Path | str, tag: str) -> ET.Element:
 
 
 def _without(
-    polygons: list[list[list[list[float]]]],
+    boundaries: list[tuple[list[list[list[float]]], str]],
     obstacles: list[tuple[list[list[list[float]]], str]],
     where: str,
 ) -> list[list[list[list[float]]]]:
     """The boundary polygons with the partfield's water, buildings and obstacles taken out
-    (holes, or a smaller outline where one crosses the boundary): no swath drives there."""
+    (holes, or a smaller outline where one crosses the boundary): no swath drives there.
+    Each is checked first (the overlay fails on a self-intersecting one), named as in the
+    file when it is not a valid polygon."""
 
-    def shape(rings: list[list[list[float]]]) -> Polygon:
-        return Polygon(rings[0], rings[1:])
+    def shape(rings: list[list[list[float]]], name: str) -> Polygon:
+        try:
+            polygon = Polygon(rings[0], rings[1:])
+        except ValueError as e:  # a ring of fewer than three distinct points
+            raise GeometryError(f"{where} {name}: not a polygon ({e})") from None
+        if not polygon.is_valid:
+            why = shapely.is_valid_reason(polygon)
+            raise GeometryError(
+                f"{where} {name}: invalid polygon ({why}); is its outline self-intersecting?"
+            )
+        return polygon
 
-    field = shapely.union_all([shape(p) for p in polygons])
+    field = shapely.union_all([shape(rings, name) for rings, name in boundaries])
     for rings, name in obstacles:
-        obstacle = shape(rings)
+        obstacle = shape(rings, name)
         if not field.intersects(obstacle):
             log.warning(
                 "%s: %s (water, building or obstacle) lies outside the field; not read",
@@ -501,7 +530,7 @@ def _isoxml_polygon(pln: ET.Element, where: str) -> list[list[list[float]]]:
     holes = [lsg for lsg in pln.findall("LSG") if lsg.get("A") == LSG_INTERIOR]
     if len(outer) != 1:
         raise GeometryError(
-            f"{where}: a boundary needs exactly one outer line string (LSG of type 1), "
+            f"{where}: a polygon needs exactly one outer line string (LSG of type 1), "
             f"not {len(outer)}"
         )
     number = {id(lsg): n for n, lsg in enumerate(pln.findall("LSG"))}  # as in the file

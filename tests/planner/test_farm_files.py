@@ -382,6 +382,40 @@ def test_isoxml_water_and_obstacles_are_not_worked(tmp_path):
     assert whole.area_m2 - field.area_m2 == pytest.approx(pond, rel=0.01)
 
 
+BOWTIE = """<PLN A="4" B="Stall"><LSG A="1"><PNT A="2" C="50.0005" D="10.001"/>
+<PNT A="2" C="50.0015" D="10.002"/><PNT A="2" C="50.0005" D="10.002"/>
+<PNT A="2" C="50.0015" D="10.001"/></LSG></PLN>"""
+
+
+def test_isoxml_a_bad_polygon_beside_water_is_named_and_a_field_all_water_is_said(tmp_path, caplog):
+    """With water or obstacles in a partfield, a self-intersecting boundary or obstacle was
+    a GEOS traceback (exit 1), not the error naming it that it is without them; a field
+    the water covers whole was said to have "no boundary polygon"."""
+    path = tmp_path / "TASKDATA.XML"
+    path.write_text(TASKDATA.format(ns="", body=ISOXML_PFD.format(more=BOWTIE)))
+    with pytest.raises(GeometryError, match=r"partfield 'PFD1' polygon #1 \(Stall\): invalid"):
+        load_farm(path)
+    bowtie_field = ISOXML_PFD.replace(
+        'C="50.002" D="10.003"/><PNT A="2" C="50.002" D="10.0"',
+        ('C="50.002" D="10.0"/><PNT A="2" C="50.002" D="10.003"'),
+    )
+    path.write_text(TASKDATA.format(ns="", body=bowtie_field.format(more=POND)))
+    with pytest.raises(GeometryError, match=r"partfield 'PFD1' polygon #0: invalid"):
+        load_farm(path)
+    flood = ISOXML_PFD.format(more="").replace('<PLN A="1">', '<PLN A="3" B="See">')
+    other = ISOXML_PFD.replace("PFD1", "PFD2").replace("10.0", "10.01")
+    path.write_text(
+        TASKDATA.format(
+            ns="",
+            body=ISOXML_PFD.format(more=flood[flood.index("<PLN") : -6]) + other.format(more=""),
+        )
+    )
+    with caplog.at_level(logging.WARNING):
+        farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["PFD2"]
+    assert "'PFD1': its water, buildings and obstacles cover the whole boundary" in caplog.text
+
+
 def test_isoxml_partfields_in_external_files_and_a_namespace_are_read(tmp_path):
     """Terminals keep partfields in files the TASKDATA names (XFR): "no fields" before."""
     folder = tmp_path / "TASKDATA"
@@ -472,6 +506,20 @@ def test_a_projected_shapefile_without_its_prj_is_named(tmp_path):
     for prj in folder.glob("*.prj"):
         prj.unlink()
     with pytest.raises(GeometryError, match=r"no coordinate system \(a shapefile's \.prj beside"):
+        load_farm(folder)
+
+
+def test_a_layer_in_a_local_grid_is_named_not_a_traceback(tmp_path):
+    """A .prj of a farm's own grid (LOCAL_CS, no datum) could not be converted: a PROJ
+    traceback, exit 1."""
+    folder = write_shapefiles(farm_features(CHANGJI), tmp_path / "farm", crs="EPSG:32645")
+    local = (
+        'LOCAL_CS["Farm grid",LOCAL_DATUM["local",0],UNIT["metre",1],'
+        'AXIS["X",EAST],AXIS["Y",NORTH]]'
+    )
+    for prj in folder.glob("*.prj"):
+        prj.write_text(local)
+    with pytest.raises(GeometryError, match=r"'Farm grid' cannot be converted to WGS84"):
         load_farm(folder)
 
 
