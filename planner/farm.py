@@ -453,6 +453,17 @@ def _prop(props: dict[str, Any], key: str) -> Any:
     return None
 
 
+def _number_text(value: Any) -> Any:
+    """A number written as text as that number: KML's ExtendedData holds only text, and
+    geojson.io's property table writes what is typed as text. Anything else as it is."""
+    if isinstance(value, str):
+        try:
+            return float(value.strip())
+        except ValueError:
+            return value
+    return value
+
+
 def _simplest(geom: dict[str, Any]) -> dict[str, Any]:
     """A geometry as the farm reads it: a MultiPoint of one point is that Point (a layer of
     multi-points holding a garage); a GeometryCollection with polygons is their
@@ -768,12 +779,12 @@ def _field(
         # whoever drew it), unless only the local frame shows it.
         why = explain_validity(lonlat if not lonlat.is_valid else boundary)
         raise GeometryError(f"{where}: invalid polygon ({why}); is its boundary self-intersecting?")
-    angle = _prop(props, "work_angle_deg")
+    angle = _number_text(_prop(props, "work_angle_deg"))
     if angle is not None and (
         isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(angle)
     ):
         raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
-    passes = _prop(props, "headland_passes")
+    passes = _number_text(_prop(props, "headland_passes"))
     if isinstance(passes, float) and passes.is_integer():
         passes = int(passes)  # 2.0: a GIS's numeric column (QGIS's default type is real)
     if passes is not None and (

@@ -219,6 +219,19 @@ def test_a_value_of_the_wrong_type_is_named_never_a_traceback(tmp_path, case):
     assert needle in refused(tmp_path, set_at(farm_doc(), path, value))
 
 
+def test_a_fields_numbers_written_as_text_are_read_as_numbers(tmp_path):
+    """KML's ExtendedData holds only text, and geojson.io's table writes what is typed as
+    text: "45" and "2" were refused ("must be a number of degrees, not '45'")."""
+    doc = farm_doc()
+    doc["features"][0]["properties"] |= {"work_angle_deg": " 45", "headland_passes": "2"}
+    field = load_farm(write(tmp_path, doc)).fields[0]
+    assert (field.work_angle_deg, field.headland_passes) == (45.0, 2)
+    doc["features"][0]["properties"] |= {"work_angle_deg": "NE"}
+    assert "work_angle_deg must be a number of degrees, not 'NE'" in refused(tmp_path, doc)
+    doc["features"][0]["properties"] |= {"work_angle_deg": "45", "headland_passes": "2.5"}
+    assert "headland_passes must be a whole number >= 0, not 2.5" in refused(tmp_path, doc)
+
+
 def nodes(value: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
     """The paths of every value in a JSON document."""
     out = [path] if path else []
