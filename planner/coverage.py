@@ -76,6 +76,11 @@ MIN_SWATH_M = 1e-3  # shorter sweep segments are not swaths
 # across always has room for one 2/3 of a width across (a triangle's inradius is at least
 # a third of its least width), so this refuses no convex field the rectangle lets through.
 MIN_INSIDE_FRACTION = 0.6
+# A field far from convex (its area under this share of its convex hull's: an L, a U, a rim
+# about a hole) must have room somewhere for a circle a whole working width across: its
+# arms narrower than the implement were worked crosswise, every turn a hop (an L of 5 m
+# arms given to a 6 m machine while a 3 m one stood idle: review of 2026-11-27).
+CONVEX_SOLIDITY = 0.9
 # A field of which more than this share is swept by no swath and no headland ring is named
 # in a warning with that area (an acute corner: 19 % of a 10-degree triangle, 400 m long, at
 # 6.9 m; the demo farm's fields leave 0.3-1.1 %, slanted swath ends).
@@ -658,9 +663,12 @@ def _checked_field(
             f" less than the working width {working_width_m:g} m"
         )
     widest = _widest_inside_m(polygon)
-    if widest + 2.0 * _INSCRIBED_TOLERANCE_M < MIN_INSIDE_FRACTION * working_width_m:
+    convex = polygon.area >= CONVEX_SOLIDITY * polygon.convex_hull.area
+    fraction = MIN_INSIDE_FRACTION if convex else 1.0
+    if widest + 2.0 * _INSCRIBED_TOLERANCE_M < fraction * working_width_m:
+        share = "a" if fraction == 1.0 else f"{fraction:g} of the"
         raise GeometryError(
-            f"{where}: the field is nowhere {MIN_INSIDE_FRACTION:g} of the working width"
+            f"{where}: the field is nowhere {share} working width"
             f" {working_width_m:g} m wide (the widest circle inside it, holes and bends"
             f" counted, is {widest:.2f} m across)"
         )

@@ -435,6 +435,17 @@ def test_headland_goes_around_holes_too() -> None:
 # ----------------------------------------------------------------------------- errors
 
 
+def test_a_convex_field_a_width_across_is_worked_though_its_circle_is_smaller():
+    """Only a field far from convex needs a circle a whole width across: a triangle a width
+    across has one 2/3 of a width across at least, and is worked; the L of 5 m arms a 6 m
+    implement may not work is worked by a 3 m one."""
+    side = 7.0 / math.sin(math.radians(60))  # least width (its height) 7 m
+    triangle = Polygon([(0, 0), (side, 0), (side / 2, 7.0)])
+    assert cover_field(triangle, 6.0, field_id="tri").swaths
+    ell = Polygon([(0, 0), (100, 0), (100, 5), (5, 5), (5, 100), (0, 100)])
+    assert cover_field(ell, 3.0, field_id="L").swaths
+
+
 @pytest.mark.parametrize(
     ("polygon", "width", "kwargs", "message"),
     [
@@ -448,7 +459,15 @@ def test_headland_goes_around_holes_too() -> None:
             Polygon([(0, 0), (200, 0), (200, 2.5), (2.5, 2.5), (2.5, 200), (0, 200)]),
             6.0,
             {},
-            "nowhere 0.6 of the working width 6 m wide",
+            "nowhere a working width 6 m wide",
+        ),
+        # Arms of 5 m, for a 6 m implement: worked crosswise, every turn a hop (review).
+        (
+            Polygon([(0, 0), (100, 0), (100, 5), (5, 5), (5, 100), (0, 100)]),
+            6.0,
+            {},
+            r"nowhere a working width 6 m wide \(the widest circle inside it, holes and bends"
+            r" counted, is 5\.86 m across\)",
         ),
         (
             Polygon(shapely.box(0, 0, 100, 100).exterior, [shapely.box(2, 2, 98, 98).exterior]),
