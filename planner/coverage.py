@@ -505,6 +505,7 @@ def _layout_fitting_turns(
     many as leave room for swaths; turns that then do not fit are driven as hops.
     """
     most = math.inf  # passes the field has room for, once some did not fit
+    wanted = None  # the most passes tried that did not fit: said once, with what did
     while True:
         try:
             layout = _layout(field_poly, w, passes, angle_deg, simplify_m, field_id, radius, clock)
@@ -513,15 +514,17 @@ def _layout_fitting_turns(
         except GeometryError:
             if passes == 0:
                 raise
-            notes.append(
-                f"field {field_id!r}: no room for {passes} headland passes for turns of "
-                f"radius {radius:g} m; laid out with {passes - 1}"
-            )
+            wanted = max(wanted or 0, passes)
             most = passes = passes - 1
             continue
         gaps = [float(np.diff(c.lines[:, 0]).min()) for c in layout[4] if len(c.lines) > 1]
         needed = min(headland_passes_for_turns(w, radius, min(gaps, default=w)), most)
         if needed <= passes:
+            if wanted is not None:
+                notes.append(
+                    f"field {field_id!r}: no room for {wanted} headland passes for turns of "
+                    f"radius {radius:g} m; laid out with {passes}"
+                )
             return layout
         passes = int(needed)
 
