@@ -124,28 +124,36 @@ class _RoadGraph:
         roads: Sequence[LineString],
         anchors: Sequence[XY],
         access: Callable[[int, XY, XY], tuple[XY, ...]] | None = None,
+        fields: BaseGeometry | None = None,
     ) -> None:
         """``roads`` with their ends joined (:func:`joined`); ``access(k, p, q)``: the points
         strictly between anchor ``k`` at ``p`` and the road point ``q`` it hangs on (default:
-        none, a straight segment)."""
+        none, a straight segment). An anchor hangs on the nearest road point outside
+        ``fields`` when there is one (a road ending inside a field drew the gates of the
+        fields beside it across that field to its end)."""
         merged = shapely.unary_union(roads)
         segments = [g for g in shapely.get_parts(merged) if g.length > _SAME_M]
+        pieces, piece_of = _outside(segments, fields)
         self.graph: nx.Graph = nx.Graph()
         self.xy: list[XY] = []
-        self._ids: dict[XY, int] = {}
+        self._ids: dict[tuple[float, float, int | None], int] = {}
         self._dijkstra: dict[int, tuple[dict[int, list[int]], dict[int, float]]] = {}
-        tree = shapely.STRtree(segments)
+        tree = shapely.STRtree(pieces)
         cuts: dict[int, list[tuple[float, int]]] = {k: [] for k in range(len(segments))}
         self.anchor_nodes: list[int] = []
         self.access_m: dict[int, float] = {}  # per anchor node, its way onto the roads
         for n, p in enumerate(anchors):
-            k = int(tree.query_nearest(Point(p))[0])
+            nearest = int(tree.query_nearest(Point(p))[0])
+            k = piece_of[nearest]
             seg = segments[k]
-            along = float(seg.project(Point(p)))
+            along = float(seg.project(nearest_points(pieces[nearest], Point(p))[0]))
             q = seg.interpolate(along)
             on_road = self._node((float(q.x), float(q.y)))
             cuts[k].append((along, on_road))
-            here = self._node(p)
+            # A node of its own: gates of two fields at one point (a corner they share)
+            # have each their own way onto the road (one's, around a field in the way,
+            # gave way to the other's straight one, shorter, across it).
+            here = self._node(p, anchor=n)
             if here != on_road:
                 via = () if access is None else access(n, p, self.xy[on_road])
                 self._edge(here, on_road, (p, *via, self.xy[on_road]))
@@ -168,8 +176,8 @@ class _RoadGraph:
             [LineString(self.graph.edges[u, v]["coords"]) for u, v in self._edges]
         )
 
-    def _node(self, p: XY) -> int:
-        key = (round(p[0] / _SAME_M) * _SAME_M, round(p[1] / _SAME_M) * _SAME_M)
+    def _node(self, p: XY, anchor: int | None = None) -> int:
+        key = (round(p[0] / _SAME_M) * _SAME_M, round(p[1] / _SAME_M) * _SAME_M, anchor)
         if key not in self._ids:
             self._ids[key] = len(self.xy)
             self.xy.append((float(p[0]), float(p[1])))
@@ -222,6 +230,25 @@ class _RoadGraph:
         return u, v, along, (float(q.x), float(q.y))
 
 
+def _outside(
+    segments: Sequence[LineString], fields: BaseGeometry | None
+) -> tuple[list[BaseGeometry], list[int]]:
+    """The parts of ``segments`` outside ``fields``, each with the segment it is of; the
+    segments whole when none is (every road inside a field)."""
+    if fields is None or fields.is_empty:
+        return list(segments), list(range(len(segments)))
+    pieces: list[BaseGeometry] = []
+    piece_of: list[int] = []
+    for k, seg in enumerate(segments):
+        for part in shapely.get_parts(seg.difference(fields)):
+            if part.length > _SAME_M:
+                pieces.append(part)
+                piece_of.append(k)
+    if not pieces:
+        return list(segments), list(range(len(segments)))
+    return pieces, piece_of
+
+
 _MANY_LINES = 32
 """Segments tested at once from which one union of the obstacles, prepared, is cheaper than
 testing each against the obstacles its bounding box meets (:meth:`_FreeSpace._visible`)."""
@@ -241,10 +268,11 @@ class _FreeSpace:
         self._source = source
         grown = [orient(_grown(p, clearance_m), 1.0) for p in outlines]
         self._blocks = [g.buffer(-_TOUCH_M, join_style="mitre") for g in grown]
-        # The fields themselves (a hair smaller): what a point within the clearance of a
-        # field, but outside it (a garage beside a fence), must still go around.
+        # The fields less CROSSING_M: what a point within the clearance of a field, but not
+        # that deep in it (a garage beside a fence, a gate on a fence two fields share),
+        # must still go around; a point deeper in stands in the field and may cross it.
         self._fields = np.array(
-            [Polygon(p.exterior).buffer(-_TOUCH_M, join_style="mitre") for p in outlines],
+            [Polygon(p.exterior).buffer(-CROSSING_M, join_style="mitre") for p in outlines],
             dtype=object,
         )
         shapely.prepare(self._fields)
@@ -330,7 +358,9 @@ class _FreeSpace:
         return np.asarray(side_p * side_q >= -1e-9, dtype=bool)
 
     def _ignored(self, p: XY, own: int | None) -> set[int]:
-        """The obstacles ``p`` may cross: its own, and any field it stands in."""
+        """The obstacles ``p`` may cross: its own, and any field it stands in (more than
+        CROSSING_M from its edge: a gate on a shared fence, a hair inside the neighbour
+        once projected, crossed the neighbour straight to the road)."""
         inside = {int(k) for k in self._tree.query(Point(p), predicate="intersects")}
         return {k for k in inside if self._fields[k].intersects(Point(p))} | (
             {own} if own is not None else set()
@@ -547,18 +577,48 @@ class TransitNetwork:
         # Simplified first: a track logged by GPS every metre or two would make every
         # vertex a mission item (25 000 for 30 km), for nothing a tractor can follow.
         lines = joined([r.line.simplify(ROAD_SIMPLIFY_M) for r in farm.roads])
-        network = shapely.unary_union(lines)
-        for f in farm.fields:
+        network = shapely.unary_union([line for line in lines if line.length > _SAME_M])
+        if network.is_empty:
+            log.warning(
+                "%s: the roads (%s) are each shorter than %g m once their ends are joined: "
+                "no roads to drive; transit goes around the fields",
+                farm.source,
+                ", ".join(repr(r.id) for r in farm.roads),
+                ROAD_JOIN_M,
+            )
+            return
+        # Inside the fields by more than half CROSSING_M (a road drawn along a fence a little
+        # inside it still counts as outside; a road point on the line stands not in the field).
+        cores = shapely.union_all([f.boundary.buffer(-CROSSING_M / 2) for f in farm.fields])
+        # A field without a gate is entered where it is nearest a road outside the fields,
+        # from a part of its fence it shares with no other field (else across that field).
+        outside = network.difference(cores) if not network.difference(cores).is_empty else network
+        outlines = shapely.STRtree([Polygon(f.boundary.exterior) for f in farm.fields])
+        for k, f in enumerate(farm.fields):
             declared = tuple(g.xy for g in farm.gates_of(f.id))
             if not declared:
-                p = nearest_points(f.boundary.exterior, network)[0]
+                fence = f.boundary.exterior
+                others = [
+                    int(j)
+                    for j in outlines.query(fence, predicate="dwithin", distance=self._clearance_m)
+                    if int(j) != k
+                ]
+                if others:
+                    shared = shapely.union_all(
+                        [outlines.geometries[j].buffer(self._clearance_m) for j in others]
+                    )
+                    free = fence.difference(shared)
+                    fence = free if not free.is_empty else fence
+                p = nearest_points(fence, outside)[0]
                 declared = ((float(p.x), float(p.y)),)
             self.gates[f.id] = declared
         anchors = [farm.garage] + [g for f in farm.fields for g in self.gates[f.id]]
         owners: list[int | None] = [None] + [
             k for k, f in enumerate(farm.fields) for _ in self.gates[f.id]
         ]
-        roads = _RoadGraph(lines, anchors, lambda n, p, q: self._access(p, q, owners[n]))
+        roads = _RoadGraph(
+            lines, anchors, lambda n, p, q: self._access(p, q, owners[n]), fields=cores
+        )
         self._garage_node = roads.anchor_nodes[0]
         k = 1
         for f in farm.fields:
@@ -843,18 +903,28 @@ class TransitNetwork:
             return out
         if math.dist(p, self.farm.garage) < _SAME_M:
             return [_Option(self._garage_node, 0.0, (), roads.access_m[self._garage_node])]
-        u, v, along, foot = roads.nearest_edge(p)
-        edge = roads.edge_points(u, v)
-        line = LineString(edge)
-        to_u = substring(line, along, 0.0)
-        to_v = substring(line, along, line.length)
-        access = math.dist(p, foot)
+        # Onto the road around any field in the way (a machine stopped beside a field, the
+        # road beyond it, drove across it to the road after a re-plan): at the road point
+        # nearest it, and at the one nearest where that way comes out (not back along the
+        # road to the foot behind the field); the caller takes the shortest.
+        feet = [roads.nearest_edge(p)]
+        ways = [self._access(p, feet[0][3], None)]
+        if ways[0]:
+            feet.append(roads.nearest_edge(ways[0][-1]))
+            ways.append(self._access(p, feet[1][3], None))
         out = []
-        for node, part in ((u, to_u), (v, to_v)):
-            pts = tuple((float(x), float(y)) for x, y in getattr(part, "coords", [foot]))
-            if not leaving:
-                pts = pts[::-1]
-            out.append(_Option(node, access + float(part.length), pts, access))
+        for (u, v, along, foot), way in zip(feet, ways, strict=True):
+            line = LineString(roads.edge_points(u, v))
+            access = float(LineString([p, *way, foot]).length)
+            for node, part in (
+                (u, substring(line, along, 0.0)),
+                (v, substring(line, along, line.length)),
+            ):
+                coords = getattr(part, "coords", [foot])
+                pts = way + tuple((float(x), float(y)) for x, y in coords)
+                if not leaving:
+                    pts = pts[::-1]
+                out.append(_Option(node, access + float(part.length), pts, access))
         return out
 
     def lengths(

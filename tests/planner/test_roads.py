@@ -343,6 +343,45 @@ def test_without_a_gate_a_field_is_left_and_entered_around_its_own_holes():
     assert net.route((10.0, 20.0), (410.0, 20.0), "P", "B") == (pytest.approx(400.0), ())
 
 
+def test_a_field_on_anothers_fence_reaches_the_road_around_it(caplog):
+    """Field N on S's north fence, the road south of S: N's gate was put on the fence they
+    share (nearest the road), a hair inside S once projected, and its way to the road went
+    straight through S for 99 m (review of 2026-11-27). So was a field's gate at a corner
+    two fields share, and a road ending inside a field drew its neighbours' gates across it
+    to its end."""
+    S, N = box(0, 0, 300, 100), box(0, 100.002, 100, 200)
+    net = TransitNetwork(farm_of({"S": S, "N": N}, (-50, -15), roads=[[(-50, -15), (350, -15)]]))
+    inside = (50.0, 150.0)
+    for a, b, f, g in [(inside, (-50.0, -15.0), "N", None), ((-50.0, -15.0), inside, None, "N")]:
+        length, via = net.route(a, b, f, g)
+        assert not crosses([a, *via, b], S) and length == pytest.approx(
+            LineString([a, *via, b]).length
+        )
+    # A road that ends 50 m inside F3: F4 beyond it is not reached across F3.
+    fields = {k: box(200 * i, 0, 200 * i + 150, 100) for i, k in enumerate(["F1", "F2", "F3"])}
+    spur = [[(-50, -15), (380, -15)], [(380, -15), (460, 50)]]
+    fields["F4"] = box(600, 0, 750, 100)
+    net = TransitNetwork(farm_of(fields, (-50, -15), roads=spur))
+    a, b = (675.0, 50.0), (-50.0, -15.0)
+    length, via = net.route(a, b, "F4", None)
+    assert not crosses([a, *via, b], fields["F3"])
+    # A machine stopped beside a field, the road beyond that field: around it to the road.
+    p = (275.0, 115.0)
+    length, via = net.route(p, (75.0, 50.0), None, "F1")
+    assert not crosses([p, *via, (75.0, 50.0)], fields["F2"])
+
+
+def test_roads_all_shorter_than_the_join_are_no_roads(caplog):
+    """Every road shorter than ROAD_JOIN_M (a stub drawn by a slip of the mouse): joined
+    into a point, no network left, and a traceback (exit 1). Now: said, and no roads."""
+    fields = {"A": box(0, 0, 100, 100)}
+    with caplog.at_level(logging.WARNING):
+        net = TransitNetwork(farm_of(fields, (-50, 50), roads=[[(-20, 0), (-20, 0.3)]]))
+    assert not net.has_roads
+    assert "each shorter than 0.5 m once their ends are joined" in caplog.text
+    assert net.route((-50, 50), (50, 50), None, "A")[0] == pytest.approx(100.0)
+
+
 def test_corner_dp_with_transit_is_the_best_of_all_combinations():
     fields = {"A": box(0, 0, 100, 60), "M": box(150, -80, 250, 140), "B": box(300, 0, 360, 90)}
     farm = farm_of(fields, (-60, 30))
