@@ -44,10 +44,11 @@ LANE_SPACING_PT = 2.2  # machines sharing a road are drawn side by side, this fa
 
 
 def draw_fields(ax: Axes, farm: Farm) -> None:
-    """Roads, field polygons (holes too) with their ids, gates and the garage."""
+    """Roads, field polygons (holes too) with their ids, gates and the garage. The roads
+    over the fields: a road drawn across a field (which the planner warns of) shows."""
     for road in farm.roads:
         xs, ys = road.line.xy
-        ax.plot(xs, ys, color=ROAD_COLOUR, linewidth=4.0, solid_capstyle="round", zorder=0.5)
+        ax.plot(xs, ys, color=ROAD_COLOUR, linewidth=4.0, solid_capstyle="round", zorder=1.5)
     for f in farm.fields:
         xs, ys = f.boundary.exterior.xy
         ax.fill(xs, ys, facecolor="#f3efe0", edgecolor="#6b5b3e", linewidth=1.0, zorder=1)
