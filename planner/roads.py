@@ -634,7 +634,8 @@ class TransitNetwork:
         for what, metres in [("the garage", roads.access_m[self._garage_node]), *far]:
             if metres > FAR_FROM_ROADS_M:
                 log.warning(
-                    "%s: %s is %.0f m from the nearest road; where getting onto the roads "
+                    "%s: %s is %.0f m of driving off the roads from the nearest road (around "
+                    "the fields in the way); where getting onto the roads "
                     "drives more off them than the way around the fields, its transit "
                     "goes around the fields",
                     farm.source,
