@@ -233,7 +233,8 @@ class ForeignCommand(Event):
     """An alarm: a frame on the vehicle's command key (``…/mavlink/to``) that the
     dispatcher did not send: ``message`` (its type, or "undecodable"), from MAVLink system
     ``system``, ``signed`` with the vehicle's key or not, ``replayed``: one of the
-    dispatcher's own frames sent again (its signature's time has passed). The vehicle's
+    dispatcher's own last frames sent again, byte for byte (its signature's time has
+    passed); a frame signed anew, whatever its time, is a leaked key. The vehicle's
     mission is read back and restored if it is not the plan's."""
 
     kind: ClassVar[str] = "foreign_command"

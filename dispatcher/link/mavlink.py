@@ -258,6 +258,10 @@ stream and still be taken, once (:class:`_MAVLink`)."""
 
 
 RECENT_FRAMES = 512
+SENT_SIGNATURES = 4096
+"""The signatures of its own last frames a signing :class:`Codec` keeps (minutes of a
+vehicle's commands and heartbeats), to tell one of them sent again (a replay, which the
+vehicle refuses) from a frame signed anew with the key."""
 """Signed frames a codec remembers taking, to tell a radio's copy of one from a forgery."""
 
 
@@ -360,6 +364,7 @@ class Codec:
         self._mav = _MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self._pending = bytearray()
         self._taken: _Recent = _Recent(RECENT_FRAMES)  # the last signed frames taken
+        self._sent: _Recent = _Recent(SENT_SIGNATURES)  # the signatures of the last sent
         self._duplicates = 0
         if key is not None:
             self.sign(key, link_id, timestamp)
@@ -394,14 +399,19 @@ class Codec:
         )
 
     def sent_before(self, frame: bytes) -> bool:
-        """Whether ``frame`` carries a signature of this codec's link with a timestamp it
-        has used already: one of its frames again (a replay, which a receiver that heard
-        the first refuses), not a frame signed anew."""
-        signature = frame_signature(frame)
-        if signature is None or not self.signed:
+        """Whether ``frame`` carries the signature of one of this codec's last frames
+        (:data:`SENT_SIGNATURES`): one of its frames again (a replay, which a receiver that
+        heard the first refuses), not a frame signed anew with the key. (A frame signed
+        anew with an older timestamp than this codec's last is no replay: a receiver takes
+        it within its reordering window; a leaked key.)"""
+        if frame_signature(frame) is None or not self.signed:
             return False
-        link_id, stamp = signature
-        return link_id == self._mav.signing.link_id and stamp < self.timestamp
+        return bytes(frame[-SIGNATURE_LEN:]) in self._sent
+
+    def _sent_frame(self, frame: bytes) -> bytes:
+        if self.signed:
+            self._sent.add(bytes(frame[-SIGNATURE_LEN:]))
+        return frame
 
     @property
     def next_seq(self) -> int:
@@ -414,7 +424,7 @@ class Codec:
         self._follow_clock()
         frame = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
-        return frame
+        return self._sent_frame(frame)
 
     def repack(self, msg: MAVLinkMessage) -> bytes:
         """``msg`` as a MAVLink 2 frame from its own system, component and sequence number,
@@ -432,7 +442,7 @@ class Codec:
             frame: bytes = msg.pack(mav)
         finally:
             mav.srcSystem, mav.srcComponent, mav.seq = own
-        return frame
+        return self._sent_frame(frame)
 
     def decode(self, data: bytes) -> list[MAVLinkMessage]:
         """Every message whose frame completes in the stream so far, in order."""

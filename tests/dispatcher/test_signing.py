@@ -201,6 +201,13 @@ def test_a_frame_of_ours_sent_again_is_told_from_one_signed_anew() -> None:
     assert mc.frame_signature(ours) is not None and dispatcher.sent_before(ours)
     leaked = mc.Codec(255, 190, key=key, link_id=3, timestamp=dispatcher.timestamp + 10)
     assert not dispatcher.sent_before(leaked.encode(heartbeat()))
+    # Signed anew a little behind the dispatcher's last (within the vehicle's reordering
+    # window, which takes it): a leaked key too, not a replay (it was called one: review).
+    behind = mc.Codec(255, 190, key=key, link_id=3)
+    behind._mav.signing.timestamp = dispatcher.timestamp - mc.REORDER_WINDOW // 2
+    frame = heartbeat().pack(behind._mav)  # as a forger signs it: no clock to follow
+    assert mc.frame_signature(frame)[1] < dispatcher.timestamp  # type: ignore[index]
+    assert not dispatcher.sent_before(frame)
     other_link = mc.Codec(255, 190, key=key, link_id=9)  # its own stream: taken as new
     assert not dispatcher.sent_before(other_link.encode(heartbeat()))
     assert not dispatcher.sent_before(mc.Codec(255, 190).encode(heartbeat()))  # unsigned
