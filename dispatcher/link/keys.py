@@ -64,6 +64,12 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
             f"{path}: a signing key is {2 * SIGNING_KEY_BYTES} hexadecimal digits, "
             f"found {len(text)}"
         )
+    if len(set(key)) == 1:
+        # All zeros turns signing off on ArduPilot; any one byte over is a key anyone guesses.
+        raise SigningKeyError(
+            f"{path}: not a secret key (one byte, {key[0]:02x}, {SIGNING_KEY_BYTES} times); "
+            f"make one with `agrifleet keys SCENARIO --keys {keys_dir} --replace`"
+        )
     return key
 
 
@@ -92,7 +98,20 @@ def write_file(path: Path, data: bytes, mode: int) -> None:
 
 
 def read_keys(keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str]) -> dict[str, bytes]:
-    return {vid: read_key(keys_dir, vid) for vid in vehicle_ids}
+    """Each vehicle's key (:func:`read_key`), no two alike: with one key for two vehicles,
+    either's leaked key commands both, and neither's frames can be told from the other's."""
+    keys: dict[str, bytes] = {}
+    for vid in vehicle_ids:
+        key = read_key(keys_dir, vid)
+        same = next((other for other, k in keys.items() if k == key), None)
+        if same is not None:
+            raise SigningKeyError(
+                f"{key_path(keys_dir, vid)}: the same key as {key_path(keys_dir, same)}; "
+                "each vehicle needs its own (`agrifleet keys SCENARIO --keys DIR --replace` "
+                "makes new ones)"
+            )
+        keys[vid] = key
+    return keys
 
 
 def write_keys(
@@ -136,6 +155,11 @@ def signing_keys(
     """The keys of ``vehicle_ids`` as ``--keys``/``--unsigned`` and the scenario say: None
     for ``--unsigned``; :class:`SigningKeyError` when no key directory is given."""
     if getattr(args, "unsigned", False):
+        if getattr(args, "keys", None):
+            raise SigningKeyError(
+                f"--unsigned and --keys {args.keys}: one or the other (signed with the keys, "
+                "or not signed at all)"
+            )
         logger.warning("MAVLink signing is off (--unsigned): anyone on the network can command")
         return None
     folder = getattr(args, "keys", None) or scenario.keys_dir

@@ -13,7 +13,7 @@ import pytest
 from dispatcher.cli.main import main
 from dispatcher.config.scenario import load_scenario
 from dispatcher.link import mavlink as mc
-from dispatcher.link.keys import SigningKeyError, key_path, read_key, write_keys
+from dispatcher.link.keys import SigningKeyError, key_path, read_key, read_keys, write_keys
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -104,6 +104,8 @@ def test_keys_are_made_private_and_kept(tmp_path: Path) -> None:
         (0o644, None, "open to group or others (mode 644); make it the owner's only: chmod 600"),
         (0o600, "not hex at all", "not a signing key (64 hexadecimal digits expected)"),
         (0o600, "ab" * 16, "a signing key is 64 hexadecimal digits, found 32"),
+        # All zeros turns signing off on ArduPilot, and anyone can sign with it (review).
+        (0o600, "00" * 32, "not a secret key (one byte, 00, 32 times)"),
     ],
 )
 def test_a_bad_key_file_is_refused_naming_it(
@@ -117,6 +119,19 @@ def test_a_bad_key_file_is_refused_naming_it(
     with pytest.raises(SigningKeyError, match=re.escape(message)) as err:
         read_key(tmp_path, "t1")
     assert str(path) in str(err.value)
+
+
+def test_two_vehicles_with_one_key_and_unsigned_with_keys_are_refused(
+    tmp_path: Path, capsys
+) -> None:
+    """One key copied to two vehicles (either's leak commands both), and --unsigned beside
+    --keys (it ran unsigned without a word): refused, naming the files or the options."""
+    write_keys(tmp_path, ["t1", "t2"])
+    key_path(tmp_path, "t2").write_text(key_path(tmp_path, "t1").read_text())
+    with pytest.raises(SigningKeyError, match=r"t2\.key: the same key as .*t1\.key"):
+        read_keys(tmp_path, ["t1", "t2"])
+    code = main(["serve", str(DATA / "tiny.toml"), "--unsigned", "--keys", str(tmp_path)])
+    assert code == 2 and "--unsigned and --keys" in capsys.readouterr().err
 
 
 def test_a_missing_key_says_how_to_make_one(tmp_path: Path) -> None:
