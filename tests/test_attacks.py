@@ -167,6 +167,8 @@ def test_foreign_commands_and_forged_progress_fail_raise_alarms_and_the_run_fini
     assert {("v1", "foreign_command"), ("v2", "foreign_command")} <= kinds, table
     assert ("v1", "progress_doubted") in kinds, table
     assert review.vehicle("v1").frames_refused >= 1400, table
+    # Counted to the end: the last status (which review reads) had none (review said 0).
+    assert review.vehicle("v1").foreign_commands >= 1, table
     assert "alarm" in table.lower(), table
     # Every foreign frame is in the log, on the key it came in on.
     topics = log.topic_counts()

@@ -439,7 +439,7 @@ class Dispatcher:
             if self.state.all_fields_done():
                 self.store.end_run("done")
         if self.recorder is not None:
-            self.recorder.record_status(self.state.status_doc(), time.time_ns())
+            self.recorder.record_status(self._status_doc(), time.time_ns())
             self.recorder.finish()
             log.info("log finished: %s", self.log_path)
         if self.live is not None:
@@ -1617,11 +1617,17 @@ class Dispatcher:
             if self.recorder is not None:
                 self.recorder.record_frame(key, frame, time.time_ns(), mc.as_dict(msg))
 
-    def _publish_status(self, now: float) -> None:
-        self._last_status = now
+    def _status_doc(self) -> dict[str, Any]:
+        """The fleet's status with each vehicle's count of frames on its command key we did
+        not send (the last, at the end of the run, too: review read 0 from it)."""
         doc = self.state.status_doc()
         for vid, count in self.foreign_frames.items():
             doc["vehicles"][vid]["foreign_commands"] = count
+        return doc
+
+    def _publish_status(self, now: float) -> None:
+        self._last_status = now
+        doc = self._status_doc()
         self._status_json = json.dumps(doc)
         if self.recorder is not None:
             self.recorder.record_status(doc, time.time_ns())
