@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -151,6 +152,9 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
             if args.all
             else [scenario.vehicle(vid).id for vid in args.vehicle]
         )
+        twice = sorted({vid for vid in ids if ids.count(vid) > 1})
+        if twice:  # two simulated tractors of one system id, on one set of keys
+            raise ValueError(f"--vehicle {', '.join(twice)} given more than once")
         options = wire.zenoh_options(args, False, identity=ids[0])
         options.config()  # a bad --cfg or --mode fails here, with a message
         params = RoverParams(
@@ -170,8 +174,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles"
             unknown = sorted(set(faults) - set(ids))
             if unknown:
                 raise ValueError(f"{flag} names {', '.join(unknown)}, not simulated here")
-        if not args.speedup > 0.0 or not args.telemetry_hz > 0.0:
-            raise ValueError("--speedup and --telemetry-hz must be > 0")
+        if not 0.0 < args.speedup < math.inf or not 0.0 < args.telemetry_hz < math.inf:
+            raise ValueError(
+                f"--speedup and --telemetry-hz must be finite and > 0, not "
+                f"{args.speedup:g} and {args.telemetry_hz:g}"
+            )
         if args.mavlink:
             check_mavlink_args(args, ids)
             for flag, faults in (("--stall-after", stall_after), ("--deaf-until", deaf_until)):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import queue
 import signal
 import threading
@@ -247,10 +248,10 @@ def stall_on_signal(stall: threading.Event) -> Callable[[], None]:
 
 def check_rates(speedup: float, telemetry_hz: float) -> None:
     """Raise ValueError unless both clocks run forwards."""
-    if not speedup > 0.0:
-        raise ValueError(f"speedup must be > 0, got {speedup}")
-    if not telemetry_hz > 0.0:
-        raise ValueError(f"telemetry_hz must be > 0, got {telemetry_hz}")
+    if not 0.0 < speedup < math.inf:
+        raise ValueError(f"speedup must be finite and > 0, got {speedup}")
+    if not 0.0 < telemetry_hz < math.inf:
+        raise ValueError(f"telemetry_hz must be finite and > 0, got {telemetry_hz}")
 
 
 def serve_vehicles(

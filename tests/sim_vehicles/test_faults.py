@@ -102,6 +102,10 @@ def test_stall_after_is_parsed_and_checked_like_fail_after() -> None:
         ),
         (["--vehicle", "v1", "--deaf-until", "v2:10"], "--deaf-until names v2"),
         (["--vehicle", "v1", "--deaf-until", "v1"], "--deaf-until wants ID:SECONDS"),
+        # An infinite speed-up overflowed a clock (a traceback), one tractor twice ran two
+        # sessions of one system id (review).
+        (["--vehicle", "v1", "--speedup", "inf"], "must be finite and > 0, not inf"),
+        (["--vehicle", "v1", "--vehicle", "v1"], "--vehicle v1 given more than once"),
         (
             ["--vehicle", "v1", "--deaf-until", "v1:10", "--mavlink", "tcpin:127.0.0.1:5760"],
             "--deaf-until works on Zenoh only",
