@@ -475,3 +475,16 @@ def test_serve_on_a_port_another_process_listens_on_is_refused_before_planning(t
     err = capsys.readouterr().err
     assert f"--listen {endpoint}: Address already in use" in err, err
     assert not (tmp_path / "data" / "agrifleet.sqlite3").exists()  # nothing planned or kept
+
+
+def test_a_plot_file_is_a_picture_matplotlib_writes(capsys):
+    """`review --plot out.txt` was a matplotlib traceback; `--plot out` wrote out.png and
+    said "plot: out"."""
+    from dispatcher.cli.main import figure_file
+
+    assert figure_file("out") == Path("out.png")
+    assert figure_file("a/map.PDF") == Path("a/map.PDF")
+    with pytest.raises(SystemExit) as exc:
+        main(["review", "nowhere", "--plot", "out.txt"])
+    assert exc.value.code == 2
+    assert "out.txt: not a picture format matplotlib writes" in capsys.readouterr().err

@@ -577,6 +577,24 @@ def _positive(text: str, what: str) -> float:
     return value
 
 
+FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "eps", "ps")
+"""What a --plot file may be: formats matplotlib writes, by the name's suffix."""
+
+
+def figure_file(text: str) -> Path:
+    """A picture to write (argparse's ``type``): a name without a suffix is a PNG; one with
+    a suffix matplotlib cannot write is refused (it was a matplotlib traceback)."""
+    path = Path(text)
+    suffix = path.suffix.lower().lstrip(".")
+    if not suffix:
+        return path.with_name(path.name + ".png")
+    if suffix not in FIGURE_FORMATS:
+        raise argparse.ArgumentTypeError(
+            f"{text}: not a picture format matplotlib writes ({', '.join(FIGURE_FORMATS)})"
+        )
+    return path
+
+
 def seconds(text: str) -> float:
     """An argument that is a number of seconds > 0 (argparse's ``type``)."""
     return _positive(text, "a number of seconds")
@@ -775,7 +793,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
-        "--plot", type=Path, metavar="FILE.png", help="write a map and Gantt chart PNG here"
+        "--plot",
+        type=figure_file,
+        metavar="FILE.png",
+        help="write a map and Gantt chart here (PNG, or .pdf, .svg, ...)",
     )
     p.set_defaults(handler=cmd_review)
 
@@ -891,7 +912,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     add_algorithm_argument(p)
     p.add_argument(
-        "--plot", type=Path, default=None, metavar="FILE.png", help="also draw the log-log plot"
+        "--plot",
+        type=figure_file,
+        default=None,
+        metavar="FILE.png",
+        help="also draw the log-log plot",
     )
     p.set_defaults(handler=cmd_bench_scale)
 
