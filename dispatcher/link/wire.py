@@ -87,6 +87,7 @@ class ZenohOptions:
     extra: Sequence[str] = field(default_factory=tuple)  # "key/path:json5 value"
     tls: TlsIdentity | None = None
     acl: dict[str, Any] | None = None
+    insecure_listen: bool = False  # --insecure-listen: plain TCP beyond loopback allowed
 
     def as_identity(self, name: str) -> ZenohOptions:
         """The same options for another identity of the same TLS folder (a simulator
@@ -176,7 +177,37 @@ class ZenohOptions:
                 conf.insert_json5(key, value)
             except zenoh.ZError as exc:
                 raise ConfigError(f"--cfg {item}: {_zenoh_reason(exc)}") from None
+        self._check_listening(conf)
         return conf
+
+    def _check_listening(self, conf: zenoh.Config) -> None:
+        """The endpoints the session will listen on, whoever set them (``--cfg``, the
+        ``--zenoh-config`` file, or Zenoh's own default of every interface when the file
+        sets none): plain TCP beyond loopback only with ``insecure_listen`` (``--cfg
+        'listen/endpoints:["tcp/0.0.0.0:7447"]'`` got round ``--listen``'s check)."""
+        if self.insecure_listen:
+            return
+        value = json.loads(conf.get_json("listen/endpoints"))
+        endpoints = value.get(self.mode, []) if isinstance(value, dict) else value
+        exposed = [
+            e
+            for e in endpoints
+            if isinstance(e, str) and not e.startswith("tls/") and not is_loopback(e)
+        ]
+        if exposed:
+            source = (
+                "--cfg"
+                if any(item.startswith("listen") for item in self.extra)
+                else f"--zenoh-config {self.config_file}"
+                if self.config_file
+                else "the listen endpoints"
+            )
+            raise ConfigError(
+                f"{source} listens on {exposed[0]} without TLS (Zenoh's default, every "
+                "interface, where the file sets none): anyone who reaches it could command the "
+                "tractors. Listen on loopback or tls/ endpoints (docs/security.md), or add "
+                "--insecure-listen for a closed test bench"
+            )
 
 
 def _zenoh_reason(exc: zenoh.ZError) -> str:
@@ -222,7 +253,7 @@ def zenoh_options(
 
         tls = TlsIdentity(Path(args.tls), identity or DISPATCHER)
     connect = tuple(args.connect or ())
-    if not listen and not connect and args.mode != "router":
+    if not listen and not connect and args.mode != "router" and not args.zenoh_config:
         default = DEFAULT_TLS_ENDPOINT if tls else DEFAULT_ENDPOINT
         if default_listen:
             listen = (default,)
@@ -235,6 +266,7 @@ def zenoh_options(
         config_file=args.zenoh_config,
         extra=tuple(args.cfg or ()),
         tls=tls,
+        insecure_listen=bool(getattr(args, "insecure_listen", False)),
     )
 
 

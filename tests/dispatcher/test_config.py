@@ -5,6 +5,7 @@ number), the bounds of :data:`dispatcher.config.scenario.LIMITS`, and the comman
 exit code 2 for them.
 """
 
+import argparse
 import copy
 import json
 import math
@@ -650,6 +651,31 @@ def test_a_bad_endpoint_is_named_before_anything_is_planned(endpoint):
             wire.zenoh_options(args, default_listen=flag == "--listen")
     ok = parser.parse_args(["--listen", "tcp/[::1]:0", "--connect", "tls/farm.example:7447"])
     wire.zenoh_options(ok, default_listen=True)
+
+
+def test_plain_tcp_beyond_loopback_is_refused_whoever_asks_for_it(tmp_path):
+    """--cfg 'listen/endpoints:[...]' and a --zenoh-config file (its own endpoints, or none:
+    Zenoh's default of every interface) got round --listen's rule: plain TCP on 0.0.0.0
+    without --insecure-listen, silently (review)."""
+    from dispatcher.config.errors import ConfigError
+    from dispatcher.link import wire
+
+    cfg = ('listen/endpoints:["tcp/0.0.0.0:7447"]',)
+    with pytest.raises(ConfigError, match=r"--cfg listens on tcp/0\.0\.0\.0:7447 without TLS"):
+        wire.ZenohOptions(extra=cfg).config()
+    wire.ZenohOptions(extra=cfg, insecure_listen=True).config()
+    file = tmp_path / "zenoh.json5"
+    file.write_text('{mode: "peer"}')
+    with pytest.raises(ConfigError, match=r"--zenoh-config .*zenoh\.json5 listens on tcp/\[::\]"):
+        wire.ZenohOptions(config_file=str(file)).config()
+    file.write_text('{listen: {endpoints: ["tcp/127.0.0.1:0"]}}')
+    conf = wire.ZenohOptions(config_file=str(file)).config()  # loopback: fine
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
+    # The file's endpoints are its own, not replaced by the default listener.
+    parser = argparse.ArgumentParser()
+    wire.add_zenoh_arguments(parser)
+    args = parser.parse_args(["--zenoh-config", str(file)])
+    assert wire.zenoh_options(args, default_listen=True).listen == ()
 
 
 def test_zenoh_refusing_its_configuration_or_a_port_is_named_not_a_traceback(tmp_path):
