@@ -488,3 +488,40 @@ def test_a_plot_file_is_a_picture_matplotlib_writes(capsys):
         main(["review", "nowhere", "--plot", "out.txt"])
     assert exc.value.code == 2
     assert "out.txt: not a picture format matplotlib writes" in capsys.readouterr().err
+
+
+def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
+    """The fingerprint a stored run is resumed by: a comment, the [dispatcher] section or a
+    time limit changed in the scenario refused the resume ("made from other inputs", only
+    --fresh out: review); a field, a machine or the seed changed still refuse it."""
+    import argparse
+    import shutil
+
+    from dispatcher.cli.main import inputs_fingerprint, load_scenario_args
+
+    for name in ("tiny.toml", "tiny-farm.geojson"):
+        shutil.copy(DATA / name, tmp_path / name)
+    scenario_path = tmp_path / "tiny.toml"
+    base = scenario_path.read_text()
+
+    def fingerprint(text: str, seed: int | None = None, time_limit: float | None = None) -> str:
+        scenario_path.write_text(text)
+        args = argparse.Namespace(
+            scenario=str(scenario_path),
+            fields=None,
+            machines=None,
+            objective=None,
+            seed=seed,
+            time_limit=time_limit,
+        )
+        return inputs_fingerprint(load_scenario_args(args), args)
+
+    first = fingerprint(base)
+    assert fingerprint(base + "\n# a comment\n") == first
+    assert fingerprint(base + "\n[dispatcher]\nlost_after_s = 9.0\n") == first
+    assert fingerprint(base, time_limit=3.0) == first
+    assert fingerprint(base, seed=7) != first
+    assert fingerprint(base.replace("road_fuel_lh = 3.0", "road_fuel_lh = 4.0", 1)) != first
+    farm = tmp_path / "tiny-farm.geojson"
+    farm.write_text(farm.read_text().replace("87.3007493", "87.30074", 2))  # field A narrower
+    assert fingerprint(base) != first

@@ -236,18 +236,23 @@ def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def
 
 
 def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
-    """What a plan is made from: the scenario and farm files as they are now, the fleet
-    and the options that change the plan. A stored run made from other inputs is not
-    resumed by mistake."""
+    """What a plan is made from: the farm file as it is now, its fields and garage as read,
+    the fleet, and the solver's settings (the command line's included). A stored run made
+    from other inputs is not resumed by mistake; a comment, the [dispatcher] section or a
+    time limit changed in the scenario do not make another plan, and it is resumed (they
+    refused it: review)."""
+    import dataclasses
     import hashlib
 
     h = hashlib.sha256()
-    for source in (scenario.source, scenario.farm.source):
-        with contextlib.suppress(OSError):
-            h.update(Path(source).read_bytes())
+    with contextlib.suppress(OSError):
+        h.update(Path(scenario.farm.source).read_bytes())
+    farm = scenario.farm
+    h.update(repr([(f.id, round(f.area_m2, 1)) for f in farm.fields]).encode())
+    h.update(repr(tuple(round(c, 7) for c in farm.garage_lonlat)).encode())
     h.update(repr(scenario.vehicles).encode())
-    h.update(repr(scenario.solver).encode())
-    h.update(repr((args.objective, args.time_limit, args.seed)).encode())
+    h.update(repr(dataclasses.replace(scenario.solver, time_limit_s=0.0)).encode())
+    h.update(repr(getattr(args, "seed", None)).encode())
     return h.hexdigest()[:16]
 
 
