@@ -350,6 +350,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 heartbeat_timeout_s=scenario.watch.lost_after_s,
                 stall_after_s=scenario.watch.stall_after_s,
                 lost_grace_s=scenario.watch.lost_grace_s,
+                alive_timeout_s=scenario.watch.alive_after_s,
                 window_items=scenario.watch.window_items,
                 topup_lead_s=scenario.watch.topup_lead_s,
                 store=store,

@@ -188,6 +188,13 @@ LIMITS: dict[str, Limit] = {
         "vehicles send a heartbeat once a second",
         "an hour for a lost vehicle to come back",
     ),
+    "alive_after_s": Limit(
+        1.0,
+        86_400.0,
+        "s",
+        "a vehicle's first heartbeat comes within a second of its start",
+        "a day for the fleet to be switched on",
+    ),
     "window_items": Limit(
         0,
         100_000,
@@ -250,7 +257,14 @@ SOLVER_KEYS = (
     "makespan_slack",
     "finish_within_h",
 )
-WATCH_KEYS = ("lost_after_s", "stall_after_s", "lost_grace_s", "window_items", "topup_lead_s")
+WATCH_KEYS = (
+    "lost_after_s",
+    "stall_after_s",
+    "lost_grace_s",
+    "alive_after_s",
+    "window_items",
+    "topup_lead_s",
+)
 # Where a key misplaced in a table belongs (TOML puts every key after a [table] line in it).
 _ELSEWHERE_AT_TOP = {
     **dict.fromkeys(MACHINE_KEYS, "in a [[machine]] table"),
@@ -333,6 +347,9 @@ class WatchSettings:
     lost_after_s: float = 5.0  # wall seconds without any message from it
     stall_after_s: float = 60.0  # its own seconds driving in AUTO without getting anywhere
     lost_grace_s: float = 30.0  # wall seconds a lost vehicle has to come back
+    # Wall seconds from the start for every vehicle to be heard (switched on, on the
+    # network); one not heard by then is left out and its work re-planned.
+    alive_after_s: float = 60.0
     # Missions are sent in windows of whole fields, about this many items, topped up as
     # the vehicle drives (dispatcher/mission/window.py); 0: each mission whole.
     window_items: int = WINDOW_ITEMS

@@ -530,6 +530,7 @@ def run_demo(
         heartbeat_timeout_s=heartbeat_timeout_s,
         stall_after_s=dispatch.scenario.watch.stall_after_s,
         lost_grace_s=dispatch.scenario.watch.lost_grace_s,
+        alive_timeout_s=dispatch.scenario.watch.alive_after_s,
         window_items=dispatch.scenario.watch.window_items,
         topup_lead_s=dispatch.scenario.watch.topup_lead_s,
         on_progress=printer,
