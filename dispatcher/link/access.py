@@ -102,6 +102,7 @@ class TlsIdentity:
                     f"`agrifleet certs SCENARIO --tls {self.folder}`"
                 )
         check_private(self.key, f"the TLS key of {self.name!r}", f"--tls {self.folder}")
+        _check_pem(self.ca, self.cert, self.key, f"agrifleet certs SCENARIO --tls {self.folder}")
         return self
 
     def settings(self) -> list[tuple[str, str]]:
@@ -120,6 +121,51 @@ class TlsIdentity:
         ]
 
 
+def _check_pem(ca_path: Path, cert_path: Path, key_path: Path, make: str) -> None:
+    """The three files read as what they should be: two certificates, the identity's
+    issued by the CA and in date, and the private key of the identity's certificate.
+    Zenoh said only "peer sent no certificates" or "KeyMismatch", naming no file, or a
+    tractor's session never connected without a word (review)."""
+    import datetime
+
+    from cryptography import x509
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import serialization
+
+    def certificate(path: Path) -> x509.Certificate:
+        try:
+            return x509.load_pem_x509_certificate(path.read_bytes())
+        except (OSError, ValueError) as exc:
+            raise AccessError(
+                f"{path}: not a PEM certificate ({exc}); make it with `{make}`"
+            ) from None
+
+    ca, cert = certificate(ca_path), certificate(cert_path)
+    try:
+        key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
+    except (OSError, ValueError, TypeError) as exc:
+        raise AccessError(
+            f"{key_path}: not a PEM private key without a password ({exc}); make it with `{make}`"
+        ) from None
+    raw = serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+    if key.public_key().public_bytes(*raw) != cert.public_key().public_bytes(*raw):
+        raise AccessError(f"{key_path}: not the private key of the certificate {cert_path}")
+    try:
+        cert.verify_directly_issued_by(ca)
+    except (ValueError, TypeError, InvalidSignature):
+        raise AccessError(
+            f"{cert_path}: not issued by the farm's CA {ca_path} (certificates of another "
+            f"farm, or made again since?); make them with `{make}`"
+        ) from None
+    now = datetime.datetime.now(datetime.UTC)
+    for path, c in ((ca_path, ca), (cert_path, cert)):
+        if not c.not_valid_before_utc <= now <= c.not_valid_after_utc:
+            raise AccessError(
+                f"{path}: valid from {c.not_valid_before_utc:%Y-%m-%d} to "
+                f"{c.not_valid_after_utc:%Y-%m-%d}, not now; make new ones with `{make}`"
+            )
+
+
 def check_private(path: Path, what: str, remedy: str) -> None:
     """A private file must exist and be readable by its owner only (as ssh wants of a
     private key); :class:`AccessError` names the file and the fix."""
@@ -127,7 +173,7 @@ def check_private(path: Path, what: str, remedy: str) -> None:
         mode = path.stat().st_mode
     except FileNotFoundError:
         raise AccessError(
-            f"{path}: no {what}; make it with `agrifleet certs SCENARIO {remedy}`"
+            f"{path}: missing ({what}); make it with `agrifleet certs SCENARIO {remedy}`"
         ) from None
     refuse_if_open(mode, path, what, AccessError)
 

@@ -75,6 +75,32 @@ def test_a_key_open_to_others_or_missing_is_refused_naming_the_file(pki: Path) -
         TlsIdentity(pki, "nobody").check()
 
 
+def test_a_bad_certificate_or_key_is_refused_naming_the_file(tmp_path: Path) -> None:
+    """Garbage for a certificate, another identity's key, another farm's CA: Zenoh said
+    "peer sent no certificates" or "KeyMismatch" naming no file, and a tractor's session
+    never connected without a word (review)."""
+    import shutil
+
+    folder = tmp_path / "tls"
+    make_farm_pki(folder, "f", ["v1", "v2"])
+    other = tmp_path / "other"
+    make_farm_pki(other, "g", ["v1"])
+    v1 = TlsIdentity(folder, "v1")
+    v1.check()
+    good_cert, good_key = v1.cert.read_bytes(), v1.key.read_bytes()
+    v1.cert.write_text("not a certificate")
+    with pytest.raises(AccessError, match=r"v1\.pem: not a PEM certificate"):
+        v1.check()
+    v1.cert.write_bytes(good_cert)
+    v1.key.write_bytes((folder / "v2.key").read_bytes())
+    with pytest.raises(AccessError, match=r"v1\.key: not the private key of the certificate"):
+        v1.check()
+    v1.key.write_bytes(good_key)
+    shutil.copy(other / "ca.pem", folder / "ca.pem")
+    with pytest.raises(AccessError, match=r"v1\.pem: not issued by the farm's CA"):
+        v1.check()
+
+
 def test_a_vehicle_named_as_another_identity_is_refused(tmp_path: Path) -> None:
     with pytest.raises(AccessError, match="'dispatcher'"):
         make_farm_pki(tmp_path / "tls", "f", ["v1", DISPATCHER])
