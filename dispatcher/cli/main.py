@@ -955,9 +955,20 @@ def add_foxglove_argument(p: argparse.ArgumentParser, on_by_default: bool) -> No
 
 def foxglove_address(args: argparse.Namespace) -> tuple[str, int] | None:
     """The live view's (host, port) from ``--foxglove``, or None; a bad value exits 2."""
+    from dispatcher.link.wire import is_loopback
     from dispatcher.recording.address import parse_address
 
-    return parse_address(args.foxglove) if args.foxglove else None
+    if not args.foxglove:
+        return None
+    host, port = parse_address(args.foxglove)
+    if not is_loopback(f"tcp/{host}:{port}"):
+        logging.getLogger("agrifleet").warning(
+            "--foxglove %s: the live view asks no one who they are: anyone who reaches %s sees "
+            "the fleet (it takes no commands); put it behind a VPN or an SSH tunnel",
+            args.foxglove,
+            host,
+        )
+    return host, port
 
 
 def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None = None) -> None:
