@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from dispatcher.config.scenario import DEMO_SCENARIO, Scenario, load_scenario
+from dispatcher.config.errors import ConfigError
+from dispatcher.config.scenario import DEMO_SCENARIO, LIMITS, Scenario, load_scenario
 from dispatcher.mission.document import PlanDocument
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan, plan_geojson, write_plan_files
 from planner.farm import Farm
@@ -148,9 +149,30 @@ def plan_farm(
     distance, time, fuel, minmax), ``time_limit_s`` (wall seconds for the whole plan) and
     ``seed`` override the scenario's ``[solver]``. Bad input raises
     :class:`dispatcher.config.errors.ConfigError` (or a :class:`planner.errors.PlannerError`)
-    naming the file and the key at fault."""
+    naming the file and the key at fault (or the argument)."""
+    _check_arguments(machines, time_limit_s, seed)
     chosen = scenario_for(scenario, fields, machines)
     return Plan(dispatch_for(chosen, objective, time_limit_s, seed, on_generation))
+
+
+def _check_arguments(machines: Any, time_limit_s: Any, seed: Any) -> None:
+    """:func:`plan_farm`'s numbers as the scenario's are checked: a ConfigError naming the
+    argument (a ValueError or TypeError came out of the depths)."""
+    limit = LIMITS["time_limit_s"]
+    for name, value in (("machines", machines), ("seed", seed)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ConfigError(f"plan_farm({name}={value!r}): a whole number, or None")
+    if machines is not None and machines < 1:
+        raise ConfigError(f"plan_farm(machines={machines}): at least 1")
+    if time_limit_s is not None and (
+        isinstance(time_limit_s, bool)
+        or not isinstance(time_limit_s, int | float)
+        or not limit.low <= time_limit_s <= limit.high
+    ):
+        raise ConfigError(
+            f"plan_farm(time_limit_s={time_limit_s!r}): seconds from {limit.low:g} to "
+            f"{limit.high:g}, or None for the scenario's"
+        )
 
 
 def plan_table(doc: PlanDocument) -> str:

@@ -33,3 +33,21 @@ def test_the_api_page_runs_as_a_notebook(tmp_path, monkeypatch, capsys):
         ".waypoints",
         ".waypoints",
     ]
+
+
+def test_the_api_says_which_argument_is_bad():
+    """docs/api.md promises a ConfigError naming what is at fault; a negative time limit
+    was a ValueError, a seed of 'a' another, machines '2' a TypeError (review)."""
+    import pytest
+
+    import agrifleet
+    from dispatcher.config.errors import ConfigError
+
+    for kwargs, said in [
+        ({"time_limit_s": -1}, r"plan_farm\(time_limit_s=-1\): seconds from 0\.1"),
+        ({"seed": "a"}, r"plan_farm\(seed='a'\): a whole number"),
+        ({"machines": "2"}, r"plan_farm\(machines='2'\): a whole number"),
+        ({"machines": 0}, r"plan_farm\(machines=0\): at least 1"),
+    ]:
+        with pytest.raises(ConfigError, match=said):
+            agrifleet.plan_farm(**kwargs)
