@@ -595,7 +595,9 @@ class TransitNetwork:
         outside = network.difference(cores) if not network.difference(cores).is_empty else network
         outlines = shapely.STRtree([Polygon(f.boundary.exterior) for f in farm.fields])
         for k, f in enumerate(farm.fields):
-            declared = tuple(g.xy for g in farm.gates_of(f.id))
+            # A gate drawn inside the field is on its fence: the tractor drove from the fence
+            # to the point as drawn, into the crop, and back (review).
+            declared = tuple(_on_fence(f.boundary, g.xy) for g in farm.gates_of(f.id))
             if not declared:
                 fence = f.boundary.exterior
                 others = [
@@ -797,14 +799,7 @@ class TransitNetwork:
         if key not in self._doors:
             field = self.farm.field(field_id).boundary
             outline = Polygon(field.exterior)
-            at: XY = gate
-            to_hole = min(
-                (ring.distance(Point(gate)) for ring in field.interiors), default=math.inf
-            )
-            in_hole = to_hole < field.exterior.distance(Point(gate))
-            if outline.contains(Point(gate)) and not in_hole:
-                q = nearest_points(field.exterior, Point(gate))[0]
-                at = (float(q.x), float(q.y))
+            at, in_hole = _on_fence(field, gate), _in_hole(field, gate)
             r = self._clearance_m + DOOR_M
             t = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
             around = np.column_stack([at[0] + r * np.cos(t), at[1] + r * np.sin(t)])
@@ -1030,6 +1025,22 @@ def joined(roads: Sequence[LineString], tolerance_m: float = ROAD_JOIN_M) -> lis
         shapely.snap(line, shapely.multipoints(points[sorted(t)]), tolerance_m) if t else line
         for line, t in zip(lines, targets, strict=True)
     ]
+
+
+def _in_hole(field: Polygon, gate: XY) -> bool:
+    """Whether the gate is nearer one of the field's holes than its outline (it opens onto
+    the hole)."""
+    to_hole = min((ring.distance(Point(gate)) for ring in field.interiors), default=math.inf)
+    return bool(to_hole < field.exterior.distance(Point(gate)))
+
+
+def _on_fence(field: Polygon, gate: XY) -> XY:
+    """Where a gate drawn inside its field (not in a hole) is on its outline: the nearest
+    point of the outline; a gate drawn on or outside it, where it is."""
+    if Polygon(field.exterior).contains(Point(gate)) and not _in_hole(field, gate):
+        q = nearest_points(field.exterior, Point(gate))[0]
+        return (float(q.x), float(q.y))
+    return gate
 
 
 def _strictly_between(a: XY, points: Sequence[XY], b: XY) -> tuple[XY, ...]:

@@ -372,6 +372,19 @@ def test_a_field_on_anothers_fence_reaches_the_road_around_it(caplog):
     assert not crosses([p, *via, (75.0, 50.0)], fields["F2"])
 
 
+def test_a_gate_drawn_inside_its_field_is_on_its_fence():
+    """With roads, a gate drawn 40 m inside its field was driven to as drawn: from the
+    fence into the crop and back out (review)."""
+    field = box(0, 0, 150, 100)
+    farm = farm_of(
+        {"F": field}, (-50, -15), roads=[[(-50, -15), (300, -15)]], gates=[("F", (75, 40))]
+    )
+    net = TransitNetwork(farm)
+    assert net.gates["F"] == ((75.0, 0.0),)
+    length, via = net.route((140.0, 90.0), (-50.0, -15.0), "F", None)
+    assert (75.0, 40.0) not in via and (75.0, 0.0) in via
+
+
 def test_roads_all_shorter_than_the_join_are_no_roads(caplog):
     """Every road shorter than ROAD_JOIN_M (a stub drawn by a slip of the mouse): joined
     into a point, no network left, and a traceback (exit 1). Now: said, and no roads."""
