@@ -501,6 +501,20 @@ def test_a_road_logged_every_two_metres_is_driven_as_a_few_points():
     assert length == pytest.approx(50 + 20 + 1800 + 20 + 50, abs=2.0)
 
 
+def test_a_phone_logged_road_of_metre_noise_is_driven_as_the_road():
+    """A track logged every metre, wandering ±0.8 m (a phone's GPS): at ROAD_SIMPLIFY_M
+    alone its route kept a waypoint a metre and three times the road's length (review);
+    each stretch between junctions is smoothed to ROAD_SMOOTH_M."""
+    rng = np.random.default_rng(1)
+    xs = np.arange(-50.0, 2000.0, 1.0)
+    track = list(zip(xs, 120.0 + rng.uniform(-0.8, 0.8, len(xs)), strict=True))
+    fields = {"A": box(0, 0, 100, 100), "B": box(1800, 0, 1900, 100)}
+    farm = farm_of(fields, (-50, 120), [track], [("A", (50, 100)), ("B", (1850, 100))])
+    length, via = TransitNetwork(farm).route((50, 50), (1850, 50), "A", "B")
+    assert len(via) < 20
+    assert length == pytest.approx(50 + 20 + 1800 + 20 + 50, rel=0.01)
+
+
 def test_no_way_around_is_said_with_the_fields_it_is_between(caplog):
     """A yard closed all round by four fields, the garage in it: from a field outside
     there is no way around; the warning names the farm and the places, not local metres."""
