@@ -423,11 +423,18 @@ class _FreeSpace:
         total = reach_a + seen_b
         j = int(np.argmin(total)) if len(total) else -1
         if j < 0 or not math.isfinite(total[j]):
+            crossed = [
+                self._names[int(k)]
+                for k in self._tree.query(LineString([a, b]), predicate="intersects")
+                if int(k) not in ignore and self._fields[int(k)].intersects(LineString([a, b]))
+            ]
             log.warning(
-                "%s: no way around the other fields from %s to %s; counting the straight line",
+                "%s: no way around the other fields from %s to %s (enclosed by fields); "
+                "driven straight across %s",
                 self._source,
                 self._where(own_a if ends is None else ends[0]),
                 self._where(own_b if ends is None else ends[1]),
+                ", ".join(f"field {name!r}" for name in sorted(crossed)) or "them",
             )
             return straight, ()
         i = int(np.argmin(seen_a + self._dist[:, j]))
@@ -559,8 +566,28 @@ class TransitNetwork:
         # The fields shrunk by CROSSING_M (what a way onto the roads must not cross), indexed
         # on first use.
         self._fields_tree: shapely.STRtree | None = None
+        self._say_nested()
         if farm.roads:
             self._build_roads()
+
+    def _say_nested(self) -> None:
+        """A field in a hole of another (an island in a pond, a plot in a yard) is reached
+        across that field, which no way around avoids: said once, naming both (it was
+        driven across silently: review)."""
+        holes = [(f.id, Polygon(ring)) for f in self.farm.fields for ring in f.boundary.interiors]
+        if not holes:
+            return
+        for f in self.farm.fields:
+            inside = f.boundary.representative_point()
+            for outer, hole in holes:
+                if outer != f.id and hole.contains(inside):
+                    log.warning(
+                        "%s: field %r lies in a hole of field %r: its transit crosses %r",
+                        self.farm.source,
+                        f.id,
+                        outer,
+                        outer,
+                    )
 
     @property
     def _free(self) -> _FreeSpace:

@@ -385,6 +385,15 @@ def test_a_gate_drawn_inside_its_field_is_on_its_fence():
     assert (75.0, 40.0) not in via and (75.0, 0.0) in via
 
 
+def test_a_field_in_anothers_hole_is_said_to_be_reached_across_it(caplog):
+    """A field in a hole of another was reached across it without a word (review)."""
+    outer = Polygon(box(0, 0, 300, 300).exterior, [box(100, 100, 200, 200).exterior.coords[::-1]])
+    fields = {"O": outer, "I": box(120, 120, 180, 180)}
+    with caplog.at_level(logging.WARNING):
+        TransitNetwork(farm_of(fields, (-50, 150)))
+    assert "field 'I' lies in a hole of field 'O': its transit crosses 'O'" in caplog.text
+
+
 def test_roads_all_shorter_than_the_join_are_no_roads(caplog):
     """Every road shorter than ROAD_JOIN_M (a stub drawn by a slip of the mouse): joined
     into a point, no network left, and a traceback (exit 1). Now: said, and no roads."""
