@@ -75,6 +75,9 @@ WAYPOINT_MATCH_M: Final = 2.0
 """A position this close to a waypoint just reached is taken as the vehicle at it."""
 STILL_SPEED_MS: Final = 0.1
 """Below this ground speed a vehicle stands still."""
+HELD_IN_WORK_S: Final = 60.0
+"""Standing still this long in a field's work window is a hold, not work; a shorter pause
+(a turn, a hitch) is work."""
 HEARTBEAT_GAP_S: Final = 5.0
 """Wall seconds without a heartbeat that count as link lost (the daemon's default)."""
 RECORDING_GAP_S: Final = 1.0
@@ -974,13 +977,30 @@ def _review_vehicle(
         # Moving or standing, between successive positions, outside the work windows.
         pace = _Pace(kept, legs)
         edges = [(max(p.t, start), p) for p in window]
+        # Runs of standing still (from, to): in a field's work window, held, not working.
+        still: list[tuple[float, float]] = []
+        still_from: float | None = None
         for (ta, pa), (tb, pb) in zip(edges, edges[1:], strict=False):
-            _outside_work(ta, tb, pace.moving(pa, pb), start, work_union, activities)
+            moving = pace.moving(pa, pb)
+            _outside_work(ta, tb, moving, start, work_union, activities)
+            if not moving and still_from is None:
+                still_from = ta
+            elif moving and still_from is not None:
+                still.append((still_from, ta))
+                still_from = None
         tail_from = edges[-1][0] if edges else start
         if tail_from < end:
             tail = edges[-1][1] if edges else None
             moving = tail is not None and (tail.speed or 0.0) >= STILL_SPEED_MS
             _outside_work(tail_from, end, moving, start, work_union, activities)
+            if not moving:
+                still_from = tail_from if still_from is None else still_from
+                still.append((still_from, end))
+            elif still_from is not None:
+                still.append((still_from, tail_from))
+        elif still_from is not None:
+            still.append((still_from, tail_from))
+        working_s -= sum(_held_in_work(a, b, start, work_union, activities) for a, b in still)
         for act in activities:
             if act.kind == "transit":
                 transit_s += act.end_s - act.start_s
@@ -1185,6 +1205,28 @@ def _outside_work(
         cursor = max(cursor, v)
     if cursor < tb:
         out.append(Activity(kind, cursor - start, tb - start))
+
+
+def _held_in_work(
+    ta: float,
+    tb: float,
+    start: float,
+    work_union: Sequence[tuple[float, float]],
+    out: list[Activity],
+) -> float:
+    """Standing still from ``ta`` to ``tb`` for :data:`HELD_IN_WORK_S` or more: its parts
+    inside the work windows, as stopped (held in the field: by the operator, or while the
+    dispatcher restarted), and their seconds; 0 for a shorter pause (a turn, a hitch).
+    They were counted as work, and charged the work's fuel (review)."""
+    if tb - ta < HELD_IN_WORK_S:
+        return 0.0
+    held = 0.0
+    for u, v in work_union:
+        a, b = max(ta, u), min(tb, v)
+        if b > a:
+            out.append(Activity("stopped", a - start, b - start))
+            held += b - a
+    return held
 
 
 def _without_jitter(points: Sequence[_Point]) -> list[_Point]:

@@ -20,7 +20,12 @@ from pyproj import Geod
 from dispatcher.config.scenario import Implement, Vehicle
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
-from dispatcher.link.mission_protocol import CommandSequence, MissionUpload, start_mission_commands
+from dispatcher.link.mission_protocol import (
+    CommandSequence,
+    MissionUpload,
+    hold_commands,
+    start_mission_commands,
+)
 from dispatcher.mission.build import (
     FieldVisit,
     LatLon,
@@ -265,8 +270,10 @@ def write_run(
     with_params: bool = True,
     status: dict[str, Any] | None = None,
     step_s: float = 20.0,
+    hold_v1_s: float = 0.0,
 ) -> dict[str, Mission]:
-    """A whole run of v1 (fields A, B) and v2 (field C) into ``output``; the missions."""
+    """A whole run of v1 (fields A, B) and v2 (field C) into ``output``; the missions.
+    ``hold_v1_s``: v1 is held (HOLD, then AUTO again) that long once it works field A."""
     missions = {vid: _mission(vid) for vid in ROUTES}
     clock = [T0]
     with Recorder(output, FARM, chunk_size=4096, max_chunk_age_s=None, clock=lambda: T0) as rec:
@@ -290,10 +297,24 @@ def write_run(
             upload.target_system = SYSTEM_IDS[link.vid]
             link.run(upload)
             link.run(CommandSequence(start_mission_commands(), SYSTEM_IDS[link.vid]))
+        held = False
         for _ in range(2000):
             for link in links:
                 t = link.tractor
                 link.receive(t.advance(step_s) + t.heartbeat(t.sim_time) + t.telemetry(t.sim_time))
+            v1 = links[0]
+            if hold_v1_s and not held and v1.tractor.current_seq >= 6:  # working field A
+                held = True
+                v1.run(CommandSequence(hold_commands(), SYSTEM_IDS["v1"]))
+                t = v1.tractor
+                for _ in range(int(hold_v1_s // step_s)):
+                    v1.receive(
+                        t.advance(step_s) + t.heartbeat(t.sim_time) + t.telemetry(t.sim_time)
+                    )
+                    clock[0] += 100_000_000
+                v1.run(
+                    CommandSequence(start_mission_commands(t.current_seq, True), SYSTEM_IDS["v1"])
+                )
             clock[0] += 100_000_000  # 0.1 s of wall time per step
             if all(link.tractor.mission_state.value == "complete" for link in links):
                 break
@@ -369,6 +390,25 @@ def test_distance_is_the_sum_of_the_legs_and_times_match_the_mission(
         for f in ("A", "B")
     )
     assert v1.working_h * 3600 == pytest.approx(windows)
+
+
+def test_standing_held_in_a_field_is_not_work() -> None:
+    """A tractor held in a field for ten minutes (by the operator, or while the dispatcher
+    restarted) was counted as working, and charged the work's fuel (review)."""
+    buf = io.BytesIO()
+    write_run(buf, hold_v1_s=600.0)
+    held = review_log(io.BytesIO(buf.getvalue())).vehicle("v1")
+    plain = review_log(io.BytesIO(write_run_bytes())).vehicle("v1")
+    assert held.stopped_h * 3600 >= 550.0
+    assert held.working_h == pytest.approx(plain.working_h, abs=20 / 3600 + 1e-9)  # a step of 20 s
+    assert held.working_h + held.transit_h + held.stopped_h == pytest.approx(held.time_h, rel=1e-6)
+    assert held.fuel_l == pytest.approx(plain.fuel_l, abs=20 / 3600 * 7.0 + 1e-6)  # one step
+
+
+def write_run_bytes() -> bytes:
+    buf = io.BytesIO()
+    write_run(buf)
+    return buf.getvalue()
 
 
 def test_an_item_reached_reported_twice_is_reached_once(
