@@ -380,6 +380,15 @@ def test_land_no_swath_nor_ring_sweeps_is_measured_and_an_acute_corner_named(cap
     assert rect.unworked_m2 < 0.01 * 120.0 * 300.0 and "unworked" not in caplog.text
 
 
+def test_a_block_the_headland_gave_up_on_is_named_however_small_a_share(caplog) -> None:
+    """A pond 20 m from a corner of a 400 m field: the headland rings between them are
+    dropped, and ~800 m2 go unworked in one block, 0.6 % of the field, under the share
+    that is warned of: it went unsaid (review)."""
+    field = Polygon(shapely.box(0, 0, 400, 400).exterior, [shapely.box(20, 20, 50, 50).exterior])
+    cover_field(field, 6.0, field_id="pond", turn_radius_m=5.0)
+    assert "field 'pond': " in caplog.text and "m2 in one piece left unworked" in caplog.text
+
+
 def test_a_jittery_outline_gives_headland_rings_without_edges_of_a_point() -> None:
     """A round field digitised with 0.4 m of GPS noise: its offsets have edges of a fraction
     of a millimetre, which a mission in lat/lon cannot tell from a point (the mission
