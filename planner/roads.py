@@ -32,6 +32,7 @@ gives the shortest route: inside the field to the gate, straight out to a point
 
 from __future__ import annotations
 
+import collections
 import itertools
 import logging
 import math
@@ -43,6 +44,8 @@ import networkx as nx
 import numpy as np
 import shapely
 from numpy.typing import NDArray
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
@@ -255,6 +258,9 @@ def _outside(
     return pieces, piece_of
 
 
+_UNIONS_KEPT = 16
+"""Unions of the obstacles but a few (:meth:`_FreeSpace._blocks_but`) kept for reuse."""
+
 _MANY_LINES = 32
 """Segments tested at once from which one union of the obstacles, prepared, is cheaper than
 testing each against the obstacles its bounding box meets (:meth:`_FreeSpace._visible`)."""
@@ -283,7 +289,11 @@ class _FreeSpace:
         )
         shapely.prepare(self._fields)
         self._tree = shapely.STRtree(self._blocks)
-        self._unions: dict[frozenset[int], BaseGeometry] = {}
+        # The last UNIONS_KEPT unions, by the obstacles left out (one a field: 400 fields
+        # kept 400 unions of 399 obstacles, 1.7 GB; the matrix asks field by field).
+        self._unions: collections.OrderedDict[frozenset[int], BaseGeometry] = (
+            collections.OrderedDict()
+        )
         self._prepared = np.array(self._blocks, dtype=object)  # each tested against many lines
         shapely.prepare(self._prepared)
         nodes, prev, succ = [], [], []
@@ -313,10 +323,15 @@ class _FreeSpace:
             weights[i[ok], j[ok]] = d[ok]
             weights[j[ok], i[ok]] = d[ok]
         self._weights = weights
-        dist = weights.copy()
-        for k in range(n):  # Floyd-Warshall, one vectorised relaxation per node
-            np.minimum(dist, dist[:, k : k + 1] + dist[k : k + 1, :], out=dist)
-        self._dist = dist
+        # All pairs by Dijkstra from every corner on the (sparse: tangent pairs only)
+        # visibility graph; Floyd-Warshall in numpy took 20 s and 1.7 GB for 400 fields'
+        # 1 600 corners (review). Edges of no length (corners that coincide once grown)
+        # kept as a hair, as a sparse matrix drops zeros.
+        edges = np.isfinite(weights)
+        np.fill_diagonal(edges, False)
+        rows, cols = np.nonzero(edges)
+        graph = csr_matrix((np.maximum(weights[rows, cols], 1e-9), (rows, cols)), shape=(n, n))
+        self._dist = shortest_path(graph, method="D", directed=False) if n else weights.copy()
         self._reach: dict[tuple[XY, int | None], tuple[FloatArray, FloatArray]] = {}
 
     def _visible(
@@ -352,6 +367,9 @@ class _FreeSpace:
             union = shapely.union_all([g for k, g in enumerate(self._blocks) if k not in ignore])
             shapely.prepare(union)
             self._unions[ignore] = union
+            if len(self._unions) > _UNIONS_KEPT:
+                self._unions.popitem(last=False)
+        self._unions.move_to_end(ignore)
         return self._unions[ignore]
 
     def _tangent(self, k: NDArray[np.int64], other: FloatArray) -> NDArray[np.bool_]:
@@ -487,6 +505,13 @@ class _FreeSpace:
         d = self._pair_lengths(sources, source_owners, targets, target_owners, i, j)
         return d.reshape(len(sources), len(targets))
 
+    def _table(self, sets: Sequence[AbstractSet[int]]) -> NDArray[np.bool_]:
+        """``sets`` of obstacles as rows of a table [row, obstacle]."""
+        table = np.zeros((len(sets), len(self._blocks)), dtype=bool)
+        for row, members in enumerate(sets):
+            table[row, list(members)] = True
+        return table
+
     def _pair_lengths(
         self,
         a: Sequence[XY],
@@ -513,18 +538,14 @@ class _FreeSpace:
         inside_b = [self._ignored(p, o) for p, o in zip(b, own_b, strict=True)]
         near_a = [self._near(p, o) for p, o in zip(a, own_a, strict=True)]
         near_b = [self._near(p, o) for p, o in zip(b, own_b, strict=True)]
-        pairs = list(zip(hit_line.tolist(), hit_block.tolist(), strict=True))
-        keep = np.array(
-            [
-                block not in inside_a[i[line]] and block not in inside_b[j[line]]
-                for line, block in pairs
-            ],
-            dtype=bool,
+        # As tables [point, obstacle], looked up for every (line, obstacle) pair at once: a
+        # Python tuple a pair took 1.7 GB and most of 20 s for 400 fields (review).
+        in_a, in_b, by_a, by_b = (
+            self._table(sets) for sets in (inside_a, inside_b, near_a, near_b)
         )
-        by_field = np.array(
-            [block in near_a[i[line]] or block in near_b[j[line]] for line, block in pairs],
-            dtype=bool,
-        )
+        line_a, line_b = i[hit_line], j[hit_line]
+        keep = ~in_a[line_a, hit_block] & ~in_b[line_b, hit_block]
+        by_field = by_a[line_a, hit_block] | by_b[line_b, hit_block]
         hit_line, hit_block, by_field = hit_line[keep], hit_block[keep], by_field[keep]
         shapes = np.where(by_field, self._fields[hit_block], self._prepared[hit_block])
         blocked = np.zeros(len(i), dtype=bool)
