@@ -39,6 +39,8 @@ from dispatcher.link.keys import PRIVATE_MODE, refuse_if_open, write_file
 DISPATCHER = "dispatcher"
 ROUTER = "router"
 OPERATOR = "operator"
+SERVERS = (DISPATCHER, ROUTER)
+"""The identities others connect to (TLS servers); every other is a client only."""
 CA_FILE = "ca.pem"
 ACL_FILE = "acl.json5"
 ZENOHD_FILE = "zenohd.json5"
@@ -361,6 +363,13 @@ def make_farm_pki(
         if identity.cert.exists() and identity.key.exists() and not replace:
             continue
         key = ec.generate_private_key(ec.SECP256R1())
+        # Only the dispatcher and a router are listened to: a tractor's or the operator's
+        # certificate is a client's alone, without the gateway's names (with them, a process
+        # holding a tractor's files could pose as the dispatcher to the other tractors:
+        # review).
+        server = name in SERVERS
+        names = alt_names if server else [x509.DNSName(name)]
+        usage = [ExtendedKeyUsageOID.SERVER_AUTH] if server else []
         cert = (
             x509.CertificateBuilder()
             .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)]))
@@ -370,11 +379,9 @@ def make_farm_pki(
             .not_valid_before(now - datetime.timedelta(minutes=5))
             .not_valid_after(now + datetime.timedelta(days=LEAF_DAYS))
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(x509.SubjectAlternativeName(alt_names), critical=False)
+            .add_extension(x509.SubjectAlternativeName(names), critical=False)
             .add_extension(
-                x509.ExtendedKeyUsage(
-                    [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-                ),
+                x509.ExtendedKeyUsage([*usage, ExtendedKeyUsageOID.CLIENT_AUTH]),
                 critical=False,
             )
             .add_extension(

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from cryptography import x509
-from cryptography.x509.oid import NameOID
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from dispatcher.cli.main import main
 from dispatcher.config.errors import ConfigError
@@ -47,8 +47,15 @@ def test_each_identity_has_a_certificate_of_the_farms_ca_and_a_private_key(pki: 
         assert cert.issuer == ca.subject
         cert.verify_directly_issued_by(ca)
         names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-        assert "localhost" in names.get_values_for_type(x509.DNSName)
-        assert [str(a) for a in names.get_values_for_type(x509.IPAddress)] == ["10.0.0.2"]
+        usage = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
+        if name in ("dispatcher", "router"):  # listened to: the gateway's names, a server's
+            assert "localhost" in names.get_values_for_type(x509.DNSName)
+            assert [str(a) for a in names.get_values_for_type(x509.IPAddress)] == ["10.0.0.2"]
+            assert ExtendedKeyUsageOID.SERVER_AUTH in usage
+        else:  # a client only: it cannot pose as the dispatcher (review)
+            assert names.get_values_for_type(x509.DNSName) == [name]
+            assert ExtendedKeyUsageOID.SERVER_AUTH not in usage
+        assert ExtendedKeyUsageOID.CLIENT_AUTH in usage
         assert stat.S_IMODE((pki / f"{name}.key").stat().st_mode) == 0o600
     assert stat.S_IMODE(pki.stat().st_mode) == 0o700
     assert stat.S_IMODE((pki / "ca.key").stat().st_mode) == 0o600
@@ -183,3 +190,32 @@ def test_agrifleet_certs_writes_the_folder(tmp_path: Path, capsys: pytest.Captur
     out = capsys.readouterr().out
     assert "keep ca.key off the farm network" in out
     assert (folder / "t1.pem").is_file() and (folder / "zenohd.json5").is_file()
+
+
+def test_a_tractors_certificate_cannot_pose_as_the_dispatcher(tmp_path: Path) -> None:
+    """A process holding only a tractor's certificate and key listened as the dispatcher and
+    the other tractors connected to it (every certificate was a server's, with the
+    gateway's names: review). Only the dispatcher's and a router's are servers now."""
+    import socket
+
+    folder = tmp_path / "tls"
+    make_farm_pki(folder, "f", ["v1", "v2"], hosts=("localhost", "127.0.0.1"))
+
+    def v2_connects_to(listener: str) -> bool:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            endpoint = f"tls/127.0.0.1:{s.getsockname()[1]}"
+        tls = TlsIdentity(folder, listener)
+        with zenoh.open(wire.ZenohOptions(listen=(endpoint,), tls=tls).config()):
+            conf = wire.ZenohOptions(
+                mode="client", connect=(endpoint,), tls=TlsIdentity(folder, "v2")
+            ).config()
+            conf.insert_json5("connect/timeout_ms", "2000")
+            try:
+                zenoh.open(conf).close()
+            except zenoh.ZError:
+                return False
+            return True
+
+    assert v2_connects_to(DISPATCHER)
+    assert not v2_connects_to("v1")
