@@ -646,7 +646,8 @@ class TransitNetwork:
         cores = shapely.union_all([f.boundary.buffer(-CROSSING_M / 2) for f in farm.fields])
         # A field without a gate is entered where it is nearest a road outside the fields,
         # from a part of its fence it shares with no other field (else across that field).
-        outside = network.difference(cores) if not network.difference(cores).is_empty else network
+        outside = network.difference(cores)
+        outside = network if outside.is_empty else outside
         outlines = shapely.STRtree([Polygon(f.boundary.exterior) for f in farm.fields])
         for k, f in enumerate(farm.fields):
             # A gate drawn inside the field is on its fence: the tractor drove from the fence
@@ -994,9 +995,14 @@ class TransitNetwork:
                 ]
             ).reshape(len(sources), len(targets))
         out = self._free_lengths(sources, source_fields, targets, target_fields)
+        # Within one field its own router; out of or into a field with holes and no gate,
+        # the route that goes around them (:meth:`_off_holes`), one by one.
+        holed = {
+            f.id for f in self.farm.fields if f.boundary.interiors and not self.farm.gates_of(f.id)
+        }
         for r, (a, f) in enumerate(zip(sources, source_fields, strict=True)):
             for c, (b, g) in enumerate(zip(targets, target_fields, strict=True)):
-                if f is not None and f == g:  # within one field: its own router
+                if (f is not None and f == g) or f in holed or g in holed:
                     out[r, c] = self.length(a, b, f, g)
         return out
 

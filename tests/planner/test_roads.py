@@ -340,6 +340,8 @@ def test_without_a_gate_a_field_is_left_and_entered_around_its_own_holes():
         assert not crosses(path, pond), (f_from, f_to, path)
         assert length == pytest.approx(LineString(path).length)
         assert length > math.dist(a, b)
+        # The solver's matrix says the same.
+        assert net.lengths([a], [f_from], [b], [f_to])[0, 0] == pytest.approx(length)
     # A way that misses the hole is left straight.
     assert net.route((10.0, 20.0), (410.0, 20.0), "P", "B") == (pytest.approx(400.0), ())
 
