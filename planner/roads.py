@@ -700,13 +700,32 @@ class TransitNetwork:
                     metres,
                 )
         reached = roads.shortest_from(self._garage_node)[1]
-        for f in farm.fields:
-            if not any(n in reached for n in self._gate_nodes[f.id]):
+        apart = [f.id for f in farm.fields if not any(n in reached for n in self._gate_nodes[f.id])]
+        joined_gates = {n for f in farm.fields for n in self._gate_nodes[f.id]}
+        if apart and len(apart) == len(farm.fields) and len(farm.fields) > 1:
+            # None reached: the garage hangs on a stretch of road the others do not join (a
+            # stray piece, a junction drawn with a gap), not every field on a road apart.
+            on_road = next(iter(roads.graph.neighbors(self._garage_node)), self._garage_node)
+            lon, lat = farm.frame.to_lonlat(*roads.xy[on_road])
+            component = nx.node_connected_component(roads.graph, next(iter(joined_gates)))
+            linked = len(joined_gates & component) > 1
+            log.warning(
+                "%s: the road the garage joins (at lon %.7f, lat %.7f) leads to no field%s; "
+                "transit goes around the fields instead. Join it to the others (a gap of more "
+                "than %g m at a junction is no junction) or remove the stray piece",
+                farm.source,
+                lon,
+                lat,
+                " while the fields' roads join each other" if linked else "",
+                ROAD_JOIN_M,
+            )
+        else:
+            for fid in apart:
                 log.warning(
                     "%s: the roads do not connect field %r to the garage; its transit goes "
                     "around the fields instead",
                     farm.source,
-                    f.id,
+                    fid,
                 )
         self._roads = roads
 

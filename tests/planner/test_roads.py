@@ -396,6 +396,18 @@ def test_a_field_in_anothers_hole_is_said_to_be_reached_across_it(caplog):
     assert "field 'I' lies in a hole of field 'O': its transit crosses 'O'" in caplog.text
 
 
+def test_a_stray_road_by_the_garage_is_named_not_every_field(caplog):
+    """A driveway by the garage that joins no other road took the garage: every field was
+    "not connected to the garage", the road at fault unnamed (review)."""
+    fields = {"A": box(0, 0, 100, 100), "B": box(200, 0, 300, 100)}
+    roads = [[(-20, -15), (320, -15)], [(-60, -40), (-60, 10)]]  # the main road; the stray
+    with caplog.at_level(logging.WARNING):
+        TransitNetwork(farm_of(fields, (-57, -20), roads=roads))
+    assert "the road the garage joins (at lon" in caplog.text
+    assert "leads to no field while the fields' roads join each other" in caplog.text
+    assert "do not connect field" not in caplog.text
+
+
 def test_roads_all_shorter_than_the_join_are_no_roads(caplog):
     """Every road shorter than ROAD_JOIN_M (a stub drawn by a slip of the mouse): joined
     into a point, no network left, and a traceback (exit 1). Now: said, and no roads."""
