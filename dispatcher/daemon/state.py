@@ -846,7 +846,16 @@ class FleetState:
             return []
         if v.mission_state == mc.MISSION_STATE_ACTIVE:
             v.active_seen = True
-        if not v.active_seen:
+        # Complete at the last item it holds, past where it was started, CURRENT_SETTLE_S
+        # after the start: it drove there, though every report of it on the way was lost
+        # (a lossy radio: started at item 24 of 27 behind its AUTO's late ACK, it drove the
+        # last three and said "complete", never "active"; the run waited for ever).
+        finished = (
+            v.mission_state == mc.MISSION_STATE_COMPLETE
+            and v.current == last
+            and last > v.start_from
+        )
+        if not v.active_seen and not finished:
             return []
         done = v.current - 1
         if v.mission_state == mc.MISSION_STATE_COMPLETE:
