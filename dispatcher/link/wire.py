@@ -202,11 +202,11 @@ class ZenohOptions:
                 if self.config_file
                 else "the listen endpoints"
             )
+            default = " (Zenoh's default for each mode)" if isinstance(value, dict) else ""
             raise ConfigError(
-                f"{source} listens on {exposed[0]} without TLS (Zenoh's default, every "
-                "interface, where the file sets none): anyone who reaches it could command the "
-                "tractors. Listen on loopback or tls/ endpoints (docs/security.md), or add "
-                "--insecure-listen for a closed test bench"
+                f"{source} listens on {exposed[0]} without TLS{default}: anyone who reaches it "
+                "could command the tractors. Listen on loopback or tls/ endpoints "
+                "(docs/security.md), or add --insecure-listen for a closed test bench"
             )
 
 
