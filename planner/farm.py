@@ -31,6 +31,7 @@ import difflib
 import json
 import logging
 import math
+import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -543,6 +544,18 @@ def _text(value: Any) -> str | None:
 
 
 def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -> str:
+    """The field's id (:func:`_field_id_of`), without control characters: a line break in
+    one broke the printed plan's table, and it goes into every file written (review)."""
+    found = _field_id_of(props, id_field, k, where)
+    if any(unicodedata.category(c).startswith("C") for c in found):
+        raise GeometryError(
+            f"{where}: the field id {found!r} holds a control character (a line break, a "
+            "tab): ids are printed in tables and written into every file made of the plan"
+        )
+    return found
+
+
+def _field_id_of(props: dict[str, Any], id_field: str | None, k: int, where: str) -> str:
     if id_field is not None:
         value = _prop(props, id_field)
         if value is None:

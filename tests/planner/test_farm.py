@@ -232,6 +232,13 @@ def test_a_fields_numbers_written_as_text_are_read_as_numbers(tmp_path):
     assert "headland_passes must be a whole number >= 0, not 2.5" in refused(tmp_path, doc)
 
 
+def test_a_field_id_with_a_control_character_is_refused(tmp_path):
+    """A line break in a field id broke the printed plan's table (review)."""
+    doc = farm_doc()
+    doc["features"][0]["properties"]["id"] = "F1\nnorth"
+    assert "the field id 'F1\\nnorth' holds a control character" in refused(tmp_path, doc)
+
+
 def nodes(value: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
     """The paths of every value in a JSON document."""
     out = [path] if path else []
