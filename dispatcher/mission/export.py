@@ -255,6 +255,13 @@ def fence_polygons(
     # with the garage holds them all; the rest (a road or field apart that no path reaches)
     # is not driven.
     area = next(p for p in _polygons(area) if p.intersects(paths[0]))
+    if _across_antimeridian(area, farm.frame):
+        # ArduPilot tests a fence on raw longitudes: one across ±180 would go round the
+        # world the other way (and QGroundControl's file has no other way to say it). Said
+        # before the rings are made: in lat/lon they cross themselves, and were refused as
+        # "not simple" instead (review).
+        logger.warning(ANTIMERIDIAN)
+        return [], []
     ponds = [
         Polygon(hole).buffer(-FENCE_MARGIN_M).difference(driven)
         for f in farm.fields
@@ -271,16 +278,20 @@ def fence_polygons(
         for p in _polygons(pond.simplify(FENCE_SIMPLIFY_M))
         for ring in _fence_rings(p, farm.frame, inclusion=False)
     ]
-    longitudes = [lon for ring in inclusion + exclusion for _, lon in ring]
-    if longitudes and max(longitudes) - min(longitudes) > 180.0:
-        # ArduPilot tests a fence on raw longitudes: one across ±180 would go round the
-        # world the other way (and QGroundControl's file has no other way to say it).
-        logger.warning(
-            "the farm's fence crosses longitude 180 (the antimeridian), which an ArduPilot "
-            "fence cannot hold: left out of the .plan files (set one by hand if needed)"
-        )
-        return [], []
     return inclusion, exclusion
+
+
+ANTIMERIDIAN = (
+    "the farm's fence crosses longitude 180 (the antimeridian), which an ArduPilot fence "
+    "cannot hold: left out of the .plan files (set one by hand if needed)"
+)
+
+
+def _across_antimeridian(area: Polygon, frame: LocalFrame) -> bool:
+    """Whether the polygon (local metres) spans longitude ±180."""
+    xy = np.asarray(area.exterior.coords)
+    lon, _ = frame.to_lonlat(xy[:, 0], xy[:, 1])
+    return bool(len(lon) and float(np.max(lon) - np.min(lon)) > 180.0)
 
 
 def _grown(shapes: list[BaseGeometry]) -> BaseGeometry:

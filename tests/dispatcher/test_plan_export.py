@@ -261,6 +261,7 @@ def test_a_farm_across_the_antimeridian_gets_no_fence(tmp_path, caplog):
     assert (out / "v1.waypoints").exists()
     assert json.loads((out / "v1.plan").read_text())["geoFence"]["polygons"] == []
     assert "the farm's fence crosses longitude 180" in caplog.text
+    assert "not simple" not in caplog.text  # said first, not as a ring crossing itself
 
 
 def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
