@@ -264,6 +264,18 @@ def test_a_farm_across_the_antimeridian_gets_no_fence(tmp_path, caplog):
     assert "not simple" not in caplog.text  # said first, not as a ring crossing itself
 
 
+def test_a_farm_on_both_sides_of_the_antimeridian_is_said_to_be(tmp_path, caplog):
+    """Fields on both sides of longitude 180, the garage on it (a review's farm): in
+    lat/lon the fence crossed itself and was refused as "not simple", the antimeridian
+    unsaid."""
+    out = tmp_path / "out"
+    args = ["plan", str(DATA / "tiny.toml"), "--fields", str(DATA / "antimeridian-farm.geojson")]
+    with caplog.at_level("WARNING", logger="dispatcher.mission.export"):
+        assert main([*args, "--out", str(out), "--time-limit", "3"]) == 0
+    assert "the farm's fence crosses longitude 180" in caplog.text
+    assert "not simple" not in caplog.text
+
+
 def test_nothing_is_written_when_a_writer_fails(dispatch, tmp_path, monkeypatch):
     def broken(*_args):
         raise OSError("disk full")
