@@ -587,6 +587,10 @@ class TransitNetwork:
         # The fields shrunk by CROSSING_M (what a way onto the roads must not cross), indexed
         # on first use.
         self._fields_tree: shapely.STRtree | None = None
+        # The fields with holes and no gate: left and entered around their holes.
+        self._holed = frozenset(
+            f.id for f in farm.fields if f.boundary.interiors and not farm.gates_of(f.id)
+        )
         self._say_nested()
         if farm.roads:
             self._build_roads()
@@ -1016,9 +1020,7 @@ class TransitNetwork:
         out = self._free_lengths(sources, source_fields, targets, target_fields)
         # Within one field its own router; out of or into a field with holes and no gate,
         # the route that goes around them (:meth:`_off_holes`), one by one.
-        holed = {
-            f.id for f in self.farm.fields if f.boundary.interiors and not self.farm.gates_of(f.id)
-        }
+        holed = self._holed
         for r, (a, f) in enumerate(zip(sources, source_fields, strict=True)):
             for c, (b, g) in enumerate(zip(targets, target_fields, strict=True)):
                 if (f is not None and f == g) or f in holed or g in holed:

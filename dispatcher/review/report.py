@@ -977,30 +977,23 @@ def _review_vehicle(
         # Moving or standing, between successive positions, outside the work windows.
         pace = _Pace(kept, legs)
         edges = [(max(p.t, start), p) for p in window]
-        # Runs of standing still (from, to): in a field's work window, held, not working.
-        still: list[tuple[float, float]] = []
-        still_from: float | None = None
-        for (ta, pa), (tb, pb) in zip(edges, edges[1:], strict=False):
-            moving = pace.moving(pa, pb)
-            _outside_work(ta, tb, moving, start, work_union, activities)
-            if not moving and still_from is None:
-                still_from = ta
-            elif moving and still_from is not None:
-                still.append((still_from, ta))
-                still_from = None
+        # (from, to, moving) between successive positions, then from the last to the end.
+        spans = [
+            (ta, tb, pace.moving(pa, pb))
+            for (ta, pa), (tb, pb) in zip(edges, edges[1:], strict=False)
+        ]
         tail_from = edges[-1][0] if edges else start
         if tail_from < end:
             tail = edges[-1][1] if edges else None
-            moving = tail is not None and (tail.speed or 0.0) >= STILL_SPEED_MS
-            _outside_work(tail_from, end, moving, start, work_union, activities)
-            if not moving:
-                still_from = tail_from if still_from is None else still_from
-                still.append((still_from, end))
-            elif still_from is not None:
-                still.append((still_from, tail_from))
-        elif still_from is not None:
-            still.append((still_from, tail_from))
-        working_s -= sum(_held_in_work(a, b, start, work_union, activities) for a, b in still)
+            spans.append(
+                (tail_from, end, tail is not None and (tail.speed or 0.0) >= STILL_SPEED_MS)
+            )
+        for ta, tb, moving in spans:
+            _outside_work(ta, tb, moving, start, work_union, activities)
+        # Runs of standing still in a field's work window: held, not working.
+        working_s -= sum(
+            _held_in_work(a, b, start, work_union, activities) for a, b in _still_runs(spans)
+        )
         for act in activities:
             if act.kind == "transit":
                 transit_s += act.end_s - act.start_s
@@ -1205,6 +1198,19 @@ def _outside_work(
         cursor = max(cursor, v)
     if cursor < tb:
         out.append(Activity(kind, cursor - start, tb - start))
+
+
+def _still_runs(spans: Sequence[tuple[float, float, bool]]) -> list[tuple[float, float]]:
+    """The runs of successive ``spans`` (from, to, moving) standing still, as (from, to)."""
+    runs: list[tuple[float, float]] = []
+    for ta, tb, moving in spans:
+        if moving:
+            continue
+        if runs and runs[-1][1] == ta:
+            runs[-1] = (runs[-1][0], tb)
+        else:
+            runs.append((ta, tb))
+    return runs
 
 
 def _held_in_work(
