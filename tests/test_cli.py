@@ -490,6 +490,28 @@ def test_a_plot_file_is_a_picture_matplotlib_writes(capsys):
     assert "out.txt: not a picture format matplotlib writes" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["plan", "{scenario}", "--out", "{file}"],
+        ["serve", "{scenario}", "--unsigned", "--data-dir", "{file}"],
+        ["serve", "{scenario}", "--unsigned", "--log-dir", "{file}"],
+        ["keys", "{scenario}", "--keys", "{file}"],
+        ["certs", "{scenario}", "--tls", "{file}"],
+    ],
+)
+def test_a_folder_to_write_into_that_is_a_file_is_refused_before_any_work(argv, tmp_path, capsys):
+    """`plan --out FILE` planned for the whole time limit, then said "FILE: File exists"."""
+    taken = tmp_path / "taken"
+    taken.write_text("kept")
+    args = [a.format(scenario=TINY, file=taken) for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 2
+    assert f"{taken}: a file is there, not a folder" in capsys.readouterr().err
+    assert taken.read_text() == "kept"
+
+
 def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
     """The fingerprint a stored run is resumed by: a comment, the [dispatcher] section or a
     time limit changed in the scenario refused the resume ("made from other inputs", only

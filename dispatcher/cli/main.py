@@ -587,6 +587,15 @@ FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "ep
 """What a --plot file may be: formats matplotlib writes, by the name's suffix."""
 
 
+def out_folder(text: str) -> Path:
+    """A folder to write into (argparse's ``type``): refused at once when a file of that name
+    is there (it was "File exists" once the work was done)."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: a file is there, not a folder")
+    return path
+
+
 def figure_file(text: str) -> Path:
     """A picture to write (argparse's ``type``): a name without a suffix is a PNG; one with
     a suffix matplotlib cannot write is refused (it was a matplotlib traceback)."""
@@ -706,7 +715,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_plan_arguments(p)
     p.add_argument(
-        "--out", type=Path, metavar="DIR", help="write plan.json, the missions and map.png here"
+        "--out",
+        type=out_folder,
+        metavar="DIR",
+        help="write plan.json, the missions and map.png here",
     )
     p.add_argument(
         "--json",
@@ -723,7 +735,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_log_dir_argument(p)
     p.add_argument(
         "--data-dir",
-        type=Path,
+        type=out_folder,
         metavar="DIR",
         help="where the dispatcher keeps its state (an SQLite database) to resume after a "
         "restart (default $XDG_STATE_HOME/agrifleet/FARM, else ~/.local/state/agrifleet/FARM)",
@@ -758,6 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", type=Path, help="scenario TOML (its fleet)")
     p.add_argument(
         "--keys",
+        type=out_folder,
         metavar="DIR",
         help="where to write them, <vehicle id>.key each, mode 600 (default: the scenario's "
         "'keys')",
@@ -770,7 +783,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="make the farm's TLS certificates and Zenoh access-control list (docs/security.md)",
     )
     p.add_argument("scenario", type=Path, help="scenario TOML: the farm and its vehicles")
-    p.add_argument("--tls", metavar="DIR", required=True, help="folder to write them into")
+    p.add_argument(
+        "--tls", type=out_folder, metavar="DIR", required=True, help="folder to write them into"
+    )
     p.add_argument(
         "--host",
         action="append",
@@ -1045,7 +1060,7 @@ def made_dir(path: Path, flag: str) -> Path:
 def add_log_dir_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--log-dir",
-        type=Path,
+        type=out_folder,
         default=Path("logs"),
         metavar="DIR",
         help="write the run's MCAP log here (default logs/)",
