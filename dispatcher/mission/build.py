@@ -34,7 +34,9 @@ finish. The raisings and lowerings around each turn have their own roles
 turns (a machine whose turning radius is 0, the paper's hop between swath ends) the
 implement stays down from the first swath to the last, as before. Turns are driven at
 working speed. Road points carry the id of the field they lead to (``None`` on the way
-home) and no swath index.
+home) and no swath index. No waypoint repeats the place of the one before it
+(:data:`SAME_POINT_M`): a road, turn or link point there is left out, or gives way to the
+swath's or the field's waypoint.
 
 Why these choices (ArduPilot sources, libraries/AP_Mission/AP_Mission.cpp and
 libraries/GCS_MAVLink/MissionItemProtocol_Waypoints.cpp):
@@ -122,8 +124,19 @@ def implement_down_after(steps: Sequence[_HasRole]) -> bool:
     return False
 
 
-SAME_POINT_M = 0.01
-"""A swath start this close (metres) to the point before it is not repeated."""
+SAME_POINT_M = 0.1
+"""Two waypoints this close (metres) are one place: the second is not sent (a tenth of
+ArduPilot Rover's default WP_RADIUS of 2 m; a waypoint's lat/lon is stored to ~1 cm). Of a
+via point (road, turn, link) and a swath's start or end at one place, the swath's stays."""
+
+ZERO_LENGTH_M = 0.01
+"""A swath shorter than this (metres) is a mistake of the caller's."""
+
+NAV = mc.MAV_CMD_NAV_WAYPOINT
+
+VIA_ROLES = frozenset({"road", "turn", "in_field"})
+"""Waypoints that only lead the way: one that falls on the place of the next or the last
+waypoint gives way to it (:meth:`_Builder.waypoint`)."""
 
 SERVO_CHANNELS = range(1, 33)  # ArduPilot SERVO1..SERVO32 (NUM_SERVO_CHANNELS = 32)
 RELAY_NUMBERS = range(0, 16)  # ArduPilot relay instances, 0-based (RELAY1 = 0)
@@ -278,15 +291,14 @@ def build_mission(spec: MissionSpec) -> Mission:
             moved = index > 0 and _distance_m(previous, start) > SAME_POINT_M
             if moved and lifts:
                 builder.implement(spec.implement, False, Trace(fid, index - 1, "implement_raise"))
-            if 0 < index <= len(visit.turns):
-                for via in visit.turns[index - 1]:
-                    builder.waypoint(via, Trace(fid, index, "turn"))
-                    previous = via
-            if 0 < index <= len(visit.links):
-                for via in visit.links[index - 1]:
-                    builder.waypoint(via, Trace(fid, index, "in_field"))
-                    previous = via
-            if _distance_m(previous, start) > SAME_POINT_M:
+            turns = visit.turns[index - 1] if 0 < index <= len(visit.turns) else ()
+            links = visit.links[index - 1] if 0 < index <= len(visit.links) else ()
+            for via in turns:
+                builder.waypoint(via, Trace(fid, index, "turn"))
+            for via in links:
+                builder.waypoint(via, Trace(fid, index, "in_field"))
+            if turns or links or _distance_m(previous, start) > SAME_POINT_M:
+                # at the place of the via point before it, it takes that one's place
                 builder.waypoint(start, Trace(fid, index, "swath_start"))
             if moved and lifts:
                 builder.implement(spec.implement, True, Trace(fid, index, "implement_lower"))
@@ -344,6 +356,20 @@ class _Builder:
     def waypoint(
         self, point: LatLon, trace: Trace, frame: int = mc.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
     ) -> None:
+        """A NAV_WAYPOINT, unless it is at the place of the last waypoint
+        (:data:`SAME_POINT_M`): then a via point is not added, and a via point just before
+        it (no other item between) is replaced by it."""
+        last = next(
+            (k for k in range(len(self.items) - 1, -1, -1) if self.items[k].command == NAV), None
+        )
+        if last is not None:
+            item = self.items[last]
+            if _distance_m(LatLon(item.x / 1e7, item.y / 1e7), point) <= SAME_POINT_M:
+                if trace.role in VIA_ROLES:
+                    return
+                if last == len(self.items) - 1 and self.traces[-1].role in VIA_ROLES:
+                    self.items.pop()
+                    self.traces.pop()
         self._add(
             trace,
             command=mc.MAV_CMD_NAV_WAYPOINT,
@@ -426,7 +452,7 @@ def _check_spec(spec: MissionSpec) -> None:
             start, end = swath
             _check_point(start, f"swath {index} start", field_fail)
             _check_point(end, f"swath {index} end", field_fail)
-            if _distance_m(start, end) <= SAME_POINT_M:
+            if _distance_m(start, end) <= ZERO_LENGTH_M:
                 raise fail(fid, f"swath {index} has zero length (start and end coincide)")
 
 

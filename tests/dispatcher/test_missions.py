@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 from pathlib import Path
 
@@ -241,6 +242,22 @@ def test_layout_with_turns_and_road_points() -> None:
     # the first lowering and the last raising stay the field's start and finish
     roles_north = [t.role for t in traces if t.field_id == "north"]
     assert roles_north.count("implement_down") == roles_north.count("implement_up") == 1
+
+
+def test_a_via_point_at_the_place_of_a_waypoint_beside_it_is_not_sent_twice() -> None:
+    """A plan of the demo farm had 122 pairs of waypoints 0-5 cm apart: a turn beginning at
+    its swath's end and ending 3 cm from the next start, a road ending at the field's entry,
+    a road point at the garage. The swath's and the field's waypoints stay: the mission is
+    the one without those via points."""
+    north = NORTH.swaths
+    near_start = LatLon(north[1][0].lat + 3e-7, north[1][0].lon)  # 3.3 cm from swath 1's start
+    turn = (north[0][1], *TURN_0, near_start)
+    doubled = dataclasses.replace(NORTH, turns=(turn, ()), approach=(*APPROACH, north[0][0]))
+    plain = dataclasses.replace(NORTH, turns=(TURN_0, ()), approach=APPROACH)
+    mission = build_mission(make_spec(visits=(doubled,), return_path=(*HOME_ROAD, GARAGE)))
+    assert mission == build_mission(make_spec(visits=(plain,), return_path=HOME_ROAD))
+    places = [(it.x, it.y) for it in mission.items if it.command == mc.MAV_CMD_NAV_WAYPOINT]
+    assert all(a != b for a, b in itertools.pairwise(places))
 
 
 def test_road_points_are_waypoints_at_road_speed() -> None:
