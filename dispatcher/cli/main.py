@@ -289,6 +289,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     if args.out is None and not args.json:
         raise ConfigError("plan: where to? give --out DIR (the files) or --json (stdout)")
+    if args.out is not None:
+        made_dir(args.out, "--out")  # before the plan: not "File exists" once it is made
     dispatch = plan_scenario(args)
     written = write_plan_files(dispatch, args.out) if args.out is not None else []
     if args.json:  # the plan document alone on stdout; the rest on stderr
@@ -384,6 +386,7 @@ def cmd_keys(args: argparse.Namespace) -> int:
         raise ConfigError(
             f'{args.scenario}: where to? give --keys DIR, or keys = "DIR" in the scenario'
         )
+    not_a_file(Path(folder), "--keys" if args.keys else f"{args.scenario}: keys")
     ids = [v.id for v in scenario.vehicles]
     written = write_keys(folder, ids, replace=args.replace)
     for vid in ids:
@@ -412,6 +415,7 @@ def cmd_certs(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     ids = [v.id for v in scenario.vehicles]
     hosts = tuple(args.host or DEFAULT_HOSTS)
+    not_a_file(Path(args.tls), "--tls")
     written = make_farm_pki(args.tls, scenario.farm_id, ids, hosts, replace=args.replace)
     for path in written:
         print(f"wrote {path}")
@@ -587,15 +591,6 @@ FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "ep
 """What a --plot file may be: formats matplotlib writes, by the name's suffix."""
 
 
-def out_folder(text: str) -> Path:
-    """A folder to write into (argparse's ``type``): refused at once when a file of that name
-    is there (it was "File exists" once the work was done)."""
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: a file is there, not a folder")
-    return path
-
-
 def figure_file(text: str) -> Path:
     """A picture to write (argparse's ``type``): a name without a suffix is a PNG; one with
     a suffix matplotlib cannot write is refused (it was a matplotlib traceback)."""
@@ -715,10 +710,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_plan_arguments(p)
     p.add_argument(
-        "--out",
-        type=out_folder,
-        metavar="DIR",
-        help="write plan.json, the missions and map.png here",
+        "--out", type=Path, metavar="DIR", help="write plan.json, the missions and map.png here"
     )
     p.add_argument(
         "--json",
@@ -735,7 +727,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_log_dir_argument(p)
     p.add_argument(
         "--data-dir",
-        type=out_folder,
+        type=Path,
         metavar="DIR",
         help="where the dispatcher keeps its state (an SQLite database) to resume after a "
         "restart (default $XDG_STATE_HOME/agrifleet/FARM, else ~/.local/state/agrifleet/FARM)",
@@ -770,7 +762,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", type=Path, help="scenario TOML (its fleet)")
     p.add_argument(
         "--keys",
-        type=out_folder,
         metavar="DIR",
         help="where to write them, <vehicle id>.key each, mode 600 (default: the scenario's "
         "'keys')",
@@ -783,9 +774,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="make the farm's TLS certificates and Zenoh access-control list (docs/security.md)",
     )
     p.add_argument("scenario", type=Path, help="scenario TOML: the farm and its vehicles")
-    p.add_argument(
-        "--tls", type=out_folder, metavar="DIR", required=True, help="folder to write them into"
-    )
+    p.add_argument("--tls", metavar="DIR", required=True, help="folder to write them into")
     p.add_argument(
         "--host",
         action="append",
@@ -1043,11 +1032,16 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
     )
 
 
+def not_a_file(path: Path, flag: str) -> None:
+    """A :class:`ConfigError` naming ``flag`` when a file is where a directory is to be."""
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{flag} {path}: not a directory (a file of that name is there)")
+
+
 def made_dir(path: Path, flag: str) -> Path:
     """``path`` made a directory (with its parents) before anything is planned or written,
     or a :class:`ConfigError` naming ``flag``: a file there, no permission, ..."""
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"{flag} {path}: not a directory (a file of that name is there)")
+    not_a_file(path, flag)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -1060,7 +1054,7 @@ def made_dir(path: Path, flag: str) -> Path:
 def add_log_dir_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--log-dir",
-        type=out_folder,
+        type=Path,
         default=Path("logs"),
         metavar="DIR",
         help="write the run's MCAP log here (default logs/)",
