@@ -1,5 +1,6 @@
 """Boustrophedon coverage: swath layout, driving orders, headlands, angle search, errors."""
 
+import itertools
 import math
 import time
 
@@ -13,6 +14,7 @@ from shapely.geometry import MultiPoint, MultiPolygon, Point, Polygon
 from planner.coverage import (
     MIN_RING_EDGE_M,
     MIN_SPACING_FRACTION,
+    RING_SIMPLIFY_M,
     FieldCoverage,
     Swath,
     cover_field,
@@ -403,6 +405,44 @@ def test_a_jittery_outline_gives_headland_rings_without_edges_of_a_point() -> No
             edges = np.hypot(*np.diff(np.asarray(ring), axis=0).T)
             assert edges.min() > MIN_RING_EDGE_M
             assert ring[0] == ring[-1]
+
+
+def cross(u: np.ndarray, v: np.ndarray) -> float:
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+@pytest.mark.parametrize("drift_m", [0.02, 0.3])
+def test_a_boundary_driven_with_gnss_gives_rings_of_its_shape_not_of_its_points(drift_m) -> None:
+    """A boundary logged driving round the field (a point every 0.6 m, drifting 2 cm as
+    RTK does or 0.3 m): each ring had a point for each of the outline's, 2 800 a lap; a
+    ring of the outline without drift has 30. Now each keeps within RING_SIMPLIFY_M of its
+    offset, and its corners are still rounded to the turning radius."""
+    rng = np.random.default_rng(5)
+    step, along = 0.6, np.exp(-0.6 / 30.0)  # drift correlated over 30 m, as a receiver's
+    corners = [(0.0, 0.0), (400.0, 0.0), (400.0, 300.0), (0.0, 300.0), (0.0, 0.0)]
+    points, drift = [], np.zeros(2)
+    for (x0, y0), (x1, y1) in itertools.pairwise(corners):
+        n = round(math.hypot(x1 - x0, y1 - y0) / step)
+        for t in np.arange(n) / n:
+            drift = along * drift + math.sqrt(1 - along**2) * rng.normal(0.0, drift_m, 2)
+            points.append((x0 + t * (x1 - x0) + drift[0], y0 + t * (y1 - y0) + drift[1]))
+    field = Polygon(points)
+    clean = cover_field(Polygon(corners), 6.0, field_id="c", angle_deg=0.0, turn_radius_m=6.0)
+    cov = cover_field(field, 6.0, field_id="gnss", angle_deg=0.0, turn_radius_m=6.0)
+    assert len(cov.headland) == len(clean.headland) == 3
+    laps = []  # each pass's offset with its corners rounded as the turns need
+    for k in range(3):
+        offset = field.buffer(-(k + 0.5) * 6.0, join_style="mitre")
+        laps.append(offset.buffer(-6.0, join_style="mitre").buffer(6.0, join_style="round"))
+    for ring, ring_clean in zip(cov.headland, clean.headland, strict=True):
+        assert len(ring) <= (2 if drift_m < 0.1 else 10) * len(ring_clean)
+        line = shapely.LineString(ring)
+        assert min(line.hausdorff_distance(lap.exterior) for lap in laps) <= RING_SIMPLIFY_M + 0.05
+        if drift_m < 0.1:  # (0.3 m leaves dents, which turns may not fit: as before)
+            closed = np.vstack([ring, ring[1:2]])
+            triples = zip(closed, closed[1:], closed[2:], strict=False)
+            convex = [(a, b, c) for a, b, c in triples if cross(b - a, c - b) > 0.0]  # CCW
+            assert min(circumradius(*abc) for abc in convex) >= 6.0 * (1 - 1e-6)
 
 
 # ----------------------------------------------------------------------------- headland
