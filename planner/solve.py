@@ -934,6 +934,17 @@ def warm_up() -> None:
             params=params,
             annealing=AnnealingParams(t_start=2.0, t_end=1.0),
         )
+    # hybrid from scratch under the min-max objectives: the sweep, and the ILS on its
+    # routes (the first plan of a farm; `agrifleet bench mtsp --objective minmax`).
+    for objective in (Objective.MINMAX, Objective.MAKESPAN):
+        solve(
+            tiny,
+            objective,
+            "hybrid",
+            stop_after(2),
+            seed=0,
+            params=hybrid.HybridParams(population=4, ils_steps=2),
+        )
     # A warm start (a re-plan) with a task of no route: hybrid's repair and variants.
     solve(
         tiny,
