@@ -8,7 +8,8 @@ The search is anytime: a :class:`StopFlag` set from another thread (a re-plan th
 answer now) is looked at between generations, between the steps of one, and between the
 individuals of the initial population, so :func:`solve` returns the best solution found so
 far soon after (well under 100 ms on a farm's few dozen fields, once the kernels are
-compiled). A warm start (``initial_routes``, e.g. the remaining routes of the plan being
+compiled); the compiled phases see it through their clock (:func:`planner.local_search.
+stop_on`). A warm start (``initial_routes``, e.g. the remaining routes of the plan being
 carried out) enters the first population, so the result is never worse than it. With
 ``hybrid`` it is a re-plan's starting point: the tasks of no route (a machine gone) are put
 where they cost least, and the rest of the first population are variants of it (ruin and
@@ -51,6 +52,7 @@ from planner.local_search import (
     improve_allocation,
     nearest_neighbours,
     optimal_split,
+    stop_on,
 )
 from planner.moves import recreate
 from planner.operators import improve_routes
@@ -174,6 +176,10 @@ class StopFlag:
 
 Criterion = MaxGenerations | MaxRuntime | UntilDeadline | StopFlag
 
+FLAG_ONLY_S = 1e9
+"""The deadline the kernels are given when a stop flag is the only thing that ends a run
+(31 years: never, but finite, so that they look at the clock)."""
+
 
 class AnyOf:
     """Stop as soon as any criterion says so; progress is the furthest along."""
@@ -216,11 +222,20 @@ class AnyOf:
                 return True
         return False
 
+    @property
+    def flags(self) -> tuple[threading.Event, ...]:
+        """The events of the :class:`StopFlag` criteria."""
+        return tuple(c.event for c in self.criteria if isinstance(c, StopFlag))
+
     def deadline(self) -> float:
         """The earliest end of a time limit among the criteria, on :func:`time.monotonic`
-        (infinite: none), for the compiled local search to look at."""
+        (infinite: none), for the compiled local search to look at; with a stop flag and no
+        limit, :data:`FLAG_ONLY_S` from now, so that the kernels look at the clock, which
+        sees the flag (:func:`planner.local_search.stop_on`)."""
         ends = [c.deadline() for c in self.criteria if isinstance(c, MaxRuntime)]
         ends += [c.deadline.at for c in self.criteria if isinstance(c, UntilDeadline)]
+        if not ends and self.flags:
+            ends.append(time.monotonic() + FLAG_ONLY_S)
         return min(ends, default=math.inf)
 
     def within(self, deadline: Deadline) -> AnyOf:
@@ -348,6 +363,7 @@ def solve(
 
     started = time.perf_counter()
     stop.start()
+    stop_on(stop.flags)
     cost_tables = CostTables.of(problem)
     if (
         isinstance(params, hybrid.HybridParams)
@@ -397,7 +413,7 @@ def solve(
                 pins,
                 stop.deadline(),
                 params.tour_kicks * n,
-                _share_of(stop.deadline(), params.tour_share),
+                _tour_end(stop, params.tour_share),
             )
         if (
             isinstance(params, hybrid.HybridParams)
@@ -420,7 +436,7 @@ def solve(
                     pins,
                     stop.deadline(),
                     params.tour_kicks,
-                    _share_of(stop.deadline(), params.tour_share),
+                    _tour_end(stop, params.tour_share),
                 )
         if warm is not None:
             perms[0], counts[0] = warm
@@ -739,6 +755,16 @@ def _replace_worst(  # type: ignore[no-untyped-def]
     worst = int(np.argmax(costs))
     perms[worst], counts[worst] = perm, cnt
     route_costs[worst], costs[worst] = route, cost
+
+
+def _tour_end(stop: AnyOf, share: float) -> float:
+    """When the giant tour's and the sweep's ILS stop kicking: after ``share`` of the time,
+    or, when a generation limit is among the criteria, at the run's deadline alone (their
+    kicks decide, not how fast this machine is: the same seed gives the same plan when the
+    generations end the run)."""
+    if any(isinstance(c, MaxGenerations) for c in stop.criteria):
+        return stop.deadline()
+    return _share_of(stop.deadline(), share)
 
 
 def _share_of(deadline: float, share: float) -> float:

@@ -19,6 +19,7 @@ from planner.solve import MaxGenerations, MaxRuntime, StopFlag, solve, stop_afte
 from planner.tsplib import read_instance
 
 DATA = Path(__file__).parent.parent / "data"
+TSPLIB = Path(__file__).parent.parent.parent / "benchmarks" / "tsplib"
 
 
 def small_farm() -> Problem:
@@ -154,6 +155,36 @@ def test_a_stop_flag_set_from_another_thread_returns_the_best_within_100_ms():
         assert returned - set_at[0] < 0.1
         assert valid_routes(result, problem.num_tasks)
         assert result.cost == pytest.approx(result.figures.value(result.objective))
+
+
+@pytest.mark.parametrize("limit", [None, 60.0])
+def test_a_stop_flag_stops_hybrid_in_its_compiled_phases_too(limit):
+    """The giant tour's and the sweep's ILS run in one compiled call each; they looked at
+    the deadline only, and a flag set during them on 1 432 tasks was seen 5 s later (17 s
+    on 3 038: a re-plan cancelled is such a flag)."""
+    warm_up()
+    problem = read_instance(TSPLIB / "u1432.tsp").to_problem(5)
+    flag = StopFlag()
+    timer = threading.Timer(1.0, flag.set)  # the initial population is done by then
+    timer.start()
+    started = time.perf_counter()
+    result = solve(problem, "minmax", "hybrid", stop_after(None, limit, flag), seed=1)
+    timer.join()
+    assert time.perf_counter() - started < 1.0 + 0.5
+    assert valid_routes(result, problem.num_tasks)
+
+
+def test_with_a_generation_limit_the_giant_tour_kicks_to_the_deadline_not_a_share_of_it():
+    """Half the time limit for the giant tour's kicks made the same seed give two plans on a
+    machine too slow to finish them in it, the generations still ending the run (u1432,
+    2 generations in 15 s: 32 661 and 32 492); its kicks decide now."""
+    from planner.solve import AnyOf, _tour_end
+
+    timed, counted = AnyOf(MaxRuntime(10.0)), AnyOf(MaxGenerations(2), MaxRuntime(10.0))
+    timed.start()
+    counted.start()
+    assert _tour_end(counted, 0.5) == pytest.approx(counted.deadline(), abs=0.05)
+    assert _tour_end(timed, 0.5) < timed.deadline() - 4.0
 
 
 def test_a_flag_set_before_the_run_stops_it_before_the_first_generation():
