@@ -1663,6 +1663,7 @@ class Dispatcher:
             (deaf or isinstance(event, ev.VehicleLost | ev.VehicleStalled))
             and self.config.replanner is not None
             and was not in (None, Phase.DONE, Phase.FAILED, Phase.LOST)
+            and not self.state.vehicles[event.vehicle].retired  # its work is the others'
             and not self.state.all_fields_done()
         ):
             v = self.state.vehicles[event.vehicle]

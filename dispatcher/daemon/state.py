@@ -636,12 +636,15 @@ class FleetState:
 
     def _resumed(self, v: VehicleState) -> None:
         """The dispatcher restarted: what it knew of the link is gone; what was reached
-        stays. A vehicle not done is heard again and asked where it is (the daemon)."""
+        stays. A vehicle not done, and in the plan, is heard again and asked where it is
+        (the daemon)."""
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired
         v.phase = Phase.WAITING
-        v.resuming = True
+        # One left out of the plan holds no mission of ours to go on with: heard again, it
+        # is held and a re-plan may give it work, as without a restart (the daemon).
+        v.resuming = not v.retired
         v.upload_attempts = 0
         v.needs_restart = False
         v.error = ""

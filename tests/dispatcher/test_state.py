@@ -1256,7 +1256,39 @@ def test_a_left_out_vehicle_not_heard_after_a_restart_is_no_error(dispatch, tmp_
     daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
     v = daemon.state.vehicles["v1"]
     v.retired = True  # left out of the plan by a re-plan before the restart
+    daemon.config.replanner = lambda state, cancel: None
     with caplog.at_level("INFO"):
         daemon._tick(daemon._started + 61.0)
     assert v.phase is Phase.LOST and "v1: never came alive" in caplog.text
     assert not [r for r in caplog.records if r.levelname == "ERROR" and "v1:" in r.message]
+    # Its work is the others' already: a review's restarts each re-planned the farm for it.
+    asked = daemon._replan_reason + daemon._replan_asked[0]
+    assert "v2 lost" in asked and "v1" not in asked
+
+
+def left_out_before_a_restart(dispatch, tmp_path):
+    """A daemon restarted after a re-plan that left v1 (lost, still powered) out."""
+    doc = dispatch.document
+    rest = dataclasses.replace(doc, machines=doc.machines[1:]).with_id()
+    stored = [
+        *running_events("v1", 7),
+        *running_events("v2", 3),
+        ev.VehicleLost("v1", "heartbeats stopped"),
+        ev.PlanReplaced(ev.FLEET, rest.plan_id, "v1 lost", rest.to_dict()),
+    ]
+    return resumed_daemon(dispatch, tmp_path, stored)
+
+
+def test_a_left_out_tractor_heard_after_a_restart_is_held_and_asks_to_rejoin(dispatch, tmp_path):
+    """A review: the restarted dispatcher asked it where it stood on a mission it no longer
+    had (KeyError, exit 1, at every restart while the stalled tractor stayed powered)."""
+    daemon = left_out_before_a_restart(dispatch, tmp_path)
+    v, link = daemon.state.vehicles["v1"], daemon.links["v1"]
+    assert v.retired and not v.resuming
+    feed(daemon.state, "v1", heartbeat(11), 1.0)
+    daemon._advance("v1", 1.0)
+    assert v.phase is Phase.ALIVE, v.phase
+    assert link.download is None and link.upload is None  # not read back nor sent a mission
+    assert daemon._replan_reason == "v1 back" and link.rejoin_asked
+    sent = [c for c, _ in commands_to(daemon, "v1", 11)]
+    assert sent == [mc.MAV_CMD_DO_SET_MODE]  # HOLD
