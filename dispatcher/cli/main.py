@@ -290,7 +290,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.out is None and not args.json:
         raise ConfigError("plan: where to? give --out DIR (the files) or --json (stdout)")
     if args.out is not None:
-        made_dir(args.out, "--out")  # before the plan: not "File exists" once it is made
+        not_a_file(args.out, "--out")  # before the plan: not "File exists" once it is made
     dispatch = plan_scenario(args)
     written = write_plan_files(dispatch, args.out) if args.out is not None else []
     if args.json:  # the plan document alone on stdout; the rest on stderr
@@ -334,7 +334,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 )
             store.resume_run(run)
             job = run.job
-            replanner = replanner_resumed(scenario, job, run.started, run.first_document)
+            replanner = replanner_resumed(scenario, job, run.started, run.documents)
             print(f"resuming run {run.id} of plan {job.plan_id} from {store.path}")
         else:
             dispatch = plan_scenario(args, scenario)
