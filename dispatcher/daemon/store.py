@@ -140,6 +140,16 @@ class StoredRun:
     events: tuple[tuple[float, ev.Event], ...]
     first_document: PlanDocument
 
+    @property
+    def documents(self) -> tuple[PlanDocument, ...]:
+        """Its plans' documents in order: the first, then each re-plan's."""
+        replaced = (
+            PlanDocument.from_json(e.document)
+            for _, e in self.events
+            if isinstance(e, ev.PlanReplaced)
+        )
+        return (self.first_document, *replaced)
+
     def replay(self) -> FleetState:
         """The fleet's state as the events left it (time: each event's wall time), from
         the run's first plan on (its re-plans are among the events)."""

@@ -99,6 +99,9 @@ class PlannedVisit:
     headland_rings: int
     turn_m: float
     angle_deg: float  # the swaths' direction, degrees counter-clockwise from true east
+    # The rest of a field begun before (a re-plan's): its items' segments are numbered in
+    # the layout the field was begun in, not in this visit's own (a field laid out whole).
+    rest: bool = False
 
 
 @dataclass(frozen=True)
@@ -298,6 +301,7 @@ class PlanDocument:
                     headland_rings=int(v.get("headland_rings", 0)),
                     turn_m=float(v.get("turn_m", 0.0)),
                     angle_deg=float(v.get("angle_deg", 0.0)),
+                    rest=v.get("rest", False) is True,
                 )
                 for v in mr.get("visits", list, default=[])
                 if isinstance(v, dict)

@@ -154,6 +154,7 @@ def plan_document(scenario: Scenario, plan: FarmPlan, missions: dict[str, Missio
                         headland_rings=len(v.headland),
                         turn_m=round(v.coverage.turn_length_m(v.corner), 2),
                         angle_deg=round(farm.true_angle_deg(v.field.id, v.coverage.angle_deg), 3),
+                        rest=bool(v.original_segments),
                     )
                     for v in route.visits
                 ),

@@ -349,15 +349,18 @@ def replanner_resumed(
     scenario: Scenario,
     job: DispatchJob,
     started: float,
-    first: PlanDocument,
+    documents: Sequence[PlanDocument],
     seconds: float = REPLAN_SOLVER_S,
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     """:func:`replanner_for` of a run resumed from the store: ``job`` as stored (the last
     plan's document, the missions as last uploaded), ``started`` when the run began and
-    ``first`` its first plan's document (as stored). The fields' first layouts are laid out
-    again from that document (coverage is deterministic; each visit's corner is recorded),
-    at the first re-plan."""
-    return _replanner(scenario, None, job, None, seconds, started, first)
+    ``documents`` its plans' documents in order (as stored: the first, then each re-plan's).
+    The layouts the fields' segments are numbered in are laid out again from them
+    (:func:`first_visits`; coverage is deterministic, each visit's corner is recorded), at
+    the first re-plan: from the first plan alone, a field a re-plan had laid out anew for a
+    machine of another width was counted in the wrong layout (a review: the rest of a field
+    dropped, another worked twice)."""
+    return _replanner(scenario, None, job, None, seconds, started, tuple(documents))
 
 
 def run_hours(state: FleetState, started: float, now: float) -> float:
@@ -377,16 +380,21 @@ def deadline_left_h(finish_within_h: float, elapsed_h: float) -> float:
     return left if finish_within_h > 0.0 and left > 0.0 else 0.0
 
 
-def first_visits(scenario: Scenario, document: PlanDocument) -> dict[str, Visit]:
-    """Each field's visit as ``document`` (a run's first plan) laid it out."""
+def first_visits(scenario: Scenario, *documents: PlanDocument) -> dict[str, Visit]:
+    """Each field's visit in the layout its segments are numbered in, from a run's plan
+    ``documents`` in order (its first plan, then its re-plans): the first plan's, or that of
+    the last re-plan that laid the field out whole again (not the rest of it: ``rest``), as
+    the re-planner keeps them while it runs (:func:`_replanner`)."""
     machines = {veh.id: veh.machine for veh in scenario.vehicles}
-    fleet = [machines[m.id] for m in document.machines if m.id in machines]
-    coverage = cover_farm(scenario.farm, fleet)
+    used = {m.id for doc in documents for m in doc.machines if m.id in machines}
+    coverage = cover_farm(scenario.farm, [machines[vid] for vid in sorted(used)])
     out = {}
-    for m in document.machines:
-        for pv in m.visits:
-            field = scenario.farm.field(pv.field)
-            out[pv.field] = Visit(field, coverage[(m.id, pv.field)], pv.corner)
+    for k, document in enumerate(documents):
+        for m in document.machines:
+            for pv in m.visits:
+                if k == 0 or not pv.rest:
+                    field = scenario.farm.field(pv.field)
+                    out[pv.field] = Visit(field, coverage[(m.id, pv.field)], pv.corner)
     return out
 
 
@@ -397,7 +405,7 @@ def _replanner(
     base: dict[str, Visit] | None,
     seconds: float,
     started: float,
-    first: PlanDocument | None = None,
+    documents: tuple[PlanDocument, ...] = (),
 ) -> Callable[[FleetState, threading.Event], DispatchJob]:
     current = dispatch
     took_s = (
@@ -408,7 +416,7 @@ def _replanner(
         nonlocal current, job, base, took_s
         began = time.monotonic()
         if base is None:
-            base = first_visits(scenario, first or job.document)
+            base = first_visits(scenario, *(documents or (job.document,)))
         lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
         stop = stop_after(scenario.solver.generations, seconds, flag=cancel)
         left_h = deadline_left_h(

@@ -102,6 +102,36 @@ def test_a_resumed_run_lays_out_each_fields_first_visit_again_from_the_document(
             assert visit_segments(again[visit.field.id]) == visit_segments(visit)
 
 
+def test_a_resumed_run_numbers_a_field_a_replan_laid_out_anew_in_that_layout(dispatch):
+    """A review: after a restart, a field a re-plan had given whole to a machine of another
+    width was counted in its first layout (109 segments instead of 159: the rest of it
+    dropped as done; another field worked twice). The re-plans' documents say which."""
+    from dispatcher.mission.document import PlanDocument
+
+    scenario, first = dispatch.scenario, dispatch.document
+    a, b = first.machines[0], first.machines[1]
+    assert a.working_width_m != b.working_width_m
+    moved = b.visits[0]
+
+    def replanned(rest: bool) -> PlanDocument:
+        """``b``'s first field given to ``a`` by a re-plan: laid out anew, or its rest."""
+        visit = dataclasses.replace(moved, rest=rest)
+        machine = dataclasses.replace(a, visits=(*a.visits, visit))
+        doc = dataclasses.replace(first, machines=(machine,)).with_id()
+        return PlanDocument.from_json(doc.to_json())  # as the store reads it back
+
+    layouts = first_visits(scenario, first)
+    anew = first_visits(scenario, first, replanned(rest=False))
+    kept = first_visits(scenario, first, replanned(rest=True))
+    theirs = first_visits(
+        scenario, dataclasses.replace(first, machines=(replanned(False).machines[0],))
+    )
+    field = moved.field
+    assert len(visit_segments(anew[field])) == len(visit_segments(theirs[field]))
+    assert len(visit_segments(anew[field])) != len(visit_segments(layouts[field]))
+    assert visit_segments(kept[field]) == visit_segments(layouts[field])
+
+
 def test_a_replan_without_the_planners_view_plans_the_rest_from_the_first_layouts(current):
     scenario = current.scenario
     state = FleetState(current.document)
@@ -115,6 +145,9 @@ def test_a_replan_without_the_planners_view_plans_the_rest_from_the_first_layout
     nxt = replan(scenario, None, state, stop=stop_after(30), base=base)
     total = len(visit_segments(visit_of(current, lost_field)))
     assert sorted(visit_of(nxt, lost_field).original_segments) == list(range(3, total))
+    visits = {v.field: v for m in nxt.document.machines for v in m.visits}
+    assert visits[lost_field].rest  # numbered in its first layout (first_visits)
+    assert not any(v.rest for f, v in visits.items() if f != lost_field)
 
 
 def test_a_vehicle_heading_for_an_item_without_a_position_starts_its_route_somewhere(current):
