@@ -724,7 +724,9 @@ class FleetState:
             f.started_s = clock_s
         elif item.role == "implement_down" and f.status != "done":
             f.status = "working"
-            if reported or f.started_s is None:
+            # Its time is the start, better than the entry's, unless some of the field was
+            # worked before (a re-plan's rest of it: the start stays the first visit's).
+            if (reported and not f.passes) or f.started_s is None:
                 f.started_s = clock_s
         elif item.role == "swath_end":
             f.swaths_done += 1

@@ -558,6 +558,22 @@ def test_a_running_vehicle_out_of_auto_is_flagged_and_waited_for(dispatch):
     assert v.off_auto_since is None and not state.finished(43.0, lost_grace_s=30.0)
 
 
+def test_a_fields_start_stays_its_first_visits_when_its_rest_is_begun_after_a_replan(dispatch):
+    """A review: the rest of a field begun again after a re-plan moved its start there (a
+    field worked 5.8-14.0 h was shown 10.8-14.0 h in the review's order and the Gantt)."""
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    v.phase = Phase.RUNNING
+    down = next(s for s, t in enumerate(v.items) if t.role == "implement_down")
+    first_end = next(s for s, t in enumerate(v.items) if t.role == "swath_end")
+    fid = v.items[down].field_id
+    state.apply(ev.ItemReached("v1", down, 100.0), 1.0)
+    state.apply(ev.ItemReached("v1", first_end, 300.0), 2.0)
+    assert state.fields[fid].started_s == 100.0
+    state._item_done(v, down, 900.0, reported=True)  # its rest's lowering, later
+    assert state.fields[fid].started_s == 100.0
+
+
 def test_a_field_starts_at_its_entry_when_the_implement_item_is_not_reported(dispatch):
     state = FleetState(dispatch.document)
     v = state.vehicles["v1"]
