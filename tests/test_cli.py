@@ -149,6 +149,12 @@ def test_a_log_that_holds_nothing_is_left_out_of_a_folders_review(tmp_path, caps
     assert out["log_end"] == "2024-01-01 00:10:00 UTC" and out["source"] == str(tmp_path)
     assert "left out, as they hold nothing: changji-20231231-120000.mcap" in captured.err
     assert "changji-20240102-000000.mcap" in captured.err
+    # A file of no bytes at all (killed as it was opened): left out too, not "is empty".
+    (tmp_path / "changji-20231231-130000.mcap").write_bytes(b"")
+    assert main(["review", str(tmp_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["log_end"] == "2024-01-01 00:10:00 UTC"
+    assert "changji-20231231-130000.mcap" in captured.err.split("left out, as they hold nothing")[1]
 
 
 def test_review_of_an_empty_directory_is_a_clear_error(tmp_path, capsys):

@@ -1137,16 +1137,22 @@ def read_logs(paths: Iterable[str | os.PathLike[str]]) -> LogContents:
     and names the others. Raises :class:`RecordingError` for a file that is not an
     agrifleet log, or for files given of different farms or runs."""
     given = [Path(p) for p in paths]
-    logs = [read_log(path) for path in log_files(given)]
-    if len(logs) == 1:
+    files = log_files(given)
+    # A file of no bytes beside others (a dispatcher killed as it opened it): left out.
+    blank = [f for f in files if len(files) > 1 and Path(f).stat().st_size == 0]
+    if len(blank) == len(files):
+        blank = []  # nothing else: said to be empty (read_log)
+    logs = [read_log(path) for path in files if path not in blank]
+    if len(logs) == 1 and not blank:
         return logs[0]
     notes = []
     empty = [log for log in logs if not log.records]
-    if empty and len(empty) < len(logs):  # a dispatcher killed as it started, a full disk
-        logs = [log for log in logs if log not in empty]
-        notes.append(
-            "left out, as they hold nothing: " + ", ".join(Path(e.source).name for e in empty)
-        )
+    if not empty or len(empty) == len(logs):
+        empty = []  # none, or nothing else
+    logs = [log for log in logs if log not in empty]  # a dispatcher killed as it started
+    left_out = [Path(f).name for f in blank] + [Path(e.source).name for e in empty]
+    if left_out:
+        notes.append("left out, as they hold nothing: " + ", ".join(sorted(left_out)))
     logs.sort(key=_start_key)
     one_folder = len(given) == 1 and given[0].is_dir()
     runs: dict[tuple[str | None, str | None], list[LogContents]] = {}
