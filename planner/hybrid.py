@@ -73,7 +73,12 @@ MIN_POPULATION = 50  # the fewest individuals HybridParams.population_tasks leav
 
 @dataclass(frozen=True)
 class HybridParams(IGHOAParams):
-    """IGHOA's settings plus the iterated local search on the elite."""
+    """IGHOA's settings with our local search between routes, plus the iterated local
+    search on the elite."""
+
+    shift_counts: bool = True
+    local_search: str = "extended"
+    memetic: int = 2
 
     ils_steps: int = 200  # perturb-and-improve attempts on the elite per generation
     perturb: int = 3  # tasks moved by one perturbation

@@ -44,11 +44,14 @@ class IGHOAParams:
     tol_max: float = 0.8
     tournament_size: int = 2  # not given by the paper
     two_opt_tries: int = 50  # random 2-opt attempts on the best per generation (§4.5(1))
-    shift_counts: bool = True  # ours: mutation may move a task between machines' counts
-    # Ours: "paper" polishes the best with §4.5 only; "extended" adds relocate/exchange
-    # moves between routes (planner.local_search) on the best and ``memetic`` others.
-    local_search: str = "extended"
-    memetic: int = 2
+    # The paper's algorithm by default, as `--algorithm ighoa` promises; beyond it (ours,
+    # hybrid's defaults): mutation may move a task between machines' counts
+    # (``shift_counts``), and ``local_search = "extended"`` adds relocate/exchange moves
+    # between routes (planner.local_search) on the best and ``memetic`` others; "paper"
+    # polishes the best with §4.5 only.
+    shift_counts: bool = False
+    local_search: str = "paper"
+    memetic: int = 0
     neighbours: int = 10
 
     def __post_init__(self) -> None:
