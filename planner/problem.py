@@ -76,15 +76,23 @@ class Task:
             _check_non_negative(f"task {self.id!r}: {name}", getattr(self, name))
 
 
-def rectangle_turns(field_width_m: float, working_width_m: float) -> int:
-    """U-turns to cover a rectangle ``field_width_m`` across with parallel swaths (formula 5).
-
-    The machine drives ceil(d_T / d_i) swaths and turns between consecutive ones.
-    """
+def swaths_across(field_width_m: float, working_width_m: float) -> int:
+    """Parallel swaths of width d_i that cover a rectangle ``field_width_m`` (d_T) across:
+    ceil(d_T / d_i); 0 for a task of no width (a TSPLIB city)."""
     if field_width_m <= 0.0:
         return 0
-    swaths = math.ceil(field_width_m / working_width_m - 1e-9)
-    return max(swaths - 1, 0)
+    return math.ceil(field_width_m / working_width_m - 1e-9)
+
+
+def rectangle_turns(field_width_m: float, working_width_m: float) -> int:
+    """The paper's n_turn(i, j) of formulas (5) and (6): ceil(d_T / d_i), a U-turn a swath.
+
+    The paper gives no formula for it. Its own Tables 8 and 10 (Σt of four routes, to four
+    decimals, from the assignments it prints) come out with this count and Table 7's first
+    column ("Lengths") as d_T, and with no other rule tried (the turns between swaths,
+    ceil(d_T / d_i) - 1, of either column, gave 0.42 h more; docs/ighoa.md). Real fields
+    count their turns from the coverage laid out (:mod:`planner.coverage`)."""
+    return swaths_across(field_width_m, working_width_m)
 
 
 @dataclass(frozen=True)
@@ -194,7 +202,8 @@ class Problem:
         """A problem where every machine starts and ends at ``depot`` (the paper's garage).
 
         Distances default to the straight line of formula (2); turns and work hours to the
-        paper's rectangle model: n_turn from d_T and d_i, work hours S_j / w_i.
+        paper's rectangle model: n_turn from d_T and d_i (:func:`rectangle_turns`), work
+        hours S_j / w_i.
         """
         machines, tasks = tuple(machines), tuple(tasks)
         if not machines:

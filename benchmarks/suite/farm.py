@@ -54,7 +54,7 @@ import math
 import numpy as np
 
 from planner.cost import CostTables
-from planner.problem import Machine, Problem, Task
+from planner.problem import Machine, Problem, Task, swaths_across
 from planner.relaxation import machine_weights, unavoidable_hours, weighted_bound
 
 FIELD_DENSITY_KM2 = 4.0  # square kilometres of farm per field
@@ -112,10 +112,17 @@ def generate_farm(
                 length_m=round(area / width, 1),
             )
         )
+    # The U-turns between swaths, as coverage lays out a rectangle (the farm objective's
+    # fields are ours, not the paper's, whose n_turn counts one more: rectangle_turns).
+    turns = np.array(
+        [[max(swaths_across(t.width_m, mc.working_width_m) - 1, 0) for t in tasks] for mc in fleet],
+        dtype=np.float64,
+    )
     once = Problem.build(
         fleet,
         tasks,
         (side_m / 2.0, side_m / 2.0),
+        turns=turns,
         min_tasks_per_machine=0,
         name=f"farm{fields}x{machines}s{seed}",
     )

@@ -28,11 +28,12 @@ def paper_machine(ident: str = "am1") -> Machine:
 
 
 def test_rectangle_turns_formula():
-    # 127 m across at 6.9 m: ceil(18.4) = 19 swaths, 18 U-turns.
-    assert rectangle_turns(127.0, 6.9) == 18
-    assert rectangle_turns(69.0, 6.9) == 9  # exactly 10 swaths
-    assert rectangle_turns(5.0, 6.9) == 0
-    assert rectangle_turns(0.0, 6.9) == 0
+    # The paper's n_turn: a U-turn a swath (tests/planner/test_paper.py: its Tables 8, 10).
+    # 127 m across at 6.9 m: ceil(18.4) = 19 swaths.
+    assert rectangle_turns(127.0, 6.9) == 19
+    assert rectangle_turns(69.0, 6.9) == 10  # exactly 10 swaths
+    assert rectangle_turns(5.0, 6.9) == 1
+    assert rectangle_turns(0.0, 6.9) == 0  # a TSPLIB city
 
 
 def test_formulas_one_to_six_by_hand():
@@ -47,7 +48,7 @@ def test_formulas_one_to_six_by_hand():
     # (1)-(2): 500 (garage->A) + 400 (A->B) + 300 (B->garage).
     assert route.distance_m == pytest.approx(1200.0)
     drive_h = 1200.0 / 10_000.0  # 10 km/h
-    turns = 18 + 9
+    turns = 19 + 10  # the paper's n_turn: ceil(127 / 6.9) and 69 / 6.9 swaths
     work_h = 8890.0 / 7000.0 + 7000.0 / 7000.0
     # (6): travel + turning + working time.
     assert route.time_h == pytest.approx(drive_h + turns * 0.004 + work_h)
@@ -241,7 +242,7 @@ def test_idle_busy_machine_does_not_set_the_makespan():
     busy_b = figures(problem, [[], [0]])
     # b is on the field already (0 m there), 500 m home, and busy 9 h first.
     assert busy_b.routes[1].distance_m == pytest.approx(500.0)
-    assert busy_b.makespan_h == pytest.approx(9.0 + 0.05 + 8 * 0.004 + 1.0)
+    assert busy_b.makespan_h == pytest.approx(9.0 + 0.05 + 9 * 0.004 + 1.0)  # ceil(60/6.9)
 
 
 def test_starting_at_with_a_distance_function_and_bad_input():

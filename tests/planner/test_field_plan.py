@@ -45,15 +45,18 @@ def one_field_farm(poly: Polygon, fid: str = "f") -> Farm:
 
 
 def test_geometry_agrees_with_formulas_5_and_6_on_a_rectangle():
-    # 100 m along the swaths, 60 m across: 10 swaths of 6 m, 9 U-turns, as n_turn + 1 = 10.
+    # 100 m along the swaths, 60 m across: 10 swaths of 6 m, 9 U-turns between them (the
+    # paper's n_turn, rectangle_turns, counts one a swath: 10).
     poly = rectangle_field(60.0, 100.0)
     cov = cover_field(poly, MACHINE.working_width_m, field_id="f")
     assert len(cov.swaths) == 10
-    assert cov.turns == rectangle_turns(60.0, MACHINE.working_width_m) == 9
+    assert cov.turns == rectangle_turns(60.0, MACHINE.working_width_m) - 1 == 9
     field = one_field_farm(poly).fields[0]
     geo = machine_figures(MACHINE, (Visit(field, cov, 0),), road_m=0.0)
-    # The paper's model: the same field as a rectangle task at the depot (no driving).
-    problem = Problem.build([MACHINE], [Task("f", 0.0, 0.0, poly.area, 60.0, 100.0)], (0.0, 0.0))
+    # Formulas (5), (6): the same field as a rectangle task at the depot (no driving), with
+    # the geometry's count of turns.
+    task = Task("f", 0.0, 0.0, poly.area, 60.0, 100.0)
+    problem = Problem.build([MACHINE], [task], (0.0, 0.0), turns=np.array([[cov.turns]], float))
     paper = figures(problem, [[0]]).routes[0]
     assert geo.turns == paper.turns
     assert geo.time_h == pytest.approx(paper.time_h, rel=1e-12)
