@@ -355,3 +355,7 @@ def test_the_default_speedup_fits_the_plan_into_the_target_but_not_faster_than_t
     assert auto_speedup(plan(10.0)) == pytest.approx(10.0 * 3600.0 / TARGET_WALL_S)  # 800x
     assert auto_speedup(plan(0.001)) == 1.0  # never slower than real time
     assert auto_speedup(plan(40.0)) == MAX_AUTO_SPEEDUP  # 3 200x would make it late
+    # Through a lossy, slow radio the uploads take longer in wall time: a lower ceiling.
+    lossy = Impairment(loss=0.3, duplicate=0.1, delay_s=0.2)
+    assert auto_speedup(plan(40.0), radio=lossy) == pytest.approx(MAX_AUTO_SPEEDUP * 0.49 / 3)
+    assert auto_speedup(plan(40.0), radio=Impairment()) == MAX_AUTO_SPEEDUP
