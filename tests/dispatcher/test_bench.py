@@ -313,6 +313,19 @@ def test_peers_give_complete_routes_with_every_salesman_busy(peer):
     assert figures(problem, routes).distance_m > 0
 
 
+@pytest.mark.parametrize("minmax", [False, True])
+def test_ortools_finds_a_plan_with_many_salesmen_too(minmax):
+    """A review: its first-solution heuristics found none where ten salesmen need a city
+    each (eil51 m=10: none in 10 s); it now starts from a sweep when they find none."""
+    pytest.importorskip("ortools")
+    from agrifleet_bench import peers
+
+    problem = read_instance(TSPLIB_DIR / "eil51.tsp").to_problem(10)
+    routes = peers.ortools_mtsp(problem, minmax=minmax, time_limit=1.0)
+    assert sorted(j for r in routes for j in r) == list(range(problem.num_tasks))
+    assert len(routes) == 10 and all(routes)
+
+
 def test_the_ortools_farm_model_covers_every_field():
     pytest.importorskip("ortools")
     from agrifleet_bench import peers
