@@ -1,7 +1,7 @@
 """The solver's numba kernels: compiled once per install, and said so while it happens.
 
 The kernels are ``@njit(cache=True, nogil=True)``: numba compiles each on its first call
-(about half a minute for all of them, :data:`COMPILE_ESTIMATE_S`) and keeps the machine code
+(about a minute for all of them, :data:`COMPILE_ESTIMATE_S`) and keeps the machine code
 in its on-disk cache (``__pycache__`` beside the sources, or under ``NUMBA_CACHE_DIR``),
 which later processes load in a fraction of a second. They release the GIL while they run:
 the dispatcher re-plans in a thread beside its main loop, which goes on reading the fleet's
@@ -34,9 +34,9 @@ from numba.core import event
 
 log = logging.getLogger(__name__)
 
-COMPILE_ESTIMATE_S = 40
-"""Wall seconds to compile every kernel from an empty cache on our 2-core x86 machines (30-40 s
-measured, benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
+COMPILE_ESTIMATE_S = 55
+"""Wall seconds to compile every kernel from an empty cache on our 2-core x86 machines (53 s
+measured 2026-11-28 with 229 kernels, benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
 
 
 @dataclass(frozen=True)
