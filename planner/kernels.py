@@ -36,7 +36,8 @@ log = logging.getLogger(__name__)
 
 COMPILE_ESTIMATE_S = 55
 """Wall seconds to compile every kernel from an empty cache on our 2-core x86 machines (53 s
-measured 2026-11-28 with 229 kernels, benchmarks/RESULTS.md, `agrifleet bench compile`); a small ARM board takes longer."""
+measured 2026-11-28 with 229 kernels, benchmarks/RESULTS.md, `agrifleet bench compile`); a
+small ARM board takes longer."""
 
 
 @dataclass(frozen=True)
