@@ -72,6 +72,10 @@ class MachineState:
     machine: Machine
     position: XY
     ready_h: float = 0.0
+    # Of those hours, the working ones and the turns (the rest of a field it finishes
+    # first): counted in its plan's work, turns and fuel as well as its time.
+    ready_work_h: float = 0.0
+    ready_turns: int = 0
 
 
 @dataclass(frozen=True)
@@ -373,7 +377,15 @@ def replan_farm(
             for k, (j, v) in enumerate(zip(route, visits, strict=True))
         )
         plans.append(
-            machine_figures(state.machine, visits, road, return_path=back, ready_h=state.ready_h)
+            machine_figures(
+                state.machine,
+                visits,
+                road,
+                return_path=back,
+                ready_h=state.ready_h,
+                ready_work_h=state.ready_work_h,
+                ready_turns=state.ready_turns,
+            )
         )
     return FarmPlan(
         farm=farm,

@@ -115,7 +115,16 @@ def replan(
         cut = _cut(v, lead_s)
         upto[v.id] = cut if cut is not None else v.reached
         position, ready_h = _where(v, farm, machines[v.id].work_speed_kmh, cut)
-        states.append(MachineState(machines[v.id], position, ready_h))
+        work_h, turns = _kept_work(v, cut)
+        states.append(
+            MachineState(
+                machines[v.id],
+                position,
+                ready_h,
+                ready_work_h=min(work_h, ready_h),
+                ready_turns=turns,
+            )
+        )
     done = [f.id for f in state.fields.values() if f.status == "done"]
     # Segments (numbered as in each field's first layout) that alive vehicles work before
     # their new routes begin; with those worked already, the rest of each field is known.
@@ -195,6 +204,25 @@ def _where(
     elif cut != heading:
         seconds += math.hypot(x - hx, y - hy) / (work_speed_kmh / 3.6)
     return (x, y), seconds / 3600.0
+
+
+def _kept_work(v: VehicleState, cut: int | None) -> tuple[float, int]:
+    """Of the part of its old mission a vehicle drives on before its new route (to item
+    ``cut``): the planned hours on a segment (the legs that end at one's end) and the turns
+    (the implement raised between two swaths), from its items' planned times (none known:
+    0 and the turns)."""
+    if cut is None:
+        return 0.0, 0
+    kept = range(_heading(v), cut + 1)
+    turns = sum(1 for k in kept if v.items[k].role == "implement_raise")
+    if not v.planned_s or len(v.planned_s) != len(v.items):
+        return 0.0, turns
+    work_s = sum(
+        max(v.planned_s[k] - v.planned_s[k - 1], 0.0)
+        for k in kept
+        if k > 0 and v.items[k].role == ON_SEGMENT
+    )
+    return work_s / 3600.0, turns
 
 
 def _heading(v: VehicleState) -> int:

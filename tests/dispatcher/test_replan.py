@@ -85,6 +85,23 @@ def test_the_rest_of_a_lost_vehicles_field_goes_to_the_other_from_where_it_stopp
     assert nxt.plan.machines[0].ready_h > 0.0
 
 
+def test_the_part_a_vehicle_drives_on_counts_in_its_plans_work_and_fuel(current):
+    """Re-planned in the middle of a field, a vehicle works on to the end of its window
+    first: those hours were in its plan's time alone (a review: its planned fuel 26-33 %
+    short of what it burned)."""
+    from dispatcher.tools.replan import _kept_work
+
+    state = FleetState(current.document)
+    started(state, "v1")
+    v = state.vehicles["v1"]
+    ends = [k for k, i in enumerate(v.items) if i.role == "swath_end"]
+    state.apply(ev.ItemReached("v1", ends[1], 100.0), 1.0)
+    work_h, _ = _kept_work(v, ends[4])
+    legs = [v.planned_s[k] - v.planned_s[k - 1] for k in ends[2:5]]
+    assert work_h == pytest.approx(sum(legs) / 3600.0) and work_h > 0.0
+    assert _kept_work(v, None) == (0.0, 0)
+
+
 def test_a_replan_with_no_vehicle_left_says_so(current):
     state = FleetState(current.document)
     for vid in state.vehicles:

@@ -64,6 +64,18 @@ def test_geometry_agrees_with_formulas_5_and_6_on_a_rectangle():
     assert geo.time_h == pytest.approx(9 * 0.003 + 6000.0 / 5000.0)
 
 
+def test_the_hours_a_replan_leaves_a_machine_busy_count_in_its_work_turns_and_fuel():
+    """A re-plan's machine first finishes what it is on (``ready_h``): those hours were in
+    its time alone, so its planned fuel was 26-33 % short of what it burned (a review)."""
+    idle = machine_figures(MACHINE, (), road_m=0.0, ready_h=2.0)
+    busy = machine_figures(MACHINE, (), road_m=0.0, ready_h=2.0, ready_work_h=1.5, ready_turns=3)
+    assert busy.time_h == idle.time_h == 2.0
+    assert (busy.work_h, busy.turns) == (1.5, 3)
+    # (5): the 0.5 h not working at the road rate, 1.5 h at the working rate.
+    assert busy.fuel_l == pytest.approx(0.5 * MACHINE.road_fuel_lh + 1.5 * MACHINE.work_fuel_lh)
+    assert idle.fuel_l == pytest.approx(2.0 * MACHINE.road_fuel_lh)
+
+
 def test_corner_choice_is_the_best_of_all_combinations():
     rng = np.random.default_rng(4)
     covs = [
