@@ -608,6 +608,7 @@ def _across_gaps(
     track: list[_Point],
     heading_to: Sequence[tuple[int, int, int, int]],
     items: Sequence[PlannedItem],
+    planned_s: Sequence[float] | None = None,
 ) -> tuple[list[_Point], dict[int, float]]:
     """``track`` with the mission's waypoints put into each gap of the recording.
 
@@ -616,7 +617,11 @@ def _across_gaps(
     from the item it was heading to before the gap (the last MISSION_CURRENT or item reached
     received in its first half) to the one it was heading to after (the first received in
     its second half). A straight line would cut every turn in between. Also returned: when
-    each of those waypoints was passed (the gap's time spread over them)."""
+    each of those waypoints was passed: at the mission's pace from the gap's start
+    (``planned_s``, each item's planned time), the rest of the gap stood where the next
+    position was (a dispatcher down: its ground-station failsafe held the tractor), or the
+    gap's time spread over them when it drove faster or its pace is not known (before, a
+    review counted the hours a tractor stood held while the dispatcher was down as work)."""
     passed: dict[int, float] = {}
     if not heading_to:
         return track, passed
@@ -635,7 +640,7 @@ def _across_gaps(
             middle = bisect.bisect_left(received_at, (a.log_ns + b.log_ns) // 2)
             if 0 < middle < len(reports):
                 before, after = reports[middle - 1][3], reports[middle][2]
-                for seq, point in _mission_between(a, b, before, after, items):
+                for seq, point in _mission_between(a, b, before, after, items, planned_s):
                     out.append(point)
                     passed[seq] = point.t
         out.append(b)
@@ -644,16 +649,29 @@ def _across_gaps(
 
 
 def _mission_between(
-    a: _Point, b: _Point, before: int, after: int, items: Sequence[PlannedItem]
+    a: _Point,
+    b: _Point,
+    before: int,
+    after: int,
+    items: Sequence[PlannedItem],
+    planned_s: Sequence[float] | None = None,
 ) -> list[tuple[int, _Point]]:
     """The mission's waypoints from item ``before`` up to (not with) ``after``, passed
-    between positions ``a`` and ``b``, at times spread between theirs."""
+    between positions ``a`` and ``b``: at the mission's pace from ``a`` when ``planned_s``
+    (each item's planned time) says it fits in the gap, else at times spread between."""
     between = [s for s in range(max(before, 1), min(after, len(items))) if items[s].is_nav]
+    paced = planned_s is not None and len(planned_s) == len(items) and bool(between)
+    if paced:
+        origin = planned_s[max(before - 1, 0)]  # type: ignore[index]
+        # the legs to each waypoint, and on from the last to ``b``
+        span = planned_s[min(after, len(items) - 1)] - origin  # type: ignore[index]
+        paced = 0.0 < span <= b.t - a.t
     out = []
     for n, s in enumerate(between, 1):
         item = items[s]
         if _valid_position(item.lat, item.lon):
-            t = a.t + (b.t - a.t) * n / (len(between) + 1)
+            spread = a.t + (b.t - a.t) * n / (len(between) + 1)
+            t = a.t + planned_s[s] - origin if paced else spread  # type: ignore[index]
             out.append((s, _Point(t, a.order, item.lat, item.lon, None, True, filled=True)))
     return out
 
@@ -896,7 +914,10 @@ def _review_vehicle(
     # Positions in time order; across a gap in the recording, the mission's waypoints the
     # vehicle passed meanwhile (and when, spread over the gap).
     track, passed = _across_gaps(
-        sorted(points, key=lambda p: (p.t, p.order)), events.heading_to, items
+        sorted(points, key=lambda p: (p.t, p.order)),
+        events.heading_to,
+        items,
+        machine.planned_times(),
     )
     times, reported, last, order_of = _item_times(items, events.reached, passed)
     n = len(items)

@@ -762,3 +762,28 @@ def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it
     plans = [plan(1, (m,)), plan(2, (kept,)), plan(3, (changed,))]
     assert _mission_given(plans[:2], plans[1], m.id) == (plans[0], m)
     assert _mission_given(plans, plans[2], m.id) == (plans[2], changed)
+
+
+def test_across_a_gap_the_mission_is_driven_at_its_pace_then_stood(dispatch) -> None:
+    """A dispatcher down for hours while the ground-station failsafe held the tractors: the
+    waypoints passed in the gap were spread over all of it, and the hours it stood held
+    counted as work (a review: 52.8 h of work for ~44). At the mission's pace from the
+    gap's start they are passed as planned, and the rest of the gap is standing; a gap too
+    short for that pace is spread over as before."""
+    from dispatcher.review.report import _mission_between, _Point
+
+    machine = dispatch.document.machines[0]
+    items, planned = machine.items, machine.planned_times()
+    nav = [k for k, item in enumerate(items) if item.is_nav and k > 2]
+    before, after = nav[0], nav[6]
+    a = _Point(1000.0, 0, items[before - 1].lat, items[before - 1].lon, 0.0)
+    span = planned[after] - planned[before - 1]
+    b = _Point(1000.0 + 10 * span, 1, items[after].lat, items[after].lon, 0.0)
+    paced = _mission_between(a, b, before, after, items, planned)
+    assert [s for s, _ in paced] == [s for s in range(before, after) if items[s].is_nav]
+    for s, point in paced:
+        assert point.t == pytest.approx(1000.0 + planned[s] - planned[before - 1])
+    assert paced[-1][1].t < 1000.0 + 1.5 * span  # then it stood, 8.5 spans of the gap
+    short = dataclasses.replace(b, t=1000.0 + span / 2)
+    spread = _mission_between(a, short, before, after, items, planned)
+    assert spread[-1][1].t < short.t and spread[0][1].t > a.t
