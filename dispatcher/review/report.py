@@ -147,6 +147,7 @@ class VehicleReview:
     transit_h: float
     stopped_h: float
     turns: int
+    turning_h: float  # of working_h, in turns (fuel at the road rate, formula 5)
     fuel_l: float | None  # None: the plan gives no fuel rates
     planned_distance_m: float  # the planned waypoint path, garage to garage
     planned_road_m: float  # plan.json's distance_m: road between fields only
@@ -804,7 +805,13 @@ class _FieldTimes:
 
 def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
     """Items that end a move from one swath to the next in the same field (a turn)."""
-    out = set()
+    return set(_turns(items))
+
+
+def _turns(items: Sequence[PlannedItem]) -> dict[int, int]:
+    """Each turn (a move from one swath to the next in the same field): the item that ends
+    it, and the swath end it began at."""
+    out = {}
     prev: PlannedItem | None = None
     for item in items:
         if not item.is_nav or item.role in MOVE_ROLES:
@@ -815,7 +822,7 @@ def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
             and prev.role == "swath_end"
             and prev.field_id == item.field_id
         ):
-            out.add(item.seq)
+            out[item.seq] = prev.seq
         prev = item
     return out
 
@@ -1022,16 +1029,32 @@ def _review_vehicle(
                 stopped_s += act.end_s - act.start_s
         distance = work_m + transit_m
 
-    turn_seqs = _turn_seqs(items)
+    turn_from = _turns(items)
+    turn_seqs = set(turn_from)
     turns = sum(1 for s in turn_seqs if s <= last)
     working_h, transit_h = working_s / 3600.0, transit_s / 3600.0
-    fuel = _fuel(machine, transit_h, turns, working_h)
+    # (5): the turns at the road rate for as long as they took (in the work windows, which
+    # would otherwise charge them at the work rate as well: a review), or t_T each.
+    turning_h = (
+        sum(
+            max(times[s] - times[e], 0.0)
+            for s, e in turn_from.items()
+            if s <= last and s in times and e in times
+        )
+        / 3600.0
+    )
+    if turning_h > 0.0 and machine.fields:
+        fuel = _fuel(machine, transit_h + turning_h, 0, max(working_h - turning_h, 0.0))
+    else:
+        fuel = _fuel(machine, transit_h, turns, working_h)
     if fuel is None and machine.fields:
         warnings.append(
             f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
         )
     planned_s = machine.planned_times()
     plan_h, plan_fuel, plan_turns = machine.time_h, machine.fuel_l, float(machine.turns)
+    if replanned_ns is None:
+        plan_turns = float(len(turn_seqs))  # counted as the driven ones are
     if replanned_ns is not None and start is not None:
         done = _done_by(track, replanned_ns, start, activities, times, turn_seqs)
         if done is not None:
@@ -1146,6 +1169,7 @@ def _review_vehicle(
         transit_h=transit_h,
         stopped_h=stopped_s / 3600.0,
         turns=turns,
+        turning_h=turning_h,
         fuel_l=fuel,
         planned_distance_m=planned_distance,
         planned_road_m=machine.distance_m,
