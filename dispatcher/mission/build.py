@@ -132,8 +132,6 @@ via point (road, turn, link) and a swath's start or end at one place, the swath'
 ZERO_LENGTH_M = 0.01
 """A swath shorter than this (metres) is a mistake of the caller's."""
 
-NAV = mc.MAV_CMD_NAV_WAYPOINT
-
 VIA_ROLES = frozenset({"road", "turn", "in_field"})
 """Waypoints that only lead the way: one that falls on the place of the next or the last
 waypoint gives way to it (:meth:`_Builder.waypoint`)."""
@@ -359,9 +357,12 @@ class _Builder:
         """A NAV_WAYPOINT, unless it is at the place of the last waypoint
         (:data:`SAME_POINT_M`): then a via point is not added, and a via point just before
         it (no other item between) is replaced by it."""
-        last = next(
-            (k for k in range(len(self.items) - 1, -1, -1) if self.items[k].command == NAV), None
+        navs = (
+            k
+            for k in reversed(range(len(self.items)))
+            if self.items[k].command == mc.MAV_CMD_NAV_WAYPOINT
         )
+        last = next(navs, None)
         if last is not None:
             item = self.items[last]
             if _distance_m(LatLon(item.x / 1e7, item.y / 1e7), point) <= SAME_POINT_M:

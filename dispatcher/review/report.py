@@ -661,18 +661,18 @@ def _mission_between(
     between positions ``a`` and ``b``: at the mission's pace from ``a`` when ``planned_s``
     (each item's planned time) says it fits in the gap, else at times spread between."""
     between = [s for s in range(max(before, 1), min(after, len(items))) if items[s].is_nav]
-    paced = planned_s is not None and len(planned_s) == len(items) and bool(between)
-    if paced:
-        origin = planned_s[max(before - 1, 0)]  # type: ignore[index]
-        # the legs to each waypoint, and on from the last to ``b``
-        span = planned_s[min(after, len(items) - 1)] - origin  # type: ignore[index]
-        paced = 0.0 < span <= b.t - a.t
+    pace = planned_s if planned_s is not None and len(planned_s) == len(items) else None
+    origin = pace[max(before - 1, 0)] if pace is not None else 0.0
+    # the legs to each waypoint, and on from the last to ``b``, fit in the gap
+    fits = pace is not None and 0.0 < pace[min(after, len(items) - 1)] - origin <= b.t - a.t
     out = []
     for n, s in enumerate(between, 1):
         item = items[s]
         if _valid_position(item.lat, item.lon):
-            spread = a.t + (b.t - a.t) * n / (len(between) + 1)
-            t = a.t + planned_s[s] - origin if paced else spread  # type: ignore[index]
+            if fits and pace is not None:
+                t = a.t + pace[s] - origin
+            else:
+                t = a.t + (b.t - a.t) * n / (len(between) + 1)
             out.append((s, _Point(t, a.order, item.lat, item.lon, None, True, filled=True)))
     return out
 
@@ -1043,7 +1043,7 @@ def _review_vehicle(
         )
         / 3600.0
     )
-    if turning_h > 0.0 and machine.fields:
+    if turning_h > 0.0:
         fuel = _fuel(machine, transit_h + turning_h, 0, max(working_h - turning_h, 0.0))
     else:
         fuel = _fuel(machine, transit_h, turns, working_h)

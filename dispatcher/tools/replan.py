@@ -97,12 +97,12 @@ def replan(
     in hours from now, which the rest is planned within if it can be, the road distance
     deciding there; 0: as early as it can.
     ``gone`` adds vehicles to leave out whatever their phase; ``lead_s`` as in the module
-    doc (:func:`handover` must be given the same); ``base``: each field's first planned
-    visit, whose segments ``PlannedItem.segment`` numbers (default: ``current``'s visits,
-    right for the first re-plan). Without ``current`` (a run resumed after a restart, whose
-    planner's view is not kept) there is no warm start, and ``base`` is needed. When
-    ``cancel`` is set (it should stop ``stop`` too), :class:`ReplanCancelled` is raised
-    before the missions are built."""
+    doc (:func:`handover` must be given the same); ``base`` (:func:`base_visits`): each
+    field's visit in the layout whose segments ``PlannedItem.segment`` numbers (default:
+    ``current``'s visits, right for the first re-plan). Without ``current`` (a run resumed
+    after a restart, whose planner's view is not kept) there is no warm start, and
+    ``base`` is needed. When ``cancel`` is set (it should stop ``stop`` too),
+    :class:`ReplanCancelled` is raised before the missions are built."""
     farm = scenario.farm
     visits = {v.field.id: v for m in current.plan.machines for v in m.visits} if current else {}
     alive = [v for v in state.vehicles.values() if v.phase not in GONE and v.id not in set(gone)]
@@ -384,7 +384,7 @@ def replanner_resumed(
     plan's document, the missions as last uploaded), ``started`` when the run began and
     ``documents`` its plans' documents in order (as stored: the first, then each re-plan's).
     The layouts the fields' segments are numbered in are laid out again from them
-    (:func:`first_visits`; coverage is deterministic, each visit's corner is recorded), at
+    (:func:`base_visits`; coverage is deterministic, each visit's corner is recorded), at
     the first re-plan: from the first plan alone, a field a re-plan had laid out anew for a
     machine of another width was counted in the wrong layout (a review: the rest of a field
     dropped, another worked twice)."""
@@ -408,7 +408,7 @@ def deadline_left_h(finish_within_h: float, elapsed_h: float) -> float:
     return left if finish_within_h > 0.0 and left > 0.0 else 0.0
 
 
-def first_visits(scenario: Scenario, *documents: PlanDocument) -> dict[str, Visit]:
+def base_visits(scenario: Scenario, *documents: PlanDocument) -> dict[str, Visit]:
     """Each field's visit in the layout its segments are numbered in, from a run's plan
     ``documents`` in order (its first plan, then its re-plans): the first plan's, or that of
     the last re-plan that laid the field out whole again (not the rest of it: ``rest``), as
@@ -444,7 +444,7 @@ def _replanner(
         nonlocal current, job, base, took_s
         began = time.monotonic()
         if base is None:
-            base = first_visits(scenario, *(documents or (job.document,)))
+            base = base_visits(scenario, *(documents or (job.document,)))
         lead_s = max(seconds, 2.0 * took_s) + 1.5 * state.upload_s + LEAD_S
         stop = stop_after(scenario.solver.generations, seconds, flag=cancel)
         left_h = deadline_left_h(

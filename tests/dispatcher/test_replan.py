@@ -13,7 +13,7 @@ from dispatcher.config.scenario import load_scenario
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.mission.plan import DispatchPlan, dispatch_plan
-from dispatcher.tools.replan import ReplanError, first_visits, replan, visit_of
+from dispatcher.tools.replan import ReplanError, base_visits, replan, visit_of
 from planner.field_plan import plan_farm
 from planner.replan import visit_segments
 from planner.solve import solve, stop_after
@@ -113,7 +113,7 @@ def test_a_replan_with_no_vehicle_left_says_so(current):
 def test_a_resumed_run_lays_out_each_fields_first_visit_again_from_the_document(current):
     """The planner's view of a run is not stored; the fields' first layouts, which number
     the segments, come back exactly from the plan document."""
-    again = first_visits(current.scenario, current.document)
+    again = base_visits(current.scenario, current.document)
     for m in current.plan.machines:
         for visit in m.visits:
             assert visit_segments(again[visit.field.id]) == visit_segments(visit)
@@ -137,10 +137,10 @@ def test_a_resumed_run_numbers_a_field_a_replan_laid_out_anew_in_that_layout(dis
         doc = dataclasses.replace(first, machines=(machine,)).with_id()
         return PlanDocument.from_json(doc.to_json())  # as the store reads it back
 
-    layouts = first_visits(scenario, first)
-    anew = first_visits(scenario, first, replanned(rest=False))
-    kept = first_visits(scenario, first, replanned(rest=True))
-    theirs = first_visits(
+    layouts = base_visits(scenario, first)
+    anew = base_visits(scenario, first, replanned(rest=False))
+    kept = base_visits(scenario, first, replanned(rest=True))
+    theirs = base_visits(
         scenario, dataclasses.replace(first, machines=(replanned(False).machines[0],))
     )
     field = moved.field
@@ -158,12 +158,12 @@ def test_a_replan_without_the_planners_view_plans_the_rest_from_the_first_layout
         started(state, vid)
     state.apply(ev.ItemReached(lost, swath_end(current, lost, lost_field, 2), 100.0), 1.0)
     state.apply(ev.VehicleLost(lost, "heartbeats stopped"), 2.0)
-    base = first_visits(scenario, current.document)
+    base = base_visits(scenario, current.document)
     nxt = replan(scenario, None, state, stop=stop_after(30), base=base)
     total = len(visit_segments(visit_of(current, lost_field)))
     assert sorted(visit_of(nxt, lost_field).original_segments) == list(range(3, total))
     visits = {v.field: v for m in nxt.document.machines for v in m.visits}
-    assert visits[lost_field].rest  # numbered in its first layout (first_visits)
+    assert visits[lost_field].rest  # numbered in its first layout (base_visits)
     assert not any(v.rest for f, v in visits.items() if f != lost_field)
 
 
