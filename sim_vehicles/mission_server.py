@@ -52,6 +52,7 @@ from typing import Literal
 
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_item import MissionItem
+from dispatcher.link.mission_protocol import VEHICLE_RE_REQUEST_S
 
 logger = logging.getLogger(__name__)
 
@@ -60,8 +61,8 @@ RequestMessage = Literal["MISSION_REQUEST", "MISSION_REQUEST_INT"]
 UPLOAD_TIMEOUT_S = 8.0
 """No item for this long ends an upload (ArduPilot ``upload_timeout_ms = 8000``)."""
 
-RE_REQUEST_S = 1.0
-"""No item for this long re-sends the request (ArduPilot ``1000U + stream slowdown``)."""
+RE_REQUEST_S = VEHICLE_RE_REQUEST_S
+"""No item for this long re-sends the request (what the dispatcher expects of ArduPilot)."""
 
 MAX_ITEMS = 32766
 """Capacity, home included (ArduPilot's MIS_TOTAL range; real boards hold fewer)."""

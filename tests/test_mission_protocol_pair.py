@@ -199,6 +199,20 @@ def test_a_timeout_sends_a_whole_pipeline_from_the_item_asked_for_last():
     assert [m.seq for m in resend] == list(range(1, 9))
 
 
+def test_a_re_request_is_not_taken_for_a_round_trip():
+    """The vehicle's first request is lost and it asks again a second later (ArduPilot's
+    re-request): that second is no round trip of the link. Taken for one, the timeout stayed
+    at the protocol's 1.5 s for dozens of items; one upload in ten through 20 % loss took
+    25 s instead of 2.5 s."""
+    upload = MissionUpload(mission(40), VEHICLE)
+    upload.start(0.0)
+    upload.on_message(mc_request(0), 1.02)  # the re-request: the first one was lost
+    upload.on_message(mc_request(1), 1.04)
+    upload.on_message(mc_request(2), 1.06)
+    assert upload.round_trip.srtt < 0.05
+    assert upload.timeout_s < 0.1
+
+
 def mc_request(seq):
     from dispatcher.link import mavlink as mc
 
