@@ -213,6 +213,48 @@ def test_a_re_request_is_not_taken_for_a_round_trip():
     assert upload.timeout_s < 0.1
 
 
+def run_stalled(n, stall_at, stall_s, step=0.002):
+    """An upload over a clean link of one step each way to a vehicle that stops for
+    ``stall_s`` at ``stall_at`` (what reaches it waits): the items it got twice."""
+    wire = Wire(VEHICLE)
+    server = MissionServer(home)
+    client = MissionUpload(mission(n), VEHICLE)
+    now = 0.0
+    up, down = [(step, m) for m in client.start(now)], []
+    seen, twice = set(), []
+    while client.outcome is Outcome.RUNNING and now < 30:
+        now += step
+        if not stall_at <= now < stall_at + stall_s:
+            for m in [m for t, m in up if t <= now]:
+                m = wire.up(m)
+                if m.get_type() == "MISSION_ITEM_INT":
+                    if m.seq in seen:
+                        twice.append(m.seq)
+                    seen.add(m.seq)
+                down += [(now + step, r) for r in server.on_message(m, now)]
+            up = [(t, m) for t, m in up if t > now]
+        out = []
+        for m in wire.down([m for t, m in down if t <= now]):
+            out += client.on_message(m, now)
+        down = [(t, m) for t, m in down if t > now]
+        out += client.on_tick(now)
+        up += [(now + step, m) for m in out]
+    return client, server, twice
+
+
+def test_a_vehicle_that_stalls_past_the_timeout_gets_only_the_timeouts_copies():
+    """The vehicle stops answering for longer than the timeout: each timeout sends a
+    pipeline again, which the vehicle, having them, refuses. Those refusals tell of no loss;
+    taken for losses, they had the next items sent again while their originals were on the
+    way, whose copies the vehicle refused in turn, a copy every few items to the end of the
+    upload (63 resends a tractor at the demo's start)."""
+    client, server, twice = run_stalled(200, stall_at=0.03, stall_s=0.12)
+    assert client.outcome is Outcome.DONE and server.count == 200
+    assert 1 <= client.stats.retries <= 3
+    assert len(twice) == client.stats.retries * client.pipeline
+    assert max(twice) < min(twice) + client.pipeline  # the items of the go-back only
+
+
 def mc_request(seq):
     from dispatcher.link import mavlink as mc
 
