@@ -4,6 +4,8 @@ Sections (all by default, or name them): ``solver`` — IGHOA (ours), IGHOA as t
 has it, and the classic GA on a few of the paper's cells at equal time, as ratios to the
 paper's figures and to the best-known solutions; ``upload`` — time from "plan ready" to
 "every mission acknowledged" for 6 vehicles with ~300 items each on loopback;
+``transfers`` — one upload of 200 items on a simulated clock through lossy, late and
+reordering radios and to a vehicle that stalls, 40-200 seeds a radio (the tail);
 ``telemetry`` — 100 simulated vehicles sending telemetry at 10 Hz for 60 s into one
 dispatcher: share of messages in the MCAP, dispatcher CPU; ``store`` — what a commit of
 the dispatcher's SQLite store costs with synchronous FULL and NORMAL; ``soak`` — 30
@@ -96,6 +98,12 @@ def bench_upload() -> str:
     return run()
 
 
+def bench_transfers() -> str:
+    from benchmarks.transfer_bench import bench_transfers as run
+
+    return run()
+
+
 def bench_telemetry() -> str:
     from benchmarks.dispatcher_bench import bench_telemetry as run
 
@@ -129,6 +137,7 @@ def bench_sitl() -> str:
 SECTIONS = {
     "solver": bench_solver,
     "upload": bench_upload,
+    "transfers": bench_transfers,
     "telemetry": bench_telemetry,
     "store": bench_store,
     "sitl": bench_sitl,
