@@ -891,11 +891,14 @@ def _review_vehicle(
     end_ns: int | None,
     fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
     replanned_ns: int | None = None,
+    left_out: bool = False,
 ) -> _VehicleResult:
     """One vehicle's traffic set against ``machine``, its last mission. With
     ``replanned_ns``, that mission went on through a re-plan made then, whose figures for the
     machine count from where it was: the plan's time, fuel and turns are then what it had
-    done by the re-plan plus what the re-plan planned for the rest."""
+    done by the re-plan plus what the re-plan planned for the rest. ``left_out``: a re-plan
+    left it out (lost) and gave the rest of its mission to the others, so its plan counts up
+    to the item it reached (the rest is in theirs)."""
     items = machine.items
     warnings: list[str] = []
     frames_from = [(ns, m) for ns, m in traffic.from_vehicle if ns >= since_ns]
@@ -1064,7 +1067,24 @@ def _review_vehicle(
             plan_fuel += _fuel(machine, done_h - done_work_h, done_turns, done_work_h) or 0.0
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
-    planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())
+    planned_nav = nav
+    plan_road_m = machine.distance_m
+    mission_h = planned_s[-1] / 3600.0 if planned_s else None
+    if left_out and not complete:
+        # Its plan up to where it got: the mission's time to that item, and the planner's
+        # time, fuel and road in that proportion (the planner's figures are per machine,
+        # not per item); the turns it reached.
+        if planned_s and planned_s[-1] > 0:
+            share = planned_s[last] / planned_s[-1]
+        else:
+            share = last / max(n - 1, 1)
+        plan_h, plan_fuel, plan_road_m = share * plan_h, share * plan_fuel, share * plan_road_m
+        plan_turns = float(sum(1 for s in turn_seqs if s <= last))
+        mission_h = planned_s[last] / 3600.0 if planned_s else None
+        planned_nav = [it for it in nav if it.seq <= last]
+    planned_distance = float(
+        _leg_lengths([i.lat for i in planned_nav], [i.lon for i in planned_nav]).sum()
+    )
 
     # Upload and link figures: the status document when there is one, else the frames.
     attempts_f, retries_f = _upload_from_frames(frames_to)
@@ -1172,9 +1192,9 @@ def _review_vehicle(
         turning_h=turning_h,
         fuel_l=fuel,
         planned_distance_m=planned_distance,
-        planned_road_m=machine.distance_m,
+        planned_road_m=plan_road_m,
         planned_time_h=plan_h,
-        mission_time_h=planned_s[-1] / 3600.0 if planned_s else None,
+        mission_time_h=mission_h,
         planned_fuel_l=plan_fuel,
         planned_turns=round(plan_turns),
         upload_attempts=attempts,
@@ -1438,12 +1458,16 @@ def review_contents(log: LogContents) -> Review:
             reviewed_from(vid),
             end_ns,
             rings,
+            left_out=True,
         )
         result.review = dataclasses.replace(result.review, left_out=True)
         results[vid] = result
         vehicles.append(result.review)
         warnings += result.warnings
-        warnings.append(f"{vid}: lost; its work was re-planned over the others")
+        warnings.append(
+            f"{vid}: lost; the rest of its work was re-planned over the others "
+            f"(its plan counts to item {result.review.items_reached}, where it got)"
+        )
     losses = _losses(log, traffic, since_ns, start_ns)
     alarms = _alarms(log, since_ns, start_ns)
     if alarms:
