@@ -141,5 +141,10 @@ def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
     table = review_table(review)
     assert all(f.done for f in review.fields), table
     assert [v.id for v in review.vehicles if not v.left_out] == ["v1"], table
+    # v1's mission went on through the re-plans: its planned turns are its mission's,
+    # counted as the driven ones are (before: the re-plan's formula for the rest plus the
+    # turns done by then, 15 planned for 22 driven).
+    v1 = review.vehicle("v1")
+    assert v1.mission_complete and v1.planned_turns == v1.turns, table
     assert_each_segment_worked_once(review)
     assert any("v3: lost; the rest of its work was re-planned" in w for w in review.warnings), table

@@ -1055,15 +1055,13 @@ def _review_vehicle(
             f"{vid}: the plan gives no fuel rates for it (an older plan.json?): fuel not computed"
         )
     planned_s = machine.planned_times()
-    plan_h, plan_fuel, plan_turns = machine.time_h, machine.fuel_l, float(machine.turns)
-    if replanned_ns is None:
-        plan_turns = float(len(turn_seqs))  # counted as the driven ones are
+    plan_h, plan_fuel = machine.time_h, machine.fuel_l
+    plan_turns = float(len(turn_seqs))  # counted as the driven ones are
     if replanned_ns is not None and start is not None:
         done = _done_by(track, replanned_ns, start, activities, times, turn_seqs)
         if done is not None:
             done_h, done_work_h, done_turns = done
             plan_h += done_h
-            plan_turns += done_turns
             plan_fuel += _fuel(machine, done_h - done_work_h, done_turns, done_work_h) or 0.0
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
