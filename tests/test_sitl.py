@@ -27,6 +27,7 @@ from helpers.sitl import (
     wait_for,
 )
 
+from dispatcher.link import mavlink as mc
 from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_log, read_logs
 from dispatcher.review.report import Review, review_contents, review_log, review_table
 
@@ -177,6 +178,29 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
         if r.decode_json().get("mavpackettype") == "MISSION_ITEM_REACHED"
     ]
     assert seqs == sorted(seqs), seqs  # progress never goes back
+    # Resumed in a field, its implement set as the mission has it there before it arms
+    # (the item that lowered it is behind, and the rebooted outputs are at their boot
+    # values), and ArduPilot takes that command as it takes the mission's own.
+    to = [r.decode_json() for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/to/json")]
+    answers = [r.decode_json() for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/from/json")]
+    uploaded = {m["seq"]: m for m in to if m.get("mavpackettype") == "MISSION_ITEM_INT"}
+    implement = (mc.MAV_CMD_DO_SET_SERVO, mc.MAV_CMD_DO_SET_RELAY)
+    setting = next(
+        uploaded[k] for k in range(resume_item - 1, 0, -1) if uploaded[k]["command"] in implement
+    )
+    sent = [
+        m
+        for m in to
+        if m.get("mavpackettype") == "COMMAND_LONG" and m["command"] == setting["command"]
+    ]
+    assert sent, f"no {setting['command']} sent at the resume"
+    assert (sent[-1]["param1"], sent[-1]["param2"]) == (setting["param1"], setting["param2"])
+    acks = [
+        m["result"]
+        for m in answers
+        if m.get("mavpackettype") == "COMMAND_ACK" and m["command"] == setting["command"]
+    ]
+    assert acks and set(acks) == {mc.MAV_RESULT_ACCEPTED}, acks
 
 
 def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(

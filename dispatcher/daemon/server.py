@@ -46,6 +46,7 @@ from dispatcher.link.mission_protocol import (
     GCS_HEARTBEAT_PERIOD_S,
     ROVER_MODE_AUTO,
     START_REFUSAL_WINDOW_S,
+    Command,
     CommandSequence,
     MissionDownload,
     MissionUpload,
@@ -1239,9 +1240,16 @@ class Dispatcher:
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
-        speed = self.job.missions[v.id].speed_before(link.start_item)
+        mission = self.job.missions[v.id]
+        speed = mission.speed_before(link.start_item)
+        setting = mission.implement_before(link.start_item)
+        implement = (
+            None if setting is None else Command(setting.command, (setting.param1, setting.param2))
+        )
         link.start = CommandSequence(
-            start_mission_commands(link.start_item, in_auto=in_auto, speed_ms=speed),
+            start_mission_commands(
+                link.start_item, in_auto=in_auto, speed_ms=speed, implement=implement
+            ),
             v.system_id,
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )

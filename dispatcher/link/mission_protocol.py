@@ -744,11 +744,15 @@ class CommandSequence(_Exchange):
 
 
 def start_mission_commands(
-    first_item: int = 1, in_auto: bool = False, speed_ms: float | None = None
+    first_item: int = 1,
+    in_auto: bool = False,
+    speed_ms: float | None = None,
+    implement: Command | None = None,
 ) -> list[Command]:
     """How a ground station starts (or resumes) an ArduPilot Rover mission at
-    ``first_item``: make it current while disarmed, arm, then switch to AUTO; then, given
-    ``speed_ms``, set the speed the mission's DO_CHANGE_SPEED items set before that item.
+    ``first_item``: make it current while disarmed, (given ``implement``) set the implement
+    as the mission has it there, arm, then switch to AUTO; then, given ``speed_ms``, set the
+    speed the mission's DO_CHANGE_SPEED items set before that item.
 
     * The current item is set with ``DO_SET_MISSION_CURRENT`` param2 = 0, never 1 (reset):
       a reset sent while armed outside AUTO makes ArduPilot start the first navigation
@@ -764,12 +768,19 @@ def start_mission_commands(
       in a field, the implement would work at road speed until the next one. So the speed
       in force at ``first_item`` is set once in AUTO (DO_CHANGE_SPEED param1 = 1 ground
       speed, param2 = m/s, param3 = -1 throttle unchanged).
+    * Nor does it run the DO_SET_SERVO or DO_SET_RELAY that lowered the implement, and an
+      autopilot that rebooted holds its outputs at their boot values: resumed in a field, the
+      machine would drive on with the implement up, in a field without planned turns to the
+      field's end, while the field counts as worked. So ``implement``, that item as a
+      command (the same param1 output and param2 setting), goes before it sets off.
     """
     commands = []
     if in_auto:
         commands.append(_set_mode(ROVER_MODE_HOLD))
+    commands.append(Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (float(first_item), 0.0)))
+    if implement is not None:
+        commands.append(implement)
     commands += [
-        Command(mc.MAV_CMD_DO_SET_MISSION_CURRENT, (float(first_item), 0.0)),
         Command(mc.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,)),
         _set_mode(ROVER_MODE_AUTO),
     ]

@@ -259,6 +259,16 @@ class Mission:
                 return float(item.param2)
         return None
 
+    def implement_before(self, seq: int) -> MissionItem | None:
+        """The item that set the implement (DO_SET_SERVO or DO_SET_RELAY, down or up) in
+        force when the vehicle drives to item ``seq``: the last that lowers or raises it
+        before ``seq``; None if there is none."""
+        for k in range(min(seq, len(self.items)) - 1, 0, -1):
+            role = self.traces[k].role
+            if role in IMPLEMENT_LOWERED or role in IMPLEMENT_RAISED:
+                return self.items[k]
+        return None
+
     def to_mavlink(
         self, target_system: int, target_component: int = mc.MAV_COMP_ID_AUTOPILOT1
     ) -> list[mc.MissionItemIntMessage]:

@@ -244,6 +244,32 @@ def test_layout_with_turns_and_road_points() -> None:
     assert roles_north.count("implement_down") == roles_north.count("implement_up") == 1
 
 
+def test_the_implement_before_an_item_is_the_last_lowering_or_raising_before_it() -> None:
+    """What a resumed mission sets the implement to before it sets off
+    (``start_mission_commands``: an autopilot that rebooted does not run the item that
+    lowered it again, and in a field without planned turns nothing lowers it to the end)."""
+    mission = build_mission(
+        make_spec(
+            visits=(dataclasses.replace(NORTH_TURNING, approach=APPROACH), SOUTH),
+            return_path=HOME_ROAD,
+        )
+    )
+    rs = roles(mission)
+    setting = [
+        (k, mission.items[k].param2)
+        for k, r in enumerate(rs)
+        if r in ("implement_down", "implement_lower", "implement_raise", "implement_up")
+    ]
+    assert [p for _, p in setting] == [1900.0, 1100.0] * 4  # down, up: north 3, south 1
+    for seq in range(len(mission)):
+        last = [k for k, _ in setting if k < seq]
+        found = mission.implement_before(seq)
+        assert found == (mission.items[last[-1]] if last else None), seq
+    # South has no planned turns: after its first swath's end the implement is still down.
+    south_end = rs.index("swath_end", rs.index("implement_down", rs.index("implement_up")))
+    assert mission.implement_before(south_end + 1).param2 == 1900.0
+
+
 def test_a_via_point_at_the_place_of_a_waypoint_beside_it_is_not_sent_twice() -> None:
     """A plan of the demo farm had 122 pairs of waypoints 0-5 cm apart: a turn beginning at
     its swath's end and ending 3 cm from the next start, a road ending at the field's entry,

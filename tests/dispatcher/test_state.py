@@ -317,7 +317,9 @@ def position_of_v1(t_ms):
     return position(t_ms, 440003000, 872995000)
 
 
-def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(dispatch):
+def rebooted_v1(dispatch, reached):
+    """A daemon whose v1 rebooted while driving, ``reached`` its last item reached, and has
+    come back (MANUAL, disarmed, holding our mission): the commands it was sent since."""
     daemon = daemon_for(dispatch)
     v = daemon.state.vehicles["v1"]
     daemon.state.vehicles["v2"].phase = Phase.DONE
@@ -327,7 +329,7 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     feed(daemon.state, "v1", running, 0.0)
     v.phase = Phase.RUNNING
     feed(daemon.state, "v1", position_of_v1(500_000), 1.0)
-    daemon.state.apply(ev.ItemReached("v1", 7, v.sim_time_s), 1.5)
+    daemon.state.apply(ev.ItemReached("v1", reached, v.sim_time_s), 1.5)
     feed(daemon.state, "v1", position_of_v1(3_000), 2.0)  # its clock started again
     assert v.needs_restart and v.reboots == 1 and not v.ready
     assert v.sim_time_s >= 500.0  # the run's time does not go back
@@ -343,13 +345,47 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     feed(daemon.state, "v1", total, 3.0)
     assert v.off_auto_since is None  # expected, not a failsafe
     daemon._advance("v1", 3.1)
-    first = next(m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG")
-    assert (first.command, first.param1, first.param2) == (
+    sent = [m for m in daemon.publishers["v1"].sent() if m.get_type() == "COMMAND_LONG"]
+    return daemon, v, sent
+
+
+def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(dispatch):
+    _, v, sent = rebooted_v1(dispatch, 7)
+    assert (sent[0].command, sent[0].param1, sent[0].param2) == (
         mc.MAV_CMD_DO_SET_MISSION_CURRENT,
         8.0,
         0.0,
     )
     assert v.phase is Phase.STARTING and v.reached == 7
+
+
+def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(dispatch):
+    """The item that lowered the implement is behind the item it resumes at, and the
+    rebooted autopilot's outputs are at their boot values: the implement is set before it
+    arms (with the mission's output and setting), or it would drive on with it up."""
+    daemon = daemon_for(dispatch)
+    items = daemon.state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role == "implement_down")
+    end = next(k for k in range(down, len(items)) if items[k].role == "swath_end")
+    daemon, v, _ = rebooted_v1(dispatch, end)
+    start = daemon.links["v1"].start.commands
+    lowering = v.items[down]
+    assert [c.command for c in start[:4]] == [
+        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
+        lowering.command,
+        mc.MAV_CMD_COMPONENT_ARM_DISARM,
+        mc.MAV_CMD_DO_SET_MODE,
+    ]
+    assert start[0].params[0] == end + 1
+    assert start[1].params == (lowering.param1, lowering.param2)
+    # Before any field: nothing to set.
+    daemon, _, _ = rebooted_v1(dispatch, 1)
+    start = daemon.links["v1"].start.commands
+    assert [c.command for c in start[:3]] == [
+        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
+        mc.MAV_CMD_COMPONENT_ARM_DISARM,
+        mc.MAV_CMD_DO_SET_MODE,
+    ]
 
 
 def daemon_driving_v1(dispatch, reached):
