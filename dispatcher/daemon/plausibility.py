@@ -194,6 +194,22 @@ def _positioned(item: PlannedItem) -> bool:
     return item.x != 0 or item.y != 0
 
 
+def off_leg_m(
+    mission: Sequence[PlannedItem], seq: int, position: tuple[float, float]
+) -> float | None:
+    """Metres from ``position`` (lat, lon) to the leg the mission drives on its way to item
+    ``seq``: from the last item with a position before it to the first at or after it
+    (to that one alone at the start); None when the mission has no position after."""
+    after = next((it for it in mission[seq:] if _positioned(it)), None)
+    if after is None:
+        return None
+    before = next(
+        (mission[k] for k in range(min(seq, len(mission)) - 1, -1, -1) if _positioned(mission[k])),
+        after,
+    )
+    return _to_segment(position, (before.lat, before.lon), (after.lat, after.lon))
+
+
 def top_speed_ms(mission: Sequence[PlannedItem]) -> float:
     """The fastest ground speed the mission sets (DO_CHANGE_SPEED), else the fallback."""
     speeds = [

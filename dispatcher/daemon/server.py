@@ -29,7 +29,7 @@ import zenoh
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.plausibility import metres
+from dispatcher.daemon.plausibility import REACH_M, metres, off_leg_m
 from dispatcher.daemon.state import (
     ACTIVE,
     CURRENT_SETTLE_S,
@@ -61,7 +61,12 @@ from dispatcher.link.mission_protocol import (
 )
 from dispatcher.link.numbering import choose_base, command_to_vehicle, count_on_board, on_board
 from dispatcher.link.signals import stop_on_signals
-from dispatcher.mission.build import implement_down_after
+from dispatcher.mission.build import (
+    IMPLEMENT_LOWERED,
+    IMPLEMENT_RAISED,
+    implement_down_after,
+    implement_set_before,
+)
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.window import shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
@@ -1240,20 +1245,43 @@ class Dispatcher:
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
-        mission = self.job.missions[v.id]
-        speed = mission.speed_before(link.start_item)
-        setting = mission.implement_before(link.start_item)
-        implement = (
-            None if setting is None else Command(setting.command, (setting.param1, setting.param2))
-        )
+        speed = self.job.missions[v.id].speed_before(link.start_item)
         link.start = CommandSequence(
             start_mission_commands(
-                link.start_item, in_auto=in_auto, speed_ms=speed, implement=implement
+                link.start_item,
+                in_auto=in_auto,
+                speed_ms=speed,
+                implement=self._implement_at(v, link.start_item),
             ),
             v.system_id,
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )
         self._send(v.id, link.start.start(now))
+
+    def _implement_at(self, v: VehicleState, seq: int) -> Command | None:
+        """The implement as its mission has it when it drives to item ``seq`` (the item
+        that set it, as a command), for a start there (``start_mission_commands``). Down,
+        but the vehicle stands off the leg it is to drive on (moved while it was down, or
+        a simulator started again in the garage): up, or it would drive there with the
+        implement down, and said; the mission lowers it again where it next does."""
+        k = implement_set_before(v.items, seq)
+        if k is None:
+            return None
+        item = v.items[k]
+        if item.role in IMPLEMENT_LOWERED and v.lat is not None and v.lon is not None:
+            off = off_leg_m(v.items, seq, (v.lat, v.lon))
+            if off is not None and off > REACH_M:
+                raising = next((it for it in v.items[seq:] if it.role in IMPLEMENT_RAISED), None)
+                self._log(
+                    "warning",
+                    f"{v.id}: {off:.0f} m from the leg it goes on along at item {seq}: "
+                    "the implement stays up until the mission lowers it again, and what it "
+                    "drives before that is not worked",
+                )
+                if raising is None:
+                    return None
+                item = raising
+        return Command(item.command, (item.param1, item.param2))
 
     def _start_again(self, v: VehicleState, link: _Link, now: float) -> bool:
         """A start whose commands went unanswered, of a vehicle heard since it began: the

@@ -124,6 +124,17 @@ def implement_down_after(steps: Sequence[_HasRole]) -> bool:
     return False
 
 
+def implement_set_before(steps: Sequence[_HasRole], seq: int) -> int | None:
+    """The index of the item that set the implement (lowered or raised it) in force when
+    the vehicle drives to item ``seq``: the last such before it (item 0 aside); None if
+    none did."""
+    for k in range(min(seq, len(steps)) - 1, 0, -1):
+        role = steps[k].role
+        if role in IMPLEMENT_LOWERED or role in IMPLEMENT_RAISED:
+            return k
+    return None
+
+
 SAME_POINT_M = 0.1
 """Two waypoints this close (metres) are one place: the second is not sent (a tenth of
 ArduPilot Rover's default WP_RADIUS of 2 m; a waypoint's lat/lon is stored to ~1 cm). Of a
@@ -257,16 +268,6 @@ class Mission:
         for item in reversed(self.items[1:seq]):
             if item.command == mc.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0:
                 return float(item.param2)
-        return None
-
-    def implement_before(self, seq: int) -> MissionItem | None:
-        """The item that set the implement (DO_SET_SERVO or DO_SET_RELAY, down or up) in
-        force when the vehicle drives to item ``seq``: the last that lowers or raises it
-        before ``seq``; None if there is none."""
-        for k in range(min(seq, len(self.items)) - 1, 0, -1):
-            role = self.traces[k].role
-            if role in IMPLEMENT_LOWERED or role in IMPLEMENT_RAISED:
-                return self.items[k]
         return None
 
     def to_mavlink(

@@ -22,6 +22,7 @@ from dispatcher.mission.build import (
     MissionSpec,
     Trace,
     build_mission,
+    implement_set_before,
 )
 from dispatcher.mission.files import qgc_plan, write_qgc_plan, write_waypoints
 
@@ -244,7 +245,7 @@ def test_layout_with_turns_and_road_points() -> None:
     assert roles_north.count("implement_down") == roles_north.count("implement_up") == 1
 
 
-def test_the_implement_before_an_item_is_the_last_lowering_or_raising_before_it() -> None:
+def test_the_implement_set_before_an_item_is_by_the_last_lowering_or_raising() -> None:
     """What a resumed mission sets the implement to before it sets off
     (``start_mission_commands``: an autopilot that rebooted does not run the item that
     lowered it again, and in a field without planned turns nothing lowers it to the end)."""
@@ -263,11 +264,11 @@ def test_the_implement_before_an_item_is_the_last_lowering_or_raising_before_it(
     assert [p for _, p in setting] == [1900.0, 1100.0] * 4  # down, up: north 3, south 1
     for seq in range(len(mission)):
         last = [k for k, _ in setting if k < seq]
-        found = mission.implement_before(seq)
-        assert found == (mission.items[last[-1]] if last else None), seq
+        assert implement_set_before(mission.traces, seq) == (last[-1] if last else None), seq
     # South has no planned turns: after its first swath's end the implement is still down.
     south_end = rs.index("swath_end", rs.index("implement_down", rs.index("implement_up")))
-    assert mission.implement_before(south_end + 1).param2 == 1900.0
+    k = implement_set_before(mission.traces, south_end + 1)
+    assert mission.items[k].param2 == 1900.0
 
 
 def test_a_via_point_at_the_place_of_a_waypoint_beside_it_is_not_sent_twice() -> None:

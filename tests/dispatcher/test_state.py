@@ -21,6 +21,7 @@ from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import Outcome
+from dispatcher.mission.build import IMPLEMENT_RAISED
 from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -317,20 +318,22 @@ def position_of_v1(t_ms):
     return position(t_ms, 440003000, 872995000)
 
 
-def rebooted_v1(dispatch, reached):
+def rebooted_v1(dispatch, reached, at=None):
     """A daemon whose v1 rebooted while driving, ``reached`` its last item reached, and has
-    come back (MANUAL, disarmed, holding our mission): the commands it was sent since."""
+    come back (MANUAL, disarmed, holding our mission) where it was, or ``at`` (lat, lon
+    * 1e7): the commands it was sent since."""
     daemon = daemon_for(dispatch)
     v = daemon.state.vehicles["v1"]
+    x, y = at or (440003000, 872995000)
     daemon.state.vehicles["v2"].phase = Phase.DONE
     running = heartbeat(11)
     running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
     daemon.state.apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", running, 0.0)
     v.phase = Phase.RUNNING
-    feed(daemon.state, "v1", position_of_v1(500_000), 1.0)
+    feed(daemon.state, "v1", position(500_000, x, y), 1.0)
     daemon.state.apply(ev.ItemReached("v1", reached, v.sim_time_s), 1.5)
-    feed(daemon.state, "v1", position_of_v1(3_000), 2.0)  # its clock started again
+    feed(daemon.state, "v1", position(3_000, x, y), 2.0)  # its clock started again
     assert v.needs_restart and v.reboots == 1 and not v.ready
     assert v.sim_time_s >= 500.0  # the run's time does not go back
     daemon._tick(2.1)
@@ -359,7 +362,7 @@ def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(d
     assert v.phase is Phase.STARTING and v.reached == 7
 
 
-def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(dispatch):
+def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(dispatch, caplog):
     """The item that lowered the implement is behind the item it resumes at, and the
     rebooted autopilot's outputs are at their boot values: the implement is set before it
     arms (with the mission's output and setting), or it would drive on with it up."""
@@ -367,7 +370,8 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     items = daemon.state.vehicles["v1"].items
     down = next(k for k, it in enumerate(items) if it.role == "implement_down")
     end = next(k for k in range(down, len(items)) if items[k].role == "swath_end")
-    daemon, v, _ = rebooted_v1(dispatch, end)
+    at = (items[end].x, items[end].y)  # where it stopped: at the swath's end
+    daemon, v, _ = rebooted_v1(dispatch, end, at)
     start = daemon.links["v1"].start.commands
     lowering = v.items[down]
     assert [c.command for c in start[:4]] == [
@@ -377,7 +381,16 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
         mc.MAV_CMD_DO_SET_MODE,
     ]
     assert start[0].params[0] == end + 1
-    assert start[1].params == (lowering.param1, lowering.param2)
+    start_lowered = (lowering.param1, lowering.param2)
+    assert start[1].params == start_lowered
+    # Back somewhere else (a simulator started again in the garage): it would drive there
+    # with the implement down. Up, and said.
+    with caplog.at_level("WARNING"):
+        daemon, v, _ = rebooted_v1(dispatch, end)
+    start = daemon.links["v1"].start.commands
+    raising = next(it for it in v.items[end + 1 :] if it.role in IMPLEMENT_RAISED)
+    assert start[1].params == (raising.param1, raising.param2) != start_lowered
+    assert "the implement stays up" in caplog.text
     # Before any field: nothing to set.
     daemon, _, _ = rebooted_v1(dispatch, 1)
     start = daemon.links["v1"].start.commands
