@@ -54,6 +54,18 @@ def run_with_a_fault(
     return read_logs([log_of(Processes.output(serve))])
 
 
+def assert_left_out_planned_to_where_they_got(review) -> None:
+    """A vehicle a re-plan left out is planned up to the item it reached: its planned hours
+    near its mission's hours to there (formula 6 against the waypoints' legs), whatever
+    plan gave it that mission (cut from a later re-plan's figures for the rest alone, v3
+    showed 0.030 h planned for 0.042 h)."""
+    for v in review.vehicles:
+        if v.left_out and v.mission_time_h:
+            assert v.planned_time_h == pytest.approx(v.mission_time_h, rel=0.2), review_table(
+                review
+            )
+
+
 @pytest.fixture
 def procs(tmp_path: Path) -> Iterator[Processes]:
     group = Processes(tmp_path)
@@ -83,7 +95,8 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     # in v1's (before, v2's whole mission counted as well, its unfinished part twice).
     planned = sum(v.planned_distance_m for v in review.vehicles)
     driven = sum(v.distance_m for v in review.vehicles)
-    assert planned == pytest.approx(driven, rel=0.02), table
+    assert planned == pytest.approx(driven, rel=0.05), table
+    assert_left_out_planned_to_where_they_got(review)
 
 
 def test_missions_in_windows_are_topped_up_and_a_killed_tractors_work_still_done(
@@ -146,5 +159,6 @@ def test_a_second_loss_while_re_planning_the_first_leaves_all_to_the_last(
     # turns done by then, 15 planned for 22 driven).
     v1 = review.vehicle("v1")
     assert v1.mission_complete and v1.planned_turns == v1.turns, table
+    assert_left_out_planned_to_where_they_got(review)
     assert_each_segment_worked_once(review)
     assert any("v3: lost; the rest of its work was re-planned" in w for w in review.warnings), table

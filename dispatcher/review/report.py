@@ -1079,7 +1079,7 @@ def _review_vehicle(
         plan_h, plan_fuel, plan_road_m = share * plan_h, share * plan_fuel, share * plan_road_m
         plan_turns = float(sum(1 for s in turn_seqs if s <= last))
         mission_h = planned_s[last] / 3600.0 if planned_s else None
-        planned_nav = [it for it in nav if it.seq <= last]
+        planned_nav = nav = [it for it in nav if it.seq <= last]  # the route drawn too
     planned_distance = float(
         _leg_lengths([i.lat for i in planned_nav], [i.lon for i in planned_nav]).sum()
     )
@@ -1445,17 +1445,22 @@ def review_contents(log: LogContents) -> Review:
         warnings += result.warnings
     left_out = {m.id for p in plans[base:] for m in p.machines} - {m.id for m in plan.machines}
     for vid in sorted(left_out):
-        # Reviewed against the last mission it was given, up to where it was lost.
-        last = next(m for p in reversed(plans[base:]) for m in p.machines if m.id == vid)
+        # Reviewed against the last mission it was given, up to where it was lost; from the
+        # plan that gave it that mission, and, when it went on through a later re-plan, that
+        # re-plan's figures for the rest plus what it had done by then (as those in the plan).
+        had = next(p for p in reversed(plans[base:]) if any(m.id == vid for m in p.machines))
+        given, planned = _mission_given(plans[base:], had, vid)
+        went_on = given is not plans[base] and fresh.get(vid, 0) < given.log_ns
         vstatus = status.get(vid) if status else None
         result = _review_vehicle(
             vid,
-            last,
+            planned,
             traffic.get(vid, _Traffic([], [], [])),
             vstatus if isinstance(vstatus, dict) else None,
             reviewed_from(vid),
             end_ns,
             rings,
+            given.log_ns if went_on else None,
             left_out=True,
         )
         result.review = dataclasses.replace(result.review, left_out=True)
