@@ -857,6 +857,13 @@ class Dispatcher:
                 self._log(
                     "info", f"{vid}: armed and in AUTO, mission started at item {link.start_item}"
                 )
+                for refusal in link.start.skipped:
+                    self._log(
+                        "warning",
+                        f"{vid}: {refusal}; the implement stays as the autopilot has it "
+                        "until the mission sets it (check the output's SERVOn_FUNCTION or "
+                        "RELAYn_FUNCTION)",
+                    )
             elif link.start.outcome is Outcome.FAILED:
                 if self._start_again(v, link, now):
                     return
@@ -1260,28 +1267,29 @@ class Dispatcher:
 
     def _implement_at(self, v: VehicleState, seq: int) -> Command | None:
         """The implement as its mission has it when it drives to item ``seq`` (the item
-        that set it, as a command), for a start there (``start_mission_commands``). Down,
-        but the vehicle stands off the leg it is to drive on (moved while it was down, or
-        a simulator started again in the garage): up, or it would drive there with the
-        implement down, and said; the mission lowers it again where it next does."""
+        that set it, as a command), for a start there (``start_mission_commands``); up
+        where nothing before sets it (a vehicle held in a field with it down, sent out on a
+        new route from there). Down, but the vehicle stands off the leg it is to drive on
+        (moved while it was down, or a simulator started again in the garage): up, or it
+        would drive there with the implement down, and said; the mission lowers it again
+        where it next does. None for a mission that never sets it."""
+        up = next((it for it in v.items if it.role in IMPLEMENT_RAISED), None)
         k = implement_set_before(v.items, seq)
-        if k is None:
-            return None
-        item = v.items[k]
-        if item.role in IMPLEMENT_LOWERED and v.lat is not None and v.lon is not None:
-            off = off_leg_m(v.items, seq, (v.lat, v.lon))
+        item = up if k is None else v.items[k]
+        where = (v.lat, v.lon) if v.lat is not None and v.lon is not None else None
+        if item is not None and item.role in IMPLEMENT_LOWERED and where is not None:
+            off = off_leg_m(v.items, seq, where)
             if off is not None and off > REACH_M:
-                raising = next((it for it in v.items[seq:] if it.role in IMPLEMENT_RAISED), None)
                 self._log(
                     "warning",
                     f"{v.id}: {off:.0f} m from the leg it goes on along at item {seq}: "
                     "the implement stays up until the mission lowers it again, and what it "
                     "drives before that is not worked",
                 )
-                if raising is None:
-                    return None
-                item = raising
-        return Command(item.command, (item.param1, item.param2))
+                item = up
+        if item is None:
+            return None
+        return Command(item.command, (item.param1, item.param2), optional=True)
 
     def _start_again(self, v: VehicleState, link: _Link, now: float) -> bool:
         """A start whose commands went unanswered, of a vehicle heard since it began: the

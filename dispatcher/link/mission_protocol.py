@@ -650,6 +650,7 @@ def mission_differences(
 class Command:
     command: int
     params: tuple[float, ...] = ()
+    optional: bool = False  # refused, it is noted (CommandSequence.skipped) and passed over
 
 
 class CommandSequence(_Exchange):
@@ -672,6 +673,7 @@ class CommandSequence(_Exchange):
         self._confirmation = 0
         self._deadline = 0.0
         self.unanswered = False  # failed for want of an answer (not refused)
+        self.skipped: list[str] = []  # the refusals of optional commands, passed over
 
     def start(self, now: float) -> list[mc.MAVLinkMessage]:
         if not self.commands:  # nothing to send: done
@@ -691,7 +693,10 @@ class CommandSequence(_Exchange):
             return []
         name = mc.constant_name("MAV_CMD_", self.commands[self._index].command)
         refusal = f"{name} refused: {mc.constant_name('MAV_RESULT_', result)}"
-        if result in (mc.MAV_RESULT_TEMPORARILY_REJECTED, mc.MAV_RESULT_FAILED):
+        if result != mc.MAV_RESULT_ACCEPTED and self.commands[self._index].optional:
+            self.skipped.append(refusal)
+            result = mc.MAV_RESULT_ACCEPTED  # passed over: on to the next
+        elif result in (mc.MAV_RESULT_TEMPORARILY_REJECTED, mc.MAV_RESULT_FAILED):
             # ArduPilot refuses to arm until its pre-arm checks pass (GPS fix, EKF ...):
             # ask again after a pause, for a while. Its STATUSTEXT says why (the daemon
             # keeps those with the vehicle's state).
@@ -772,7 +777,9 @@ def start_mission_commands(
       autopilot that rebooted holds its outputs at their boot values: resumed in a field, the
       machine would drive on with the implement up, in a field without planned turns to the
       field's end, while the field counts as worked. So ``implement``, that item as a
-      command (the same param1 output and param2 setting), goes before it sets off.
+      command (the same param1 output and param2 setting), goes before it sets off. It is
+      optional: ArduPilot refuses an output given another function or a relay not set up,
+      which in the mission it passes over; the start goes on, the refusal noted.
     """
     commands = []
     if in_auto:

@@ -164,6 +164,25 @@ def test_refused_command_fails():
     assert seq.outcome is Outcome.FAILED and "refused" in seq.reason
 
 
+@pytest.mark.parametrize("result", ["MAV_RESULT_FAILED", "MAV_RESULT_DENIED"])
+def test_a_refused_optional_command_is_noted_and_passed_over(result):
+    """The implement set at a start (an output ArduPilot refuses when given another
+    function, a relay not set up): the start goes on, the refusal noted."""
+    servo = Command(mc.MAV_CMD_DO_SET_SERVO, (9.0, 1100.0), optional=True)
+    seq = CommandSequence(start_mission_commands(5, implement=servo), VEHICLE, refusal_window_s=60)
+    seq.start(0.0)
+    accepted = mc.MAV_RESULT_ACCEPTED
+    (servo_sent,) = seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, accepted), 0.1)
+    assert (servo_sent.command, servo_sent.param1, servo_sent.param2) == (183, 9.0, 1100.0)
+    refused = command_ack(mc.MAV_CMD_DO_SET_SERVO, getattr(mc, result))
+    (arm,) = seq.on_message(refused, 0.2)
+    assert arm.command == mc.MAV_CMD_COMPONENT_ARM_DISARM
+    assert seq.skipped == [f"MAV_CMD_DO_SET_SERVO refused: {result}"]
+    seq.on_message(command_ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, accepted), 0.3)
+    seq.on_message(command_ack(mc.MAV_CMD_DO_SET_MODE, accepted), 0.4)
+    assert seq.outcome is Outcome.DONE
+
+
 def test_a_refused_arm_is_asked_again_within_the_window():
     seq = CommandSequence(start_mission_commands(), VEHICLE, refusal_window_s=60.0)
     seq.start(0.0)

@@ -173,8 +173,11 @@ def test_an_arm_refusal_carries_the_autopilots_reason(dispatch):
     assert [(m.command, m.param1, m.param2) for m in sent] == [
         (mc.MAV_CMD_DO_SET_MISSION_CURRENT, 1.0, 0.0)  # never a reset (param2 = 1)
     ]
-    for cmd in (mc.MAV_CMD_DO_SET_MISSION_CURRENT,):
-        start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.1)
+    # Before arming, the implement up, as the mission has it before its first field.
+    before_arm = [c.command for c in start.commands]
+    before_arm = before_arm[: before_arm.index(mc.MAV_CMD_COMPONENT_ARM_DISARM)]
+    assert before_arm == [mc.MAV_CMD_DO_SET_MISSION_CURRENT, mc.MAV_CMD_DO_SET_SERVO]
+    accept(start, 0.1, until=mc.MAV_CMD_COMPONENT_ARM_DISARM)
     start.on_message(ack(mc.MAV_CMD_COMPONENT_ARM_DISARM, mc.MAV_RESULT_FAILED), 0.2)
     text = "Arm: Battery 1 below minimum arming voltage"
     feed(daemon.state, "v1", statustext(11, text), 0.25)
@@ -193,7 +196,7 @@ def test_a_start_unanswered_on_a_vehicle_still_heard_is_tried_again_then_failed(
     now = 0.0
     for attempt in (1, 2, 3):
         start = link.start
-        start.on_message(ack(mc.MAV_CMD_DO_SET_MISSION_CURRENT, mc.MAV_RESULT_ACCEPTED), now)
+        accept(start, now, until=mc.MAV_CMD_COMPONENT_ARM_DISARM)
         now = unanswered(daemon, start, now)  # every ARM and every answer lost
         assert start.outcome is Outcome.FAILED and start.unanswered
         feed(daemon.state, "v1", held(11), now)  # but the vehicle is heard
@@ -223,12 +226,7 @@ def test_a_started_mission_gives_the_next_start_its_attempts_again(dispatch):
     feed(daemon.state, "v1", held(11), 0.5)
     daemon._advance("v1", 0.5)
     assert link.starts == 1 and v.phase is Phase.STARTING
-    for cmd in (
-        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
-        mc.MAV_CMD_COMPONENT_ARM_DISARM,
-        mc.MAV_CMD_DO_SET_MODE,
-    ):
-        link.start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), 0.6)
+    accept(link.start, 0.6)
     daemon._advance("v1", 0.7)
     assert v.phase is Phase.RUNNING and link.starts == 0
 
@@ -293,6 +291,14 @@ def starting_v1(dispatch, now):
     link = daemon.links["v1"]
     daemon._start(v, link, now)
     return daemon, v, link
+
+
+def accept(start, now, until=None):
+    """Acknowledge ``start``'s commands in order, up to ``until`` (that one not), or all."""
+    for cmd in [c.command for c in start.commands]:
+        if cmd == until:
+            return
+        start.on_message(ack(cmd, mc.MAV_RESULT_ACCEPTED), now)
 
 
 def unanswered(daemon, start, now):
@@ -391,14 +397,10 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     raising = next(it for it in v.items[end + 1 :] if it.role in IMPLEMENT_RAISED)
     assert start[1].params == (raising.param1, raising.param2) != start_lowered
     assert "the implement stays up" in caplog.text
-    # Before any field: nothing to set.
+    # Before any field: up, as the mission has it there.
     daemon, _, _ = rebooted_v1(dispatch, 1)
     start = daemon.links["v1"].start.commands
-    assert [c.command for c in start[:3]] == [
-        mc.MAV_CMD_DO_SET_MISSION_CURRENT,
-        mc.MAV_CMD_COMPONENT_ARM_DISARM,
-        mc.MAV_CMD_DO_SET_MODE,
-    ]
+    assert start[1].params == (raising.param1, raising.param2) and start[1].optional
 
 
 def daemon_driving_v1(dispatch, reached):
@@ -971,13 +973,16 @@ def test_a_tractor_stopped_at_the_end_of_its_window_is_started_again_at_its_join
     commands = [(m.command, m.param1, m.param2) for m in sent if m.get_type() == "COMMAND_LONG"]
     assert [c[0] for c in commands] == [mc.MAV_CMD_DO_SET_MODE]  # HOLD first, then the rest
     assert commands[0][2] == 4  # Rover HOLD
-    assert link.start.commands[1].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
-    assert link.start.commands[1].params[0] == link.join and link.join >= 5
-    assert link.start.commands[3].params[1] == 10  # then AUTO
+    start = link.start.commands
+    assert start[1].command == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    assert start[1].params[0] == link.join and link.join >= 5
+    assert start[2].optional  # the implement as the mission has it at the join
+    assert start[3].command == mc.MAV_CMD_COMPONENT_ARM_DISARM
+    assert start[4].params[1] == 10  # then AUTO
     # and the speed in force there (AUTO starts at WP_SPEED)
     speed = daemon.job.missions["v1"].speed_before(link.join)
-    assert speed is not None and link.start.commands[4].command == mc.MAV_CMD_DO_CHANGE_SPEED
-    assert link.start.commands[4].params[:2] == (1.0, speed)
+    assert speed is not None and start[5].command == mc.MAV_CMD_DO_CHANGE_SPEED
+    assert start[5].params[:2] == (1.0, speed)
     assert daemon.state.vehicles["v1"].phase is Phase.STARTING
 
 
