@@ -37,6 +37,7 @@ class Link:
     step_s: float = 0.01  # the clock's step: a frame takes at least one
     stall_rate: float = 0.0  # the vehicle stops answering this often (per second) ...
     stall_s: tuple[float, float] = (0.0, 0.0)  # ... for U(a, b) seconds
+    latency_s: float = 0.0  # every frame takes this long one way, on top of the radio's delay
     seeds: int = 200
 
 
@@ -49,7 +50,15 @@ LINKS = (
         stall_rate=10.0,
         stall_s=(0.06, 0.15),
     ),
+    Link(
+        "clean, the vehicle stops 1-3 s every ~2 s",
+        Impairment(),
+        stall_rate=0.5,
+        stall_s=(1.0, 3.0),
+        seeds=40,
+    ),
     Link("5 % loss each way", Impairment(loss=0.05)),
+    Link("1 s round trip, 5 % loss each way", Impairment(loss=0.05), latency_s=0.5, seeds=40),
     Link("20 % loss each way", Impairment(loss=0.2)),
     Link("20 % loss, up to 20 ms delay", Impairment(loss=0.2, delay_s=0.02)),
     Link("10 % loss, up to 50 ms delay (reorders)", Impairment(loss=0.1, delay_s=0.05)),
@@ -101,8 +110,9 @@ def upload(link: Link, seed: int, items: int = ITEMS) -> Run:
     seen: set[int] = set()
     twice = 0
     now = 0.0
+    late = link.latency_s
     for msg in client.start(now):
-        up.push(gcs_tx.encode(msg), now)
+        up.push(gcs_tx.encode(msg), now + late)
     while client.outcome is Outcome.RUNNING and now < LIMIT_S:
         now += link.step_s
         if now >= stalled_until and stalls.random() < link.stall_rate * link.step_s:
@@ -116,9 +126,9 @@ def upload(link: Link, seed: int, items: int = ITEMS) -> Run:
                     twice += msg.seq in seen
                     seen.add(msg.seq)
                 for reply in server.on_message(msg, now):
-                    down.push(v_tx.encode(reply), now)
+                    down.push(v_tx.encode(reply), now + late)
             for reply in server.on_tick(now):
-                down.push(v_tx.encode(reply), now)
+                down.push(v_tx.encode(reply), now + late)
         out = []
         for frame in down.due(now):
             msg = gcs_rx.decode_one(frame)
@@ -126,7 +136,7 @@ def upload(link: Link, seed: int, items: int = ITEMS) -> Run:
                 out += client.on_message(msg, now)
         out += client.on_tick(now)
         for msg in out:
-            up.push(gcs_tx.encode(msg), now)
+            up.push(gcs_tx.encode(msg), now + late)
     done = client.outcome is Outcome.DONE and server.count == items
     return Run(now, done, client.stats.retries, twice)
 

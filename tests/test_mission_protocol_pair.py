@@ -213,6 +213,18 @@ def test_a_re_request_is_not_taken_for_a_round_trip():
     assert upload.timeout_s < 0.1
 
 
+def test_round_trips_of_a_re_requests_length_in_a_row_are_the_links():
+    """A link that slow (a second a round trip) is measured after all: three such in a row,
+    none shorter between, are not a lost request answered by the vehicle's re-request."""
+    upload = MissionUpload(mission(40), VEHICLE)
+    upload.start(0.0)
+    upload.on_message(mc_request(0), 1.0)  # the count's: one
+    upload.on_message(mc_request(1), 2.0)  # item 0's: two
+    assert upload.round_trip.srtt is None and upload.timeout_s == 1.5
+    upload.on_message(mc_request(2), 2.01)  # item 1's: three
+    assert upload.round_trip.srtt == pytest.approx(1.01)
+
+
 def run_stalled(n, stall_at, stall_s, step=0.002):
     """An upload over a clean link of one step each way to a vehicle that stops for
     ``stall_s`` at ``stall_at`` (what reaches it waits): the items it got twice."""

@@ -52,6 +52,9 @@ taken for a late answer to an earlier upload."""
 TRANSFER_STALL_S = 10.0
 """A transfer also needs this long without progress before it fails (its retries may come
 faster than the vehicle's own one-second re-requests; ArduPilot gives up after 8 s)."""
+LONG_SAMPLES_TAKEN = 3
+"""Round trips of a re-request's length in a row, with none shorter between, that are taken
+for the link's (see MissionUpload._sample)."""
 VEHICLE_RE_REQUEST_S = 1.0
 """A vehicle receiving a mission asks again for the item it expects after this long without
 one (ArduPilot's ``MissionItemProtocol::update``: 1 000 ms plus the link's stream slowdown)."""
@@ -246,6 +249,7 @@ class MissionUpload(_Transfer):
         self.last_refusal = ""
         self.pipeline = max(1, int(pipeline))
         self.unconfirmed = False  # done on the vehicle's word that it is no longer receiving
+        self._long_samples = 0  # round trips of a re-request's length in a row, not taken
         self._restart()
 
     def _restart(self) -> None:
@@ -260,7 +264,7 @@ class MissionUpload(_Transfer):
         self._sent_twice: set[int] = set()  # (no round trip is measured on those)
         self._fast_for = -1  # the request whose item was resent on an INVALID_SEQUENCE
         self._refused_at = -1  # the place of the last send when an item was last refused
-        self._progress_sends = 0  # the sends before the last request that progressed
+        self._refused_since_progress = False  # an item refused since the last progress
         self._go_back: _GoBack | None = None  # a timeout's copies, their refusals to come
 
     @property
@@ -320,6 +324,9 @@ class MissionUpload(_Transfer):
             if result == mc.MAV_MISSION_INVALID_SEQUENCE:
                 if self._copy_refused():
                     return []
+                # A loss, or what the count of copies did not foresee: it is spent.
+                self._go_back = None
+                self._refused_since_progress = True
                 self._refused_at = self._sends
                 return self._fast_retransmit(now)
             if result != mc.MAV_MISSION_ACCEPTED:
@@ -362,7 +369,7 @@ class MissionUpload(_Transfer):
             if self._go_back is not None and seq > self._go_back.end:
                 self._go_back = None  # the copies' refusals came before: they went before
             self._highest = seq
-            self._progress_sends = self._sends
+            self._refused_since_progress = False
             self._asked_last = self._asked_last or seq == len(self.items) - 1
             self._progress(now)
             self._window = min(float(self.pipeline), self._window + 1.0 / self._window)
@@ -402,7 +409,13 @@ class MissionUpload(_Transfer):
         if round_trip >= 0.9 * VEHICLE_RE_REQUEST_S and (
             srtt is None or srtt < 0.3 * VEHICLE_RE_REQUEST_S
         ):
-            return
+            # Taken when it comes again with no short one between: the link is that slow
+            # (a lost request is seldom followed by another lost one just so).
+            self._long_samples += 1
+            if self._long_samples < LONG_SAMPLES_TAKEN:
+                return
+        else:
+            self._long_samples = 0
         super()._sample(round_trip)
 
     def _lost(self, seq: int, now: float, asked: int) -> bool:
@@ -461,7 +474,7 @@ class MissionUpload(_Transfer):
         # timeout, until its own re-request a second later.)
         self._next = first = self._highest
         last = min(len(self.items), first + max(2, self.pipeline, int(self._window)))
-        if self._refused_at < self._progress_sends:
+        if not self._refused_since_progress:
             # Nothing refused since the last request: the vehicle is silent, not missing
             # an item (then it refuses those after it). Its refusals of the copies to come
             # tell of no loss; a copy it takes (the item was lost after all) leaves one.
