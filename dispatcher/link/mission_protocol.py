@@ -401,7 +401,8 @@ class MissionUpload(_Transfer):
     def _sample(self, round_trip: float) -> None:
         """A request that comes a re-request's time after the item (or the count) it
         answers may be the vehicle's own re-request, its first request lost: not taken as
-        a round trip unless the link has shown round trips of that size. (Taken, the
+        a round trip unless the link has shown round trips of that size, or such come
+        LONG_SAMPLES_TAKEN in a row (a link that slow is measured after all). (Taken, the
         count's 1.02 s with its first request lost set the timeout to the protocol's 1.5 s
         for the next dozens of items: one upload in ten through 20 % loss took 25 s
         instead of 2.5 s.)"""
@@ -791,8 +792,9 @@ def start_mission_commands(
       machine would drive on with the implement up, in a field without planned turns to the
       field's end, while the field counts as worked. So ``implement``, that item as a
       command (the same param1 output and param2 setting), goes before it sets off. It is
-      optional: ArduPilot refuses an output given another function or a relay not set up,
-      which in the mission it passes over; the start goes on, the refusal noted.
+      optional: an autopilot may refuse an output it uses for something else, or a relay
+      not set up (in the mission such an item does not stop it); the start goes on, the
+      refusal noted.
     """
     commands = []
     if in_auto:
