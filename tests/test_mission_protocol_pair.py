@@ -267,6 +267,15 @@ def test_a_vehicle_that_stalls_past_the_timeout_gets_only_the_timeouts_copies():
     assert max(twice) < min(twice) + client.pipeline  # the items of the go-back only
 
 
+def test_a_vehicle_stopped_for_a_second_is_not_sent_a_pipeline_every_timeout():
+    """Past three timeouts in a row each waits twice as long: a one-second stall cost 20
+    timeouts of 8 copies each."""
+    client, server, twice = run_stalled(200, stall_at=0.03, stall_s=1.0)
+    assert client.outcome is Outcome.DONE and server.count == 200
+    assert client.stats.retries <= 8
+    assert len(twice) <= 8 * client.pipeline
+
+
 def mc_request(seq):
     from dispatcher.link import mavlink as mc
 
