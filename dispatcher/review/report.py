@@ -1065,7 +1065,6 @@ def _review_vehicle(
             plan_fuel += _fuel(machine, done_h - done_work_h, done_turns, done_work_h) or 0.0
 
     nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
-    planned_nav = nav
     plan_road_m = machine.distance_m
     mission_h = planned_s[-1] / 3600.0 if planned_s else None
     if left_out and not complete:
@@ -1079,10 +1078,8 @@ def _review_vehicle(
         plan_h, plan_fuel, plan_road_m = share * plan_h, share * plan_fuel, share * plan_road_m
         plan_turns = float(sum(1 for s in turn_seqs if s <= last))
         mission_h = planned_s[last] / 3600.0 if planned_s else None
-        planned_nav = nav = [it for it in nav if it.seq <= last]  # the route drawn too
-    planned_distance = float(
-        _leg_lengths([i.lat for i in planned_nav], [i.lon for i in planned_nav]).sum()
-    )
+        nav = [it for it in nav if it.seq <= last]  # the route drawn too
+    planned_distance = float(_leg_lengths([i.lat for i in nav], [i.lon for i in nav]).sum())
 
     # Upload and link figures: the status document when there is one, else the frames.
     attempts_f, retries_f = _upload_from_frames(frames_to)
