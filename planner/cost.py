@@ -198,14 +198,17 @@ def squeeze_figure(values, target, weights):  # type: ignore[no-untyped-def]
     ``target`` counted :data:`OVERLOAD` times more. Below the target the fleet's weighted
     hours decide, so a field moves to the machine that does it in fewer of them, or to a
     shorter road, whichever route it leaves; above it the overloads do."""
-    over = 0.0
     total = 0.0
     for i in range(values.shape[0]):
-        v = values[i]
-        total += weights[i] * v
-        if v > target:
-            over += v - target
-    return total + OVERLOAD * over
+        total += squeeze_term(values[i], target, weights[i])
+    return total
+
+
+@njit(cache=True, nogil=True)
+def squeeze_term(hours, target, weight):  # type: ignore[no-untyped-def]
+    """One route's term of :func:`squeeze_figure`: its ``hours`` times its machine's
+    ``weight``, and each hour after ``target`` :data:`OVERLOAD` times more."""
+    return weight * hours + OVERLOAD * max(0.0, hours - target)
 
 
 @dataclass(frozen=True)

@@ -10,12 +10,16 @@ routing; Ahuja et al.'s very large-scale neighbourhoods).
 
 One round picks one task at random in each route (not a pinned one). The cost of route i
 taking route a's task, in place of its own, at the best place in what is left of it, is
-route i's new road distance, or a big number if its new figure (hours under the makespan)
-would exceed the cap; the cost of keeping its own is its road distance now. The cheapest
-way of giving each route one of the picked tasks is an assignment problem over the routes,
-solved exactly (:func:`assignment`), and it is applied when it saves road: so a round finds
-the best exchange of the picked tasks along any set of disjoint cycles, and never takes a
-route above the cap. O(m^2 x route length + m^3) a round, m routes.
+route i's new figure, or a big number if its new hours would exceed the cap; the cost of
+keeping its own is its figure now. The figure is the route's road distance, or, given a
+``target``, its term of the squeeze (:func:`planner.cost.squeeze_term`: its hours weighed by
+its machine's worth to the makespan, each hour after the target counted many times) with
+its hours of driving counted ``road_weight`` times more, so that the fields go where the
+fleet does them in fewer weighed hours, but not for road that buys little. The cheapest way of
+giving each route one of the picked tasks is an assignment problem over the routes, solved
+exactly (:func:`assignment`), and it is applied when it lowers the figures' sum: so a round
+finds the best exchange of the picked tasks along any set of disjoint cycles, and never
+takes a route above the cap. O(m^2 x route length + m^3) a round, m routes.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from planner.choices import Objective
-from planner.cost import route_distance, route_value
+from planner.cost import route_distance, route_value, squeeze_term
 from planner.local_search import past
 from planner.operators import leg
 from planner.rng import randint
@@ -82,14 +86,26 @@ def assignment(costs):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.inf):  # type: ignore[no-untyped-def]
+def _squeezed(hours, driving, target, weight, road_weight):  # type: ignore[no-untyped-def]
+    """A route's figure under the squeeze: its term of the squeeze's figure and its
+    ``driving`` hours weighed ``road_weight`` times more."""
+    return squeeze_term(hours, target, weight) + road_weight * weight * driving
+
+
+@njit(cache=True, nogil=True)
+def cyclic_exchange(
+    state, perm, counts, tables, pins, cap, rounds, deadline=np.inf, target=0.0, road_weight=0.0
+):  # type: ignore[no-untyped-def]
     """``rounds`` rounds of the cyclic exchange (see the module) on the chromosome
     ``perm``/``counts`` in place, under the makespan: no route's hours (its ready time,
     service and driving, :func:`planner.cost.route_value`) above ``cap`` after an exchange
     that it was not above before. The routes keep their number of tasks; a pinned task
     neither moves nor has a task put before it. Stops early once ``deadline`` (a
-    monotonic instant) has passed. Returns the road saved (metres)."""
-    dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready, _ = tables
+    monotonic instant) has passed. Returns the road saved (metres); given a ``target`` > 0,
+    the squeeze's figure lowered instead: the sum over the routes of
+    :func:`planner.cost.squeeze_term` (with the tables' hour weights) and of their weighed
+    hours of driving times ``road_weight``."""
+    dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready, weights = tables
     m = counts.shape[0]
     begin = np.zeros(m, dtype=np.int64)  # the routes keep their sizes: their places too
     for i in range(1, m):
@@ -135,10 +151,13 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
             )
         base = 0.0
         for i in range(m):
-            base += road[i]
+            own = road[i]
+            if target > 0.0:
+                own = _squeezed(hours[i], road[i] * road_h[i], target, weights[i], road_weight)
+            base += own
             for a in range(m):
                 costs[i, a] = INFEASIBLE
-            costs[i, i] = road[i]
+            costs[i, i] = own
             if pick[i] < 0:
                 continue
             limit = max(cap, hours[i])
@@ -178,13 +197,18 @@ def cyclic_exchange(state, perm, counts, tables, pins, cap, rounds, deadline=np.
                 # a round, made the kernel 1.4 times as slow.
                 h = left_hours[i] + task_hours[i, x] + best * road_h[i]
                 if h <= limit + 1e-9:
-                    costs[i, a] = left_road[i] + best
+                    if target <= 0.0:
+                        costs[i, a] = left_road[i] + best
+                    else:
+                        costs[i, a] = _squeezed(
+                            h, (left_road[i] + best) * road_h[i], target, weights[i], road_weight
+                        )
                     place[i, a] = best_at
         given = assignment(costs)
         total = 0.0
         for i in range(m):
             total += costs[i, given[i]]
-        if not total < base - 1e-6:
+        if not total < base - (1e-6 if target <= 0.0 else 1e-7):  # metres; weighed hours
             continue
         saved += base - total
         o = 0

@@ -36,15 +36,19 @@ whose routes all end within minutes of the makespan leaves no move under the mak
 itself, so the ILS minimises the fleet's total hours instead, each hour a route ends after
 a target just under the best makespan counted OVERLOAD times (a sum, where a field may
 move to the machine that does it faster); a result whose makespan is lower is the new
-elite, and the target follows it. The same jam leaves the total road distance, the
-second objective, short of room. With ``distance_share`` > 0 (off by default), in that
-last share of the time a makespan up to ``1 + distance_slack`` times the best found by
-then counts as equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin
-starts on any route, and the road distance decides below the cap (docs/ighoa.md, "fourth
-round"); a deadline (:func:`planner.solve.solve`'s ``finish_within_h``) is such a cap in
-hours, from the first plan within it. Under a cap the ILS's walk goes by the road: it
-takes a result whose distance is within ``accept`` of the elite's, not one as far over
-the cap as ``accept`` of the makespan.
+elite, and the target follows it. Each generation the squeeze's walk is first handed
+round by cyclic exchanges under the squeeze's own figure (:mod:`planner.cyclic_exchange`):
+where every route ends near the target a field moved in is one too many, and a cycle
+through three or more routes moves the fields that one-for-one moves cannot. The same jam
+leaves the total road distance, the second objective, short of room. With
+``distance_share`` > 0 (off by default), in that last share of the time a makespan up to
+``1 + distance_slack`` times the best found by then counts as equal to it (a cap,
+:func:`planner.cost.fleet_value`), the ILS's ruin starts on any route, and the road
+distance decides below the cap (docs/ighoa.md, "fourth round"); a deadline
+(:func:`planner.solve.solve`'s ``finish_within_h``) is such a cap in hours, from the first
+plan within it. Under a cap the ILS's walk goes by the road: it takes a result whose
+distance is within ``accept`` of the elite's, not one as far over the cap as ``accept`` of
+the makespan.
 
 ``ighoa`` stays as the paper has it; these only run under ``--algorithm hybrid``.
 """
@@ -169,17 +173,33 @@ class HybridParams(IGHOAParams):
     # three or more does (500 x 30, 60 s, seeds 1-2: 1 726 and 1 689 road km without,
     # 1 668 and 1 658 with; benchmarks/RESULTS.md, 2026-11-26 19:00).
     cyclic_exchange_rounds: int = 1000
+    # Under the makespan, each generation this many rounds of the cyclic exchange by the
+    # squeeze's figure (planner.cyclic_exchange with a target) on the squeeze's walk before
+    # its ILS steps, no route past the walk's makespan; 0: never. The squeeze's moves
+    # between two routes stop where every route is near the target: a field in is a field
+    # too many. A cycle through three or more routes hands the fields round to the machines
+    # that do them in fewer weighed hours. In the exchange's figure an hour of driving
+    # counts ``squeeze_exchange_road`` times more than in the squeeze's: at 0 the exchanges
+    # bought hours of work with road the makespan never got back (500 x 30, 60 s, seeds 1-2:
+    # level makespan, 2.8 % more road). 500 x 30 with 6 passes at 60 s, seeds 1-2: 320.01 /
+    # 319.94 h, 2 090 / 2 083 km without; 319.53 / 319.52 h, 2 057 / 2 080 km with (0.5:
+    # 319.67 h, 2: 319.55 / 319.66 h); benchmarks/RESULTS.md, 2026-11-28.
+    squeeze_exchange_rounds: int = 1000
+    squeeze_exchange_road: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if (
             min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
             or min(self.population_tasks, self.cyclic_exchange_rounds) < 0
+            or self.squeeze_exchange_rounds < 0
+            or self.squeeze_exchange_road < 0.0
             or self.perturb < 1
         ):
             raise ValueError(
-                "ils_steps, ruin, tour_kicks, route_kicks, population_tasks and "
-                "cyclic_exchange_rounds must be >= 0 and perturb >= 1"
+                "ils_steps, ruin, tour_kicks, route_kicks, population_tasks, "
+                "cyclic_exchange_rounds, squeeze_exchange_rounds and squeeze_exchange_road "
+                "must be >= 0 and perturb >= 1"
             )
         shares = (self.tour_share, self.distance_share, self.restart, *self.squeeze_steps)
         if not all(0.0 <= x <= 1.0 for x in shares):

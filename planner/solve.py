@@ -459,6 +459,7 @@ def solve(
         "route_gains": 0.0,
         "other_gains": 0.0,
         "cyclic_exchange_gains": 0.0,
+        "squeeze_exchange_gains": 0.0,
     }
     gen = 0
     # hybrid's makespan cap (0: none yet): finish_within_h once a plan is within it, or in
@@ -580,6 +581,25 @@ def solve(
                 walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
             squeeze = params.squeeze_at(gen) if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
+            if squeeze > 0.0 and params.squeeze_exchange_rounds > 0:
+                # The squeeze's walk first handed round by cyclic exchanges under its figure,
+                # no route past the walk's makespan (a walk that comes out ahead of the
+                # elite on the makespan is the new elite).
+                target = float(elite_route.max()) * (1.0 - squeeze)
+                if cyclic_exchange(
+                    state, walk_perm, walk_counts, tables, pins, float(walk_route.max()),
+                    params.squeeze_exchange_rounds, stop.deadline(), target,
+                    params.squeeze_exchange_road,
+                ) > 0.0:  # fmt: skip
+                    improve_routes(walk_perm, walk_counts, tables[0], tables[1], tables[2],
+                                   neighbours, pins)  # fmt: skip
+                    walk_cost = float(
+                        evaluate(walk_perm, walk_counts, int(obj), tables, walk_route)
+                    )
+                    stats["squeeze_exchange_gains"] += 1.0
+                    if walk_cost < improved:
+                        elite_perm[:], elite_counts[:] = walk_perm, walk_counts
+                        elite_route[:], improved = walk_route, walk_cost
             # In chunks, so that a stop flag is seen between them.
             for done in range(0, params.ils_steps, ILS_CHUNK):
                 if stop.interrupted():

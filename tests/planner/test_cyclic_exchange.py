@@ -1,6 +1,8 @@
-"""The cyclic exchange (planner.cyclic_exchange): its assignment solver, its moves, and its place in
-the solver (the answer's roads under the makespan)."""
+"""The cyclic exchange (planner.cyclic_exchange): its assignment solver, its moves under both of
+its figures (the road, the squeeze's weighed hours), and its places in the solver (the answer's
+roads under the makespan; the squeeze's walk)."""
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -9,7 +11,7 @@ from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, problem_for
 from hypothesis import given
 from hypothesis import strategies as st
 
-from planner.cost import CostTables, Objective, evaluate
+from planner.cost import CostTables, Objective, evaluate, squeeze_figure
 from planner.cyclic_exchange import INFEASIBLE, assignment, cyclic_exchange
 from planner.hybrid import HybridParams
 from planner.population import random_counts
@@ -68,6 +70,77 @@ def test_the_exchange_saves_what_it_says_and_keeps_every_route_within_the_cap(
     assert np.all(after_hours <= np.maximum(cap, hours) + 1e-9)
 
 
+def _weighed_tables(problem, seed):
+    """The problem's tables with hour weights of the machines' own (a mean of one), as the
+    relaxation's duals make them."""
+    rng = np.random.default_rng(seed)
+    weights = rng.uniform(0.2, 3.0, problem.num_machines)
+    weights *= problem.num_machines / weights.sum()
+    return dataclasses.replace(CostTables.of(problem), hour_weights=weights).kernel_args()
+
+
+def _squeezed(tables, hours, road, target, road_weight):
+    """The exchange's figure under the squeeze (planner.cyclic_exchange), written out."""
+    weights, road_h = tables[8], tables[3]
+    return squeeze_figure(hours, target, weights) + road_weight * np.sum(weights * road * road_h)
+
+
+@given(
+    st.integers(2, 40), st.integers(1, 6), st.integers(0, 2**31), st.floats(0.9, 1.2),
+    st.floats(0.95, 1.0), st.sampled_from([0.0, 1.0, 2.5]),
+)  # fmt: skip
+@SETTINGS
+def test_under_the_squeeze_it_lowers_the_figure_by_what_it_says_within_the_cap(
+    n, m, seed, cap_share, target_share, road_weight
+):
+    m = min(m, n)
+    problem = problem_for(n, m, seed)
+    tables = _weighed_tables(problem, seed)
+    perm, counts = _chromosome(problem, seed)
+    before_counts = counts.copy()
+    hours, road = _hours_and_road(perm, counts, tables)
+    cap = hours.max() * cap_share
+    target = hours.max() * target_share
+    saved = cyclic_exchange(
+        make_state(seed), perm, counts, tables, NO_PINS(n), cap, 30, target=target,
+        road_weight=road_weight,
+    )  # fmt: skip
+    assert_valid(perm, counts, n, m)
+    assert np.array_equal(counts, before_counts)
+    after_hours, after_road = _hours_and_road(perm, counts, tables)
+    assert saved >= 0.0
+    before = _squeezed(tables, hours, road, target, road_weight)
+    after = _squeezed(tables, after_hours, after_road, target, road_weight)
+    assert before - after == pytest.approx(saved, rel=1e-9, abs=1e-6)
+    assert np.all(after_hours <= np.maximum(cap, hours) + 1e-9)
+
+
+def test_under_the_squeeze_the_fields_go_to_the_machines_that_do_them_in_fewer_weighed_hours():
+    """Under the squeeze the exchange goes by the machines' weighed hours, not by the road
+    (a search of its own), never past the cap, and keeps to its seed."""
+    problem = problem_for(60, 5, 4)
+    tables = _weighed_tables(problem, 4)
+    perm, counts = _chromosome(problem, 4)
+    hours, road = _hours_and_road(perm, counts, tables)
+    target = hours.max()
+    runs = []
+    for _ in range(2):
+        p, c = perm.copy(), counts.copy()
+        saved = cyclic_exchange(
+            make_state(5), p, c, tables, NO_PINS(60), target, 200, target=target
+        )
+        runs.append((saved, p, c))
+    saved, p, c = runs[0]
+    after_hours, _ = _hours_and_road(p, c, tables)
+    assert saved > 0.0
+    assert (tables[8] * after_hours).sum() < (tables[8] * hours).sum()
+    assert after_hours.max() <= target + 1e-9
+    assert np.array_equal(runs[1][1], p)  # same seed, same answer
+    by_road = perm.copy()
+    cyclic_exchange(make_state(5), by_road, counts.copy(), tables, NO_PINS(60), target, 200)
+    assert not np.array_equal(by_road, p)  # the two figures are two searches
+
+
 def test_the_exchange_finds_cycles_where_pairs_are_jammed_and_follows_its_seed():
     problem = problem_for(60, 5, 3)
     tables = CostTables.of(problem).kernel_args()
@@ -101,28 +174,36 @@ def test_a_pinned_task_neither_moves_nor_has_one_put_before_it():
         assert pins[perm[begin[i]]] == i
 
 
+def _eight_generations(problem_seed, **params):
+    """Eight generations of hybrid under the makespan on a farm of 80 fields and 8 machines
+    (``problem_seed``), seed 2, with these ``params``."""
+    problem = problem_for(80, 8, problem_seed, min_count=0)
+    return solve(
+        problem, "makespan", "hybrid", stop_after(8), seed=2, params=HybridParams(**params)
+    )
+
+
 def test_in_the_solver_the_answer_keeps_the_elites_makespan_and_drives_less():
     """The exchanges work on a copy with its own random stream: the elite's search goes
     exactly as without them, and the answer is that makespan with less road."""
-    problem = problem_for(80, 8, 2, min_count=0)
-    runs = {
-        rounds: solve(
-            problem,
-            "makespan",
-            "hybrid",
-            stop_after(8),
-            seed=2,
-            params=HybridParams(cyclic_exchange_rounds=rounds),
-        )
-        for rounds in (0, 1000)
-    }
-    without, with_ = runs[0], runs[1000]
+    without, with_ = (_eight_generations(3, cyclic_exchange_rounds=r) for r in (0, 1000))
     assert without.history == with_.history  # the same search
     assert with_.figures.makespan_h <= without.figures.makespan_h + 1e-12
     assert with_.figures.distance_m < without.figures.distance_m
     assert with_.stats["cyclic_exchange_gains"] > 0
 
 
-def test_the_cyclic_exchange_rounds_are_checked():
-    with pytest.raises(ValueError, match="cyclic_exchange_rounds"):
-        HybridParams(cyclic_exchange_rounds=-1)
+def test_the_squeezes_walk_is_handed_round_and_the_run_keeps_to_its_seed():
+    without, with_, again = (
+        _eight_generations(2, squeeze_exchange_rounds=r) for r in (0, 1000, 1000)
+    )
+    assert without.stats["squeeze_exchange_gains"] == 0
+    assert with_.stats["squeeze_exchange_gains"] > 0
+    assert with_.history != without.history  # the search is not the same one
+    assert again.routes == with_.routes and again.history == with_.history
+
+
+@pytest.mark.parametrize("name", ["cyclic_exchange_rounds", "squeeze_exchange_rounds"])
+def test_the_cyclic_exchange_rounds_are_checked(name):
+    with pytest.raises(ValueError, match=name):
+        HybridParams(**{name: -1})
