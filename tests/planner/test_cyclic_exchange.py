@@ -158,16 +158,20 @@ def test_the_exchange_finds_cycles_where_pairs_are_jammed_and_follows_its_seed()
     assert not np.array_equal(other, runs[0][1])
 
 
-def test_a_pinned_task_neither_moves_nor_has_one_put_before_it():
+@pytest.mark.parametrize("squeeze", [False, True])
+def test_a_pinned_task_neither_moves_nor_has_one_put_before_it(squeeze):
     problem = problem_for(40, 4, 5)
-    tables = CostTables.of(problem).kernel_args()
+    tables = _weighed_tables(problem, 5)
     perm, counts = _chromosome(problem, 5)
     pins = NO_PINS(40)
     begin = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for i in (0, 2):  # the first tasks of two routes pinned to them
         pins[perm[begin[i]]] = i
     hours, _ = _hours_and_road(perm, counts, tables)
-    saved = cyclic_exchange(make_state(1), perm, counts, tables, pins, 2.0 * hours.max(), 300)
+    target = hours.max() if squeeze else 0.0  # the squeeze's figure, or the road
+    saved = cyclic_exchange(
+        make_state(1), perm, counts, tables, pins, 2.0 * hours.max(), 300, target=target
+    )
     assert saved > 0.0
     begin = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for i in (0, 2):
