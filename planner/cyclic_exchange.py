@@ -118,6 +118,9 @@ def cyclic_exchange(
     costs = np.empty((m, m))
     place = np.empty((m, m), dtype=np.int64)  # put route a's task before perm[place]
     out = np.empty_like(perm)
+    # Each route's ceiling: the cap, or its hours when the call began if above it (taken
+    # from then, not round by round, so that no route creeps past it a rounding at a time).
+    ceiling = np.full(m, np.nan)
     saved = 0.0
     for _ in range(rounds):
         if past(deadline):
@@ -133,6 +136,8 @@ def cyclic_exchange(
                 service += task_hours[i, perm[k]]
             road[i] = route_distance(perm, b, c, i, dist, start_dist, end_dist)
             hours[i] = route_value(_MAKESPAN, i, road[i], service, road_h, road_f, ready, c)
+            if np.isnan(ceiling[i]):
+                ceiling[i] = max(cap, hours[i])
             q = b + randint(state, c)
             t = perm[q]
             if pins[t] >= 0:
@@ -160,7 +165,7 @@ def cyclic_exchange(
             costs[i, i] = own
             if pick[i] < 0:
                 continue
-            limit = max(cap, hours[i])
+            limit = ceiling[i]
             b = begin[i]
             c = counts[i]
             for a in range(m):

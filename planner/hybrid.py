@@ -37,7 +37,8 @@ itself, so the ILS minimises the fleet's total hours instead, each hour a route 
 a target just under the best makespan counted OVERLOAD times (a sum, where a field may
 move to the machine that does it faster); a result whose makespan is lower is the new
 elite, and the target follows it. Each generation the squeeze's walk is first handed
-round by cyclic exchanges under the squeeze's own figure (:mod:`planner.cyclic_exchange`):
+round by cyclic exchanges under the squeeze's figure, with driving counted twice
+(:mod:`planner.cyclic_exchange`):
 where every route ends near the target a field moved in is one too many, and a cycle
 through three or more routes moves the fields that one-for-one moves cannot. The same jam
 leaves the total road distance, the second objective, short of room. With
@@ -193,7 +194,7 @@ class HybridParams(IGHOAParams):
             min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
             or min(self.population_tasks, self.cyclic_exchange_rounds) < 0
             or self.squeeze_exchange_rounds < 0
-            or self.squeeze_exchange_road < 0.0
+            or not self.squeeze_exchange_road >= 0.0  # NaN too
             or self.perturb < 1
         ):
             raise ValueError(
@@ -201,11 +202,12 @@ class HybridParams(IGHOAParams):
                 "cyclic_exchange_rounds, squeeze_exchange_rounds and squeeze_exchange_road "
                 "must be >= 0 and perturb >= 1"
             )
-        shares = (self.tour_share, self.distance_share, self.restart, *self.squeeze_steps)
+        shares = (self.tour_share, self.distance_share, self.restart)
         if not all(0.0 <= x <= 1.0 for x in shares):
-            raise ValueError(
-                "tour_share, distance_share, restart and squeeze must be within [0, 1]"
-            )
+            raise ValueError("tour_share, distance_share and restart must be within [0, 1]")
+        if not all(0.0 <= x < 1.0 for x in self.squeeze_steps):
+            # a step of 1 would leave the squeeze a target of 0 h
+            raise ValueError(f"squeeze steps must be within [0, 1), not {self.squeeze}")
         if self.distance_slack < 0.0:
             raise ValueError(f"distance_slack must be >= 0, not {self.distance_slack}")
         mask(self.moves)

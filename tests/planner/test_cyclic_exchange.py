@@ -11,7 +11,7 @@ from helpers.chromosomes import NO_PINS, SETTINGS, assert_valid, problem_for
 from hypothesis import given
 from hypothesis import strategies as st
 
-from planner.cost import CostTables, Objective, evaluate, squeeze_figure
+from planner.cost import OVERLOAD, CostTables, Objective, evaluate
 from planner.cyclic_exchange import INFEASIBLE, assignment, cyclic_exchange
 from planner.hybrid import HybridParams
 from planner.population import random_counts
@@ -80,9 +80,12 @@ def _weighed_tables(problem, seed):
 
 
 def _squeezed(tables, hours, road, target, road_weight):
-    """The exchange's figure under the squeeze (planner.cyclic_exchange), written out."""
+    """The exchange's figure under the squeeze (planner.cyclic_exchange), written out: the
+    weighed hours, each hour past the target OVERLOAD times more, and the weighed hours of
+    driving ``road_weight`` times more."""
     weights, road_h = tables[8], tables[3]
-    return squeeze_figure(hours, target, weights) + road_weight * np.sum(weights * road * road_h)
+    squeeze = np.sum(weights * hours + OVERLOAD * np.clip(hours - target, 0.0, None))
+    return squeeze + road_weight * np.sum(weights * road * road_h)
 
 
 @given(

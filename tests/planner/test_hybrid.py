@@ -451,6 +451,9 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"restart": 1.5},
         {"squeeze": -0.1},
         {"squeeze": (0.002, 1.5)},
+        {"squeeze": 1.0},
+        {"squeeze_exchange_road": -1.0},
+        {"squeeze_exchange_road": float("nan")},
     ],
 )
 def test_hybrid_params_refuse_a_bad_setting(bad):
