@@ -15,11 +15,18 @@ keeping its own is its figure now. The figure is the route's road distance, or, 
 ``target``, its term of the squeeze (:func:`planner.cost.squeeze_term`: its hours weighed by
 its machine's worth to the makespan, each hour after the target counted many times) with
 its hours of driving counted ``road_weight`` times more, so that the fields go where the
-fleet does them in fewer weighed hours, but not for road that buys little. The cheapest way of
-giving each route one of the picked tasks is an assignment problem over the routes, solved
+fleet does them in fewer weighed hours, but not for road that buys little. The cheapest way
+of giving each route one of the picked tasks is an assignment problem over the routes, solved
 exactly (:func:`assignment`), and it is applied when it lowers the figures' sum: so a round
 finds the best exchange of the picked tasks along any set of disjoint cycles, and never
 takes a route above the cap. O(m^2 x route length + m^3) a round, m routes.
+
+Paths too (the ejection chains of Glover, 1996): a route's pick may be no task at all. A
+route that picks nothing gives nothing and may take a task without losing one; a route
+given another's empty pick takes nothing and only loses its own. A cycle through an empty
+pick is then a path: route a's task to b, b's to c, ..., and the route at the path's end
+one task the lighter, the one at its start one heavier. So the exchange also moves a field
+from a full route towards one with room along a chain, where no single move fits.
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ from planner.choices import Objective
 from planner.cost import route_distance, route_value, squeeze_term
 from planner.local_search import past
 from planner.operators import leg
-from planner.rng import randint
+from planner.rng import randint, uniform
 
 INFEASIBLE = 1e15  # the cost of a route over the cap (metres; far above any road)
 _MAKESPAN = int(Objective.MAKESPAN)  # the route figure the cap bounds: hours
@@ -94,30 +101,44 @@ def _squeezed(hours, driving, target, weight, road_weight):  # type: ignore[no-u
 
 @njit(cache=True, nogil=True)
 def cyclic_exchange(
-    state, perm, counts, tables, pins, cap, rounds, deadline=np.inf, target=0.0, road_weight=0.0
+    state,
+    perm,
+    counts,
+    tables,
+    pins,
+    cap,
+    rounds,
+    deadline=np.inf,
+    target=0.0,
+    road_weight=0.0,
+    empty_share=0.0,
+    min_count=0,
 ):  # type: ignore[no-untyped-def]
     """``rounds`` rounds of the cyclic exchange (see the module) on the chromosome
     ``perm``/``counts`` in place, under the makespan: no route's hours (its ready time,
-    service and driving, :func:`planner.cost.route_value`) above ``cap`` after an exchange
-    that it was not above before. The routes keep their number of tasks; a pinned task
-    neither moves nor has a task put before it. Stops early once ``deadline`` (a
-    monotonic instant) has passed. Returns the road saved (metres); given a ``target`` > 0,
-    the squeeze's figure lowered instead: the sum over the routes of
+    service and driving, :func:`planner.cost.route_value`) above ``cap``, or above its hours
+    when the call began if it was above the cap then. With ``empty_share`` 0 the routes keep
+    their number of tasks; otherwise each route's pick is no task with that chance (always
+    for an empty route), and the routes' sizes change along paths, none below
+    ``min_count``. A pinned task neither moves nor has a task put before it. Stops early
+    once ``deadline`` (a monotonic instant) has passed. Returns the road saved (metres);
+    given a ``target`` > 0, the squeeze's figure lowered instead: the sum over the routes of
     :func:`planner.cost.squeeze_term` (with the tables' hour weights) and of their weighed
     hours of driving times ``road_weight``."""
     dist, start_dist, end_dist, road_h, road_f, task_hours, _, ready, weights = tables
     m = counts.shape[0]
-    begin = np.zeros(m, dtype=np.int64)  # the routes keep their sizes: their places too
-    for i in range(1, m):
-        begin[i] = begin[i - 1] + counts[i - 1]
+    begin = np.zeros(m, dtype=np.int64)  # where each route starts in perm, this round
     hours = np.zeros(m)
     road = np.zeros(m)
-    pick = np.full(m, -1, dtype=np.int64)  # the picked task's place in perm
-    left_hours = np.zeros(m)  # route i without its picked task (kept busy: as many tasks)
+    pick = np.full(m, -1, dtype=np.int64)  # the picked task's place in perm; -1: none
+    empty = np.zeros(m, dtype=np.bool_)  # the route's pick is no task (gives nothing)
+    left_hours = np.zeros(m)  # route i without its pick, taking a task (busy)
+    gone_hours = np.zeros(m)  # route i without its pick, taking nothing
     left_road = np.zeros(m)
     costs = np.empty((m, m))
     place = np.empty((m, m), dtype=np.int64)  # put route a's task before perm[place]
     out = np.empty_like(perm)
+    new_counts = np.empty_like(counts)
     # Each route's ceiling: the cap, or its hours when the call began if above it (taken
     # from then, not round by round, so that no route creeps past it a rounding at a time).
     ceiling = np.full(m, np.nan)
@@ -125,11 +146,13 @@ def cyclic_exchange(
     for _ in range(rounds):
         if past(deadline):
             break
+        begin[0] = 0
+        for i in range(1, m):
+            begin[i] = begin[i - 1] + counts[i - 1]
         for i in range(m):
             pick[i] = -1
+            empty[i] = False
             c = counts[i]
-            if c == 0:
-                continue
             b = begin[i]
             service = 0.0
             for k in range(b, b + c):
@@ -138,6 +161,16 @@ def cyclic_exchange(
             hours[i] = route_value(_MAKESPAN, i, road[i], service, road_h, road_f, ready, c)
             if np.isnan(ceiling[i]):
                 ceiling[i] = max(cap, hours[i])
+            if empty_share > 0.0 and (c == 0 or uniform(state) < empty_share):
+                empty[i] = True  # gives nothing; may take a task (then one more)
+                left_road[i] = road[i]
+                left_hours[i] = route_value(
+                    _MAKESPAN, i, road[i], service, road_h, road_f, ready, c + 1
+                )
+                gone_hours[i] = hours[i]
+                continue
+            if c == 0:
+                continue  # without empty picks an empty route stays out
             q = b + randint(state, c)
             t = perm[q]
             if pins[t] >= 0:
@@ -154,6 +187,10 @@ def cyclic_exchange(
             left_hours[i] = route_value(
                 _MAKESPAN, i, left_road[i], service - task_hours[i, t], road_h, road_f, ready, c
             )
+            gone_road = left_road[i] if c > 1 else 0.0
+            gone_hours[i] = route_value(
+                _MAKESPAN, i, gone_road, service - task_hours[i, t], road_h, road_f, ready, c - 1
+            )
         base = 0.0
         for i in range(m):
             own = road[i]
@@ -163,13 +200,26 @@ def cyclic_exchange(
             for a in range(m):
                 costs[i, a] = INFEASIBLE
             costs[i, i] = own
-            if pick[i] < 0:
+            if pick[i] < 0 and not empty[i]:
                 continue
             limit = ceiling[i]
             b = begin[i]
             c = counts[i]
             for a in range(m):
-                if a == i or pick[a] < 0:
+                if a == i or (pick[a] < 0 and not empty[a]):
+                    continue
+                if empty[a]:
+                    # route i takes nothing: loses its pick, or stays as it is
+                    if empty[i]:
+                        costs[i, a] = own
+                    elif c - 1 >= min_count:
+                        gr = left_road[i] if c > 1 else 0.0
+                        if target <= 0.0:
+                            costs[i, a] = gr
+                        else:
+                            costs[i, a] = _squeezed(
+                                gone_hours[i], gr * road_h[i], target, weights[i], road_weight
+                            )
                     continue
                 x = perm[pick[a]]
                 best = np.inf
@@ -221,12 +271,21 @@ def cyclic_exchange(
             a = given[i]
             b = begin[i]
             c = counts[i]
+            n_i = c
+            takes = a != i and not empty[a]
+            gives = a != i and not empty[i]
             for k in range(b, b + c + 1):
-                if a != i and k == place[i, a]:
+                if takes and k == place[i, a]:
                     out[o] = perm[pick[a]]
                     o += 1
-                if k < b + c and (a == i or k != pick[i]):
+                if k < b + c and not (gives and k == pick[i]):
                     out[o] = perm[k]
                     o += 1
+            if takes:
+                n_i += 1
+            if gives:
+                n_i -= 1
+            new_counts[i] = n_i
         perm[:] = out
+        counts[:] = new_counts
     return saved

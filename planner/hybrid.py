@@ -187,6 +187,14 @@ class HybridParams(IGHOAParams):
     # 319.67 h, 2: 319.55 / 319.66 h); benchmarks/RESULTS.md, 2026-11-28.
     squeeze_exchange_rounds: int = 1000
     squeeze_exchange_road: float = 1.0
+    # In those exchanges, each route's pick is no field with this chance (planner.
+    # cyclic_exchange): a cycle through it is a path, a field handed on from route to route
+    # towards one with room, the sizes changing where no single move fits. Six passes,
+    # 60 s, seeds 1-4: 319.53 / 319.52 / 319.72 / 319.55 h without, 319.40 / 319.30 /
+    # 319.22 / 319.49 h at 0.2 (0.1: 319.40 / 319.42 h, 0.4: 319.62 / 319.32 h); 100 x 10
+    # seeds 1-5 33.116 h on average without, 33.138 h at 0.2 (benchmarks/RESULTS.md,
+    # 2026-11-28 09:20).
+    squeeze_exchange_empty: float = 0.2
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -202,9 +210,12 @@ class HybridParams(IGHOAParams):
                 "cyclic_exchange_rounds, squeeze_exchange_rounds and squeeze_exchange_road "
                 "must be >= 0 and perturb >= 1"
             )
-        shares = (self.tour_share, self.distance_share, self.restart)
+        shares = (self.tour_share, self.distance_share, self.restart, self.squeeze_exchange_empty)
         if not all(0.0 <= x <= 1.0 for x in shares):
-            raise ValueError("tour_share, distance_share and restart must be within [0, 1]")
+            raise ValueError(
+                "tour_share, distance_share, restart and squeeze_exchange_empty must be "
+                "within [0, 1]"
+            )
         if not all(0.0 <= x < 1.0 for x in self.squeeze_steps):
             # a step of 1 would leave the squeeze a target of 0 h
             raise ValueError(f"squeeze steps must be within [0, 1), not {self.squeeze}")

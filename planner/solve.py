@@ -589,7 +589,8 @@ def solve(
                 if cyclic_exchange(
                     state, walk_perm, walk_counts, tables, pins, float(walk_route.max()),
                     params.squeeze_exchange_rounds, stop.deadline(), target,
-                    float(params.squeeze_exchange_road),
+                    float(params.squeeze_exchange_road), float(params.squeeze_exchange_empty),
+                    min_count,
                 ) > 0.0:  # fmt: skip
                     improve_routes(walk_perm, walk_counts, tables[0], tables[1], tables[2],
                                    neighbours, pins)  # fmt: skip

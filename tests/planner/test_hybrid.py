@@ -454,6 +454,8 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"squeeze": 1.0},
         {"squeeze_exchange_road": -1.0},
         {"squeeze_exchange_road": float("nan")},
+        {"squeeze_exchange_empty": 1.5},
+        {"squeeze_exchange_empty": float("nan")},
     ],
 )
 def test_hybrid_params_refuse_a_bad_setting(bad):
