@@ -24,8 +24,8 @@ takes a route above the cap. O(m^2 x route length + m^3) a round, m routes.
 Paths too (the ejection chains of Glover, 1996): a route's pick may be no task at all. A
 route that picks nothing gives nothing and may take a task without losing one; a route
 given another's empty pick takes nothing and only loses its own. A cycle through an empty
-pick is then a path: route a's task to b, b's to c, ..., and the route at the path's end
-one task the lighter, the one at its start one heavier. So the exchange also moves a field
+pick is then a path: route a's task to b, b's to c, ..., and the route at the path's start
+one task the lighter, the one at its end one heavier. So the exchange also moves a field
 from a full route towards one with room along a chain, where no single move fits.
 """
 
@@ -212,7 +212,7 @@ def cyclic_exchange(
                     # route i takes nothing: loses its pick, or stays as it is
                     if empty[i]:
                         costs[i, a] = own
-                    elif c - 1 >= min_count:
+                    elif c - 1 >= min_count and gone_hours[i] <= limit + 1e-9:
                         gr = left_road[i] if c > 1 else 0.0
                         if target <= 0.0:
                             costs[i, a] = gr

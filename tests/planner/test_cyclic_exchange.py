@@ -90,7 +90,7 @@ def _squeezed(tables, hours, road, target, road_weight):
 
 @given(
     st.integers(2, 40), st.integers(1, 6), st.integers(0, 2**31), st.floats(0.9, 1.2),
-    st.floats(0.95, 1.0), st.sampled_from([0.0, 1.0, 2.5]), st.sampled_from([0.0, 0.3, 1.0]),
+    st.floats(0.95, 1.0), st.sampled_from([0.0, 1.0, 2.5]), st.sampled_from([0.0, 0.3, 0.7]),
     st.integers(0, 1),
 )  # fmt: skip
 @SETTINGS
@@ -184,8 +184,8 @@ def test_the_exchange_finds_cycles_where_pairs_are_jammed_and_follows_its_seed()
     assert not np.array_equal(other, runs[0][1])
 
 
-@pytest.mark.parametrize("squeeze", [False, True])
-def test_a_pinned_task_neither_moves_nor_has_one_put_before_it(squeeze):
+@pytest.mark.parametrize(("squeeze", "empty_share"), [(False, 0.0), (True, 0.0), (True, 0.3)])
+def test_a_pinned_task_neither_moves_nor_has_one_put_before_it(squeeze, empty_share):
     problem = problem_for(40, 4, 5)
     tables = _weighed_tables(problem, 5)
     perm, counts = _chromosome(problem, 5)
@@ -196,8 +196,9 @@ def test_a_pinned_task_neither_moves_nor_has_one_put_before_it(squeeze):
     hours, _ = _hours_and_road(perm, counts, tables)
     target = hours.max() if squeeze else 0.0  # the squeeze's figure, or the road
     saved = cyclic_exchange(
-        make_state(1), perm, counts, tables, pins, 2.0 * hours.max(), 300, target=target
-    )
+        make_state(1), perm, counts, tables, pins, 2.0 * hours.max(), 300, target=target,
+        empty_share=empty_share,
+    )  # fmt: skip
     assert saved > 0.0
     begin = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for i in (0, 2):
@@ -219,8 +220,8 @@ def test_in_the_solver_the_answer_keeps_the_elites_makespan_and_drives_less():
     without, with_ = (_eight_generations(2, cyclic_exchange_rounds=r) for r in (0, 1000))
     assert without.history == with_.history  # the same search
     assert with_.figures.makespan_h <= without.figures.makespan_h + 1e-12
-    # (whether the last copy found road to save depends on the run: here it did)
-    assert with_.figures.distance_m < without.figures.distance_m
+    # never more road; less when the last copy found road to save, which depends on the run
+    assert with_.figures.distance_m <= without.figures.distance_m
     assert with_.stats["cyclic_exchange_gains"] > 0
 
 
