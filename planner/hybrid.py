@@ -37,15 +37,14 @@ itself, so the ILS minimises the fleet's total hours instead, each hour a route 
 a target just under the best makespan counted OVERLOAD times (a sum, where a field may
 move to the machine that does it faster); a result whose makespan is lower is the new
 elite, and the target follows it. Each generation the squeeze's walk is first handed
-round by cyclic exchanges under the squeeze's figure, with driving counted twice
-(:mod:`planner.cyclic_exchange`):
-where every route ends near the target a field moved in is one too many, and a cycle
-through three or more routes moves the fields that one-for-one moves cannot. The same jam
-leaves the total road distance, the second objective, short of room. With
-``distance_share`` > 0 (off by default), in that last share of the time a makespan up to
-``1 + distance_slack`` times the best found by then counts as equal to it (a cap,
-:func:`planner.cost.fleet_value`), the ILS's ruin starts on any route, and the road
-distance decides below the cap (docs/ighoa.md, "fourth round"); a deadline
+round by cyclic exchanges and paths under the squeeze's figure, with driving counted twice
+(:mod:`planner.cyclic_exchange`): where every route ends near the target a field moved in
+is one too many, and a cycle or a chain through three or more routes moves the fields that
+one-for-one moves cannot. The same jam leaves the total road distance, the second
+objective, short of room. With ``distance_share`` > 0 (off by default), in that last share
+of the time a makespan up to ``1 + distance_slack`` times the best found by then counts as
+equal to it (a cap, :func:`planner.cost.fleet_value`), the ILS's ruin starts on any route,
+and the road distance decides below the cap (docs/ighoa.md, "fourth round"); a deadline
 (:func:`planner.solve.solve`'s ``finish_within_h``) is such a cap in hours, from the first
 plan within it. Under a cap the ILS's walk goes by the road: it takes a result whose
 distance is within ``accept`` of the elite's, not one as far over the cap as ``accept`` of
