@@ -134,6 +134,7 @@ def cyclic_exchange(
     empty = np.zeros(m, dtype=np.bool_)  # the route's pick is no task (gives nothing)
     left_hours = np.zeros(m)  # route i without its pick, taking a task (busy)
     gone_hours = np.zeros(m)  # route i without its pick, taking nothing
+    gone_road = np.zeros(m)
     left_road = np.zeros(m)
     costs = np.empty((m, m))
     place = np.empty((m, m), dtype=np.int64)  # put route a's task before perm[place]
@@ -168,6 +169,7 @@ def cyclic_exchange(
                     _MAKESPAN, i, road[i], service, road_h, road_f, ready, c + 1
                 )
                 gone_hours[i] = hours[i]
+                gone_road[i] = road[i]
                 continue
             if c == 0:
                 continue  # without empty picks an empty route stays out
@@ -187,9 +189,9 @@ def cyclic_exchange(
             left_hours[i] = route_value(
                 _MAKESPAN, i, left_road[i], service - task_hours[i, t], road_h, road_f, ready, c
             )
-            gone_road = left_road[i] if c > 1 else 0.0
+            gone_road[i] = left_road[i] if c > 1 else 0.0
             gone_hours[i] = route_value(
-                _MAKESPAN, i, gone_road, service - task_hours[i, t], road_h, road_f, ready, c - 1
+                _MAKESPAN, i, gone_road[i], service - task_hours[i, t], road_h, road_f, ready, c - 1
             )
         base = 0.0
         for i in range(m):
@@ -213,13 +215,13 @@ def cyclic_exchange(
                     if empty[i]:
                         costs[i, a] = own
                     elif c - 1 >= min_count and gone_hours[i] <= limit + 1e-9:
-                        gr = left_road[i] if c > 1 else 0.0
                         if target <= 0.0:
-                            costs[i, a] = gr
+                            costs[i, a] = gone_road[i]
                         else:
                             costs[i, a] = _squeezed(
-                                gone_hours[i], gr * road_h[i], target, weights[i], road_weight
-                            )
+                                gone_hours[i], gone_road[i] * road_h[i], target, weights[i],
+                                road_weight,
+                            )  # fmt: skip
                     continue
                 x = perm[pick[a]]
                 best = np.inf
