@@ -70,13 +70,19 @@ def test_the_exchange_saves_what_it_says_and_keeps_every_route_within_the_cap(
     assert np.all(after_hours <= np.maximum(cap, hours) + 1e-9)
 
 
-def _weighed_tables(problem, seed):
+def _weighed_tables(problem, seed, ready=False):
     """The problem's tables with hour weights of the machines' own (a mean of one), as the
-    relaxation's duals make them."""
+    relaxation's duals make them; with ``ready``, some machines busy for a while before
+    their route starts (a re-plan: an empty route then costs no hours, a route given its
+    first field costs that wait too)."""
     rng = np.random.default_rng(seed)
     weights = rng.uniform(0.2, 3.0, problem.num_machines)
     weights *= problem.num_machines / weights.sum()
-    return dataclasses.replace(CostTables.of(problem), hour_weights=weights).kernel_args()
+    tables = dataclasses.replace(CostTables.of(problem), hour_weights=weights)
+    if ready:
+        busy = rng.uniform(0.0, 2.0, problem.num_machines) * (rng.uniform(size=weights.size) < 0.6)
+        tables = dataclasses.replace(tables, ready_h=busy)
+    return tables.kernel_args()
 
 
 def _squeezed(tables, hours, road, target, road_weight):
@@ -91,15 +97,15 @@ def _squeezed(tables, hours, road, target, road_weight):
 @given(
     st.integers(2, 40), st.integers(1, 6), st.integers(0, 2**31), st.floats(0.9, 1.2),
     st.floats(0.95, 1.0), st.sampled_from([0.0, 1.0, 2.5]), st.sampled_from([0.0, 0.3, 0.7]),
-    st.integers(0, 1),
+    st.integers(0, 1), st.booleans(),
 )  # fmt: skip
 @SETTINGS
 def test_under_the_squeeze_it_lowers_the_figure_by_what_it_says_within_the_cap(
-    n, m, seed, cap_share, target_share, road_weight, empty_share, min_count
+    n, m, seed, cap_share, target_share, road_weight, empty_share, min_count, ready
 ):
     m = min(m, n)
     problem = problem_for(n, m, seed, min_count=min_count)
-    tables = _weighed_tables(problem, seed)
+    tables = _weighed_tables(problem, seed, ready)
     perm, counts = _chromosome(problem, seed, min_count)
     before_counts = counts.copy()
     hours, road = _hours_and_road(perm, counts, tables)
