@@ -166,14 +166,24 @@ def route_value(objective, machine, s, extra, road_h, road_f, ready, size):  # t
     """A route's share of the objective (as :func:`evaluate` gives it) from its distance
     ``s`` and ``extra``, the sum of its tasks' in-field figures (hours, or litres for
     fuel); ``size`` is its number of tasks (an empty route costs nothing, a busy
-    machine's ready time included). For the local search's O(1) move evaluations."""
+    machine's ready time included). For the local search's O(1) move evaluations. (The
+    machine's figures read first, then the sum picked, as :func:`planner.operators.leg`
+    does, for its speed.)"""
+    return _route_value_of(
+        objective, s, extra, road_h[machine], road_f[machine], ready[machine], size
+    )
+
+
+@njit(cache=True, nogil=True)
+def _route_value_of(objective, s, extra, road_h, road_f, ready, size):  # type: ignore[no-untyped-def]
+    """:func:`route_value` from the machine's own figures."""
     if objective == 0 or objective == 4:
         return s
     if objective == 2:
-        return s * road_h[machine] * road_f[machine] + extra
+        return s * road_h * road_f + extra
     if size == 0:
-        return s * road_h[machine] + extra
-    return s * road_h[machine] + extra + ready[machine]
+        return s * road_h + extra
+    return s * road_h + extra + ready
 
 
 @njit(cache=True, nogil=True)
@@ -209,6 +219,76 @@ def squeeze_term(hours, target, weight):  # type: ignore[no-untyped-def]
     """One route's term of :func:`squeeze_figure`: its ``hours`` times its machine's
     ``weight``, and each hour after ``target`` :data:`OVERLOAD` times more."""
     return weight * hours + OVERLOAD * max(0.0, hours - target)
+
+
+@njit(cache=True, nogil=True)
+def largest_three(values, top):  # type: ignore[no-untyped-def]
+    """The routes of the three largest ``values`` into ``top``, largest first (-1 where
+    there are fewer routes): what :func:`fleet_gain` needs to price a change of a min-max
+    figure in O(1)."""
+    top[:] = -1
+    for r in range(values.shape[0]):
+        v = values[r]
+        if top[0] < 0 or v > values[top[0]]:
+            top[2], top[1], top[0] = top[1], top[0], r
+        elif top[1] < 0 or v > values[top[1]]:
+            top[2], top[1] = top[1], r
+        elif top[2] < 0 or v > values[top[2]]:
+            top[2] = r
+
+
+@njit(cache=True, nogil=True)
+def fleet_gain(  # type: ignore[no-untyped-def]
+    objective, values, lengths, cap, weights, top, a, value_a, length_a, b, value_b, length_b
+):
+    """How much :func:`fleet_value` falls when route ``a``'s share and distance become
+    ``value_a`` and ``length_a`` and route ``b``'s (``b`` >= 0; -1: none) ``value_b`` and
+    ``length_b``, in O(1) (``top``: :func:`largest_three` of ``values``): the moves' price
+    in the local search, without adding up every route. The figures are read first and
+    the gain worked out from the numbers (as :func:`planner.operators.leg` does)."""
+    at_b = max(b, 0)
+    return _gain_of(
+        objective, cap, a, values[a], lengths[a], weights[a], value_a, length_a,
+        b, values[at_b], lengths[at_b], weights[at_b], value_b, length_b,
+        top[0], values[max(top[0], 0)], top[1], values[max(top[1], 0)],
+        top[2], values[max(top[2], 0)],
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _gain_of(  # type: ignore[no-untyped-def]
+    objective, cap, a, old_a, old_length_a, weight_a, value_a, length_a,
+    b, old_b, old_length_b, weight_b, value_b, length_b, r0, v0, r1, v1, r2, v2,
+):  # fmt: skip
+    """:func:`fleet_gain` from the routes' figures read."""
+    tie = old_length_a - length_a
+    if b >= 0:
+        tie += old_length_b - length_b
+    if cap < 0.0:  # the squeeze: fleet_value is a sum of squeeze_terms
+        target = -cap
+        gain = squeeze_term(old_a, target, weight_a) - squeeze_term(value_a, target, weight_a)
+        if b >= 0:
+            gain += squeeze_term(old_b, target, weight_b)
+            gain -= squeeze_term(value_b, target, weight_b)
+        return gain + TIE_BREAK * tie
+    if objective == 3 or objective == 4:
+        # The largest share of the routes that stay as they are: the first of the three
+        # largest that is neither a nor b.
+        rest = -np.inf
+        if r0 >= 0 and r0 != a and r0 != b:
+            rest = v0
+        elif r1 >= 0 and r1 != a and r1 != b:
+            rest = v1
+        elif r2 >= 0 and r2 != a and r2 != b:
+            rest = v2
+        new = max(max(rest, value_a), cap)
+        if b >= 0:
+            new = max(new, value_b)
+        return max(v0, cap) - new + TIE_BREAK * tie
+    gain = old_a - value_a
+    if b >= 0:
+        gain += old_b - value_b
+    return gain
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ import time
 import numpy as np
 from numba import njit, objmode
 
+from planner.cost import fleet_gain, largest_three
 from planner.cost import fleet_value as _objective
 from planner.cost import route_value as _route_value
 from planner.moves import (
@@ -109,12 +110,19 @@ def nearest_neighbours(dist: np.ndarray, k: int) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _node(routes, sizes, r, p):  # type: ignore[no-untyped-def]
-    """Route r's node at position p; -1 before the first task, -2 after the last."""
+    """Route r's node at position p; -1 before the first task, -2 after the last. (Read
+    first, then picked, as :func:`planner.operators.leg` is, for its speed.)"""
+    return _pick_node(p, sizes[r], routes[r, min(max(p, 0), routes.shape[1] - 1)])
+
+
+@njit(cache=True, nogil=True)
+def _pick_node(p, size, task):  # type: ignore[no-untyped-def]
+    """:func:`_node`'s answer from the route's size and the task read."""
     if p < 0:
         return -1
-    if p >= sizes[r]:
+    if p >= size:
         return -2
-    return routes[r, p]
+    return task
 
 
 @njit(cache=True, nogil=True)
@@ -201,8 +209,8 @@ def allocation_search(  # type: ignore[no-untyped-def]
     buf = np.empty(n, dtype=np.int64)
     current = _objective(objective, values, lengths, cap, weights)
     total = lengths.sum()
-    trial_values = values.copy()
-    trial_lengths = lengths.copy()
+    top = np.empty(3, dtype=np.int64)  # the three longest routes: a move priced in O(1)
+    largest_three(values, top)
     moves = 0
     late = False
     for _ in range(max_passes):
@@ -249,25 +257,19 @@ def allocation_search(  # type: ignore[no-untyped-def]
                             + leg(t, v, b, dist, start_dist, end_dist)
                             - leg(u, v, b, dist, start_dist, end_dist)
                         )
-                        trial_lengths[a] = lengths[a] + removal
-                        trial_lengths[b] = lengths[b] + insertion
+                        la = lengths[a] + removal
+                        lb = lengths[b] + insertion
                         ea = extras[a] - (task_x[a, t] if use_extra else 0.0)
                         eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
-                        trial_values[a] = _route_value(
-                            objective, a, trial_lengths[a], ea, road_h, road_f, ready, sizes[a] - 1
+                        va = _route_value(objective, a, la, ea, road_h, road_f, ready, sizes[a] - 1)
+                        vb = _route_value(objective, b, lb, eb, road_h, road_f, ready, sizes[b] + 1)
+                        gain = fleet_gain(
+                            objective, values, lengths, cap, weights, top, a, va, la, b, vb, lb
                         )
-                        trial_values[b] = _route_value(
-                            objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b] + 1
-                        )
-                        gain = current - _objective(
-                            objective, trial_values, trial_lengths, cap, weights
-                        )
-                        gs = total - trial_lengths.sum()
+                        gs = -removal - insertion
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
                             best_kind, best_b, best_p, best_w = 0, b, pw + side, w
-                        trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
-                        trial_values[a], trial_values[b] = values[a], values[b]
                 if move_mask & SEGMENT_RELOCATE:
                     for side in range(2):
                         if side == 0 and pins[w] >= 0:
@@ -285,23 +287,21 @@ def allocation_search(  # type: ignore[no-untyped-def]
                                     routes, sizes, pref, lengths, a, pa, length, b, pw + side,
                                     rev == 1, dist, start_dist, end_dist,
                                 )  # fmt: skip
-                                trial_lengths[a], trial_lengths[b] = la, lb
-                                trial_values[a] = _route_value(
+                                va = _route_value(
                                     objective, a, la, ea, road_h, road_f, ready, sizes[a] - length
                                 )
-                                trial_values[b] = _route_value(
+                                vb = _route_value(
                                     objective, b, lb, eb, road_h, road_f, ready, sizes[b] + length
                                 )
-                                gain = current - _objective(
-                                    objective, trial_values, trial_lengths, cap, weights
-                                )
-                                gs = total - trial_lengths.sum()
+                                gain = fleet_gain(
+                                    objective, values, lengths, cap, weights, top, a, va, la, b,
+                                    vb, lb,
+                                )  # fmt: skip
+                                gs = lengths[a] + lengths[b] - la - lb
                                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
                                     best_gain, best_gs = gain, gs
                                     best_kind, best_b, best_p, best_w = 3, b, pw + side, w
                                     best_var = length * 2 + rev
-                                trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
-                                trial_values[a], trial_values[b] = values[a], values[b]
                 if move_mask & TWO_OPT_STAR:
                     for var in range(2):
                         if not two_opt_star_allowed(
@@ -315,22 +315,15 @@ def allocation_search(  # type: ignore[no-untyped-def]
                         ea, eb = 0.0, 0.0
                         if use_extra:
                             ea, eb = _star_extras(routes, sizes, a, pa, b, pw, var, task_x)
-                        trial_lengths[a], trial_lengths[b] = la, lb
-                        trial_values[a] = _route_value(
-                            objective, a, la, ea, road_h, road_f, ready, na
+                        va = _route_value(objective, a, la, ea, road_h, road_f, ready, na)
+                        vb = _route_value(objective, b, lb, eb, road_h, road_f, ready, nb)
+                        gain = fleet_gain(
+                            objective, values, lengths, cap, weights, top, a, va, la, b, vb, lb
                         )
-                        trial_values[b] = _route_value(
-                            objective, b, lb, eb, road_h, road_f, ready, nb
-                        )
-                        gain = current - _objective(
-                            objective, trial_values, trial_lengths, cap, weights
-                        )
-                        gs = total - trial_lengths.sum()
+                        gs = lengths[a] + lengths[b] - la - lb
                         if _better(gain, gs, best_gain, best_gs, eps, lexi):
                             best_gain, best_gs = gain, gs
                             best_kind, best_b, best_p, best_w, best_var = 2, b, pw, w, var
-                        trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
-                        trial_values[a], trial_values[b] = values[a], values[b]
                 # Exchange t and w.
                 if pins[w] >= 0 or not move_mask & EXCHANGE:
                     continue
@@ -348,23 +341,19 @@ def allocation_search(  # type: ignore[no-untyped-def]
                     - leg(prev_w, w, b, dist, start_dist, end_dist)
                     - leg(w, next_w, b, dist, start_dist, end_dist)
                 )
-                trial_lengths[a] = lengths[a] + da
-                trial_lengths[b] = lengths[b] + db
+                la = lengths[a] + da
+                lb = lengths[b] + db
                 ea = extras[a] + ((task_x[a, w] - task_x[a, t]) if use_extra else 0.0)
                 eb = extras[b] + ((task_x[b, t] - task_x[b, w]) if use_extra else 0.0)
-                trial_values[a] = _route_value(
-                    objective, a, trial_lengths[a], ea, road_h, road_f, ready, sizes[a]
+                va = _route_value(objective, a, la, ea, road_h, road_f, ready, sizes[a])
+                vb = _route_value(objective, b, lb, eb, road_h, road_f, ready, sizes[b])
+                gain = fleet_gain(
+                    objective, values, lengths, cap, weights, top, a, va, la, b, vb, lb
                 )
-                trial_values[b] = _route_value(
-                    objective, b, trial_lengths[b], eb, road_h, road_f, ready, sizes[b]
-                )
-                gain = current - _objective(objective, trial_values, trial_lengths, cap, weights)
-                gs = total - trial_lengths.sum()
+                gs = -da - db
                 if _better(gain, gs, best_gain, best_gs, eps, lexi):
                     best_gain, best_gs = gain, gs
                     best_kind, best_b, best_p, best_w = 1, b, pw, w
-                trial_lengths[a], trial_lengths[b] = lengths[a], lengths[b]
-                trial_values[a], trial_values[b] = values[a], values[b]
             if best_kind < 0:
                 if use_bits:
                     dont_look[t] = True
@@ -454,8 +443,7 @@ def allocation_search(  # type: ignore[no-untyped-def]
             )
             prefix(routes, sizes, a, a, dist, start_dist, pref)
             prefix(routes, sizes, b, b, dist, start_dist, pref)
-            trial_values[:] = values
-            trial_lengths[:] = lengths
+            largest_three(values, top)
             current = _objective(objective, values, lengths, cap, weights)
             total = lengths.sum()
             if use_bits and (objective == 3 or objective == 4):

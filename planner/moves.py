@@ -245,8 +245,8 @@ def ruin_recreate(  # type: ignore[no-untyped-def]
     decides; with ``cap`` < 0 the squeeze's figure: :func:`planner.cost.fleet_value`). With
     ``focus_longest`` the seed is taken from the route of highest share of the objective,
     the one that sets a min-max figure: its neighbourhood is re-cut between the routes
-    around it. O(size n m) on the chromosome in place. A route is never left below
-    ``min_count`` and a pinned task never moves (nor has one put before it). The tasks
+    around it. O(n m + size (n + m²)) on the chromosome in place. A route is never left
+    below ``min_count`` and a pinned task never moves (nor has one put before it). The tasks
     moved are written to ``moved`` (the rest -1); returns how many."""
     n = perm.shape[0]
     m = counts.shape[0]
@@ -293,8 +293,8 @@ def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # t
     broken by the distance it adds; never before a pinned task.
     The recreate half of :func:`ruin_recreate`, and the repair of a warm start whose
     tasks were not all in a route (a machine gone: its tasks go where they cost least).
-    O(len(tasks) n m), on the chromosome in place; the caller keeps the routes' minimum
-    sizes and the pinned tasks out of ``tasks``."""
+    O(n m + len(tasks) (n + m²)), on the chromosome in place; the caller keeps the
+    routes' minimum sizes and the pinned tasks out of ``tasks``."""
     dist, start_dist, end_dist, road_h, road_f, task_h, task_f, ready, weights = tables
     n = perm.shape[0]
     m = counts.shape[0]
@@ -324,24 +324,30 @@ def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # t
         best_r = -1
         best_p = -1
         for b in range(m):
+            # The route's cheapest place: the fleet's figure grows with the route's length,
+            # so it is the route's best, and the figure is worked out once a route.
             first = 1 if sizes[b] > 0 and pins[routes[b, 0]] >= 0 else 0
-            eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
-            old_value, old_length = values[b], lengths[b]
+            add = np.inf
+            at = -1
             for p in range(first, sizes[b] + 1):
                 u = routes[b, p - 1] if p > 0 else -1
                 v = routes[b, p] if p < sizes[b] else -2
-                add = (
+                here = (
                     leg(u, t, b, dist, start_dist, end_dist)
                     + leg(t, v, b, dist, start_dist, end_dist)
                     - leg(u, v, b, dist, start_dist, end_dist)
                 )
-                lengths[b] = old_length + add
-                values[b] = route_value(objective, b, lengths[b], eb, road_h, road_f, ready, 1)
-                value = fleet_value(objective, values, lengths, cap, weights)
-                eps = 1e-9 * max(1.0, abs(value))
-                if value < best_obj - eps or (value <= best_obj + eps and add < best_add):
-                    best_obj, best_add, best_r, best_p = value, add, b, p
+                if here < add:
+                    add, at = here, p
+            eb = extras[b] + (task_x[b, t] if use_extra else 0.0)
+            old_value, old_length = values[b], lengths[b]
+            lengths[b] = old_length + add
+            values[b] = route_value(objective, b, lengths[b], eb, road_h, road_f, ready, 1)
+            value = fleet_value(objective, values, lengths, cap, weights)
             values[b], lengths[b] = old_value, old_length
+            eps = 1e-9 * max(1.0, abs(value))
+            if value < best_obj - eps or (value <= best_obj + eps and add < best_add):
+                best_obj, best_add, best_r, best_p = value, add, b, at
         for j in range(sizes[best_r], best_p, -1):
             routes[best_r, j] = routes[best_r, j - 1]
         routes[best_r, best_p] = t

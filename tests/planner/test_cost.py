@@ -15,7 +15,9 @@ from planner.cost import (
     Objective,
     evaluate,
     figures,
+    fleet_gain,
     fleet_value,
+    largest_three,
     split_routes,
 )
 from planner.errors import ProblemError
@@ -268,3 +270,39 @@ def test_a_min_max_figure_counts_as_at_least_the_cap():
         assert fleet_value(objective, values, lengths, 4.0, alike) == plain  # below the figure
         assert fleet_value(objective, values, lengths, 7.0, alike) == pytest.approx(plain + 2.0)
     assert fleet_value(0, values, lengths, 7.0, alike) == 8.0  # the sums have no cap
+
+
+@given(
+    st.integers(1, 7), st.integers(0, 2**31), st.sampled_from([0, 1, 2, 3, 4]),
+    st.sampled_from([0.0, 5.0, -5.0, -8.0]), st.booleans(), st.booleans(),
+)  # fmt: skip
+@settings(max_examples=300, deadline=None)
+def test_fleet_gain_is_what_fleet_value_falls_by(m, seed, objective, cap, two, tied):
+    """The local search's O(1) price of a move (one route changed, or two) is the fall of
+    the fleet's figure recomputed over every route: under the sums, the min-max figures
+    (with and without a cap; the longest route among those changed, or tied) and the
+    squeeze (cap < 0)."""
+    rng = np.random.default_rng(seed)
+    values, lengths = rng.uniform(0.0, 10.0, m), rng.uniform(0.0, 1e4, m)
+    if tied:
+        values[rng.integers(m)] = values.max()
+    weights = rng.uniform(0.0, 3.0, m)
+    top = np.empty(3, dtype=np.int64)
+    largest_three(values, top)
+    assert values[top[0]] == values.max()
+    assert sorted(values[top[top >= 0]], reverse=True) == sorted(values, reverse=True)[:3]
+    a = int(rng.integers(m))
+    b = int(rng.integers(m)) if two and m > 1 else -1
+    b = -1 if b == a else b
+    value_a, length_a, value_b, length_b = rng.uniform(0.0, 12.0, 4) * [1.0, 1e3, 1.0, 1e3]
+    after_values, after_lengths = values.copy(), lengths.copy()
+    after_values[a], after_lengths[a] = value_a, length_a
+    if b >= 0:
+        after_values[b], after_lengths[b] = value_b, length_b
+    fall = fleet_value(objective, values, lengths, cap, weights) - fleet_value(
+        objective, after_values, after_lengths, cap, weights
+    )
+    gain = fleet_gain(
+        objective, values, lengths, cap, weights, top, a, value_a, length_a, b, value_b, length_b
+    )
+    assert gain == pytest.approx(fall, rel=1e-9, abs=1e-9)

@@ -192,3 +192,27 @@ def test_optimal_split_with_ready_times_is_optimal_for_its_order(case, objective
     assert got <= best + 1e-6 * max(1.0, best)
     if objective in (Objective.DISTANCE, Objective.TIME, Objective.FUEL):
         assert value == pytest.approx(got, rel=1e-9)
+
+
+def test_a_leg_and_an_edge_between_every_kind_of_node():
+    """leg (directed: -1 the machine's start, -2 its end) and edge (undirected) read the
+    right table for every pair of a task, the start and the end, and nothing for a route
+    with no task (start to end)."""
+    rng = np.random.default_rng(3)
+    dist = rng.uniform(1.0, 9.0, (3, 3))
+    start_dist, end_dist = rng.uniform(10.0, 19.0, (2, 3)), rng.uniform(20.0, 29.0, (2, 3))
+    for machine in (0, 1):
+        for u in (0, 1, 2):
+            for v in (0, 1, 2):
+                assert ops.leg(u, v, machine, dist, start_dist, end_dist) == dist[u, v]
+                assert ops.edge(u, v, machine, dist, start_dist, end_dist) == dist[u, v]
+            start, end = start_dist[machine, u], end_dist[machine, u]
+            assert ops.leg(-1, u, machine, dist, start_dist, end_dist) == start
+            assert ops.leg(u, -2, machine, dist, start_dist, end_dist) == end
+            assert ops.edge(-1, u, machine, dist, start_dist, end_dist) == start
+            assert ops.edge(u, -1, machine, dist, start_dist, end_dist) == start
+            assert ops.edge(-2, u, machine, dist, start_dist, end_dist) == end
+            assert ops.edge(u, -2, machine, dist, start_dist, end_dist) == end
+        assert ops.leg(-1, -2, machine, dist, start_dist, end_dist) == 0.0
+        assert ops.edge(-1, -2, machine, dist, start_dist, end_dist) == 0.0
+        assert ops.edge(-2, -1, machine, dist, start_dist, end_dist) == 0.0
