@@ -192,7 +192,10 @@ def fleet_value(objective, values, lengths, cap, weights):  # type: ignore[no-un
     ``cap`` > 0: a min-max figure is taken as at least ``cap``, so that below the cap only
     the tie-breaker, the total distance, counts. ``cap`` < 0: the squeeze towards the
     target ``-cap`` with the machines' hour ``weights`` (:func:`squeeze_figure`), plus the
-    tie-breaker. 0: the objective."""
+    tie-breaker. 0: the objective.
+
+    It never falls when a route's share and distance grow (the weights are never
+    negative): :func:`planner.moves.recreate` takes a route's cheapest place as its best."""
     if cap < 0.0:
         return squeeze_figure(values, -cap, weights) + TIE_BREAK * lengths.sum()
     if objective == 3 or objective == 4:
@@ -242,10 +245,11 @@ def fleet_gain(  # type: ignore[no-untyped-def]
     objective, values, lengths, cap, weights, top, a, value_a, length_a, b, value_b, length_b
 ):
     """How much :func:`fleet_value` falls when route ``a``'s share and distance become
-    ``value_a`` and ``length_a`` and route ``b``'s (``b`` >= 0; -1: none) ``value_b`` and
-    ``length_b``, in O(1) (``top``: :func:`largest_three` of ``values``): the moves' price
-    in the local search, without adding up every route. The figures are read first and
-    the gain worked out from the numbers (as :func:`planner.operators.leg` does)."""
+    ``value_a`` and ``length_a`` and route ``b``'s (``b`` >= 0, another route; -1: none)
+    ``value_b`` and ``length_b``, in O(1) (``top``: :func:`largest_three` of ``values`` as
+    they are): the moves' price in the local search, without adding up every route. The
+    figures are read first and the gain worked out from the numbers (as
+    :func:`planner.operators.leg` does)."""
     at_b = max(b, 0)
     return _gain_of(
         objective, cap, a, values[a], lengths[a], weights[a], value_a, length_a,

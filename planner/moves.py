@@ -324,8 +324,8 @@ def recreate(state, perm, counts, objective, tables, pins, tasks, cap=0.0):  # t
         best_r = -1
         best_p = -1
         for b in range(m):
-            # The route's cheapest place: the fleet's figure grows with the route's length,
-            # so it is the route's best, and the figure is worked out once a route.
+            # The route's cheapest place: the fleet's figure never falls as the route
+            # grows (fleet_value), so it is the route's best; the figure once a route.
             first = 1 if sizes[b] > 0 and pins[routes[b, 0]] >= 0 else 0
             add = np.inf
             at = -1
