@@ -234,15 +234,11 @@ def cyclic_exchange(
                     if prev == -1 and nxt >= 0 and pins[nxt] >= 0:
                         prev = nxt  # nothing goes before a pinned first task
                         continue
-                    # leg(prev, x) + leg(x, nxt) - leg(prev, nxt) written out: through
-                    # operators.leg this loop, the kernel's hot one, took 14 times as long.
-                    into = start_dist[i, x] if prev < 0 else dist[prev, x]
-                    if nxt >= 0:
-                        was = start_dist[i, nxt] if prev < 0 else dist[prev, nxt]
-                        delta = into + dist[x, nxt] - was
-                    else:
-                        was = 0.0 if prev < 0 else end_dist[i, prev]
-                        delta = into + end_dist[i, x] - was
+                    delta = (
+                        leg(prev, x, i, dist, start_dist, end_dist)
+                        + leg(x, nxt, i, dist, start_dist, end_dist)
+                        - leg(prev, nxt, i, dist, start_dist, end_dist)
+                    )
                     if delta < best:
                         best = delta
                         best_at = k
@@ -250,8 +246,8 @@ def cyclic_exchange(
                         prev = perm[k]
                 if best_at < 0:
                     continue
-                # route_value's hours from left_hours by the delta: the call here, m^2 times
-                # a round, made the kernel 1.4 times as slow.
+                # route_value's hours, from left_hours by the delta (i's service without its
+                # pick is in left_hours already).
                 h = left_hours[i] + task_hours[i, x] + best * road_h[i]
                 if h <= limit + 1e-9:
                     if target <= 0.0:
