@@ -255,7 +255,12 @@ class MissionUpload(_Transfer):
         self.pipeline = max(1, int(pipeline))
         self.unconfirmed = False  # done on the vehicle's word that it is no longer receiving
         self._long_samples = 0  # round trips of a re-request's length in a row, not taken
-        self._backoff = 1.0  # the timeout's factor, doubled past BACKOFF_AFTER in a row
+        # The timeout's factor, doubled past BACKOFF_AFTER in a row. Progress does not take
+        # it back to 1 (the next timeout does): after a stall the vehicle works through the
+        # copies the stall's timeouts sent, and the items sent meanwhile, judged lost after
+        # one timeout again, went a third time (tests/test_mission_protocol_pair.py, a
+        # one-second stall: 55 retries instead of at most 8).
+        self._backoff = 1.0
         self._restart()
 
     def _restart(self) -> None:
