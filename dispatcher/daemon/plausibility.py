@@ -194,19 +194,32 @@ def _positioned(item: PlannedItem) -> bool:
     return item.x != 0 or item.y != 0
 
 
+def leg_start(mission: Sequence[PlannedItem], seq: int) -> int | None:
+    """The item the leg to item ``seq`` starts at: the last item with a position before
+    it; None if there is none."""
+    return next(
+        (k for k in range(min(seq, len(mission)) - 1, -1, -1) if _positioned(mission[k])), None
+    )
+
+
+def leg_end(mission: Sequence[PlannedItem], seq: int) -> int | None:
+    """The item the leg to item ``seq`` ends at: the first item with a position at or
+    after it (``seq`` itself for a waypoint; after a DO item, the waypoint it leads to);
+    None if there is none."""
+    return next((k for k in range(max(seq, 0), len(mission)) if _positioned(mission[k])), None)
+
+
 def off_leg_m(
     mission: Sequence[PlannedItem], seq: int, position: tuple[float, float]
 ) -> float | None:
     """Metres from ``position`` (lat, lon) to the leg the mission drives on its way to item
-    ``seq``: from the last item with a position before it to the first at or after it
-    (to that one alone at the start); None when the mission has no position after."""
-    after = next((it for it in mission[seq:] if _positioned(it)), None)
-    if after is None:
+    ``seq``: from :func:`leg_start` to :func:`leg_end` (to the end alone at the mission's
+    start); None when the mission has no position after."""
+    end = leg_end(mission, seq)
+    if end is None:
         return None
-    before = next(
-        (mission[k] for k in range(min(seq, len(mission)) - 1, -1, -1) if _positioned(mission[k])),
-        after,
-    )
+    start = leg_start(mission, seq)
+    before, after = mission[end if start is None else start], mission[end]
     return _to_segment(position, (before.lat, before.lon), (after.lat, after.lon))
 
 

@@ -29,7 +29,7 @@ import zenoh
 from dispatcher.config.errors import DispatcherError
 from dispatcher.config.scenario import TOPUP_LEAD_S, WINDOW_ITEMS
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.plausibility import REACH_M, metres, off_leg_m
+from dispatcher.daemon.plausibility import REACH_M, leg_end, leg_start, metres, off_leg_m
 from dispatcher.daemon.state import (
     ACTIVE,
     CURRENT_SETTLE_S,
@@ -1229,8 +1229,10 @@ class Dispatcher:
         self._send_window(v, link, now)
 
     def _start(self, v: VehicleState, link: _Link, now: float, in_auto: bool = False) -> None:
-        """Start (or resume) its mission at ``link.start_item``; ``in_auto``: it is in AUTO
-        though its last HEARTBEAT may not say so yet (put there less than a second ago)."""
+        """Start (or resume) its mission at ``link.start_item``, or at the start of the leg
+        to it, which becomes ``link.start_item`` (:meth:`_start_at`); ``in_auto``: it is in
+        AUTO though its last HEARTBEAT may not say so yet (put there less than a second
+        ago)."""
         if link.start_item >= v.held:
             # Past the part of its mission it holds (at the end of a window): more first.
             self._upload(v, link, now)
@@ -1250,6 +1252,7 @@ class Dispatcher:
             )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
+        link.start_item = self._start_at(v, link.start_item)
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         speed = self.job.missions[v.id].speed_before(link.start_item)
@@ -1264,6 +1267,42 @@ class Dispatcher:
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )
         self._send(v.id, link.start.start(now))
+
+    def _start_at(self, v: VehicleState, seq: int) -> int:
+        """Where a start meant for item ``seq`` begins: there, unless the vehicle stands off
+        the leg to it (moved while the implement was down, or a simulator started again in
+        the garage) where the implement is down along that leg and the mission lowers it
+        at the leg's start (a swath after a turn, a field's first swath). Then at the leg's
+        start: it drives there with the implement up (:meth:`_implement_at`), the mission
+        lowers it, and the leg is worked whole (what was worked of it before, again),
+        rather than driven with the implement up and left unworked. Not where the
+        implement was lowered before the leg's start (a field without planned turns, its
+        swaths one line), nor where the leg's start is not on board (a mission renumbered
+        from a later item) or before a re-plan's new route: up then, and said
+        (:meth:`_implement_at`)."""
+        end = leg_end(v.items, seq)
+        k = None if end is None else implement_set_before(v.items, end)
+        start = leg_start(v.items, seq)
+        if (
+            k is None
+            or v.items[k].role not in IMPLEMENT_LOWERED
+            or start is None
+            or not start < k
+            or start < max(1, v.route_from, v.numbering.base)
+            or v.lat is None
+            or v.lon is None
+        ):
+            return seq
+        off = off_leg_m(v.items, seq, (v.lat, v.lon))
+        if off is None or off <= REACH_M:
+            return seq
+        self._log(
+            "warning",
+            f"{v.id}: {off:.0f} m from the leg it goes on along at item {seq}: from item "
+            f"{start}, where the leg starts, with the implement up; the mission lowers it "
+            "there, and what was worked of the leg is worked again",
+        )
+        return start
 
     def _implement_at(self, v: VehicleState, seq: int) -> Command | None:
         """The implement as its mission has it when it drives to item ``seq`` (the item

@@ -21,7 +21,7 @@ from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import Outcome
-from dispatcher.mission.build import IMPLEMENT_RAISED
+from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED
 from dispatcher.mission.plan import write_plan_files
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -326,8 +326,8 @@ def position_of_v1(t_ms):
 
 def rebooted_v1(dispatch, reached, at=None):
     """A daemon whose v1 rebooted while driving, ``reached`` its last item reached, and has
-    come back (MANUAL, disarmed, holding our mission) where it was, or ``at`` (lat, lon
-    * 1e7): the commands it was sent since."""
+    come back (MANUAL, disarmed, holding our mission) at the garage, or at ``at`` (lat,
+    lon * 1e7): the commands it was sent since."""
     daemon = daemon_for(dispatch)
     v = daemon.state.vehicles["v1"]
     x, y = at or (440003000, 872995000)
@@ -358,8 +358,14 @@ def rebooted_v1(dispatch, reached, at=None):
     return daemon, v, sent
 
 
+def at_item(dispatch, seq):
+    """Where v1's mission item ``seq`` is (lat, lon * 1e7)."""
+    item = daemon_for(dispatch).state.vehicles["v1"].items[seq]
+    return item.x, item.y
+
+
 def test_a_reboot_while_driving_is_armed_again_and_resumed_after_the_last_item(dispatch):
-    _, v, sent = rebooted_v1(dispatch, 7)
+    _, v, sent = rebooted_v1(dispatch, 7, at_item(dispatch, 7))
     assert (sent[0].command, sent[0].param1, sent[0].param2) == (
         mc.MAV_CMD_DO_SET_MISSION_CURRENT,
         8.0,
@@ -401,6 +407,40 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     daemon, _, _ = rebooted_v1(dispatch, 1)
     start = daemon.links["v1"].start.commands
     assert start[1].params == (raising.param1, raising.param2) and start[1].optional
+
+
+@pytest.mark.parametrize("plan", ["dispatch", "dispatch_turning"])
+def test_a_reboot_off_a_swath_goes_back_to_where_the_swath_starts(plan, request, caplog):
+    """Stopped along a swath and back somewhere else (moved with the implement down, or a
+    simulator started again in the garage): sent on to the swath's end with the implement
+    up, it would leave the swath unworked. It starts where the swath starts instead, the
+    implement up, and the mission lowers it there (a field's first swath, or one after a
+    turn); on the swath, it goes on there."""
+    dispatch = request.getfixturevalue(plan)
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    raised = {(it.param1, it.param2) for it in items if it.role in IMPLEMENT_RAISED}
+    lowerings = [k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED]
+    roles = {items[k].role for k in lowerings}
+    assert roles == ({"implement_down"} if plan == "dispatch" else IMPLEMENT_LOWERED)
+    for down in lowerings:
+        start_at = max(k for k in range(down) if items[k].x or items[k].y)
+        assert items[start_at].role in ("transit", "swath_start"), items[start_at].role
+        # Reached the swath's start, the items after it, or the lowering: on its way along
+        # the swath (to its end, or to the items before the lowering, then the end).
+        for reached in range(start_at, down + 1):
+            caplog.clear()
+            with caplog.at_level("WARNING"):
+                daemon, v, _ = rebooted_v1(dispatch, reached)
+            start = daemon.links["v1"].start.commands
+            assert start[0].params[0] == start_at, (down, reached)
+            assert start[1].params in raised and v.start_from == start_at
+            assert f"from item {start_at}, where the leg starts" in caplog.text
+        # Stopped on the swath: on from there, the implement down.
+        at = (items[start_at].x, items[start_at].y)
+        daemon, v, _ = rebooted_v1(dispatch, down, at)
+        start = daemon.links["v1"].start.commands
+        assert start[0].params[0] == down + 1
+        assert start[1].params == (items[down].param1, items[down].param2)
 
 
 def daemon_driving_v1(dispatch, reached):
@@ -1212,11 +1252,12 @@ def test_a_vehicle_the_operator_stopped_and_rebooted_is_not_armed_until_put_back
     is sent on from the item after the last one reached."""
     daemon = daemon_driving_v1(dispatch, 7)
     v = daemon.state.vehicles["v1"]
-    deliver(daemon, "v1", position_of_v1(500_000), 0.5)
+    at = at_item(dispatch, 7)  # where it stopped (off its leg it would go back to the leg's start)
+    deliver(daemon, "v1", position(500_000, *at), 0.5)
     deliver(daemon, "v1", stopped(11), 1.0)
-    deliver(daemon, "v1", position_of_v1(501_000), 1.5)  # its clock runs on, stopped
+    deliver(daemon, "v1", position(501_000, *at), 1.5)  # its clock runs on, stopped
     daemon._tick(1.6)
-    deliver(daemon, "v1", position_of_v1(2_000), 3.0)  # rebooted
+    deliver(daemon, "v1", position(2_000, *at), 3.0)  # rebooted
     assert v.reboots == 1 and v.operator_hold and v.needs_restart
     total = mc.message("MISSION_CURRENT", seq=0, total=len(v.items) - 1, mission_state=2)
     for now in (4.0, 10.0, 40.0, 400.0):
