@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers.processes import planned_items
 from helpers.review import assert_each_segment_worked_once
 from helpers.sitl import (
     ARDUROVER,
@@ -27,7 +28,9 @@ from helpers.sitl import (
     wait_for,
 )
 
+from dispatcher.daemon.plausibility import leg_end, leg_start, metres, off_leg_m
 from dispatcher.link import mavlink as mc
+from dispatcher.mission.build import IMPLEMENT_LOWERED, implement_set_before
 from dispatcher.recording.mcap_file import EVENTS_TOPIC, LOG_TOPIC, read_log, read_logs
 from dispatcher.review.report import Review, review_contents, review_log, review_table
 
@@ -83,6 +86,14 @@ def wait_under_way(procs: Processes, sitl: Sitl, serve, port: int, share: float)
         wait_for(
             f"{share:.0%} of the mission", under_way, RUN_TIMEOUT_S, lambda: procs.report(sitl)
         )
+
+
+def caught_up(status_check) -> None:  # type: ignore[no-untyped-def]
+    """Two status periods after the autopilot froze, the dispatcher's status read again
+    (``status_check``, an ``r1_under_way``): it has heard all the autopilot said."""
+    time_mark = time.monotonic()
+    wait_for("two status periods", lambda: time.monotonic() - time_mark > 2.5, 5.0)
+    status_check()
 
 
 def check_worked_once(review: Review, driven_as_planned: bool = True) -> None:
@@ -150,9 +161,7 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
         # dispatcher has heard its last position.
         sitl.freeze()
         wait_for("the status to catch up", lambda: well_under_way() and "lat" in state, 10.0)
-        time_mark = time.monotonic()
-        wait_for("two status periods", lambda: time.monotonic() - time_mark > 2.5, 5.0)
-        well_under_way()
+        caught_up(well_under_way)
         reached = state["reached"]
         sitl.kill()
         sitl.start(home=(state["lat"], state["lon"]), heading=state.get("heading_deg") or 0)
@@ -201,6 +210,89 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
         if m.get("mavpackettype") == "COMMAND_ACK" and m["command"] == setting["command"]
     ]
     assert acks and set(acks) == {mc.MAV_RESULT_ACCEPTED}, acks
+
+
+def swaths_lowered_at_their_start(items) -> dict[int, tuple[int, int]]:  # type: ignore[no-untyped-def]
+    """For each item after which the mission drives a swath whose lowering comes after the
+    swath's start (a field's first, one after a turn), the swath's start and end, when that
+    swath is well away from the garage."""
+    garage = (items[0].lat, items[0].lon)
+    out = {}
+    for reached in range(1, len(items) - 1):
+        start, end = leg_start(items, reached + 1), leg_end(items, reached + 1)
+        if start is None or end is None or items[end].role != "swath_end":
+            continue
+        k = implement_set_before(items, end)
+        far = off_leg_m(items, reached + 1, garage)
+        if k is not None and items[k].role in IMPLEMENT_LOWERED and start < k and far > 50.0:
+            out[reached] = (start, end)
+    return out
+
+
+def test_an_autopilot_back_in_the_garage_from_a_swath_works_it_from_its_start(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    """A power cut along a swath, the autopilot back in the garage (SITL restarts at its
+    home; a tractor towed home). Sent on to the swath's end with the implement up, it
+    would leave the swath unworked: it starts where the swath starts, the implement up, and
+    ArduPilot drives there, runs the mission's own lowering and works the swath."""
+    sitl.speedup = 5.0  # slow until the cut: a swath in a few wall seconds, to stop it on one
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+        under_way = r1_under_way(procs, sitl, serve, status, 0.0, state)
+        wait_for("r1 under way", under_way, RUN_TIMEOUT_S, procs.report)
+        items = planned_items(port, "sitl", "r1")
+        swaths = swaths_lowered_at_their_start(items)
+        assert swaths, [it.role for it in items]
+        on: list[tuple[int, int]] = []
+
+        def early_on_a_swath() -> bool:
+            if not under_way() or state.get("lat") is None:
+                return False
+            here = (state["lat"], state["lon"])
+            for start, end in set(swaths.values()):
+                far = metres(here, (items[end].lat, items[end].lon))
+                past = metres(here, (items[start].lat, items[start].lon))
+                on_line = off_leg_m(items, end, here) < 3.0  # type: ignore[operator]
+                if on_line and past > 5.0 and far > 15.0:
+                    on[:] = [(start, end)]
+                    return True
+            return False
+
+        wait_for(
+            "r1 early on a swath",
+            early_on_a_swath,
+            RUN_TIMEOUT_S,
+            lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
+        )
+        sitl.freeze()
+        caught_up(under_way)
+        reached = state["reached"]
+        assert swaths.get(reached) == on[0], (state, on)  # frozen on that swath
+        sitl.kill()
+        sitl.speedup = SPEEDUP
+        sitl.start()  # in the garage
+        assert finished(serve, procs, sitl) == 0, procs.report(sitl)
+    path = log_of(Processes.output(serve))
+    review = review_log(path)
+    check_worked_once(review, driven_as_planned=False)
+    start, end = on[0]
+    log = read_log(path)
+    lines = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any(f"from item {start}, where the leg starts" in ln for ln in lines), lines
+    seqs = [
+        r.decode_json()["seq"]
+        for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/from/json")
+        if r.decode_json().get("mavpackettype") == "MISSION_ITEM_REACHED"
+    ]
+    # Back at the swath's start after the reboot (ArduPilot reports the DO_CHANGE_SPEED
+    # after it reached, not the waypoint), then along the swath to its end.
+    back = next(i for i in range(1, len(seqs)) if seqs[i] <= seqs[i - 1])
+    assert start <= seqs[back] < end and end in seqs[back:], (start, end, seqs)
 
 
 def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(

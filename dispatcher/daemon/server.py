@@ -776,8 +776,14 @@ class Dispatcher:
         if v.operator_hold:
             pass  # the operator's: not started again by us (OPERATOR_HOLDS)
         elif (
-            v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None
+            v.needs_restart
+            and v.phase is Phase.RUNNING
+            and v.ready
+            and v.mission_total is not None
+            and v.where is not None
         ):
+            # (where it is heard since the reboot: the implement and the item it starts at
+            # depend on it, and ArduPilot drives no mission before it knows it either)
             self._restart(v, link, now)
         elif failsafe := self._failsafe_over(v, link):
             link.start_item = v.resume_item
@@ -1289,11 +1295,10 @@ class Dispatcher:
             or start is None
             or not start < k
             or start < max(1, v.route_from, v.numbering.base)
-            or v.lat is None
-            or v.lon is None
+            or v.where is None
         ):
             return seq
-        off = off_leg_m(v.items, seq, (v.lat, v.lon))
+        off = off_leg_m(v.items, seq, v.where)
         if off is None or off <= REACH_M:
             return seq
         self._log(
@@ -1315,7 +1320,7 @@ class Dispatcher:
         up = next((it for it in v.items if it.role in IMPLEMENT_RAISED), None)
         k = implement_set_before(v.items, seq)
         item = up if k is None else v.items[k]
-        where = (v.lat, v.lon) if v.lat is not None and v.lon is not None else None
+        where = v.where
         if item is not None and item.role in IMPLEMENT_LOWERED and where is not None:
             off = off_leg_m(v.items, seq, where)
             if off is not None and off > REACH_M:

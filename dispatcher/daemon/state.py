@@ -153,6 +153,8 @@ class VehicleState:
     finished_at_next_fix: bool = False
     lat: float | None = None
     lon: float | None = None
+    position_s: float = -math.inf  # its clock (sim_time_s) at the last position heard
+    rebooted_s: float = -math.inf  # its clock when its autopilot was last found rebooted
     heading_deg: float | None = None  # course over ground, from GLOBAL_POSITION_INT.hdg
     mode: int | None = None
     armed: bool = False
@@ -221,6 +223,15 @@ class VehicleState:
     def ready(self) -> bool:
         """The autopilot has booted: a mission may be uploaded and started."""
         return self.system_status in READY_STATES
+
+    @property
+    def where(self) -> tuple[float, float] | None:
+        """Where it is (lat, lon), as heard since its autopilot last rebooted; None if not
+        heard since (before, where it stood then: a simulator starts again in its garage,
+        a tractor may have been towed)."""
+        if self.lat is None or self.lon is None or self.position_s < self.rebooted_s:
+            return None
+        return self.lat, self.lon
 
     @property
     def driving(self) -> bool:
@@ -495,6 +506,7 @@ class FleetState:
                     v.verify_mission = v.phase is not Phase.FAILED and not v.retired
             case ev.Rebooted():
                 v.reboots += 1
+                v.rebooted_s = v.sim_time_s  # where it is is to be heard again
                 v.system_status = None  # booting: not ready until a heartbeat says so
                 v.mission_total = None  # what it holds now is to be heard again
                 if v.phase in (Phase.RUNNING, Phase.STARTING) or (
@@ -777,6 +789,7 @@ class FleetState:
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
+            v.position_s = v.sim_time_s  # (a reboot it tells of is later: heard since)
             if v.progress_at is None or _metres(v.progress_at, (v.lat, v.lon)) >= STALL_MOVE_M:
                 if v.stalled:
                     out.append(ev.VehicleSeen(vid))  # it moves again

@@ -25,7 +25,7 @@ import math
 import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Final
@@ -490,6 +490,10 @@ class _Events:
     # it was heading to before the report, the item it heads to after it).
     heading_to: list[tuple[int, int, int, int]]
     caught_up: set[int]  # items the dispatcher caught up with after a restart (no position)
+    # Items reached again after the vehicle was sent back (a start at the leg's start: the
+    # dispatcher's Dispatcher._start_at): (seq, clock s). The DO items after each (and a DO
+    # item itself: ArduPilot reports some, DO_CHANGE_SPEED, as reached) ran again then.
+    again: list[tuple[int, float]] = field(default_factory=list)
 
 
 def _read_events(
@@ -519,6 +523,11 @@ def _read_events(
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
     last_reached: int | None = None  # the item of the last MISSION_ITEM_REACHED
+    highest = 0  # the highest item reached
+    # The item the vehicle was sent back to (its MISSION_CURRENT at or before the highest
+    # reached), until it is past the highest again.
+    sent_back: int | None = None
+    again: list[tuple[int, float]] = []
     # Whether the vehicle holds the mission reviewed, as far as its MISSION_CURRENT.total
     # tells: the items it reports of another (before a re-plan gave it a new mission whole)
     # say nothing of where it heads in this one.
@@ -572,6 +581,11 @@ def _read_events(
                 continue
             last_reached = seq
             settle()
+            back = sent_back is not None and isinstance(seq, int) and sent_back <= seq <= highest
+            if back and 0 < seq < len(items) and clock.now is not None:
+                again.append((seq, clock.now))
+            if isinstance(seq, int) and seq > highest:
+                highest, sent_back = seq, None
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
@@ -594,6 +608,9 @@ def _read_events(
                 this_mission = total <= len(items) - 1
             if isinstance(seq, int) and 0 < seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq))
+                if seq <= highest:
+                    sent_back = seq if sent_back is None else min(sent_back, seq)
+                    last_reached = None  # (reaching the item it reached last is news now)
         elif kind == "HEARTBEAT":
             heartbeats.append(log_ns)
         elif kind == "STATUSTEXT":
@@ -602,7 +619,9 @@ def _read_events(
             if text and isinstance(severity, int):
                 texts.append((clock.now, severity, text))
     settle()
-    return _Events(points, reached, heartbeats, clock.now, reboots, texts, heading_to, caught_up)
+    return _Events(
+        points, reached, heartbeats, clock.now, reboots, texts, heading_to, caught_up, again
+    )
 
 
 def _across_gaps(
@@ -709,12 +728,16 @@ def _item_times(
     items: Sequence[PlannedItem],
     reached: Iterable[tuple[int, float | None, int]],
     passed: Mapping[int, float] | None = None,
+    again: Iterable[tuple[int, float]] = (),
 ) -> tuple[dict[int, float], set[int], int, dict[int, int]]:
     """When each item was done (vehicle clock): an item reported reached and every item
     it skipped over (at the time it was ``passed`` in a gap of the recording, else that of
     the item reported). A DO item runs as the navigation item before it completes, so it
-    takes that item's time. Also: the items reported themselves, the highest reached and
-    each reported item's file position."""
+    takes that item's time; when the vehicle was sent back and reached an item ``again``,
+    the DO items from there to the next navigation item ran again then (the implement
+    lowered where a swath starts, after a drive back there with it up) and take that time.
+    Also: the items reported themselves, the highest reached and each reported item's
+    file position."""
     passed = passed or {}
     times: dict[int, float] = {}
     reported: set[int] = set()
@@ -735,6 +758,12 @@ def _item_times(
         reported.add(seq)
         order_of[seq] = order
         last = seq
+    for seq, t in again:
+        for s in range(seq + items[seq].is_nav, len(items)):
+            if items[s].is_nav:
+                break
+            if s in times and times[s] < t:
+                times[s] = t
     return times, reported, last, order_of
 
 
@@ -929,7 +958,7 @@ def _review_vehicle(
         items,
         machine.planned_times(),
     )
-    times, reported, last, order_of = _item_times(items, events.reached, passed)
+    times, reported, last, order_of = _item_times(items, events.reached, passed, events.again)
     n = len(items)
     complete = n > 1 and last == n - 1
     road_ms = machine.param("road_speed_kmh") / 3.6

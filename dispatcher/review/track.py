@@ -6,8 +6,9 @@ so it works for the simulator and for a real autopilot alike:
 
 * **implement down**: from the moment the navigation item before an item that lowers the
   implement (``implement_down``, ``implement_lower``) was reached (ArduPilot runs DO items
-  as it leaves the waypoint before them) until the one before the next item that raises it
-  (``implement_raise``, ``implement_up``) was reached;
+  as it leaves the waypoint before them; reached again when the vehicle was sent back to
+  it, then: the report's ``_item_times``) until the one before the next item that raises
+  it (``implement_raise``, ``implement_up``) was reached;
 * **cross-track error**: for every position while the implement is down, its distance to
   the planned working line of that stretch (the waypoints between the two items);
   median and 95th percentile, over every working line and over the straight swaths alone

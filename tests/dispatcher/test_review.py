@@ -752,6 +752,59 @@ def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside(
     assert 17.0 <= with_pond.outside_down_s <= 25.0
 
 
+def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again() -> None:
+    """Back in the garage after a reboot, a vehicle is sent back to where its swath starts
+    (its MISSION_CURRENT goes back) and drives there with the implement up: the items
+    that lower it run again when it gets there, and the implement counts as down from
+    then, not through the drive from the garage. A late copy of a report, with no going
+    back, changes nothing."""
+    import itertools
+
+    from dispatcher.review.report import _item_times, _read_events
+
+    nav, do = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
+    roles = ["home", "transit", "speed", "implement_down", "swath_end", "implement_up"]
+    items = [
+        PlannedItem(k, "F", 0, role, 500_000_000 + k, 100_000_000, nav if k in (0, 1, 4) else do)
+        for k, role in enumerate(roles)
+    ]
+
+    received = itertools.count(1_000_000_000, 1_000_000_000)  # a frame a second (ns)
+
+    def frame(kind: str, **fields: float) -> tuple[int, dict]:
+        return next(received), {"mavpackettype": kind, **fields}
+
+    def position(t_ms: int) -> tuple[int, dict]:
+        return frame("GLOBAL_POSITION_INT", time_boot_ms=t_ms, lat=500_000_000, lon=100_000_000)
+
+    def run(sent_back: bool) -> dict[int, float]:
+        frames = [
+            position(1_000),
+            frame("MISSION_CURRENT", seq=1, total=5),
+            frame("MISSION_ITEM_REACHED", seq=2),  # ArduPilot: the DO_CHANGE_SPEED after it
+            position(2_000),
+            frame("MISSION_CURRENT", seq=4, total=5),
+            position(3_000),
+            position(1_000),  # rebooted
+            *([frame("MISSION_CURRENT", seq=1, total=5)] if sent_back else []),
+            position(60_000),  # the drive back from the garage
+            frame("MISSION_ITEM_REACHED", seq=2),
+            position(61_000),
+            frame("MISSION_CURRENT", seq=4, total=5),
+            frame("MISSION_ITEM_REACHED", seq=4),
+            position(70_000),
+        ]
+        events = _read_events(frames, items)
+        times, _, last, _ = _item_times(items, events.reached, {}, events.again)
+        assert last == 4
+        return times
+
+    once, back = run(False), run(True)
+    assert once[3] == once[2] < 5.0  # lowered once, before the reboot
+    assert back[2] == back[3] > once[3] + 50.0  # lowered again where the swath starts
+    assert back[4] == once[4]
+
+
 def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it() -> None:
     """A re-plan that gives a vehicle nothing new keeps its mission item for item, with
     figures of 0 h (nothing new planned for it): review sets it against the plan that gave

@@ -324,13 +324,15 @@ def position_of_v1(t_ms):
     return position(t_ms, 440003000, 872995000)
 
 
-def rebooted_v1(dispatch, reached, at=None):
+def rebooted_v1(dispatch, reached, at=None, back_at=None):
     """A daemon whose v1 rebooted while driving, ``reached`` its last item reached, and has
     come back (MANUAL, disarmed, holding our mission) at the garage, or at ``at`` (lat,
-    lon * 1e7): the commands it was sent since."""
+    lon * 1e7; where it says it is after the reboot: ``back_at``, if given): the commands
+    it was sent since."""
     daemon = daemon_for(dispatch)
     v = daemon.state.vehicles["v1"]
     x, y = at or (440003000, 872995000)
+    back_x, back_y = back_at or (x, y)
     daemon.state.vehicles["v2"].phase = Phase.DONE
     running = heartbeat(11)
     running.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
@@ -339,7 +341,7 @@ def rebooted_v1(dispatch, reached, at=None):
     v.phase = Phase.RUNNING
     feed(daemon.state, "v1", position(500_000, x, y), 1.0)
     daemon.state.apply(ev.ItemReached("v1", reached, v.sim_time_s), 1.5)
-    feed(daemon.state, "v1", position(3_000, x, y), 2.0)  # its clock started again
+    feed(daemon.state, "v1", position(3_000, back_x, back_y), 2.0)  # its clock started again
     assert v.needs_restart and v.reboots == 1 and not v.ready
     assert v.sim_time_s >= 500.0  # the run's time does not go back
     daemon._tick(2.1)
@@ -441,6 +443,22 @@ def test_a_reboot_off_a_swath_goes_back_to_where_the_swath_starts(plan, request,
         start = daemon.links["v1"].start.commands
         assert start[0].params[0] == down + 1
         assert start[1].params == (items[down].param1, items[down].param2)
+
+
+def test_a_rebooted_autopilot_is_started_again_once_it_says_where_it_is(dispatch):
+    """Where it stood before the reboot says nothing of where it is after (a simulator
+    starts again in its garage, a tractor may have been towed): the item it starts at and
+    the implement depend on it, so the start waits for a position heard since."""
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role == "implement_down")
+    # On the swath when it rebooted, back with no fix yet.
+    daemon, v, sent = rebooted_v1(dispatch, down, (items[down].x, items[down].y), (0, 0))
+    assert not sent and v.needs_restart and v.where is None
+    feed(daemon.state, "v1", position(4_000, 440003000, 872995000), 4.0)  # in the garage
+    daemon._advance("v1", 4.1)
+    start = daemon.links["v1"].start.commands
+    start_at = max(k for k in range(down) if items[k].x or items[k].y)
+    assert start[0].params[0] == start_at  # back where the swath starts
 
 
 def daemon_driving_v1(dispatch, reached):

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import zenoh
 
 from dispatcher.link import wire
+from dispatcher.mission.document import PlanDocument, PlannedItem
 
 if TYPE_CHECKING:
     from helpers.sitl import Sitl
@@ -191,6 +192,17 @@ def status_reader(port: int, farm: str) -> Iterator[Callable[[], dict]]:
     conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
     with zenoh.open(conf) as session:
         yield status_asker(session, farm)
+
+
+def planned_items(port: int, farm: str, vehicle: str) -> tuple[PlannedItem, ...]:
+    """``vehicle``'s mission items in the dispatcher's current plan (its plan queryable)."""
+    conf = wire.client_options((f"tcp/127.0.0.1:{port}",)).config()
+    with zenoh.open(conf) as session:
+        for reply in session.get(wire.dispatcher_plan(farm), timeout=5.0):
+            if reply.ok is not None:
+                doc = PlanDocument.from_json(reply.ok.payload.to_bytes())
+                return next(m.items for m in doc.machines if m.id == vehicle)
+    raise AssertionError(f"no plan of {farm} from the dispatcher on port {port}")
 
 
 def status_asker(session: zenoh.Session, farm: str) -> Callable[[], dict]:
