@@ -221,6 +221,7 @@ class _Link:
     # stopped (at the item it drove to from memory, the set-current late) is started again.
     renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
+    awaiting_fix: bool = False  # rebooted: waiting for where it is (said once)
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
@@ -776,16 +777,16 @@ class Dispatcher:
         if v.operator_hold:
             pass  # the operator's: not started again by us (OPERATOR_HOLDS)
         elif (
-            v.needs_restart
-            and v.phase is Phase.RUNNING
-            and v.ready
-            and v.mission_total is not None
-            and v.where is not None
+            v.needs_restart and v.phase is Phase.RUNNING and v.ready and v.mission_total is not None
         ):
-            # (where it is heard since the reboot: the implement and the item it starts at
-            # depend on it, and ArduPilot drives no mission before it knows it either)
-            self._restart(v, link, now)
-        elif failsafe := self._failsafe_over(v, link):
+            # Once it says where it is since the reboot: the item it starts at and the
+            # implement depend on it (ArduPilot drives no mission before it knows either).
+            if v.where is not None:
+                self._restart(v, link, now)
+            elif not link.awaiting_fix:
+                link.awaiting_fix = True
+                self._log("info", f"{vid}: the autopilot rebooted; waiting for its position")
+        elif not v.needs_restart and (failsafe := self._failsafe_over(v, link)):
             link.start_item = v.resume_item
             self._log(
                 "warning",
@@ -797,6 +798,7 @@ class Dispatcher:
             link.hold is not None
             and link.hold.outcome is not Outcome.RUNNING
             and v.phase is Phase.RUNNING
+            and not v.needs_restart  # rebooted: started again above, from where it is
             and v.ready
             and self._replan is None  # a re-plan under way may have given its work away
             and not self._replan_reason
@@ -1358,6 +1360,8 @@ class Dispatcher:
         is disarmed in another mode. Arm it again and resume after the last item reached;
         upload again first if what it holds is not our mission."""
         v.needs_restart = False
+        link.hold = None  # (told to HOLD while it was lost, rebooted: this is its start)
+        link.awaiting_fix = False
         link.start_item = v.resume_item
         expected = v.held - 1  # MISSION_CURRENT.total counts the items after home
         if v.mission_total is not None and v.mission_total != expected:

@@ -153,8 +153,9 @@ class VehicleState:
     finished_at_next_fix: bool = False
     lat: float | None = None
     lon: float | None = None
-    position_s: float = -math.inf  # its clock (sim_time_s) at the last position heard
-    rebooted_s: float = -math.inf  # its clock when its autopilot was last found rebooted
+    # Its clock (sim_time_s) at the last position heard; -inf from a reboot on, until it
+    # says where it is again.
+    position_s: float = -math.inf
     heading_deg: float | None = None  # course over ground, from GLOBAL_POSITION_INT.hdg
     mode: int | None = None
     armed: bool = False
@@ -229,7 +230,7 @@ class VehicleState:
         """Where it is (lat, lon), as heard since its autopilot last rebooted; None if not
         heard since (before, where it stood then: a simulator starts again in its garage,
         a tractor may have been towed)."""
-        if self.lat is None or self.lon is None or self.position_s < self.rebooted_s:
+        if self.lat is None or self.lon is None or self.position_s == -math.inf:
             return None
         return self.lat, self.lon
 
@@ -506,7 +507,6 @@ class FleetState:
                     v.verify_mission = v.phase is not Phase.FAILED and not v.retired
             case ev.Rebooted():
                 v.reboots += 1
-                v.rebooted_s = v.sim_time_s  # where it is is to be heard again
                 v.system_status = None  # booting: not ready until a heartbeat says so
                 v.mission_total = None  # what it holds now is to be heard again
                 if v.phase in (Phase.RUNNING, Phase.STARTING) or (
@@ -764,6 +764,7 @@ class FleetState:
             status = int(msg.system_status)
             if v.ready and status in (mc.MAV_STATE_UNINIT, mc.MAV_STATE_BOOT):
                 out.append(ev.Rebooted(vid))  # booting again (before its clock tells)
+                v.position_s = -math.inf  # where it is is to be heard again
             else:
                 v.system_status = status
                 if status == mc.MAV_STATE_CRITICAL:
@@ -789,7 +790,7 @@ class FleetState:
             if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
                 v.heading_deg = msg.hdg / 100.0
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
-            v.position_s = v.sim_time_s  # (a reboot it tells of is later: heard since)
+            v.position_s = v.sim_time_s
             if v.progress_at is None or _metres(v.progress_at, (v.lat, v.lon)) >= STALL_MOVE_M:
                 if v.stalled:
                     out.append(ev.VehicleSeen(vid))  # it moves again
@@ -890,6 +891,10 @@ class FleetState:
         """The vehicle's clock; a restart is a reboot, and its time carries on from there."""
         t, rebooted = v.clock.update(clock_s, now)
         v.sim_time_s = max(v.sim_time_s, t)
+        if rebooted:
+            # Where it is is to be heard again (the position that told of the reboot sets
+            # it after this).
+            v.position_s = -math.inf
         if not rebooted and v.off_auto_since is not None:
             v.stopped_on_clock = True
         return [ev.Rebooted(v.id)] if rebooted and not v.needs_restart else []

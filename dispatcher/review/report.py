@@ -497,9 +497,14 @@ class _Events:
 
 
 def _read_events(
-    frames: Sequence[tuple[int, dict[str, Any]]], items: Sequence[PlannedItem]
+    frames: Sequence[tuple[int, dict[str, Any]]],
+    items: Sequence[PlannedItem],
+    sent_to_item: Sequence[int] = (),
 ) -> _Events:
-    """Positions, items reached with their time, heartbeats, from the vehicle's frames.
+    """Positions, items reached with their time, heartbeats, from the vehicle's frames;
+    ``sent_to_item``: when (receive ns, in order) the dispatcher told it the item to drive
+    to (DO_SET_MISSION_CURRENT), after which its MISSION_CURRENT at or before the highest
+    item reached says it was sent back.
 
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
     it when that position is at the waypoint (the simulator sends one right away), else
@@ -523,7 +528,7 @@ def _read_events(
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
     last_reached: int | None = None  # the item of the last MISSION_ITEM_REACHED
-    highest = 0  # the highest item reached
+    highest, highest_ns = 0, 0  # the highest item reached, and when
     # The item the vehicle was sent back to (its MISSION_CURRENT at or before the highest
     # reached), until it is past the highest again.
     sent_back: int | None = None
@@ -585,7 +590,7 @@ def _read_events(
             if back and 0 < seq < len(items) and clock.now is not None:
                 again.append((seq, clock.now))
             if isinstance(seq, int) and seq > highest:
-                highest, sent_back = seq, None
+                highest, highest_ns, sent_back = seq, log_ns, None
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
@@ -608,7 +613,14 @@ def _read_events(
                 this_mission = total <= len(items) - 1
             if isinstance(seq, int) and 0 < seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq))
-                if seq <= highest:
+                told = bisect.bisect_right(sent_to_item, log_ns) > bisect.bisect_right(
+                    sent_to_item, highest_ns
+                )
+                if (
+                    seq <= highest
+                    and told
+                    and msg.get("mission_state") != mc.MISSION_STATE_COMPLETE
+                ):
                     sent_back = seq if sent_back is None else min(sent_back, seq)
                     last_reached = None  # (reaching the item it reached last is news now)
         elif kind == "HEARTBEAT":
@@ -943,7 +955,13 @@ def _review_vehicle(
         if ns < upload_start and m.get("mavpackettype") == "GLOBAL_POSITION_INT"
     ]
     after = [(ns, m) for ns, m in frames_from if ns >= upload_start]
-    events = _read_events(standing[-1:] + after, items)
+    sent_to_item = [
+        ns
+        for ns, m in frames_to
+        if m.get("mavpackettype") == "COMMAND_LONG"
+        and m.get("command") == mc.MAV_CMD_DO_SET_MISSION_CURRENT
+    ]
+    events = _read_events(standing[-1:] + after, items, sent_to_item)
     points = events.points or _fix_points([(n, f) for n, f in traffic.fixes if n >= upload_start])
     if events.reboots:
         warnings.append(

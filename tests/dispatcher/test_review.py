@@ -756,8 +756,8 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     """Back in the garage after a reboot, a vehicle is sent back to where its swath starts
     (its MISSION_CURRENT goes back) and drives there with the implement up: the items
     that lower it run again when it gets there, and the implement counts as down from
-    then, not through the drive from the garage. A late copy of a report, with no going
-    back, changes nothing."""
+    then, not through the drive from the garage. Its MISSION_CURRENT going back with no
+    word of ours (a late frame) sends it nowhere."""
     import itertools
 
     from dispatcher.review.report import _item_times, _read_events
@@ -777,7 +777,7 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     def position(t_ms: int) -> tuple[int, dict]:
         return frame("GLOBAL_POSITION_INT", time_boot_ms=t_ms, lat=500_000_000, lon=100_000_000)
 
-    def run(sent_back: bool) -> dict[int, float]:
+    def run(sent_back: bool, told: bool = True) -> dict[int, float]:
         frames = [
             position(1_000),
             frame("MISSION_CURRENT", seq=1, total=5),
@@ -786,6 +786,10 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
             frame("MISSION_CURRENT", seq=4, total=5),
             position(3_000),
             position(1_000),  # rebooted
+        ]
+        # The dispatcher's DO_SET_MISSION_CURRENT (a frame to the vehicle: its time alone).
+        told_at = [next(received)] if sent_back and told else []
+        frames += [
             *([frame("MISSION_CURRENT", seq=1, total=5)] if sent_back else []),
             position(60_000),  # the drive back from the garage
             frame("MISSION_ITEM_REACHED", seq=2),
@@ -794,7 +798,7 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
             frame("MISSION_ITEM_REACHED", seq=4),
             position(70_000),
         ]
-        events = _read_events(frames, items)
+        events = _read_events(frames, items, told_at)
         times, _, last, _ = _item_times(items, events.reached, {}, events.again)
         assert last == 4
         return times
@@ -803,6 +807,8 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     assert once[3] == once[2] < 5.0  # lowered once, before the reboot
     assert back[2] == back[3] > once[3] + 50.0  # lowered again where the swath starts
     assert back[4] == once[4]
+    # Its MISSION_CURRENT going back with no word of ours (a late frame): not sent back.
+    assert run(True, told=False) == once
 
 
 def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it() -> None:

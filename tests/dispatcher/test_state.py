@@ -461,6 +461,21 @@ def test_a_rebooted_autopilot_is_started_again_once_it_says_where_it_is(dispatch
     assert start[0].params[0] == start_at  # back where the swath starts
 
 
+def test_where_a_vehicle_is_is_forgotten_when_its_autopilot_reboots(dispatch):
+    """Told by its clock or by a booting HEARTBEAT (before its clock tells): the position
+    heard before the reboot is no longer where it is; the next one with a fix is."""
+    for reboot in (position(1_000, 0, 0), booting(11)):
+        state = FleetState(dispatch.document)
+        v = state.vehicles["v1"]
+        feed(state, "v1", heartbeat(11), 0.0)
+        feed(state, "v1", position(500_000, 440003000, 872995000), 1.0)
+        assert v.where == (44.0003, 87.2995)
+        feed(state, "v1", reboot, 2.0)
+        assert v.where is None, reboot
+        feed(state, "v1", position(2_000, 440004000, 872995000), 3.0)
+        assert v.where == (44.0004, 87.2995)
+
+
 def daemon_driving_v1(dispatch, reached):
     """A daemon whose v1 drives its mission, ``reached`` its last item reached."""
     daemon = daemon_for(dispatch)
