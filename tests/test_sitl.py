@@ -8,6 +8,7 @@ once, the driven track on the swaths, the implement never down outside a field.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import time
 from collections.abc import Iterator
@@ -212,10 +213,13 @@ def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
     assert acks and set(acks) == {mc.MAV_RESULT_ACCEPTED}, acks
 
 
-def swaths_lowered_at_their_start(items) -> dict[int, tuple[int, int]]:  # type: ignore[no-untyped-def]
+def swaths_lowered_at_their_start(  # type: ignore[no-untyped-def]
+    items, lowered_before: bool = False
+) -> dict[int, tuple[int, int]]:
     """For each item after which the mission drives a swath whose lowering comes after the
-    swath's start (a field's first, one after a turn), the swath's start and end, when that
-    swath is well away from the garage."""
+    swath's start (a field's first, one after a turn; ``lowered_before``: before it, the
+    lines of a field one after another with the implement down), the swath's start and
+    end, when that swath is well away from the garage."""
     garage = (items[0].lat, items[0].lon)
     out = {}
     for reached in range(1, len(items) - 1):
@@ -224,9 +228,40 @@ def swaths_lowered_at_their_start(items) -> dict[int, tuple[int, int]]:  # type:
             continue
         k = implement_set_before(items, end)
         far = off_leg_m(items, reached + 1, garage)
-        if k is not None and items[k].role in IMPLEMENT_LOWERED and start < k and far > 50.0:
+        if k is None or items[k].role not in IMPLEMENT_LOWERED or far <= 50.0:
+            continue
+        if (k < start) == lowered_before:
             out[reached] = (start, end)
     return out
+
+
+@contextlib.contextmanager
+def r1_job(procs: Processes, sitl: Sitl, tmp_path: Path):  # type: ignore[no-untyped-def]
+    """r1's job under way: the serve process, r1's status as last read, the check that
+    reads it (:func:`r1_under_way`, from any share done) and r1's mission items."""
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    procs.bridge(SCENARIO, "r1", sitl, port)
+    with status_reader(port, "sitl") as status:
+        state: dict = {}
+        under_way = r1_under_way(procs, sitl, serve, status, 0.0, state)
+        wait_for("r1 under way", under_way, RUN_TIMEOUT_S, procs.report)
+        yield serve, state, under_way, planned_items(port, "sitl", "r1")
+
+
+def back_in_the_garage(sitl: Sitl, under_way, state: dict) -> tuple[int, int]:  # type: ignore[no-untyped-def]
+    """A power cut (the autopilot frozen, then killed), the item r1 reached last once the
+    status has caught up (``under_way`` fills ``state``), and the autopilot started again
+    in the garage at the tests' speedup: that item, and when (wall ns) it restarted."""
+    sitl.freeze()
+    caught_up(under_way)
+    reached = int(state["reached"])
+    sitl.kill()
+    sitl.speedup = SPEEDUP
+    restarted_ns = time.time_ns()
+    sitl.start()  # SITL's home: the garage
+    return reached, restarted_ns
 
 
 def test_an_autopilot_back_in_the_garage_from_a_swath_works_it_from_its_start(
@@ -237,15 +272,7 @@ def test_an_autopilot_back_in_the_garage_from_a_swath_works_it_from_its_start(
     would leave the swath unworked: it starts where the swath starts, the implement up, and
     ArduPilot drives there, runs the mission's own lowering and works the swath."""
     sitl.speedup = 2.0  # slow until the cut: a swath in seconds of wall time, to stop it on
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
-    procs.bridge(SCENARIO, "r1", sitl, port)
-    with status_reader(port, "sitl") as status:
-        state: dict = {}
-        under_way = r1_under_way(procs, sitl, serve, status, 0.0, state)
-        wait_for("r1 under way", under_way, RUN_TIMEOUT_S, procs.report)
-        items = planned_items(port, "sitl", "r1")
+    with r1_job(procs, sitl, tmp_path) as (serve, state, under_way, items):
         swaths = swaths_lowered_at_their_start(items)
         assert swaths, [it.role for it in items]
         on: list[tuple[int, int]] = []
@@ -266,14 +293,8 @@ def test_an_autopilot_back_in_the_garage_from_a_swath_works_it_from_its_start(
             RUN_TIMEOUT_S,
             lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
         )
-        sitl.freeze()
-        caught_up(under_way)
-        reached = state["reached"]
-        assert swaths.get(reached) == on[0], (state, on)  # frozen on that swath
-        sitl.kill()
-        sitl.speedup = SPEEDUP
-        restarted_ns = time.time_ns()
-        sitl.start()  # in the garage
+        reached, restarted_ns = back_in_the_garage(sitl, under_way, state)
+        assert swaths.get(reached) == on[0], (state, on)  # cut on that swath
         assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     path = log_of(Processes.output(serve))
     review = review_log(path)
@@ -291,6 +312,60 @@ def test_an_autopilot_back_in_the_garage_from_a_swath_works_it_from_its_start(
     # Back at the swath's start after the reboot (ArduPilot reports the DO_CHANGE_SPEED
     # after it reached, not the waypoint), then along the swath to its end.
     assert after and start <= after[0] < end and end in after, (start, end, after)
+
+
+def test_an_autopilot_back_in_the_garage_from_a_line_is_lowered_where_the_line_starts(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    """The same on a field's lines worked one after another with the implement down,
+    lowered once before the first: the mission does not lower it again, so the dispatcher
+    starts it where the line starts, the implement up, and lowers it by a command once it
+    is past that item; ArduPilot takes the command in AUTO."""
+    with r1_job(procs, sitl, tmp_path) as (serve, state, under_way, items):
+        lines = swaths_lowered_at_their_start(items, lowered_before=True)
+        # Well inside a run of such lines: still in it once the status has caught up.
+        inside = {r for r in lines if all(r + d in lines for d in range(12))}
+        assert inside, [it.role for it in items]
+        on_a_line = lambda: under_way() and state.get("reached") in inside  # noqa: E731
+        wait_for(
+            "r1 on a field's lines",
+            on_a_line,
+            RUN_TIMEOUT_S,
+            lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
+        )
+        reached, restarted_ns = back_in_the_garage(sitl, under_way, state)
+        assert reached in lines, state
+        assert finished(serve, procs, sitl) == 0, procs.report(sitl)
+    path = log_of(Processes.output(serve))
+    review = review_log(path)
+    check_worked_once(review, driven_as_planned=False)
+    start, _ = lines[reached]
+    log = read_log(path)
+    messages = [r.decode_json()["message"] for r in log.on(LOG_TOPIC)]
+    assert any(f"from item {start}, where the leg starts" in m for m in messages), messages
+    assert any(f"past item {start}, where its leg starts" in m for m in messages), messages
+    lowering = items[implement_set_before(items, start + 1) or 0]
+    to = [
+        r.decode_json()
+        for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/to/json")
+        if r.log_time_ns >= restarted_ns
+    ]
+    sent = [
+        m
+        for m in to
+        if m.get("mavpackettype") == "COMMAND_LONG"
+        and m["command"] == lowering.command
+        and m["param2"] == lowering.param2
+    ]
+    assert sent, "no lowering sent"
+    acks = [
+        r.decode_json()["result"]
+        for r in log.on("agrifleet/sitl/vehicle/r1/mavlink/from/json")
+        if r.log_time_ns >= restarted_ns
+        and r.decode_json().get("mavpackettype") == "COMMAND_ACK"
+        and r.decode_json()["command"] == lowering.command
+    ]
+    assert acks and set(acks) == {mc.MAV_RESULT_ACCEPTED}, acks
 
 
 def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(

@@ -222,6 +222,11 @@ class _Link:
     renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
     awaiting_fix: bool = False  # rebooted: waiting for where it is (said once)
+    # Started back at the start of its leg with the implement up, where the mission lowered
+    # it before that (_start_at): (that item, the lowering, whether it has been seen heading
+    # there): the lowering is sent once it is past the item. And the lowering sent.
+    lower_after: tuple[int, Command, bool] | None = None
+    lower: CommandSequence | None = None
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
@@ -232,7 +237,7 @@ class _Link:
     round_trip: RoundTrip = field(default_factory=RoundTrip)  # measured by its transfers
 
     def exchanges(self) -> tuple[MissionUpload | MissionDownload | CommandSequence | None, ...]:
-        return (self.upload, self.download, self.start, self.hold, self.park)
+        return (self.upload, self.download, self.start, self.hold, self.park, self.lower)
 
     @property
     def busy(self) -> bool:
@@ -725,6 +730,7 @@ class Dispatcher:
         uploaded, start again after a reboot, park once done."""
         v = self.state.vehicles[vid]
         link = self.links[vid]
+        self._lower_when_past(v, link, now)
         if link.numbered is not None and link.upload is not None:
             if link.upload.outcome is Outcome.DONE:
                 self._numbered(v, link, now)
@@ -1260,7 +1266,8 @@ class Dispatcher:
             )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
-        link.start_item = self._start_at(v, link.start_item)
+        link.lower_after = None
+        link.start_item = self._start_at(v, link, link.start_item)
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         speed = self.job.missions[v.id].speed_before(link.start_item)
@@ -1269,25 +1276,30 @@ class Dispatcher:
                 link.start_item,
                 in_auto=in_auto,
                 speed_ms=speed,
-                implement=self._implement_at(v, link.start_item),
+                implement=(
+                    self._implement_at(v, link.start_item)
+                    if link.lower_after is None
+                    else self._raised(v)
+                ),
             ),
             v.system_id,
             refusal_window_s=START_REFUSAL_WINDOW_S,
         )
         self._send(v.id, link.start.start(now))
 
-    def _start_at(self, v: VehicleState, seq: int) -> int:
+    def _start_at(self, v: VehicleState, link: _Link, seq: int) -> int:
         """Where a start meant for item ``seq`` begins: there, unless the vehicle stands off
         the leg to it (moved while the implement was down, or a simulator started again in
-        the garage) where the implement is down along that leg and the mission lowers it
-        at the leg's start (a swath after a turn, a field's first swath). Then at the leg's
-        start: it drives there with the implement up (:meth:`_implement_at`), the mission
-        lowers it, and the leg is worked whole (what was worked of it before, again),
-        rather than driven with the implement up and left unworked. Not where the
-        implement was lowered before the leg's start (a field without planned turns, its
-        swaths one line), nor where the leg's start is not on board (a mission renumbered
-        from a later item) or before a re-plan's new route: up then, and said
-        (:meth:`_implement_at`)."""
+        the garage) where the implement is down along that leg. Then at the leg's start:
+        it drives there with the implement up (:meth:`_implement_at`), and the leg is
+        worked whole (what was worked of it before, again), rather than driven with the
+        implement up and left unworked. Where the mission lowers the implement after the
+        leg's start (a swath after a turn, a field's first swath) it does so itself; where
+        it lowered it before (the lines of a field worked one after another with it down)
+        the mission's lowering is sent as a command once the vehicle is past the leg's
+        start (``link.lower_after``, :meth:`_lower_when_past`). Not where the leg's start
+        is not on board (a mission renumbered from a later item) or before a re-plan's new
+        route: up then, and said (:meth:`_implement_at`)."""
         end = leg_end(v.items, seq)
         k = None if end is None else implement_set_before(v.items, end)
         start = leg_start(v.items, seq)
@@ -1295,7 +1307,6 @@ class Dispatcher:
             k is None
             or v.items[k].role not in IMPLEMENT_LOWERED
             or start is None
-            or not start < k
             or start < max(1, v.route_from, v.numbering.base)
             or v.where is None
         ):
@@ -1303,13 +1314,51 @@ class Dispatcher:
         off = off_leg_m(v.items, seq, v.where)
         if off is None or off <= REACH_M:
             return seq
+        if start < k:
+            how = "the mission lowers it there"
+        else:
+            lowering = v.items[k]
+            link.lower_after = (
+                start,
+                Command(lowering.command, (lowering.param1, lowering.param2)),
+                False,
+            )
+            how = "lowered by our command once it is past that item"
         self._log(
             "warning",
             f"{v.id}: {off:.0f} m from the leg it goes on along at item {seq}: from item "
-            f"{start}, where the leg starts, with the implement up; the mission lowers it "
-            "there, and what was worked of the leg is worked again",
+            f"{start}, where the leg starts, with the implement up; {how}, and what was "
+            "worked of the leg is worked again",
         )
         return start
+
+    def _lower_when_past(self, v: VehicleState, link: _Link, now: float) -> None:
+        """Lower the implement (``link.lower_after``) once the vehicle, started at the
+        start of its leg, has headed there (its MISSION_CURRENT at or before that item)
+        and gone past it (after it): ArduPilot takes the mission's DO_SET_SERVO or
+        DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
+        what it drives of the leg before the command arrives is not worked (~2 m at a
+        tractor's working speed)."""
+        if link.lower_after is None:
+            return
+        item, command, headed = link.lower_after
+        if v.start_from != item or v.phase not in (Phase.STARTING, Phase.RUNNING):
+            link.lower_after = None  # started elsewhere since
+            return
+        if not headed:
+            if v.current <= item:
+                link.lower_after = (item, command, True)
+            return
+        if v.phase is Phase.RUNNING and v.current > item:
+            link.lower_after = None
+            link.lower = CommandSequence([command], v.system_id)
+            self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
+            self._send(v.id, link.lower.start(now))
+
+    def _raised(self, v: VehicleState) -> Command | None:
+        """The mission's raising of the implement, as a command (None if it has none)."""
+        up = next((it for it in v.items if it.role in IMPLEMENT_RAISED), None)
+        return None if up is None else Command(up.command, (up.param1, up.param2), optional=True)
 
     def _implement_at(self, v: VehicleState, seq: int) -> Command | None:
         """The implement as its mission has it when it drives to item ``seq`` (the item

@@ -494,6 +494,10 @@ class _Events:
     # dispatcher's Dispatcher._start_at): (seq, clock s). The DO items after each (and a DO
     # item itself: ArduPilot reports some, DO_CHANGE_SPEED, as reached) ran again then.
     again: list[tuple[int, float]] = field(default_factory=list)
+    # When it drove back there with the implement up: from a reboot since the highest item
+    # reached (its outputs at their boot values), else from being found sent back (the
+    # start's command raised it), to its first item reached again (run clock s).
+    up_spans: list[tuple[float, float]] = field(default_factory=list)
 
 
 def _read_events(
@@ -528,11 +532,13 @@ def _read_events(
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
     last_reached: int | None = None  # the item of the last MISSION_ITEM_REACHED
-    highest, highest_ns = 0, 0  # the highest item reached, and when
+    highest, highest_ns, highest_t = 0, 0, -math.inf  # the highest item reached, and when
     # The item the vehicle was sent back to (its MISSION_CURRENT at or before the highest
     # reached), until it is past the highest again.
     sent_back: int | None = None
     again: list[tuple[int, float]] = []
+    up_spans: list[tuple[float, float]] = []
+    back_since: float | None = None  # found sent back then, not yet there again
     # Whether the vehicle holds the mission reviewed, as far as its MISSION_CURRENT.total
     # tells: the items it reports of another (before a re-plan gave it a new mission whole)
     # say nothing of where it heads in this one.
@@ -589,8 +595,12 @@ def _read_events(
             back = sent_back is not None and isinstance(seq, int) and sent_back <= seq <= highest
             if back and 0 < seq < len(items) and clock.now is not None:
                 again.append((seq, clock.now))
+                if back_since is not None:
+                    up_spans.append((back_since, clock.now))
+                    back_since = None
             if isinstance(seq, int) and seq > highest:
                 highest, highest_ns, sent_back = seq, log_ns, None
+                highest_t = clock.now if clock.now is not None else highest_t
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
@@ -621,6 +631,11 @@ def _read_events(
                     and told
                     and msg.get("mission_state") != mc.MISSION_STATE_COMPLETE
                 ):
+                    if sent_back is None:
+                        # Up since: a reboot since it reached the highest (its outputs at
+                        # their boot values), else our start (its command raised it).
+                        rebooted = reboots[-1] if reboots and reboots[-1] >= highest_t else None
+                        back_since = rebooted if rebooted is not None else clock.now
                     sent_back = seq if sent_back is None else min(sent_back, seq)
                     last_reached = None  # (reaching the item it reached last is news now)
         elif kind == "HEARTBEAT":
@@ -632,7 +647,16 @@ def _read_events(
                 texts.append((clock.now, severity, text))
     settle()
     return _Events(
-        points, reached, heartbeats, clock.now, reboots, texts, heading_to, caught_up, again
+        points,
+        reached,
+        heartbeats,
+        clock.now,
+        reboots,
+        texts,
+        heading_to,
+        caught_up,
+        again,
+        up_spans,
     )
 
 
@@ -1202,7 +1226,11 @@ def _review_vehicle(
     # Driving quality from the reported positions, and across a gap in the recording from
     # the mission's waypoints put there (the best known of where it drove).
     quality = track_quality(
-        items, times, [(p.t, p.lat, p.lon) for p in track if not p.waypoint or p.filled], fields
+        items,
+        times,
+        [(p.t, p.lat, p.lon) for p in track if not p.waypoint or p.filled],
+        fields,
+        events.up_spans,
     )
     if quality is not None and quality.outside_down_s > 0:
         warnings.append(

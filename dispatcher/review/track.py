@@ -67,11 +67,14 @@ def track_quality(
     times: Mapping[int, float],
     track: Sequence[tuple[float, float, float]],
     fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
+    up_spans: Sequence[tuple[float, float]] = (),
 ) -> TrackQuality | None:
     """Measure one vehicle's track (``(clock s, lat, lon)`` in time order) against its
     mission ``items``, given when each item was done (``times``, the vehicle's clock) and
     the fields' rings (each field's outline, then its holes: lists of ``(lon, lat)``);
-    a hole (a pond) counts as outside. None when nothing was driven."""
+    a hole (a pond) counts as outside. ``up_spans``: times the implement was up within a
+    working stretch (driven back to where a line starts after a reboot, the dispatcher's
+    start raising it). None when nothing was driven."""
     if len(track) < 2 or not items:
         return None
     frame = LocalFrame.around(float(track[0][2]), float(track[0][1]))
@@ -119,6 +122,8 @@ def track_quality(
                 loops += 1
         previous_stretch_end = (up_seq, t1)
         inside = (t > t0) & (t < t1)
+        for a, b in up_spans:
+            inside &= ~((t >= a) & (t <= b))
         if not np.any(inside) or len(line_points) < 1:
             continue
         line = LineString(line_points) if len(line_points) > 1 else shapely.points(line_points[0])

@@ -750,6 +750,9 @@ def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside(
     # The pond is 0.0004 degrees of longitude across (29 m) of the line's 0.0018; less the
     # tolerance at both of its sides, and a sample's step either side.
     assert 17.0 <= with_pond.outside_down_s <= 25.0
+    # The implement up over the pond's part of the line (driven back after a reboot): none.
+    up = track_quality(items, times, track, {"F": (outline, pond)}, [(40.0, 80.0)])
+    assert up is not None and up.outside_down_s == 0.0 and up.samples < with_pond.samples
 
 
 def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again() -> None:
@@ -777,6 +780,8 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     def position(t_ms: int) -> tuple[int, dict]:
         return frame("GLOBAL_POSITION_INT", time_boot_ms=t_ms, lat=500_000_000, lon=100_000_000)
 
+    spans: list[list[tuple[float, float]]] = []
+
     def run(sent_back: bool, told: bool = True) -> dict[int, float]:
         frames = [
             position(1_000),
@@ -801,6 +806,7 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
         events = _read_events(frames, items, told_at)
         times, _, last, _ = _item_times(items, events.reached, {}, events.again)
         assert last == 4
+        spans.append(events.up_spans)
         return times
 
     once, back = run(False), run(True)
@@ -809,6 +815,10 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     assert back[4] == once[4]
     # Its MISSION_CURRENT going back with no word of ours (a late frame): not sent back.
     assert run(True, told=False) == once
+    # The drive back, with the implement up (for the track's quality): from the word that
+    # it was sent back to where it was again.
+    assert spans[0] == spans[2] == [] and len(spans[1]) == 1
+    assert spans[1][0][0] < back[3] == spans[1][0][1]
 
 
 def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it() -> None:

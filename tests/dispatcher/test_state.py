@@ -398,13 +398,35 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     start_lowered = (lowering.param1, lowering.param2)
     assert start[1].params == start_lowered
     # Back somewhere else (a simulator started again in the garage): it would drive there
-    # with the implement down. Up, and said.
+    # with the implement down. The field has no planned turns: its lines are driven one
+    # after another with the implement down, lowered once before the first. So from the
+    # end of the line before, the implement up, and lowered by our command once it is past
+    # that item (the lowering is behind: the mission does not lower it again).
     with caplog.at_level("WARNING"):
         daemon, v, _ = rebooted_v1(dispatch, end)
-    start = daemon.links["v1"].start.commands
+    link = daemon.links["v1"]
+    start = link.start.commands
     raising = next(it for it in v.items[end + 1 :] if it.role in IMPLEMENT_RAISED)
+    assert start[0].params[0] == end
     assert start[1].params == (raising.param1, raising.param2) != start_lowered
-    assert "the implement stays up" in caplog.text
+    assert f"from item {end}, where the leg starts" in caplog.text
+
+    def heading_to(seq, now):
+        feed(daemon.state, "v1", mc.message("MISSION_CURRENT", seq=seq, total=len(v.items) - 1,
+                                            mission_state=3, mission_mode=1), now)  # fmt: skip
+        daemon._advance("v1", now)
+
+    heading_to(end + 1, 3.15)  # (a report from before our start took: past the item)
+    accept(link.start, 3.2)
+    daemon._advance("v1", 3.3)
+    assert v.phase is Phase.RUNNING and link.lower is None
+    heading_to(end + 1, 3.4)
+    assert link.lower is None  # not seen heading to the line's end yet
+    heading_to(end, 3.5)
+    assert link.lower is None  # on its way back to the line's end
+    heading_to(end + 1, 9.0)  # past it: on along the line
+    assert link.lower is not None and [c.params for c in link.lower.commands] == [start_lowered]
+    assert commands_to(daemon, "v1", 11)[-1] == (lowering.command, lowering.param1)
     # Before any field: up, as the mission has it there.
     daemon, _, _ = rebooted_v1(dispatch, 1)
     start = daemon.links["v1"].start.commands
