@@ -1266,8 +1266,12 @@ class Dispatcher:
             )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
-        link.lower_after = None
-        link.start_item = self._start_at(v, link, link.start_item)
+        link.lower = None  # a lowering of an earlier start: not this one's
+        if link.lower_after is None or link.lower_after[0] != link.start_item:
+            link.lower_after = None
+            link.start_item = self._start_at(v, link, link.start_item)
+        else:  # the same start again (_start_again): from where it went back to
+            link.lower_after = (link.start_item, link.lower_after[1], False)
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         speed = self.job.missions[v.id].speed_before(link.start_item)
@@ -1339,8 +1343,8 @@ class Dispatcher:
         DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed)."""
-        if link.lower_after is None:
-            return
+        if link.lower_after is None or v.phase is Phase.LOST:
+            return  # (lost for a moment: it may drive on meanwhile)
         item, command, headed = link.lower_after
         if v.start_from != item or v.phase not in (Phase.STARTING, Phase.RUNNING):
             link.lower_after = None  # started elsewhere since
@@ -1349,7 +1353,14 @@ class Dispatcher:
             if v.current <= item:
                 link.lower_after = (item, command, True)
             return
-        if v.phase is Phase.RUNNING and v.current > item:
+        on = v.where is not None and (off_leg_m(v.items, v.current, v.where) or 0.0) <= REACH_M
+        if (
+            v.phase is Phase.RUNNING
+            and v.driving
+            and not v.operator_hold
+            and v.current == leg_end(v.items, item + 1)  # on the leg after it
+            and on
+        ):
             link.lower_after = None
             link.lower = CommandSequence([command], v.system_id)
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")

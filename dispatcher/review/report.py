@@ -494,9 +494,8 @@ class _Events:
     # dispatcher's Dispatcher._start_at): (seq, clock s). The DO items after each (and a DO
     # item itself: ArduPilot reports some, DO_CHANGE_SPEED, as reached) ran again then.
     again: list[tuple[int, float]] = field(default_factory=list)
-    # When it drove back there with the implement up: from a reboot since the highest item
-    # reached (its outputs at their boot values), else from being found sent back (the
-    # start's command raised it), to its first item reached again (run clock s).
+    # When it drove back there with the implement up, after a reboot: from the reboot (its
+    # outputs at their boot values) to its first item reached again (run clock s).
     up_spans: list[tuple[float, float]] = field(default_factory=list)
 
 
@@ -632,10 +631,9 @@ def _read_events(
                     and msg.get("mission_state") != mc.MISSION_STATE_COMPLETE
                 ):
                     if sent_back is None:
-                        # Up since: a reboot since it reached the highest (its outputs at
-                        # their boot values), else our start (its command raised it).
-                        rebooted = reboots[-1] if reboots and reboots[-1] >= highest_t else None
-                        back_since = rebooted if rebooted is not None else clock.now
+                        # Up since a reboot after it reached the highest (its outputs at
+                        # their boot values; our start keeps it up where it goes back).
+                        back_since = reboots[-1] if reboots and reboots[-1] >= highest_t else None
                     sent_back = seq if sent_back is None else min(sent_back, seq)
                     last_reached = None  # (reaching the item it reached last is news now)
         elif kind == "HEARTBEAT":

@@ -416,6 +416,8 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
                                             mission_state=3, mission_mode=1), now)  # fmt: skip
         daemon._advance("v1", now)
 
+    daemon._start(v, link, 3.12)  # the same start again (unanswered though heard)
+    assert link.start_item == end and link.start.commands[0].params[0] == end
     heading_to(end + 1, 3.15)  # (a report from before our start took: past the item)
     accept(link.start, 3.2)
     daemon._advance("v1", 3.3)
@@ -424,6 +426,8 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     assert link.lower is None  # not seen heading to the line's end yet
     heading_to(end, 3.5)
     assert link.lower is None  # on its way back to the line's end
+    feed(daemon.state, "v1", driving_heartbeat(11), 8.9)
+    feed(daemon.state, "v1", position(9_000, items[end].x, items[end].y), 8.9)
     heading_to(end + 1, 9.0)  # past it: on along the line
     assert link.lower is not None and [c.params for c in link.lower.commands] == [start_lowered]
     assert commands_to(daemon, "v1", 11)[-1] == (lowering.command, lowering.param1)
