@@ -144,19 +144,7 @@ def test_a_run_started_while_the_autopilot_boots_then_a_second_job_without_a_reb
 def test_an_autopilot_reboot_mid_mission_is_armed_again_and_resumed(
     procs: Processes, sitl: Sitl, tmp_path: Path
 ) -> None:
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
-    procs.bridge(SCENARIO, "r1", sitl, port)
-    with status_reader(port, "sitl") as status:
-        state: dict = {}
-        well_under_way = r1_under_way(procs, sitl, serve, status, 0.4, state)
-        wait_for(
-            "40 % of the mission",
-            well_under_way,
-            RUN_TIMEOUT_S,
-            lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
-        )
+    with r1_job(procs, sitl, tmp_path, 0.4) as (serve, state, well_under_way, _):
         # A power cut: the autopilot stops, and restarts on its eeprom where the tractor
         # stands (SITL would put it back in the garage): read where that is once the
         # dispatcher has heard its last position.
@@ -236,17 +224,22 @@ def swaths_lowered_at_their_start(  # type: ignore[no-untyped-def]
 
 
 @contextlib.contextmanager
-def r1_job(procs: Processes, sitl: Sitl, tmp_path: Path):  # type: ignore[no-untyped-def]
-    """r1's job under way: the serve process, r1's status as last read, the check that
-    reads it (:func:`r1_under_way`, from any share done) and r1's mission items."""
+def r1_job(procs: Processes, sitl: Sitl, tmp_path: Path, share: float = 0.0):  # type: ignore[no-untyped-def]
+    """r1's job under way, ``share`` of it done: the serve process, r1's status as last
+    read, the check that reads it (:func:`r1_under_way`) and r1's mission items."""
     port = free_port()
     sitl.start(wipe=True)
     serve = procs.serve(SCENARIO, port, tmp_path / "logs")
     procs.bridge(SCENARIO, "r1", sitl, port)
     with status_reader(port, "sitl") as status:
         state: dict = {}
-        under_way = r1_under_way(procs, sitl, serve, status, 0.0, state)
-        wait_for("r1 under way", under_way, RUN_TIMEOUT_S, procs.report)
+        under_way = r1_under_way(procs, sitl, serve, status, share, state)
+        wait_for(
+            f"{share:.0%} of the mission",
+            under_way,
+            RUN_TIMEOUT_S,
+            lambda: f"last status of r1: {state}\n{procs.report(sitl)}",
+        )
         yield serve, state, under_way, planned_items(port, "sitl", "r1")
 
 

@@ -1379,11 +1379,12 @@ class Dispatcher:
         (moved while it was down, or a simulator started again in the garage): up, or it
         would drive there with the implement down, and said; the mission lowers it again
         where it next does. None for a mission that never sets it."""
-        up = next((it for it in v.items if it.role in IMPLEMENT_RAISED), None)
         k = implement_set_before(v.items, seq)
-        item = up if k is None else v.items[k]
+        if k is None:
+            return self._raised(v)
+        item = v.items[k]
         where = v.where
-        if item is not None and item.role in IMPLEMENT_LOWERED and where is not None:
+        if item.role in IMPLEMENT_LOWERED and where is not None:
             off = off_leg_m(v.items, seq, where)
             if off is not None and off > REACH_M:
                 self._log(
@@ -1392,9 +1393,7 @@ class Dispatcher:
                     "the implement stays up until the mission lowers it again, and what it "
                     "drives before that is not worked",
                 )
-                item = up
-        if item is None:
-            return None
+                return self._raised(v)
         return Command(item.command, (item.param1, item.param2), optional=True)
 
     def _start_again(self, v: VehicleState, link: _Link, now: float) -> bool:
