@@ -97,6 +97,10 @@ PROBE_PERIOD_S = 10.0
 """Wall seconds from a HOLD unanswered to the next, told a vehicle failed for want of
 answers whose work went to the others, while it is heard: whether it hears us again
 (Dispatcher._probe)."""
+FIX_TIMEOUT_S = 120.0
+"""Wall seconds a rebooted autopilot has to say where it is (a GPS fix: ArduPilot drives
+no mission without one) before its start fails and its work goes to the others; it is
+asked again once it says where it is (Dispatcher._probe), and rejoins if it answers."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -221,12 +225,15 @@ class _Link:
     # stopped (at the item it drove to from memory, the set-current late) is started again.
     renumbered: bool = False
     rejoin_asked: bool = False  # retired, back: a re-plan was asked to give it work again
-    awaiting_fix: bool = False  # rebooted: waiting for where it is (said once)
-    # Started back at the start of its leg with the implement up, where the mission lowered
-    # it before that (_start_at): (that item, the lowering, whether it has been seen heading
-    # there): the lowering is sent once it is past the item. And the lowering sent.
-    lower_after: tuple[int, Command, bool] | None = None
+    awaiting_fix: float | None = None  # rebooted: waiting for where it is since (said once)
+    # Driving with the implement up where its mission has it down (started back at the
+    # start of its leg, _start_at; or so found after a restart of ours, _implement_on):
+    # (that item, the mission's lowering item, whether it has been seen heading there):
+    # the lowering is sent once it is past the item (_lower_when_past). And the lowering
+    # sent, and how many times it was sent for want of an answer.
+    lower_after: tuple[int, int, bool] | None = None
     lower: CommandSequence | None = None
+    lowerings: int = 0
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
@@ -789,9 +796,17 @@ class Dispatcher:
             # implement depend on it (ArduPilot drives no mission before it knows either).
             if v.where is not None:
                 self._restart(v, link, now)
-            elif not link.awaiting_fix:
-                link.awaiting_fix = True
+            elif link.awaiting_fix is None:
+                link.awaiting_fix = now
                 self._log("info", f"{vid}: the autopilot rebooted; waiting for its position")
+            elif now - link.awaiting_fix > FIX_TIMEOUT_S:
+                link.awaiting_fix = None
+                error = (
+                    f"start failed: no position in {FIX_TIMEOUT_S:g} s since its autopilot "
+                    "rebooted (no GPS fix?)"
+                )
+                self._apply(ev.StartFailed(vid, error), now)
+                self._log("error", f"{vid}: {error}")
         elif not v.needs_restart and (failsafe := self._failsafe_over(v, link)):
             link.start_item = v.resume_item
             self._log(
@@ -900,8 +915,9 @@ class Dispatcher:
             self._advance_topup(v, link, now)
 
     def _probe(self, v: VehicleState, link: _Link, now: float) -> None:
-        """A vehicle failed for want of answers, its work given to the others: told to
-        HOLD while it is heard, PROBE_PERIOD_S after the last time went unanswered. Once
+        """A vehicle failed for want of answers (or of a position since it rebooted), its
+        work given to the others: told to HOLD while it is heard (and, rebooted, once it
+        says where it is), PROBE_PERIOD_S after the last time went unanswered. Once
         it acknowledges, it hears us again (events.AnsweringAgain), and it rejoins as one
         back from a loss does (the retired branch of :meth:`_advance`: a re-plan gives it
         work from where it is). The HOLD stops one that drives its mission after all: its
@@ -916,7 +932,8 @@ class Dispatcher:
                 return
             link.hold, link.probe_at = None, now + PROBE_PERIOD_S
         heard = v.last_seen is not None and now - v.last_seen <= self.config.heartbeat_timeout_s
-        if heard and now >= link.probe_at and not link.busy:
+        placed = v.where is not None or not v.needs_restart  # (rebooted: a fix first)
+        if heard and now >= link.probe_at and not link.busy and placed:
             link.hold = CommandSequence(hold_commands(), v.system_id)
             self._send(v.id, link.hold.start(now))
 
@@ -1271,7 +1288,7 @@ class Dispatcher:
             link.lower_after = None
             link.start_item = self._start_at(v, link, link.start_item)
         else:  # the same start again (_start_again): from where it went back to
-            link.lower_after = (link.start_item, link.lower_after[1], False)
+            link.lower_after, link.lowerings = (link.start_item, link.lower_after[1], False), 0
         self._apply(ev.StartRequested(v.id, link.start_item), now)
         link.since = now
         speed = self.job.missions[v.id].speed_before(link.start_item)
@@ -1321,12 +1338,7 @@ class Dispatcher:
         if start < k:
             how = "the mission lowers it there"
         else:
-            lowering = v.items[k]
-            link.lower_after = (
-                start,
-                Command(lowering.command, (lowering.param1, lowering.param2)),
-                False,
-            )
+            link.lower_after, link.lowerings = (start, k, False), 0
             how = "lowered by our command once it is past that item"
         self._log(
             "warning",
@@ -1339,32 +1351,66 @@ class Dispatcher:
     def _lower_when_past(self, v: VehicleState, link: _Link, now: float) -> None:
         """Lower the implement (``link.lower_after``) once the vehicle, started at the
         start of its leg, has headed there (its MISSION_CURRENT at or before that item)
-        and gone past it (after it): ArduPilot takes the mission's DO_SET_SERVO or
+        and gone past it (after it), onto a leg its mission drives with the implement down
+        and within :data:`REACH_M` of it: ArduPilot takes the mission's DO_SET_SERVO or
         DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
-        tractor's working speed)."""
-        if link.lower_after is None or v.phase is Phase.LOST:
+        tractor's working speed). A lowering unanswered is sent again (up to
+        ``start_attempts`` in all); one refused, or past the legs the mission drives with
+        it down, is said."""
+        if link.lower is not None and link.lower.outcome is not Outcome.RUNNING:
+            sent, link.lower = link.lower, None
+            if sent.outcome is Outcome.DONE:
+                link.lower_after = None
+            elif not sent.unanswered or link.lowerings >= self.config.start_attempts:
+                link.lower_after = None
+                self._log(
+                    "warning",
+                    f"{v.id}: the implement's lowering failed ({sent.reason}): it drives "
+                    "with the implement up until its mission lowers it again, and that is "
+                    "not worked",
+                )
+        if link.lower_after is None or link.lower is not None or v.phase is Phase.LOST:
             return  # (lost for a moment: it may drive on meanwhile)
-        item, command, headed = link.lower_after
-        if v.start_from != item or v.phase not in (Phase.STARTING, Phase.RUNNING):
-            link.lower_after = None  # started elsewhere since
+        item, k, headed = link.lower_after
+        if v.phase not in (Phase.STARTING, Phase.RUNNING) or k >= len(v.items):
+            link.lower_after = None  # done, failed, or its mission changed under it
             return
         if not headed:
             if v.current <= item:
-                link.lower_after = (item, command, True)
+                link.lower_after = (item, k, True)
+            return
+        if v.current <= item:
+            return
+        if implement_set_before(v.items, v.current) != k:
+            link.lower_after = None
+            self._log(
+                "warning",
+                f"{v.id}: past the legs its mission drives with the implement down after item "
+                f"{item} before it could be lowered: those were driven with it up, not worked",
+            )
             return
         on = v.where is not None and (off_leg_m(v.items, v.current, v.where) or 0.0) <= REACH_M
-        if (
-            v.phase is Phase.RUNNING
-            and v.driving
-            and not v.operator_hold
-            and v.current == leg_end(v.items, item + 1)  # on the leg after it
-            and on
-        ):
-            link.lower_after = None
-            link.lower = CommandSequence([command], v.system_id)
+        if v.phase is Phase.RUNNING and v.driving and not v.operator_hold and on:
+            lowering = v.items[k]
+            link.lower = CommandSequence(
+                [Command(lowering.command, (lowering.param1, lowering.param2))], v.system_id
+            )
+            link.lowerings += 1
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
             self._send(v.id, link.lower.start(now))
+
+    def _implement_on(self, v: VehicleState, link: _Link, now: float) -> None:
+        """A vehicle found driving its mission after a restart of ours, on its way to an
+        item its mission drives to with the implement down: lowered once it is on that
+        leg (:meth:`_lower_when_past`), in case we had started it back at the start of a
+        leg with the implement up and the lowering was still to come, which this process
+        does not know. A lowering again is nothing to an implement already down; one on its
+        way to the leg's start (from the garage, say) is lowered once it is past it."""
+        k = implement_set_before(v.items, v.current)
+        if k is not None and v.items[k].role in IMPLEMENT_LOWERED:
+            link.lower_after, link.lowerings = (v.current - 1, k, True), 0
+            self._lower_when_past(v, link, now)
 
     def _raised(self, v: VehicleState) -> Command | None:
         """The mission's raising of the implement, as a command (None if it has none)."""
@@ -1420,7 +1466,7 @@ class Dispatcher:
         upload again first if what it holds is not our mission."""
         v.needs_restart = False
         link.hold = None  # (told to HOLD while it was lost, rebooted: this is its start)
-        link.awaiting_fix = False
+        link.awaiting_fix = None
         link.start_item = v.resume_item
         expected = v.held - 1  # MISSION_CURRENT.total counts the items after home
         if v.mission_total is not None and v.mission_total != expected:
@@ -1489,6 +1535,7 @@ class Dispatcher:
         elif v.driving and v.mission_state in (None, mc.MISSION_STATE_ACTIVE):
             self._apply(ev.MissionStarted(v.id, v.current), now)
             self._log("info", f"{v.id}: still driving its mission at item {v.current}; kept")
+            self._implement_on(v, link, now)
         else:
             link.start_item = v.resume_item
             self._log("warning", f"{v.id}: stopped; going on at item {link.start_item}")
@@ -1618,6 +1665,10 @@ class Dispatcher:
             link.start_item = v.resume_item
             if v.switch:  # driving: its new mission is uploaded under it
                 link.switch_from = v.route_from
+                if old.lower_after is not None and old.lower_after[0] < v.route_from:
+                    # To be lowered along the part it keeps: still to be (or being) lowered.
+                    link.lower_after, link.lower = old.lower_after, old.lower
+                    link.lowerings = old.lowerings
                 self._log(
                     "info", f"{m.id}: new route from item {v.route_from}; uploading under way"
                 )

@@ -490,6 +490,7 @@ class FleetState:
                 if v.phase is Phase.FAILED:
                     v.phase, v.error = Phase.ALIVE, ""
                     v.upload_attempts = 0
+                    v.needs_restart = False  # (rebooted meanwhile): a new mission's start
             case ev.StartRefused(reason=reason):
                 v.error = reason
             case ev.LeftAuto(reason=reason, by_operator=by_operator):

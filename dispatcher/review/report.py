@@ -644,6 +644,8 @@ def _read_events(
             if text and isinstance(severity, int):
                 texts.append((clock.now, severity, text))
     settle()
+    if back_since is not None and clock.now is not None:
+        up_spans.append((back_since, clock.now))  # the log ends on the drive back
     return _Events(
         points,
         reached,

@@ -782,7 +782,7 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
 
     spans: list[list[tuple[float, float]]] = []
 
-    def run(sent_back: bool, told: bool = True) -> dict[int, float]:
+    def run(sent_back: bool, told: bool = True, cut: int = 0) -> dict[int, float]:
         frames = [
             position(1_000),
             frame("MISSION_CURRENT", seq=1, total=5),
@@ -803,9 +803,9 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
             frame("MISSION_ITEM_REACHED", seq=4),
             position(70_000),
         ]
-        events = _read_events(frames, items, told_at)
+        events = _read_events(frames[: len(frames) - cut], items, told_at)
         times, _, last, _ = _item_times(items, events.reached, {}, events.again)
-        assert last == 4
+        assert last == 4 or cut
         spans.append(events.up_spans)
         return times
 
@@ -819,6 +819,10 @@ def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again(
     # it was sent back to where it was again.
     assert spans[0] == spans[2] == [] and len(spans[1]) == 1
     assert spans[1][0][0] < back[3] == spans[1][0][1]
+    # The log ends on the drive back: up to its end.
+    run(True, cut=5)
+    assert len(spans[3]) == 1 and spans[3][0][0] == spans[1][0][0]
+    assert spans[3][0][1] > spans[3][0][0] + 50.0  # its last position's time
 
 
 def test_a_mission_a_re_plan_left_as_it_was_is_set_against_the_plan_that_gave_it() -> None:

@@ -487,6 +487,41 @@ def test_a_rebooted_autopilot_is_started_again_once_it_says_where_it_is(dispatch
     assert start[0].params[0] == start_at  # back where the swath starts
 
 
+def test_a_rebooted_autopilot_with_no_fix_has_its_work_re_planned_and_is_asked_again_once_it_has(
+    dispatch, caplog
+):
+    """A rebooted tractor that never says where it is (no GPS fix: ArduPilot drives no
+    mission without one) does not keep its fields undone to the end of the run: its start
+    fails, its work goes to the others, and it is asked whether it hears us once it says
+    where it is (then it rejoins, given work from there)."""
+    from dispatcher.daemon.server import FIX_TIMEOUT_S
+
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role == "implement_down")
+    daemon, v, sent = rebooted_v1(dispatch, down, (items[down].x, items[down].y), (0, 0))
+    daemon.config.replanner = lambda state, cancel: daemon.job  # wanted, not run here
+    now = 4.0
+    with caplog.at_level("INFO"):
+        while v.phase is Phase.RUNNING and now < 3.1 + FIX_TIMEOUT_S + 5.0:
+            feed(daemon.state, "v1", position(int(now * 1000), 0, 0), now)  # no fix
+            daemon._advance("v1", now)
+            now += 1.0
+    assert v.phase is Phase.FAILED and "no position in" in v.error
+    assert now > 3.1 + FIX_TIMEOUT_S and not commands_to(daemon, "v1", 11)
+    assert daemon._replan_reason.startswith("v1 could not be started")
+    assert caplog.text.count("start failed: no position in") == 1
+    v.retired = True  # the re-plan gave its work to the others
+    daemon._advance("v1", now)
+    assert not commands_to(daemon, "v1", 11)  # not asked before it says where it is
+    feed(daemon.state, "v1", position(int(now * 1000), 440003000, 872995000), now)
+    daemon._advance("v1", now + 0.1)
+    hold = daemon.links["v1"].hold
+    assert hold is not None and [c.command for c in hold.commands][:1] == [mc.MAV_CMD_DO_SET_MODE]
+    hold.on_message(ack(mc.MAV_CMD_DO_SET_MODE, mc.MAV_RESULT_ACCEPTED), now + 0.2)
+    daemon._advance("v1", now + 0.3)
+    assert v.phase is Phase.ALIVE and not v.needs_restart  # to rejoin with a new mission
+
+
 def test_where_a_vehicle_is_is_forgotten_when_its_autopilot_reboots(dispatch):
     """Told by its clock or by a booting HEARTBEAT (before its clock tells): the position
     heard before the reboot is no longer where it is; the next one with a fix is."""
@@ -802,6 +837,70 @@ def test_a_vehicle_still_driving_its_mission_is_kept_and_caught_up(dispatch, tmp
     assert not commands_to(daemon, "v1", 11)  # left as it is
     kinds = [k for _, k in daemon.store.rows("SELECT vehicle, kind FROM events") if _ == "v1"]
     assert kinds[-2:] == ["item_reached", "mission_started"]
+
+
+def resumed_driving_v1(dispatch, tmp_path, current, at):
+    """A daemon restarted while v1 drove to item ``current``, standing at ``at`` (lat, lon
+    * 1e7): its mission read back, kept."""
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", current - 1))
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", driving_heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(1_000, *at), 0.0)
+    feed(daemon.state, "v1", mission_current(11, current, len(v.items) - 1, 3), 0.0)
+    read_back(daemon, "v1", 11)
+    assert v.phase is Phase.RUNNING and not v.resuming
+    return daemon, v
+
+
+def test_a_vehicle_kept_driving_after_a_restart_has_its_implement_as_its_mission_has_it(
+    dispatch, tmp_path
+):
+    """We may have started it back at the start of its line with the implement up, the
+    lowering still to come, which the restarted process does not know: where its mission
+    has the implement down it is lowered once it is on the leg (a lowering again is nothing
+    to an implement already down); where the mission has it up, nothing is sent."""
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    end = next(k for k in range(down, len(items)) if items[k].role == "swath_end")
+    lowering = items[down]
+    daemon, _ = resumed_driving_v1(dispatch, tmp_path / "a", end, at_item(dispatch, end))
+    assert commands_to(daemon, "v1", 11) == [(lowering.command, lowering.param1)]
+    before = next(k for k in range(1, down) if items[k].x)  # on its way to the field
+    daemon, _ = resumed_driving_v1(dispatch, tmp_path / "b", before, at_item(dispatch, before))
+    assert not commands_to(daemon, "v1", 11)
+    # On its way to the line's start from elsewhere: once it is past it.
+    daemon, v = resumed_driving_v1(dispatch, tmp_path / "c", end, at_item(dispatch, 0))
+    assert not commands_to(daemon, "v1", 11)
+    feed(daemon.state, "v1", position(9_000, *at_item(dispatch, end)), 9.0)
+    feed(daemon.state, "v1", mission_current(11, end + 1, len(v.items) - 1, 3), 9.0)
+    daemon._advance("v1", 9.0)
+    assert commands_to(daemon, "v1", 11) == [(lowering.command, lowering.param1)]
+
+
+def test_a_lowering_unanswered_is_sent_again_and_one_refused_is_said(dispatch, tmp_path, caplog):
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    end = next(k for k in range(down, len(items)) if items[k].role == "swath_end")
+    daemon, v = resumed_driving_v1(dispatch, tmp_path / "a", end, at_item(dispatch, end))
+    link = daemon.links["v1"]
+    now = 1.0
+    for attempt in range(1, daemon.config.start_attempts + 1):
+        assert link.lower is not None and link.lowerings == attempt
+        now = unanswered(daemon, link.lower, now)
+        with caplog.at_level("WARNING"):
+            daemon._advance("v1", now)
+    assert link.lower is None and link.lower_after is None
+    assert "the implement's lowering failed (no COMMAND_ACK" in caplog.text
+    caplog.clear()
+    daemon, v = resumed_driving_v1(dispatch, tmp_path / "b", end, at_item(dispatch, end))
+    link = daemon.links["v1"]
+    lower = link.lower
+    lower.on_message(ack(items[down].command, mc.MAV_RESULT_DENIED), 1.0)
+    with caplog.at_level("WARNING"):
+        daemon._advance("v1", 1.1)
+    assert link.lower is None and link.lower_after is None and link.lowerings == 1
+    assert "the implement's lowering failed (MAV_CMD_DO_SET_SERVO refused" in caplog.text
 
 
 def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp_path):
@@ -1216,6 +1315,32 @@ def test_a_re_plan_that_gives_a_tractor_the_mission_on_its_way_leaves_that_uploa
     changed = dataclasses.replace(job.document, machines=(machine,), plan_id="").with_id()
     daemon._adopt(DispatchJob(changed, job.missions, {}), "v3 lost", 2.0)
     assert daemon.links["v1"] is not link  # a new mission: uploaded anew
+
+
+def test_a_lowering_still_to_come_on_the_part_a_re_plan_keeps_is_kept(dispatch):
+    """Started back at a line's start with the implement up, its lowering to be sent once
+    it is past it, then re-planned while driving: the part it keeps is the same, so is the
+    lowering still to come; one on the part the new route replaces is not."""
+    from dispatcher.mission.job import DispatchJob
+
+    job = dispatch.job()
+    items = job.document.machine("v1").items
+    moved = tuple(dataclasses.replace(i, x=i.x + 5) if i.seq > 6 else i for i in items)
+    machine = dataclasses.replace(job.document.machine("v1"), items=moved)
+    changed = dataclasses.replace(job.document, machines=(machine,), plan_id="").with_id()
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    for pending, kept in ((3, True), (8, False)):
+        daemon = daemon_for(dispatch)
+        daemon.publishers["plan"] = Pub()
+        v = daemon.state.vehicles["v1"]
+        for event in running_events("v1", 2):
+            daemon.state.apply(event, 0.0)
+        v.mode, v.armed = 10, True  # AUTO, armed
+        daemon.links["v1"].lower_after = (pending, down, True)
+        daemon._adopt(DispatchJob(changed, job.missions, {}), "v2 lost", 1.0)
+        assert v.switch and v.route_from == 7
+        link = daemon.links["v1"]
+        assert link.lower_after == ((pending, down, True) if kept else None)
 
 
 def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(dispatch):
