@@ -185,7 +185,11 @@ def _where(
     v: VehicleState, farm: Farm, work_speed_kmh: float, cut: int | None
 ) -> tuple[tuple[float, float], float]:
     """Where a vehicle starts its new route (local metres) and when (hours from now): at
-    item ``cut`` of its old mission when it drives on to there, else where it is."""
+    item ``cut`` of its old mission when it drives on to there, else where it is. Rebooted
+    and not yet placed again (``v.where`` None), where it was heard last: a tractor whose
+    autopilot restarts stands where it stood (a simulator starts again in its garage; its
+    route then begins with a longer drive than planned, and the daemon waits for its fix
+    before it starts it)."""
     lat = v.lat if v.lat is not None else v.items[0].lat
     lon = v.lon if v.lon is not None else v.items[0].lon
     x0, y0 = (float(c) for c in farm.frame.to_local(lon, lat))
