@@ -99,8 +99,12 @@ answers whose work went to the others, while it is heard: whether it hears us ag
 (Dispatcher._probe)."""
 FIX_TIMEOUT_S = 120.0
 """Wall seconds a rebooted autopilot has to say where it is (a GPS fix: ArduPilot drives
-no mission without one) before its start fails and its work goes to the others; it is
-asked again once it says where it is (Dispatcher._probe), and rejoins if it answers."""
+no mission without one) before its start fails and its work goes to the others (when
+there are others and work ahead of it; else it is waited for); it is asked again once it
+says where it is (Dispatcher._probe), and rejoins if it answers."""
+LOWERING_RETRIES = 2
+"""Resends of a lowering of the implement (Dispatcher._lower_when_past) before it counts as
+unanswered: each send is checked to be still right where the vehicle drives, so few."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -523,6 +527,8 @@ class Dispatcher:
             return
         link = self.links[vid]
         for event in self.state.on_message(vid, msg, now):
+            if isinstance(event, ev.Rebooted):
+                link.awaiting_fix = None  # its wait for a fix counts from this reboot
             if isinstance(event, ev.Rebooted) and link.stopped_by_operator and not v.operator_hold:
                 # It rebooted after the operator stopped it: it stays the operator's.
                 reason = f"{LEFT_AUTO} before it rebooted"
@@ -738,6 +744,8 @@ class Dispatcher:
         v = self.state.vehicles[vid]
         link = self.links[vid]
         self._lower_when_past(v, link, now)
+        if v.phase is not Phase.RUNNING or not v.needs_restart or v.operator_hold:
+            link.awaiting_fix = None  # (a wait for a fix counts from the last reboot)
         if link.numbered is not None and link.upload is not None:
             if link.upload.outcome is Outcome.DONE:
                 self._numbered(v, link, now)
@@ -799,7 +807,7 @@ class Dispatcher:
             elif link.awaiting_fix is None:
                 link.awaiting_fix = now
                 self._log("info", f"{vid}: the autopilot rebooted; waiting for its position")
-            elif now - link.awaiting_fix > FIX_TIMEOUT_S:
+            elif now - link.awaiting_fix > FIX_TIMEOUT_S and self._others_can_take(v):
                 link.awaiting_fix = None
                 error = (
                     f"start failed: no position in {FIX_TIMEOUT_S:g} s since its autopilot "
@@ -1356,21 +1364,33 @@ class Dispatcher:
         DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed). A lowering unanswered is sent again (up to
-        ``start_attempts`` in all); one refused, or past the legs the mission drives with
-        it down, is said."""
-        if link.lower is not None and link.lower.outcome is not Outcome.RUNNING:
-            sent, link.lower = link.lower, None
+        ``start_attempts`` in all) while that still holds; once it does not (past the legs
+        its mission drives with the implement down, or out of AUTO), no more of it, and
+        the mission's raising is sent in case a lowering of ours came after the mission
+        raised it. One refused, or past those legs before it could be sent, is said."""
+        sent = link.lower
+        if sent is not None and sent.outcome is Outcome.RUNNING:
+            if link.lower_after is not None and not self._lowering_holds(v, link.lower_after[1]):
+                link.lower_after = None
+                up = self._raised(v)
+                link.lower = None if up is None else CommandSequence([up], v.system_id)
+                if link.lower is not None:
+                    self._send(v.id, link.lower.start(now))
+            return
+        if sent is not None:
+            link.lower = None
+            raising = sent.commands[0] == self._raised(v)
             if sent.outcome is Outcome.DONE:
                 link.lower_after = None
-            elif not sent.unanswered or link.lowerings >= self.config.start_attempts:
+            elif raising or not sent.unanswered or link.lowerings >= self.config.start_attempts:
                 link.lower_after = None
+                what = "raising, sent after a lowering of ours," if raising else "lowering"
                 self._log(
                     "warning",
-                    f"{v.id}: the implement's lowering failed ({sent.reason}): it drives "
-                    "with the implement up until its mission lowers it again, and that is "
-                    "not worked",
+                    f"{v.id}: the implement's {what} failed ({sent.reason}): it may be "
+                    f"{'down' if raising else 'up'} until its mission sets it again",
                 )
-        if link.lower_after is None or link.lower is not None or v.phase is Phase.LOST:
+        if link.lower_after is None or v.phase is Phase.LOST:
             return  # (lost for a moment: it may drive on meanwhile)
         item, k, headed = link.lower_after
         if v.phase not in (Phase.STARTING, Phase.RUNNING) or k >= len(v.items):
@@ -1387,30 +1407,48 @@ class Dispatcher:
             self._log(
                 "warning",
                 f"{v.id}: past the legs its mission drives with the implement down after item "
-                f"{item} before it could be lowered: those were driven with it up, not worked",
+                f"{item} before it could be lowered: if it was up, those were not worked",
             )
             return
-        on = v.where is not None and (off_leg_m(v.items, v.current, v.where) or 0.0) <= REACH_M
-        if v.phase is Phase.RUNNING and v.driving and not v.operator_hold and on:
+        if self._lowering_holds(v, k):
             lowering = v.items[k]
             link.lower = CommandSequence(
-                [Command(lowering.command, (lowering.param1, lowering.param2))], v.system_id
+                [Command(lowering.command, (lowering.param1, lowering.param2))],
+                v.system_id,
+                max_retries=LOWERING_RETRIES,
             )
             link.lowerings += 1
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
             self._send(v.id, link.lower.start(now))
 
+    def _lowering_holds(self, v: VehicleState, k: int) -> bool:
+        """Whether the mission's lowering at item ``k`` is right where the vehicle is now:
+        it drives its mission in AUTO (not the operator), towards an item its mission
+        drives to with that lowering in force, within :data:`REACH_M` of the leg."""
+        on = v.where is not None and (off_leg_m(v.items, v.current, v.where) or 0.0) <= REACH_M
+        return (
+            v.phase is Phase.RUNNING
+            and v.driving
+            and not v.operator_hold
+            and implement_set_before(v.items, v.current) == k
+            and on
+        )
+
     def _implement_on(self, v: VehicleState, link: _Link, now: float) -> None:
         """A vehicle found driving its mission after a restart of ours, on its way to an
-        item its mission drives to with the implement down: lowered once it is on that
-        leg (:meth:`_lower_when_past`), in case we had started it back at the start of a
-        leg with the implement up and the lowering was still to come, which this process
-        does not know. A lowering again is nothing to an implement already down; one on its
-        way to the leg's start (from the garage, say) is lowered once it is past it."""
+        item its mission drives to with the implement down: lowered on that leg
+        (:meth:`_lower_when_past`), in case we had started it back at the start of a leg
+        with the implement up and the lowering was still to come, which this process does
+        not know. A lowering again is nothing to an implement already down. One not on
+        that leg (on its way to the leg's start, from the garage say; or not placed yet)
+        once it is past the item it heads to."""
         k = implement_set_before(v.items, v.current)
-        if k is not None and v.items[k].role in IMPLEMENT_LOWERED:
-            link.lower_after, link.lowerings = (v.current - 1, k, True), 0
-            self._lower_when_past(v, link, now)
+        if k is None or v.items[k].role not in IMPLEMENT_LOWERED:
+            return
+        off = None if v.where is None else off_leg_m(v.items, v.current, v.where)
+        on = off is not None and off <= REACH_M
+        link.lower_after, link.lowerings = (v.current - 1 if on else v.current, k, True), 0
+        self._lower_when_past(v, link, now)
 
     def _raised(self, v: VehicleState) -> Command | None:
         """The mission's raising of the implement, as a command (None if it has none)."""
@@ -1883,6 +1921,15 @@ class Dispatcher:
                 )
         if self.recorder is not None:
             self.recorder.record_event(ev.to_dict(event), time.time_ns())
+
+    def _others_can_take(self, v: VehicleState) -> bool:
+        """Whether a re-plan would give the work ahead of ``v`` to other vehicles: there is
+        a replanner, work ahead of it, and another vehicle not gone."""
+        return (
+            self.config.replanner is not None
+            and self._work_left(v)
+            and any(o.phase not in GONE for o in self.state.vehicles.values() if o is not v)
+        )
 
     def _work_left(self, v: VehicleState) -> bool:
         """Whether fields not done lie ahead on the vehicle's mission."""

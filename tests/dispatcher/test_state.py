@@ -522,6 +522,31 @@ def test_a_rebooted_autopilot_with_no_fix_has_its_work_re_planned_and_is_asked_a
     assert v.phase is Phase.ALIVE and not v.needs_restart  # to rejoin with a new mission
 
 
+def test_a_rebooted_autopilot_with_no_fix_and_nobody_to_take_its_work_is_waited_for(dispatch):
+    """Its work would go nowhere (the others gone, or nothing re-plans): failing it would
+    leave its work undone and it stranded; it is waited for, and started once it says
+    where it is."""
+    from dispatcher.daemon.server import FIX_TIMEOUT_S
+
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role == "implement_down")
+    daemon, v, sent = rebooted_v1(dispatch, down, (items[down].x, items[down].y), (0, 0))
+    daemon.config.replanner = lambda state, cancel: daemon.job
+    for other in daemon.state.vehicles.values():
+        if other is not v:
+            other.phase = Phase.FAILED
+    now = 4.0
+    while now < 3.1 + 2 * FIX_TIMEOUT_S:
+        feed(daemon.state, "v1", position(int(now * 1000), 0, 0), now)  # no fix
+        daemon._advance("v1", now)
+        now += 1.0
+    assert v.phase is Phase.RUNNING and v.needs_restart and not commands_to(daemon, "v1", 11)
+    placed = next(k for k in range(down, 0, -1) if items[k].x)  # where its line starts
+    feed(daemon.state, "v1", position(int(now * 1000), *at_item(dispatch, placed)), now)
+    daemon._advance("v1", now)
+    assert daemon.links["v1"].start is not None and v.phase is Phase.STARTING
+
+
 def test_where_a_vehicle_is_is_forgotten_when_its_autopilot_reboots(dispatch):
     """Told by its clock or by a booting HEARTBEAT (before its clock tells): the position
     heard before the reboot is no longer where it is; the next one with a fix is."""
@@ -901,6 +926,38 @@ def test_a_lowering_unanswered_is_sent_again_and_one_refused_is_said(dispatch, t
         daemon._advance("v1", 1.1)
     assert link.lower is None and link.lower_after is None and link.lowerings == 1
     assert "the implement's lowering failed (MAV_CMD_DO_SET_SERVO refused" in caplog.text
+
+
+@pytest.mark.parametrize("then", ["past the raising", "out of AUTO"])
+def test_a_lowering_no_longer_right_where_it_drives_is_stopped_and_the_implement_raised(
+    dispatch, tmp_path, then
+):
+    """The lowering goes unanswered (a lossy radio) while the vehicle drives on past the
+    item that raises the implement (onto the road), or is taken out of AUTO: no more of it
+    (it would lower the implement on the road), and the mission's raising is sent, in case
+    one of ours reached it after the mission raised it."""
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    up = next(k for k in range(down, len(items)) if items[k].role in IMPLEMENT_RAISED)
+    road = next(k for k in range(up + 1, len(items)) if items[k].x)
+    daemon, v = resumed_driving_v1(dispatch, tmp_path, up - 1, at_item(dispatch, up - 1))
+    link = daemon.links["v1"]
+    lowering = link.lower
+    assert lowering is not None and lowering.outcome is Outcome.RUNNING
+    if then == "past the raising":
+        feed(daemon.state, "v1", position(2_000, *at_item(dispatch, road)), 2.0)
+        feed(daemon.state, "v1", mission_current(11, road, len(v.items) - 1, 3), 2.0)
+    else:
+        feed(daemon.state, "v1", held(11), 2.0)
+    before = len(commands_to(daemon, "v1", 11))
+    daemon._advance("v1", 2.1)
+    raising = link.lower
+    assert raising is not lowering and raising is not None and link.lower_after is None
+    assert commands_to(daemon, "v1", 11)[before:] == [(items[up].command, items[up].param1)]
+    raising.on_message(ack(items[up].command, mc.MAV_RESULT_ACCEPTED), 2.2)
+    daemon._advance("v1", 2.3)
+    daemon._advance("v1", 60.0)
+    assert link.lower is None and len(commands_to(daemon, "v1", 11)) == before + 1
 
 
 def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp_path):
@@ -1320,16 +1377,19 @@ def test_a_re_plan_that_gives_a_tractor_the_mission_on_its_way_leaves_that_uploa
 def test_a_lowering_still_to_come_on_the_part_a_re_plan_keeps_is_kept(dispatch):
     """Started back at a line's start with the implement up, its lowering to be sent once
     it is past it, then re-planned while driving: the part it keeps is the same, so is the
-    lowering still to come; one on the part the new route replaces is not."""
+    lowering still to come, and it is sent there; one on the part the new route replaces
+    is not."""
     from dispatcher.mission.job import DispatchJob
 
     job = dispatch.job()
     items = job.document.machine("v1").items
-    moved = tuple(dataclasses.replace(i, x=i.x + 5) if i.seq > 6 else i for i in items)
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    line = next(k for k in range(down + 1, len(items)) if items[k].role == "swath_end")
+    cut = line + 2  # the new route from after the line
+    moved = tuple(dataclasses.replace(i, x=i.x + 5) if i.seq > cut else i for i in items)
     machine = dataclasses.replace(job.document.machine("v1"), items=moved)
     changed = dataclasses.replace(job.document, machines=(machine,), plan_id="").with_id()
-    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
-    for pending, kept in ((3, True), (8, False)):
+    for pending, kept in ((line - 1, True), (cut + 2, False)):
         daemon = daemon_for(dispatch)
         daemon.publishers["plan"] = Pub()
         v = daemon.state.vehicles["v1"]
@@ -1338,9 +1398,15 @@ def test_a_lowering_still_to_come_on_the_part_a_re_plan_keeps_is_kept(dispatch):
         v.mode, v.armed = 10, True  # AUTO, armed
         daemon.links["v1"].lower_after = (pending, down, True)
         daemon._adopt(DispatchJob(changed, job.missions, {}), "v2 lost", 1.0)
-        assert v.switch and v.route_from == 7
+        assert v.switch and v.route_from == cut + 1
         link = daemon.links["v1"]
         assert link.lower_after == ((pending, down, True) if kept else None)
+        if kept:  # on along the line: lowered
+            feed(daemon.state, "v1", position(2_000, *at_item(dispatch, line)), 2.0)
+            feed(daemon.state, "v1", mission_current(11, line, len(v.items) - 1, 3), 2.0)
+            daemon._advance("v1", 2.1)
+            assert link.lower is not None
+            assert commands_to(daemon, "v1", 11)[-1] == (items[down].command, items[down].param1)
 
 
 def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(dispatch):
