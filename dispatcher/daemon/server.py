@@ -1365,17 +1365,21 @@ class Dispatcher:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed). A lowering unanswered is sent again (up to
         ``start_attempts`` in all) while that still holds; once it does not (past the legs
-        its mission drives with the implement down, or out of AUTO), no more of it, and
-        the mission's raising is sent in case a lowering of ours came after the mission
-        raised it. One refused, or past those legs before it could be sent, is said."""
+        its mission drives with the implement down, or out of AUTO), no more of it, and to
+        one driving on in AUTO the mission's raising, in case a lowering of ours came after
+        the mission raised it. One refused, or past those legs before it could be sent, is
+        said."""
         sent = link.lower
         if sent is not None and sent.outcome is Outcome.RUNNING:
-            if link.lower_after is not None and not self._lowering_holds(v, link.lower_after[1]):
-                link.lower_after = None
-                up = self._raised(v)
-                link.lower = None if up is None else CommandSequence([up], v.system_id)
-                if link.lower is not None:
-                    self._send(v.id, link.lower.start(now))
+            if link.lower_after is None or self._lowering_holds(v, link.lower_after[1], None):
+                return
+            # (Not on where it is: a position a moment ahead of its MISSION_CURRENT at a
+            # corner would raise the implement on the line.)
+            link.lower_after, link.lower = None, None
+            up = self._raised(v)
+            if v.driving and up is not None and not v.operator_hold:
+                link.lower = CommandSequence([up], v.system_id)
+                self._send(v.id, link.lower.start(now))
             return
         if sent is not None:
             link.lower = None
@@ -1410,7 +1414,7 @@ class Dispatcher:
                 f"{item} before it could be lowered: if it was up, those were not worked",
             )
             return
-        if self._lowering_holds(v, k):
+        if v.where is not None and self._lowering_holds(v, k, v.where):
             lowering = v.items[k]
             link.lower = CommandSequence(
                 [Command(lowering.command, (lowering.param1, lowering.param2))],
@@ -1421,11 +1425,12 @@ class Dispatcher:
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
             self._send(v.id, link.lower.start(now))
 
-    def _lowering_holds(self, v: VehicleState, k: int) -> bool:
-        """Whether the mission's lowering at item ``k`` is right where the vehicle is now:
-        it drives its mission in AUTO (not the operator), towards an item its mission
-        drives to with that lowering in force, within :data:`REACH_M` of the leg."""
-        on = v.where is not None and (off_leg_m(v.items, v.current, v.where) or 0.0) <= REACH_M
+    def _lowering_holds(self, v: VehicleState, k: int, where: tuple[float, float] | None) -> bool:
+        """Whether the mission's lowering at item ``k`` is right for the vehicle now: it
+        drives its mission in AUTO (not the operator), towards an item its mission drives
+        to with that lowering in force; and, given ``where`` it is, within :data:`REACH_M`
+        of that leg."""
+        on = where is None or (off_leg_m(v.items, v.current, where) or 0.0) <= REACH_M
         return (
             v.phase is Phase.RUNNING
             and v.driving

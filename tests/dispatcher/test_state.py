@@ -934,8 +934,9 @@ def test_a_lowering_no_longer_right_where_it_drives_is_stopped_and_the_implement
 ):
     """The lowering goes unanswered (a lossy radio) while the vehicle drives on past the
     item that raises the implement (onto the road), or is taken out of AUTO: no more of it
-    (it would lower the implement on the road), and the mission's raising is sent, in case
-    one of ours reached it after the mission raised it."""
+    (it would lower the implement on the road). Driving on, it is sent the mission's
+    raising, in case one of ours reached it after the mission raised it; the operator's is
+    left alone."""
     items = daemon_for(dispatch).state.vehicles["v1"].items
     down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
     up = next(k for k in range(down, len(items)) if items[k].role in IMPLEMENT_RAISED)
@@ -951,6 +952,11 @@ def test_a_lowering_no_longer_right_where_it_drives_is_stopped_and_the_implement
         feed(daemon.state, "v1", held(11), 2.0)
     before = len(commands_to(daemon, "v1", 11))
     daemon._advance("v1", 2.1)
+    if then == "out of AUTO":
+        assert link.lower is None and link.lower_after is None
+        daemon._advance("v1", 60.0)
+        assert len(commands_to(daemon, "v1", 11)) == before
+        return
     raising = link.lower
     assert raising is not lowering and raising is not None and link.lower_after is None
     assert commands_to(daemon, "v1", 11)[before:] == [(items[up].command, items[up].param1)]
