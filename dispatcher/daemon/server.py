@@ -238,6 +238,7 @@ class _Link:
     lower_after: tuple[int, int, bool] | None = None
     lower: CommandSequence | None = None
     lowerings: int = 0
+    raising: int | None = None  # ``lower`` is the mission's raising at this item instead
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
@@ -1291,7 +1292,7 @@ class Dispatcher:
             )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
-        link.lower = None  # a lowering of an earlier start: not this one's
+        link.lower = link.raising = None  # a lowering of an earlier start: not this one's
         if link.lower_after is None or link.lower_after[0] != link.start_item:
             link.lower_after = None
             link.start_item = self._start_at(v, link, link.start_item)
@@ -1366,24 +1367,39 @@ class Dispatcher:
         tractor's working speed). A lowering unanswered is sent again (up to
         ``start_attempts`` in all) while that still holds; once it does not (past the legs
         its mission drives with the implement down, or out of AUTO), no more of it, and to
-        one driving on in AUTO the mission's raising, in case a lowering of ours came after
-        the mission raised it. One refused, or past those legs before it could be sent, is
+        one driving on in AUTO where its mission has raised the implement since, that
+        raising, in case a lowering of ours came after it (until the mission sets the
+        implement again). One refused, or past those legs before it could be sent, is
         said."""
         sent = link.lower
         if sent is not None and sent.outcome is Outcome.RUNNING:
+            if v.phase is Phase.LOST:
+                return  # (lost for a moment: it may drive on meanwhile)
+            if link.raising is not None:  # the mission's raising, after a lowering of ours
+                if implement_set_before(v.items, v.current) != link.raising or not v.driving:
+                    link.lower = link.raising = None  # the mission sets it since
+                return
             if link.lower_after is None or self._lowering_holds(v, link.lower_after[1], None):
                 return
             # (Not on where it is: a position a moment ahead of its MISSION_CURRENT at a
-            # corner would raise the implement on the line.)
+            # corner would raise the implement on the line.) Where the mission has raised
+            # it since, that raising again: a resend of ours may have come after it.
             link.lower_after, link.lower = None, None
-            up = self._raised(v)
-            if v.driving and up is not None and not v.operator_hold:
-                link.lower = CommandSequence([up], v.system_id)
-                self._send(v.id, link.lower.start(now))
+            j = implement_set_before(v.items, v.current)
+            if v.driving and not v.operator_hold and j is not None:
+                up = v.items[j]
+                if up.role in IMPLEMENT_RAISED:
+                    link.raising = j
+                    link.lower = CommandSequence(
+                        [Command(up.command, (up.param1, up.param2), optional=True)],
+                        v.system_id,
+                        max_retries=LOWERING_RETRIES,
+                    )
+                    self._send(v.id, link.lower.start(now))
             return
         if sent is not None:
             link.lower = None
-            raising = sent.commands[0] == self._raised(v)
+            raising, link.raising = link.raising is not None, None
             if sent.outcome is Outcome.DONE:
                 link.lower_after = None
             elif raising or not sent.unanswered or link.lowerings >= self.config.start_attempts:

@@ -928,19 +928,26 @@ def test_a_lowering_unanswered_is_sent_again_and_one_refused_is_said(dispatch, t
     assert "the implement's lowering failed (MAV_CMD_DO_SET_SERVO refused" in caplog.text
 
 
-@pytest.mark.parametrize("then", ["past the raising", "out of AUTO"])
-def test_a_lowering_no_longer_right_where_it_drives_is_stopped_and_the_implement_raised(
-    dispatch, tmp_path, then
+@pytest.mark.parametrize(
+    "then", ["past the raising", "into the next swath", "out of AUTO", "lost a moment"]
+)
+@pytest.mark.parametrize("plan", ["dispatch", "dispatch_turning"])
+def test_a_lowering_under_way_no_longer_right_where_it_drives_is_stopped(
+    plan, request, tmp_path, then
 ):
     """The lowering goes unanswered (a lossy radio) while the vehicle drives on past the
-    item that raises the implement (onto the road), or is taken out of AUTO: no more of it
-    (it would lower the implement on the road). Driving on, it is sent the mission's
-    raising, in case one of ours reached it after the mission raised it; the operator's is
-    left alone."""
+    item that raises the implement (onto the road, or into a turn), or is taken out of
+    AUTO: no more of it (it would lower the implement there). Driving on, it is sent the
+    mission's raising, in case one of ours reached it after the mission raised it, until
+    the mission sets the implement again (the next swath's lowering); the operator's is
+    left alone. Lost for a moment (it may drive on meanwhile): the lowering goes on."""
+    dispatch = request.getfixturevalue(plan)
     items = daemon_for(dispatch).state.vehicles["v1"].items
     down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
     up = next(k for k in range(down, len(items)) if items[k].role in IMPLEMENT_RAISED)
     road = next(k for k in range(up + 1, len(items)) if items[k].x)
+    again = next((k for k in range(road, len(items)) if items[k].role in IMPLEMENT_LOWERED), None)
+    line = None if again is None else next(k for k in range(again + 1, len(items)) if items[k].x)
     daemon, v = resumed_driving_v1(dispatch, tmp_path, up - 1, at_item(dispatch, up - 1))
     link = daemon.links["v1"]
     lowering = link.lower
@@ -948,22 +955,37 @@ def test_a_lowering_no_longer_right_where_it_drives_is_stopped_and_the_implement
     if then == "past the raising":
         feed(daemon.state, "v1", position(2_000, *at_item(dispatch, road)), 2.0)
         feed(daemon.state, "v1", mission_current(11, road, len(v.items) - 1, 3), 2.0)
-    else:
+    elif then == "into the next swath":  # its reports skipped the turn: nothing to raise
+        if line is None:
+            return
+        feed(daemon.state, "v1", position(2_000, *at_item(dispatch, line)), 2.0)
+        feed(daemon.state, "v1", mission_current(11, line, len(v.items) - 1, 3), 2.0)
+    elif then == "out of AUTO":
         feed(daemon.state, "v1", held(11), 2.0)
+    else:
+        daemon._apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
     before = len(commands_to(daemon, "v1", 11))
     daemon._advance("v1", 2.1)
-    if then == "out of AUTO":
+    if then == "lost a moment":
+        assert link.lower is lowering and link.lower_after is not None
+        return
+    if then in ("out of AUTO", "into the next swath"):
         assert link.lower is None and link.lower_after is None
-        daemon._advance("v1", 60.0)
         assert len(commands_to(daemon, "v1", 11)) == before
         return
     raising = link.lower
     assert raising is not lowering and raising is not None and link.lower_after is None
     assert commands_to(daemon, "v1", 11)[before:] == [(items[up].command, items[up].param1)]
-    raising.on_message(ack(items[up].command, mc.MAV_RESULT_ACCEPTED), 2.2)
-    daemon._advance("v1", 2.3)
-    daemon._advance("v1", 60.0)
-    assert link.lower is None and len(commands_to(daemon, "v1", 11)) == before + 1
+    if line is None:  # on the road home: answered, done
+        raising.on_message(ack(items[up].command, mc.MAV_RESULT_ACCEPTED), 2.2)
+        daemon._advance("v1", 2.3)
+        assert link.lower is None and link.raising is None
+        return
+    # Unanswered into the next swath, which its mission lowers the implement for: no more.
+    feed(daemon.state, "v1", position(3_000, *at_item(dispatch, line)), 3.0)
+    feed(daemon.state, "v1", mission_current(11, line, len(v.items) - 1, 3), 3.0)
+    daemon._advance("v1", 3.1)
+    assert link.lower is None and link.raising is None
 
 
 def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp_path):
