@@ -105,6 +105,10 @@ says where it is (Dispatcher._probe), and rejoins if it answers."""
 LOWERING_RETRIES = 2
 """Resends of a lowering of the implement (Dispatcher._lower_when_past) before it counts as
 unanswered: each send is checked to be still right where the vehicle drives, so few."""
+LOWER_WATCH_S = 5.0
+"""Wall seconds after a lowering of ours during which the vehicle's MISSION_CURRENT is
+watched for the mission's raising (Dispatcher._watch_raising): the lowering may have
+reached it after that raising, and MISSION_CURRENT comes about once a second."""
 RESUME_ASK_S = 5.0
 """After a restart, how long a booted vehicle has to say which mission it holds
 (MISSION_CURRENT.total) before it is taken to hold none of ours and uploaded again."""
@@ -239,6 +243,9 @@ class _Link:
     lower: CommandSequence | None = None
     lowerings: int = 0
     raising: int | None = None  # ``lower`` is the mission's raising at this item instead
+    # After a lowering of ours: (its item, when no answer to it can come any more), for a
+    # while: whether the mission raised the implement meanwhile (_watch_raising).
+    watch: tuple[int, float] | None = None
     probe_at: float = 0.0  # failed, its work given away: when to ask it to HOLD next
     starts: int = 0  # start attempts unanswered in a row
     failsafe_seen: float = -math.inf  # the last failsafe it was started again after (wall)
@@ -1292,7 +1299,8 @@ class Dispatcher:
             )
             return
         in_auto = in_auto or v.mode == ROVER_MODE_AUTO
-        link.lower = link.raising = None  # a lowering of an earlier start: not this one's
+        # A lowering of an earlier start: not this one's (its commands set the implement).
+        link.lower = link.raising = link.watch = None
         if link.lower_after is None or link.lower_after[0] != link.start_item:
             link.lower_after = None
             link.start_item = self._start_at(v, link, link.start_item)
@@ -1365,12 +1373,12 @@ class Dispatcher:
         DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed). A lowering unanswered is sent again (up to
-        ``start_attempts`` in all) while that still holds; once it does not (past the legs
-        its mission drives with the implement down, or out of AUTO), no more of it, and to
-        one driving on in AUTO where its mission has raised the implement since, that
-        raising, in case a lowering of ours came after it (until the mission sets the
-        implement again). One refused, or past those legs before it could be sent, is
-        said."""
+        ``start_attempts`` rounds) while that still holds. Out of AUTO (the operator's, a
+        failsafe), no more of it until it drives there again; past the legs its mission
+        drives with the implement down, no more of it at all. One refused, or past those
+        legs before it could be sent, is said. A lowering of ours may reach the vehicle
+        after the mission raised the implement (a resend, an answer lost): after one, the
+        vehicle is watched (:meth:`_watch_raising`)."""
         sent = link.lower
         if sent is not None and sent.outcome is Outcome.RUNNING:
             if v.phase is Phase.LOST:
@@ -1379,27 +1387,21 @@ class Dispatcher:
                 if implement_set_before(v.items, v.current) != link.raising or not v.driving:
                     link.lower = link.raising = None  # the mission sets it since
                 return
-            if link.lower_after is None or self._lowering_holds(v, link.lower_after[1], None):
-                return
+            assert link.lower_after is not None  # (a lowering runs with what it is for)
+            k = link.lower_after[1]
             # (Not on where it is: a position a moment ahead of its MISSION_CURRENT at a
-            # corner would raise the implement on the line.) Where the mission has raised
-            # it since, that raising again: a resend of ours may have come after it.
-            link.lower_after, link.lower = None, None
-            j = implement_set_before(v.items, v.current)
-            if v.driving and not v.operator_hold and j is not None:
-                up = v.items[j]
-                if up.role in IMPLEMENT_RAISED:
-                    link.raising = j
-                    link.lower = CommandSequence(
-                        [Command(up.command, (up.param1, up.param2), optional=True)],
-                        v.system_id,
-                        max_retries=LOWERING_RETRIES,
-                    )
-                    self._send(v.id, link.lower.start(now))
-            return
-        if sent is not None:
+            # corner would stop it on the line.)
+            if self._lowering_holds(v, k, None):
+                return
+            link.lower = None
+            link.watch = (k, now + sent.timeout_s)  # its answers may come until then
+            if implement_set_before(v.items, v.current) != k:
+                link.lower_after = None  # past the legs it was for
+        elif sent is not None:
             link.lower = None
             raising, link.raising = link.raising is not None, None
+            if not raising:
+                link.watch = (link.lower_after[1] if link.lower_after else -1, now)
             if sent.outcome is Outcome.DONE:
                 link.lower_after = None
             elif raising or not sent.unanswered or link.lowerings >= self.config.start_attempts:
@@ -1410,7 +1412,8 @@ class Dispatcher:
                     f"{v.id}: the implement's {what} failed ({sent.reason}): it may be "
                     f"{'down' if raising else 'up'} until its mission sets it again",
                 )
-        if link.lower_after is None or v.phase is Phase.LOST:
+        self._watch_raising(v, link, now)
+        if link.lower_after is None or link.lower is not None or v.phase is Phase.LOST:
             return  # (lost for a moment: it may drive on meanwhile)
         item, k, headed = link.lower_after
         if v.phase not in (Phase.STARTING, Phase.RUNNING) or k >= len(v.items):
@@ -1439,6 +1442,34 @@ class Dispatcher:
             )
             link.lowerings += 1
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
+            self._send(v.id, link.lower.start(now))
+
+    def _watch_raising(self, v: VehicleState, link: _Link, now: float) -> None:
+        """After a lowering of ours (``link.watch``: the lowering's item, and when no answer
+        to it can come any more), for :data:`LOWER_WATCH_S`: if its MISSION_CURRENT says
+        the mission has raised the implement since, that raising is sent, in case ours came
+        after it (a resend, or a report a second late), and sent again until the mission
+        sets the implement again; not while a late answer to our lowering could pass for
+        its answer (the same command), nor to one out of AUTO (the operator's)."""
+        if link.watch is None or link.lower is not None or v.phase is Phase.LOST:
+            return
+        k, quiet = link.watch
+        if now > quiet + LOWER_WATCH_S:
+            link.watch = None
+            return
+        j = implement_set_before(v.items, v.current)
+        if j is None or j == k or now < quiet:
+            return
+        link.watch = None
+        up = v.items[j]
+        if up.role in IMPLEMENT_RAISED and v.driving and not v.operator_hold:
+            link.raising = j
+            link.lower = CommandSequence(
+                [Command(up.command, (up.param1, up.param2), optional=True)],
+                v.system_id,
+                max_retries=LOWERING_RETRIES,
+            )
+            self._log("info", f"{v.id}: past item {j}, the mission's raising: sent again")
             self._send(v.id, link.lower.start(now))
 
     def _lowering_holds(self, v: VehicleState, k: int, where: tuple[float, float] | None) -> bool:
@@ -1726,8 +1757,15 @@ class Dispatcher:
                 link.switch_from = v.route_from
                 if old.lower_after is not None and old.lower_after[0] < v.route_from:
                     # To be lowered along the part it keeps: still to be (or being) lowered.
-                    link.lower_after, link.lower = old.lower_after, old.lower
-                    link.lowerings = old.lowerings
+                    link.lower_after, link.lowerings = old.lower_after, old.lowerings
+                    link.lower, link.raising, link.watch = old.lower, old.raising, old.watch
+                else:
+                    # A raising after a lowering of ours, or watching for one: kept where
+                    # it is for the part it keeps, whose items are the same.
+                    watched = old.watch[0] if old.watch is not None else None
+                    at = old.raising if old.raising is not None else watched
+                    if at is not None and at < v.route_from:
+                        link.lower, link.raising, link.watch = old.lower, old.raising, old.watch
                 self._log(
                     "info", f"{m.id}: new route from item {v.route_from}; uploading under way"
                 )

@@ -938,9 +938,11 @@ def test_a_lowering_under_way_no_longer_right_where_it_drives_is_stopped(
     """The lowering goes unanswered (a lossy radio) while the vehicle drives on past the
     item that raises the implement (onto the road, or into a turn), or is taken out of
     AUTO: no more of it (it would lower the implement there). Driving on, it is sent the
-    mission's raising, in case one of ours reached it after the mission raised it, until
-    the mission sets the implement again (the next swath's lowering); the operator's is
-    left alone. Lost for a moment (it may drive on meanwhile): the lowering goes on."""
+    mission's raising, in case one of ours reached it after the mission raised it, once a
+    late answer to the lowering can no longer pass for the raising's, and until the mission
+    sets the implement again (the next swath's lowering). Out of AUTO (the operator's, a
+    failsafe), lowered once it drives there again. Lost for a moment (it may drive on
+    meanwhile): the lowering goes on."""
     dispatch = request.getfixturevalue(plan)
     items = daemon_for(dispatch).state.vehicles["v1"].items
     down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
@@ -969,23 +971,66 @@ def test_a_lowering_under_way_no_longer_right_where_it_drives_is_stopped(
     if then == "lost a moment":
         assert link.lower is lowering and link.lower_after is not None
         return
-    if then in ("out of AUTO", "into the next swath"):
-        assert link.lower is None and link.lower_after is None
-        assert len(commands_to(daemon, "v1", 11)) == before
+    assert link.lower is None and len(commands_to(daemon, "v1", 11)) == before
+    if then == "into the next swath":
+        assert link.lower_after is None
+        daemon._advance("v1", 2.1 + lowering.timeout_s + 0.1)
+        assert link.lower is None and len(commands_to(daemon, "v1", 11)) == before
         return
+    if then == "out of AUTO":  # lowered when it drives there again
+        assert link.lower_after is not None
+        feed(daemon.state, "v1", driving_heartbeat(11), 5.0)
+        daemon._advance("v1", 5.1)
+        assert link.lower is not None and link.lowerings == 2
+        assert commands_to(daemon, "v1", 11)[before:] == [(items[down].command, items[down].param1)]
+        return
+    # Its raising once an answer to our lowering can no longer pass for the raising's.
+    assert link.lower_after is None
+    daemon._advance("v1", 2.1 + lowering.timeout_s + 0.1)
     raising = link.lower
-    assert raising is not lowering and raising is not None and link.lower_after is None
+    assert raising is not None and link.raising == up
     assert commands_to(daemon, "v1", 11)[before:] == [(items[up].command, items[up].param1)]
     if line is None:  # on the road home: answered, done
-        raising.on_message(ack(items[up].command, mc.MAV_RESULT_ACCEPTED), 2.2)
-        daemon._advance("v1", 2.3)
+        raising.on_message(ack(items[up].command, mc.MAV_RESULT_ACCEPTED), 4.0)
+        daemon._advance("v1", 4.1)
         assert link.lower is None and link.raising is None
         return
     # Unanswered into the next swath, which its mission lowers the implement for: no more.
-    feed(daemon.state, "v1", position(3_000, *at_item(dispatch, line)), 3.0)
-    feed(daemon.state, "v1", mission_current(11, line, len(v.items) - 1, 3), 3.0)
-    daemon._advance("v1", 3.1)
+    feed(daemon.state, "v1", position(5_000, *at_item(dispatch, line)), 5.0)
+    feed(daemon.state, "v1", mission_current(11, line, len(v.items) - 1, 3), 5.0)
+    daemon._advance("v1", 5.1)
     assert link.lower is None and link.raising is None
+
+
+@pytest.mark.parametrize("plan", ["dispatch", "dispatch_turning"])
+def test_a_lowering_answered_before_the_report_that_the_mission_raised_it_is_raised_again(
+    plan, request, tmp_path
+):
+    """Its lowering's answer comes, then its MISSION_CURRENT (about once a second) says it
+    is past the mission's raising: the lowering may have come after it, and the raising is
+    sent again. Reports still on the legs with the implement down for a while: nothing."""
+    from dispatcher.daemon.server import LOWER_WATCH_S
+
+    dispatch = request.getfixturevalue(plan)
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role in IMPLEMENT_LOWERED)
+    up = next(k for k in range(down, len(items)) if items[k].role in IMPLEMENT_RAISED)
+    road = next(k for k in range(up + 1, len(items)) if items[k].x)
+    for late in (True, False):
+        daemon, v = resumed_driving_v1(
+            dispatch, tmp_path / str(late), up - 1, at_item(dispatch, up - 1)
+        )
+        link = daemon.links["v1"]
+        link.lower.on_message(ack(items[down].command, mc.MAV_RESULT_ACCEPTED), 1.0)
+        daemon._advance("v1", 1.1)
+        before = len(commands_to(daemon, "v1", 11))
+        assert link.lower is None and link.lower_after is None and link.watch is not None
+        at = 1.9 if late else 1.1 + LOWER_WATCH_S + 1.0
+        feed(daemon.state, "v1", position(int(at * 1000), *at_item(dispatch, road)), at)
+        feed(daemon.state, "v1", mission_current(11, road, len(v.items) - 1, 3), at)
+        daemon._advance("v1", at + 0.1)
+        sent = commands_to(daemon, "v1", 11)[before:]
+        assert sent == ([(items[up].command, items[up].param1)] if late else [])
 
 
 def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp_path):
