@@ -1387,7 +1387,9 @@ class Dispatcher:
                 if implement_set_before(v.items, v.current) != link.raising or not v.driving:
                     link.lower = link.raising = None  # the mission sets it since
                 return
-            assert link.lower_after is not None  # (a lowering runs with what it is for)
+            if link.lower_after is None:  # (a lowering runs with what it is for)
+                link.lower = None
+                return
             k = link.lower_after[1]
             # (Not on where it is: a position a moment ahead of its MISSION_CURRENT at a
             # corner would stop it on the line.)
@@ -1759,13 +1761,12 @@ class Dispatcher:
                     # To be lowered along the part it keeps: still to be (or being) lowered.
                     link.lower_after, link.lowerings = old.lower_after, old.lowerings
                     link.lower, link.raising, link.watch = old.lower, old.raising, old.watch
-                else:
-                    # A raising after a lowering of ours, or watching for one: kept where
-                    # it is for the part it keeps, whose items are the same.
-                    watched = old.watch[0] if old.watch is not None else None
-                    at = old.raising if old.raising is not None else watched
-                    if at is not None and at < v.route_from:
-                        link.lower, link.raising, link.watch = old.lower, old.raising, old.watch
+                elif old.raising is not None and old.raising < v.route_from:
+                    # The mission's raising after a lowering of ours, on the part it keeps
+                    # (the same items): it goes on.
+                    link.lower, link.raising = old.lower, old.raising
+                elif old.watch is not None and old.lower is None and old.watch[0] < v.route_from:
+                    link.watch = old.watch  # (after a lowering of ours, on that part)
                 self._log(
                     "info", f"{m.id}: new route from item {v.route_from}; uploading under way"
                 )
