@@ -1367,9 +1367,9 @@ class Dispatcher:
 
     def _lower_when_past(self, v: VehicleState, link: _Link, now: float) -> None:
         """Lower the implement (``link.lower_after``) once the vehicle, started at the
-        start of its leg, has headed there (its MISSION_CURRENT at or before that item)
-        and gone past it (after it), onto a leg its mission drives with the implement down
-        and within :data:`REACH_M` of it: ArduPilot takes the mission's DO_SET_SERVO or
+        start of its leg, has headed there (its MISSION_CURRENT at or before that item, or
+        seen within :data:`REACH_M` of it) and gone past it (after it), onto a leg its
+        mission drives with the implement down and within :data:`REACH_M` of it: ArduPilot takes the mission's DO_SET_SERVO or
         DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed). A lowering unanswered is sent again (up to
@@ -1422,7 +1422,11 @@ class Dispatcher:
             link.lower_after = None  # done, failed, or its mission changed under it
             return
         if not headed:
-            if v.current <= item:
+            # Its MISSION_CURRENT at or before the item since our start, or (those reports
+            # lost: it may get there in a second) seen there, started.
+            start = v.items[item]
+            there = v.where is not None and metres(v.where, (start.lat, start.lon)) <= REACH_M
+            if v.current <= item or (there and v.phase is Phase.RUNNING):
                 link.lower_after = (item, k, True)
             return
         if v.current <= item:

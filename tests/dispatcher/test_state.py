@@ -437,6 +437,31 @@ def test_a_reboot_in_a_field_sets_the_implement_as_the_mission_has_it_there(disp
     assert start[1].params == (raising.param1, raising.param2) and start[1].optional
 
 
+def test_a_lowering_after_a_start_at_the_lines_start_needs_no_report_of_heading_there(dispatch):
+    """Started back at the line's start from close by, the reports of it heading there
+    (MISSION_CURRENT at that item) all lost on a lossy radio: seen there, started, it
+    counts as having headed there, and is lowered once it is past it."""
+    items = daemon_for(dispatch).state.vehicles["v1"].items
+    down = next(k for k, it in enumerate(items) if it.role == "implement_down")
+    end = next(k for k in range(down, len(items)) if items[k].role == "swath_end")
+    daemon, v, _ = rebooted_v1(dispatch, end)  # back in the garage
+    link = daemon.links["v1"]
+    assert link.lower_after == (end, down, False)
+    feed(daemon.state, "v1", mission_current(11, end + 1, len(v.items) - 1, 3), 3.15)
+    accept(link.start, 3.2)
+    daemon._advance("v1", 3.3)
+    daemon._advance("v1", 3.4)  # still where it was (the garage)
+    assert v.phase is Phase.RUNNING and link.lower_after == (end, down, False)
+    feed(daemon.state, "v1", driving_heartbeat(11), 8.9)
+    feed(daemon.state, "v1", position(9_000, *at_item(dispatch, end)), 8.9)
+    daemon._advance("v1", 8.95)
+    assert link.lower_after == (end, down, True) and link.lower is None
+    feed(daemon.state, "v1", mission_current(11, end + 1, len(v.items) - 1, 3), 9.0)
+    daemon._advance("v1", 9.1)
+    assert link.lower is not None
+    assert commands_to(daemon, "v1", 11)[-1] == (items[down].command, items[down].param1)
+
+
 @pytest.mark.parametrize("plan", ["dispatch", "dispatch_turning"])
 def test_a_reboot_off_a_swath_goes_back_to_where_the_swath_starts(plan, request, caplog):
     """Stopped along a swath and back somewhere else (moved with the implement down, or a
