@@ -1369,8 +1369,9 @@ class Dispatcher:
         """Lower the implement (``link.lower_after``) once the vehicle, started at the
         start of its leg, has headed there (its MISSION_CURRENT at or before that item, or
         seen within :data:`REACH_M` of it) and gone past it (after it), onto a leg its
-        mission drives with the implement down and within :data:`REACH_M` of it: ArduPilot takes the mission's DO_SET_SERVO or
-        DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT comes about once a second:
+        mission drives with the implement down and within :data:`REACH_M` of it: ArduPilot
+        takes the mission's DO_SET_SERVO or DO_SET_RELAY as a command in AUTO. Its
+        MISSION_CURRENT comes about once a second:
         what it drives of the leg before the command arrives is not worked (~2 m at a
         tractor's working speed). A lowering unanswered is sent again (up to
         ``start_attempts`` rounds) while that still holds. Out of AUTO (the operator's, a
