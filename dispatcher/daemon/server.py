@@ -1366,20 +1366,19 @@ class Dispatcher:
         return start
 
     def _lower_when_past(self, v: VehicleState, link: _Link, now: float) -> None:
-        """Lower the implement (``link.lower_after``) once the vehicle, started at the
-        start of its leg, has headed there (its MISSION_CURRENT at or before that item, or
-        seen within :data:`REACH_M` of it) and gone past it (after it), onto a leg its
-        mission drives with the implement down and within :data:`REACH_M` of it: ArduPilot
-        takes the mission's DO_SET_SERVO or DO_SET_RELAY as a command in AUTO. Its
-        MISSION_CURRENT comes about once a second:
-        what it drives of the leg before the command arrives is not worked (~2 m at a
-        tractor's working speed). A lowering unanswered is sent again (up to
-        ``start_attempts`` rounds) while that still holds. Out of AUTO (the operator's, a
-        failsafe), no more of it until it drives there again; past the legs its mission
-        drives with the implement down, no more of it at all. One refused, or past those
-        legs before it could be sent, is said. A lowering of ours may reach the vehicle
-        after the mission raised the implement (a resend, an answer lost): after one, the
-        vehicle is watched (:meth:`_watch_raising`)."""
+        """Lower the implement (``link.lower_after``) once the vehicle, started at the start of its
+        leg, has headed there (its MISSION_CURRENT at or before that item, or seen within
+        :data:`REACH_M` of it) and gone past it (after it), onto a leg its mission drives
+        with the implement down and within :data:`REACH_M` of it: ArduPilot takes the
+        mission's DO_SET_SERVO or DO_SET_RELAY as a command in AUTO. Its MISSION_CURRENT
+        comes about once a second: what it drives of the leg before the command arrives is
+        not worked (~2 m at a tractor's working speed). A lowering unanswered is sent again
+        (up to ``start_attempts`` rounds) while that still holds. Out of AUTO (the
+        operator's, a failsafe), no more of it until it drives there again; past the legs
+        its mission drives with the implement down, no more of it at all. One refused, or
+        past those legs before it could be sent, is said. A lowering of ours may reach the
+        vehicle after the mission raised the implement (a resend, an answer lost): after
+        one, the vehicle is watched (:meth:`_watch_raising`)."""
         sent = link.lower
         if sent is not None and sent.outcome is Outcome.RUNNING:
             if v.phase is Phase.LOST:
