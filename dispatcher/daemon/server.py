@@ -67,6 +67,7 @@ from dispatcher.mission.build import (
     implement_down_after,
     implement_set_before,
 )
+from dispatcher.mission.document import PlannedItem
 from dispatcher.mission.job import DispatchJob
 from dispatcher.mission.window import shortest, window
 from dispatcher.recording.live import LiveView, LiveViewError, layout_path, write_layout
@@ -208,6 +209,11 @@ def _plan_numbers(doc: dict[str, Any], msg: mc.MAVLinkMessage, v: VehicleState) 
             doc["plan_total"] = plan_total
     elif kind == "MISSION_ITEM_REACHED":
         doc["plan_seq"] = numbering.report(int(msg.seq))[0]
+
+
+def _as_command(item: PlannedItem, optional: bool = False) -> Command:
+    """A mission's DO item (the implement's setting) as a command to send in AUTO."""
+    return Command(item.command, (item.param1, item.param2), optional=optional)
 
 
 @dataclass
@@ -1440,15 +1446,9 @@ class Dispatcher:
             )
             return
         if v.where is not None and self._lowering_holds(v, k, v.where):
-            lowering = v.items[k]
-            link.lower = CommandSequence(
-                [Command(lowering.command, (lowering.param1, lowering.param2))],
-                v.system_id,
-                max_retries=LOWERING_RETRIES,
-            )
             link.lowerings += 1
             self._log("info", f"{v.id}: past item {item}, where its leg starts: implement down")
-            self._send(v.id, link.lower.start(now))
+            self._set_implement(v, link, k, now)
 
     def _watch_raising(self, v: VehicleState, link: _Link, now: float) -> None:
         """After a lowering of ours (``link.watch``: the lowering's item, and when no answer
@@ -1470,13 +1470,16 @@ class Dispatcher:
         up = v.items[j]
         if up.role in IMPLEMENT_RAISED and v.driving and not v.operator_hold:
             link.raising = j
-            link.lower = CommandSequence(
-                [Command(up.command, (up.param1, up.param2), optional=True)],
-                v.system_id,
-                max_retries=LOWERING_RETRIES,
-            )
             self._log("info", f"{v.id}: past item {j}, the mission's raising: sent again")
-            self._send(v.id, link.lower.start(now))
+            self._set_implement(v, link, j, now)
+
+    def _set_implement(self, v: VehicleState, link: _Link, k: int, now: float) -> None:
+        """Send the mission's implement item ``k`` as a command (``link.lower``): a
+        lowering must be taken, a raising may be refused (optional)."""
+        item = v.items[k]
+        command = _as_command(item, optional=item.role in IMPLEMENT_RAISED)
+        link.lower = CommandSequence([command], v.system_id, max_retries=LOWERING_RETRIES)
+        self._send(v.id, link.lower.start(now))
 
     def _lowering_holds(self, v: VehicleState, k: int, where: tuple[float, float] | None) -> bool:
         """Whether the mission's lowering at item ``k`` is right for the vehicle now: it
@@ -1511,7 +1514,7 @@ class Dispatcher:
     def _raised(self, v: VehicleState) -> Command | None:
         """The mission's raising of the implement, as a command (None if it has none)."""
         up = next((it for it in v.items if it.role in IMPLEMENT_RAISED), None)
-        return None if up is None else Command(up.command, (up.param1, up.param2), optional=True)
+        return None if up is None else _as_command(up, optional=True)
 
     def _implement_at(self, v: VehicleState, seq: int) -> Command | None:
         """The implement as its mission has it when it drives to item ``seq`` (the item
@@ -1536,7 +1539,7 @@ class Dispatcher:
                     "drives before that is not worked",
                 )
                 return self._raised(v)
-        return Command(item.command, (item.param1, item.param2), optional=True)
+        return _as_command(item, optional=True)
 
     def _start_again(self, v: VehicleState, link: _Link, now: float) -> bool:
         """A start whose commands went unanswered, of a vehicle heard since it began: the
