@@ -79,6 +79,18 @@ def r1_under_way(procs: Processes, sitl: Sitl, serve, status, share: float, stat
     return under_way
 
 
+def serve_r1(  # type: ignore[no-untyped-def]
+    procs: Processes, sitl: Sitl, tmp_path: Path, *serve_args: str, scenario: Path = SCENARIO
+):
+    """The autopilot started afresh, the dispatcher serving ``scenario`` on a free port
+    (its logs in ``tmp_path``/logs, ``serve_args`` added) and r1's bridge: the port, the
+    serve process and the bridge's."""
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(scenario, port, tmp_path / "logs", *serve_args)
+    return port, serve, procs.bridge(scenario, "r1", sitl, port)
+
+
 def wait_under_way(procs: Processes, sitl: Sitl, serve, port: int, share: float) -> None:  # type: ignore[no-untyped-def]
     """Until r1 drives its mission with ``share`` of it done (the dispatcher's status);
     fails at once if ``serve`` exits."""
@@ -227,10 +239,7 @@ def swaths_lowered_at_their_start(  # type: ignore[no-untyped-def]
 def r1_job(procs: Processes, sitl: Sitl, tmp_path: Path, share: float = 0.0):  # type: ignore[no-untyped-def]
     """r1's job under way, ``share`` of it done: the serve process, r1's status as last
     read, the check that reads it (:func:`r1_under_way`) and r1's mission items."""
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
-    procs.bridge(SCENARIO, "r1", sitl, port)
+    port, serve, _ = serve_r1(procs, sitl, tmp_path)
     with status_reader(port, "sitl") as status:
         state: dict = {}
         under_way = r1_under_way(procs, sitl, serve, status, share, state)
@@ -365,10 +374,7 @@ def test_an_arm_refusal_says_why_in_the_status_the_log_and_the_review(
     procs: Processes, sitl: Sitl, tmp_path: Path
 ) -> None:
     sitl.params = {**sitl.params, "BATT_ARM_VOLT": 50.0}  # SITL's battery has 12.6 V
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
-    procs.bridge(SCENARIO, "r1", sitl, port)
+    port, serve, _ = serve_r1(procs, sitl, tmp_path)
     with status_reader(port, "sitl") as status:
         seen: dict = {}
 
@@ -401,10 +407,7 @@ def test_a_rover_held_by_its_ground_station_failsafe_goes_on_once_it_hears_the_d
     # the dispatcher to take the rover for lost: ArduPilot holds, says so ("... Failsafe"),
     # and stays in HOLD when our heartbeats reach it again ("GCS Failsafe Cleared").
     sitl.params = {**sitl.params, "FS_GCS_TIMEOUT": 1.5 * SPEEDUP}  # 1.5 wall seconds
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
-    bridge = procs.bridge(SCENARIO, "r1", sitl, port)
+    port, serve, bridge = serve_r1(procs, sitl, tmp_path)
     wait_under_way(procs, sitl, serve, port, 0.3)
     bridge.send_signal(signal.SIGSTOP)
     try:
@@ -427,11 +430,8 @@ def test_a_rover_held_by_its_ground_station_failsafe_goes_on_once_it_hears_the_d
 def test_a_dispatcher_killed_mid_mission_finds_the_rover_on_its_mission_and_keeps_it(
     procs: Processes, sitl: Sitl, tmp_path: Path
 ) -> None:
-    port = free_port()
     data = ("--data-dir", str(tmp_path / "data"))
-    sitl.start(wipe=True)
-    first = procs.serve(SCENARIO, port, tmp_path / "logs", *data)
-    procs.bridge(SCENARIO, "r1", sitl, port)
+    port, first, _ = serve_r1(procs, sitl, tmp_path, *data)
     wait_under_way(procs, sitl, first, port, 0.4)
     first.kill()
     first.wait(10)
@@ -461,10 +461,7 @@ def test_a_mission_in_windows_is_topped_up_under_the_driving_rover(
         SCENARIO.read_text().replace('farm = "sitl-farm.geojson"', f'farm = "{farm}"')
         + "\n[dispatcher]\nwindow_items = 10\ntopup_lead_s = 2.0\n"
     )
-    port = free_port()
-    sitl.start(wipe=True)
-    serve = procs.serve(scenario, port, tmp_path / "logs")
-    procs.bridge(scenario, "r1", sitl, port)
+    _, serve, _ = serve_r1(procs, sitl, tmp_path, scenario=scenario)
     assert finished(serve, procs, sitl) == 0, procs.report(sitl)
     log = read_log(log_of(Processes.output(serve)))
     events = [r.decode_json() for r in log.on(EVENTS_TOPIC)]
