@@ -783,7 +783,7 @@ class FleetState:
                 if was_off and v.off_auto_since is None:  # its time out of AUTO: no stall
                     v.progress_s, v.progress_wall = v.sim_time_s, now
         elif kind == "GLOBAL_POSITION_INT":
-            if msg.lat == 0 and msg.lon == 0:
+            if not mc.has_fix(msg.lat / 1e7, msg.lon / 1e7):
                 # No position yet (an autopilot without a GPS fix reports 0, 0): its clock
                 # still counts, nothing else.
                 return out + self._clock(v, msg.time_boot_ms / 1000.0, now)

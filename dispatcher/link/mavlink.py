@@ -22,6 +22,7 @@ import hashlib
 import heapq
 import hmac
 import logging
+import math
 import socket
 import struct
 import time
@@ -110,6 +111,18 @@ def peer_heartbeat(mav_type: int) -> MAVLinkMessage:
 def is_message_name(name: str) -> bool:
     """Whether ``name`` is a message of the dialect, e.g. "GLOBAL_POSITION_INT"."""
     return name.isupper() and hasattr(mavlink2, f"MAVLink_{name.lower()}_message")
+
+
+def has_fix(lat_deg: float, lon_deg: float) -> bool:
+    """Whether a reported position (degrees) is a fix: finite, on the globe, and not the
+    0, 0 an autopilot reports in GLOBAL_POSITION_INT before it has one."""
+    return (
+        math.isfinite(lat_deg)
+        and math.isfinite(lon_deg)
+        and -90.0 <= lat_deg <= 90.0
+        and -180.0 <= lon_deg <= 180.0
+        and not (lat_deg == 0.0 and lon_deg == 0.0)
+    )
 
 
 def statustext(msg: MAVLinkMessage) -> str:

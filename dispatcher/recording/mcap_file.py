@@ -48,6 +48,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from dispatcher.config.errors import DispatcherError
+from dispatcher.link.mavlink import has_fix
 from dispatcher.recording import topics
 from dispatcher.recording.topics import (  # noqa: F401 - the names log readers use
     EVENTS_TOPIC,
@@ -552,10 +553,11 @@ class Recorder:
     ) -> None:
         """A position fix (degrees) on ``/vehicle/<id>/fix`` as ``foxglove.LocationFix``,
         stamped with the log time, with the heading (degrees clockwise from north) when
-        known; ``sim_time_s`` (the vehicle's own clock) goes into the fix's metadata. A fix
-        with a non-finite coordinate is skipped (the raw frame is on the MAVLink topic)."""
+        known; ``sim_time_s`` (the vehicle's own clock) goes into the fix's metadata. A
+        position that is no fix (not finite, off the globe, or the 0, 0 of an autopilot
+        without one) is skipped: the raw frame is on the MAVLink topic."""
         _check_time(log_time_ns)
-        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(altitude_m)):
+        if not (has_fix(lat, lon) and math.isfinite(altitude_m)):
             logger.debug("skipping non-finite fix of %s: %s, %s", vehicle_id, lat, lon)
             return
         data = topics.location_fix(

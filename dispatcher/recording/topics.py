@@ -189,14 +189,15 @@ def location_fix(
     heading_deg: float | None = None,
     sim_time_s: float | None = None,
 ) -> bytes:
-    """A ``foxglove.LocationFix`` (encoded): the position in degrees, the heading in degrees
-    clockwise from north when known, the vehicle's own clock as ``sim_time_s`` metadata."""
+    """A ``foxglove.LocationFix`` (encoded): the position in degrees, the heading when known
+    (given in degrees clockwise from north, written in radians clockwise from north as
+    Foxglove's schema has it), the vehicle's own clock as ``sim_time_s`` metadata."""
     metadata = None
     if sim_time_s is not None and math.isfinite(sim_time_s):
         metadata = [KeyValuePair(key="sim_time_s", value=repr(float(sim_time_s)))]
     heading = None
     if heading_deg is not None and math.isfinite(heading_deg):
-        heading = float(heading_deg) % 360.0
+        heading = math.radians(float(heading_deg) % 360.0)
     return LocationFix(
         timestamp=_timestamp(log_time_ns),
         frame_id=vehicle_id,

@@ -453,16 +453,6 @@ class _Point:
     filled: bool = False  # a waypoint put into a gap of the recording (_across_gaps)
 
 
-def _valid_position(lat: float, lon: float) -> bool:
-    return (
-        math.isfinite(lat)
-        and math.isfinite(lon)
-        and -90.0 <= lat <= 90.0
-        and -180.0 <= lon <= 180.0
-        and not (lat == 0.0 and lon == 0.0)  # "no fix"
-    )
-
-
 def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
     """Geodesic distance between two (lat, lon)."""
     return float(_GEOD.inv(a[1], a[0], b[1], b[0])[2])
@@ -567,7 +557,7 @@ def _read_events(
             if t_ms is None or lat_i is None or lon_i is None:
                 continue
             t, lat, lon = run_clock(t_ms / 1000.0, log_ns), lat_i / 1e7, lon_i / 1e7
-            valid = _valid_position(lat, lon)
+            valid = mc.has_fix(lat, lon)
             if pending is not None:
                 item = items[pending[0]]
                 at_waypoint = (
@@ -723,7 +713,7 @@ def _mission_between(
     out = []
     for n, s in enumerate(between, 1):
         item = items[s]
-        if _valid_position(item.lat, item.lon):
+        if mc.has_fix(item.lat, item.lon):
             if fits and pace is not None:
                 t = a.t + pace[s] - origin
             else:
@@ -755,7 +745,7 @@ def _fix_points(fixes: Sequence[tuple[int, dict[str, Any]]]) -> list[_Point]:
             t = float(sim) if sim is not None else math.nan
         except (TypeError, ValueError):
             continue
-        if lat is not None and lon is not None and math.isfinite(t) and _valid_position(lat, lon):
+        if lat is not None and lon is not None and math.isfinite(t) and mc.has_fix(lat, lon):
             out.append(_Point(t, order, lat, lon, None))
     return out
 
@@ -1013,7 +1003,7 @@ def _review_vehicle(
     # The exact waypoints the vehicle reported merged in.
     for seq in reported - events.caught_up:
         item = items[seq]
-        if item.is_nav and _valid_position(item.lat, item.lon):
+        if item.is_nav and mc.has_fix(item.lat, item.lon):
             track.append(_Point(times[seq], order_of[seq], item.lat, item.lon, None, True))
     track.sort(key=lambda p: (p.t, p.order))
 
@@ -1135,7 +1125,7 @@ def _review_vehicle(
             plan_h += done_h
             plan_fuel += _fuel(machine, done_h - done_work_h, done_turns, done_work_h) or 0.0
 
-    nav = [it for it in items if it.is_nav and _valid_position(it.lat, it.lon)]
+    nav = [it for it in items if it.is_nav and mc.has_fix(it.lat, it.lon)]
     plan_road_m = machine.distance_m
     mission_h = planned_s[-1] / 3600.0 if planned_s else None
     if left_out and not complete:
@@ -1732,12 +1722,12 @@ def _last_position(traffic: _Traffic | None, ns: int) -> tuple[float | None, flo
     for t, m in reversed(traffic.from_vehicle):
         if t <= ns and m.get("mavpackettype") == "GLOBAL_POSITION_INT":
             lat, lon = _num(m.get("lat")), _num(m.get("lon"))
-            if lat is not None and lon is not None and _valid_position(lat / 1e7, lon / 1e7):
+            if lat is not None and lon is not None and mc.has_fix(lat / 1e7, lon / 1e7):
                 return lat / 1e7, lon / 1e7
     for t, fix in reversed(traffic.fixes):
         if t <= ns:
             lat, lon = _num(fix.get("latitude")), _num(fix.get("longitude"))
-            if lat is not None and lon is not None and _valid_position(lat, lon):
+            if lat is not None and lon is not None and mc.has_fix(lat, lon):
                 return lat, lon
     return None, None
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import math
 import os
 import shutil
 import signal
@@ -227,7 +228,21 @@ def test_location_fix_heading() -> None:
         rec.record_location("t1", 44.0, 87.0, T0, heading_deg=370.0)
         rec.record_location("t1", 44.0, 87.0, T0 + 1, heading_deg=float("nan"))
     first, second = (r.decode_json() for r in read_log(buf).on("/vehicle/t1/fix"))
-    assert first["heading"] == 10.0 and "heading" not in second
+    # Foxglove's LocationFix.heading is in radians clockwise from north.
+    assert first["heading"] == pytest.approx(math.radians(10.0)) and "heading" not in second
+
+
+@pytest.mark.parametrize(
+    ("lat", "lon"), [(0.0, 0.0), (91.0, 87.0), (44.0, -181.0), (float("inf"), 87.0)]
+)
+def test_position_that_is_no_fix_not_recorded(lat: float, lon: float) -> None:
+    # An autopilot without a GPS fix reports 0, 0: no LocationFix at the Gulf of Guinea.
+    buf = io.BytesIO()
+    with Recorder(buf, FARM) as rec:
+        rec.record_location("t1", lat, lon, T0, 1.0, heading_deg=90.0)
+        rec.record_location("t1", 44.0, 87.0, T0 + 1, 2.0, heading_deg=90.0)
+    fixes = [r.decode_json() for r in read_log(buf).on("/vehicle/t1/fix")]
+    assert [(f["latitude"], f["longitude"]) for f in fixes] == [(44.0, 87.0)]
 
 
 def test_field_states_drawn_when_they_change() -> None:
