@@ -18,7 +18,7 @@ import pytest
 from dispatcher.cli.main import EXIT_BAD_INPUT
 from dispatcher.cli.main import main as cli_main
 from dispatcher.config.errors import ConfigError
-from dispatcher.daemon.state import FieldState, Phase, VehicleState
+from dispatcher.daemon.state import FieldState, Phase, SetOff, VehicleState
 from dispatcher.mission.document import PlannedItem
 from dispatcher.recording.mcap_file import read_logs
 from dispatcher.review.report import review_contents, review_table
@@ -323,6 +323,7 @@ def _six_tractors(done: int) -> _Farm:
             sim_time_s=10_000.0 + k,
             started_at=5.0,
             last_seen=6.0,
+            set_off=SetOff(at_s=9_999.0),
         )
         for k in range(6)
     }
@@ -344,7 +345,7 @@ def test_the_live_view_fits_80_columns_and_ends_on_the_final_state() -> None:
     assert "sim h" in text and "plan h" in text and "21.15" in text
     last = text[text.rindex("fields done") - 10 :]
     assert "15/15 fields done" in last and "lost (simulator" in text, text
-    # Hours since each tractor set off (its clock at the start: 10 000 s less 1 s at 1x).
+    # Hours since each tractor set off (SetOff, the review's rule: its clock at 9 999 s).
     assert status.worked_s(_six_tractors(0).vehicles["tractor-0"]) == pytest.approx(1.0)
 
 

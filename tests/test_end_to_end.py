@@ -172,6 +172,9 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
         reviewed = doc["fields"][fid]
         assert reviewed["started_clock_s"] == round(live["started_s"], 1), fid
         assert reviewed["finished_clock_s"] == round(live["finished_s"], 1), fid
+    # ... and on when each vehicle set off (SetOff, one rule live and in review).
+    for v in doc["vehicles"]:
+        assert v["start_clock_s"] == round(status["vehicles"][v["id"]]["set_off_s"], 3), v["id"]
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -91,6 +91,16 @@ def test_a_killed_tractors_work_is_done_by_the_other(procs: Processes, tmp_path:
     taken = [(f, a, b) for rp in review.replans for f, a, b in rp.taken_over]
     assert taken and all((a, b) == ("v2", "v1") for _, a, b in taken), review.replans
     assert {f for f, _, _ in taken} <= set(review.vehicle("v1").fields_done), table
+    # A field v2 began and v1 finished starts on v2's clock, from v2's set-off (from v1's,
+    # the start was off by the two clocks' difference).
+    v1r, v2r = review.vehicle("v1"), review.vehicle("v2")
+    handed = [f for f in review.fields if f.started_by == "v2" and f.vehicle == "v1"]
+    assert handed, table
+    for f in handed:
+        assert f.started_s == pytest.approx(f.started_clock_s - v2r.start_clock_s), table
+        assert f.finished_s == pytest.approx(f.finished_clock_s - v1r.start_clock_s), table
+        assert f.started_s <= v2r.last_report_h * 3600, table
+        assert f"{f.id} " in table and "(begun by v2)" in table and "(handed over to v1)" in table
     # The plan's totals are the farm's once: v2's plan counts to where it got, the rest is
     # in v1's (before, v2's whole mission counted as well, its unfinished part twice).
     planned = sum(v.planned_distance_m for v in review.vehicles)

@@ -135,6 +135,47 @@ class RunClock:
         return 1.0
 
 
+JITTER_M = 0.5
+"""Positions closer than this are GPS noise, not driving."""
+STILL_SPEED_MS = 0.1
+"""Below this ground speed a vehicle stands still."""
+
+
+@dataclass
+class SetOff:
+    """When a vehicle set off: its first position JITTER_M or more from where it
+    first stood, taken back along that first leg at the speed it reported there (the road
+    speed, or the last time it stood, without one). Every time of a run is measured from
+    here; the daemon (live, from the first position it hears) and review (from the log)
+    keep it with this one rule."""
+
+    road_speed_ms: float | None = None
+    at_s: float | None = None  # the vehicle's clock when it set off, once it did
+    _origin: tuple[float, float] | None = None
+    _still: tuple[float, float, float] | None = None  # (t, lat, lon): the last stood
+
+    def update(self, t: float, lat: float, lon: float, speed_ms: float | None) -> float | None:
+        """A position fix at ``t`` on the vehicle's clock; the set-off time once known."""
+        if self.at_s is not None:
+            return self.at_s
+        if self._origin is None:
+            self._origin = (lat, lon)
+        if _metres(self._origin, (lat, lon)) < JITTER_M:
+            self._still = (t, lat, lon)
+            return None
+        if self._still is None:
+            self.at_s = t
+            return t
+        still_t, still_lat, still_lon = self._still
+        speed = speed_ms if speed_ms is not None and speed_ms >= STILL_SPEED_MS else None
+        speed = speed if speed is not None else self.road_speed_ms
+        if speed is None or speed <= 0:
+            self.at_s = still_t
+        else:
+            self.at_s = max(still_t, t - _metres((still_lat, still_lon), (lat, lon)) / speed)
+        return self.at_s
+
+
 GONE = (Phase.LOST, Phase.FAILED, Phase.WAITING)
 """Phases of a vehicle that gets no work in a re-plan (and is not waited for)."""
 
@@ -151,12 +192,16 @@ class VehicleState:
     sim_time_s: float = 0.0
     finished_s: float | None = None  # simulated time the last item was reached
     finished_at_next_fix: bool = False
+    # Its clock at its last few positions: a report of the last item accepted late (once
+    # its track bore it out) still finishes at the first position after the report.
+    fix_times_s: deque[float] = field(default_factory=lambda: deque(maxlen=16))
     lat: float | None = None
     lon: float | None = None
     # Its clock (sim_time_s) at the last position heard; -inf from a reboot on, until it
     # says where it is again.
     position_s: float = -math.inf
     heading_deg: float | None = None  # course over ground, from GLOBAL_POSITION_INT.hdg
+    set_off: SetOff = field(default_factory=SetOff)  # since the dispatcher first heard it
     mode: int | None = None
     armed: bool = False
     last_seen: float | None = None  # wall clock of the last message
@@ -371,8 +416,12 @@ class FieldState:
     id: str
     vehicle: str
     status: str = "pending"  # pending, working, done
+    # Times on the clock of the vehicle that reached them: the start on ``started_by``'s
+    # (the first vehicle to begin the field: a field handed over after a loss keeps its
+    # first start), the finish on ``vehicle``'s.
     started_s: float | None = None
     finished_s: float | None = None
+    started_by: str | None = None
     swaths_done: int = 0
     # Segments (swaths and headland ring edges) of the field's layout, and how many times
     # each was worked (its end reached, implement down, by any vehicle): a segment worked
@@ -398,11 +447,13 @@ class FleetState:
         self.vehicles: dict[str, VehicleState] = {}
         self.fields: dict[str, FieldState] = {}
         for m in document.machines:
+            road_ms = m.param("road_speed_kmh") / 3.6
             self.vehicles[m.id] = VehicleState(
                 id=m.id,
                 system_id=m.system_id,
                 items=m.items,
                 planned_s=m.planned_times() or [],
+                set_off=SetOff(road_ms if road_ms > 0 else None),
             )
             for fid in m.fields:
                 self.fields[fid] = FieldState(fid, m.id)
@@ -708,8 +759,11 @@ class FleetState:
         if v.reached == len(v.items) - 1:
             v.phase = Phase.DONE
             v.resuming = False
-            v.finished_s = clock_s
-            v.finished_at_next_fix = True
+            # The vehicle reports its position right after the last waypoint: that is when
+            # it finished (the report's own time is the position before it).
+            after = next((t for t in v.fix_times_s if t > clock_s), None)
+            v.finished_s = clock_s if after is None else after
+            v.finished_at_next_fix = after is None
 
     def _item_done(
         self,
@@ -734,20 +788,20 @@ class FleetState:
             # At the field's entry. ArduPilot does not report DO_SET_SERVO/RELAY as
             # reached, so this is the start unless the implement-down item says better.
             f.status = "working"
-            f.started_s = clock_s
+            f.started_s, f.started_by = clock_s, v.id
         elif item.role == "implement_down" and f.status != "done":
             f.status = "working"
             # Its time is the start, better than the entry's, unless some of the field was
             # worked before (a re-plan's rest of it: the start stays the first visit's).
             if (reported and not f.passes) or f.started_s is None:
-                f.started_s = clock_s
+                f.started_s, f.started_by = clock_s, v.id
         elif item.role == "swath_end":
             f.swaths_done += 1
         elif item.role == "implement_up" and f.status != "done":
             f.status = "done"
             f.finished_s = clock_s
             if f.started_s is None:
-                f.started_s = clock_s
+                f.started_s, f.started_by = clock_s, v.id
             v.fields_done.append(f.id)
 
     # --- reports: what the vehicle says, and the events it implies ------------------------
@@ -792,6 +846,8 @@ class FleetState:
                 v.heading_deg = msg.hdg / 100.0
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
             v.position_s = v.sim_time_s
+            v.fix_times_s.append(v.sim_time_s)
+            v.set_off.update(v.sim_time_s, v.lat, v.lon, math.hypot(msg.vx, msg.vy) / 100.0)
             if v.progress_at is None or _metres(v.progress_at, (v.lat, v.lon)) >= STALL_MOVE_M:
                 if v.stalled:
                     out.append(ev.VehicleSeen(vid))  # it moves again
@@ -945,6 +1001,7 @@ class FleetState:
                     "current_field": v.current_field,
                     "share_done": round(v.share_done, 4),
                     "eta_s": round(v.eta_s, 1),
+                    "set_off_s": v.set_off.at_s,
                     "finished_s": v.finished_s,
                     "sim_time_s": round(v.sim_time_s, 1),
                     "lat": v.lat,
@@ -969,6 +1026,7 @@ class FleetState:
                     "status": f.status,
                     "vehicle": f.vehicle,
                     "started_s": f.started_s,
+                    "started_by": f.started_by,
                     "finished_s": f.finished_s,
                     "swaths_done": f.swaths_done,
                     "segments": f.segments,

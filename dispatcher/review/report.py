@@ -34,7 +34,7 @@ import numpy as np
 from pyproj import Geod
 
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.state import FleetState, RunClock
+from dispatcher.daemon.state import JITTER_M, STILL_SPEED_MS, FleetState, RunClock, SetOff
 from dispatcher.link import mavlink as mc
 from dispatcher.mission.document import (
     PlanDocument,
@@ -69,12 +69,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-JITTER_M: Final = 0.5
-"""Positions closer than this to the last kept one are noise, not driving."""
 WAYPOINT_MATCH_M: Final = 2.0
 """A position this close to a waypoint just reached is taken as the vehicle at it."""
-STILL_SPEED_MS: Final = 0.1
-"""Below this ground speed a vehicle stands still."""
 HELD_IN_WORK_S: Final = 60.0
 """Standing still this long in a field's work window is a hold, not work; a shorter pause
 (a turn, a hitch) is work."""
@@ -192,8 +188,9 @@ class FieldReview:
     done: bool
     started_s: float | None
     finished_s: float | None
-    started_clock_s: float | None  # the same on the vehicle's own clock
-    finished_clock_s: float | None
+    started_by: str | None  # the vehicle that began it (another when handed over)
+    started_clock_s: float | None  # on started_by's own clock
+    finished_clock_s: float | None  # on the holder's (vehicle's) own clock
     planned_started_s: float | None
     planned_finished_s: float | None
     # The field's segments (swaths and headland ring edges, numbered as first laid out)
@@ -794,28 +791,19 @@ def _item_times(
 
 
 def _start_time(points: Sequence[_Point], road_speed_ms: float) -> float | None:
-    """When the vehicle set off: its first move away from where it stood, taken back
-    along that first leg at the speed it reported (or the road speed)."""
-    if not points:
-        return None
-    origin = (points[0].lat, points[0].lon)
+    """When the vehicle set off (:class:`SetOff`, the daemon's rule), with the speed
+    reported at each time (a waypoint merged in has none: a position at its time has)."""
+    set_off = SetOff(road_speed_ms if road_speed_ms > 0 else None)
     for k, p in enumerate(points):
-        if _metres(origin, (p.lat, p.lon)) < JITTER_M:
-            continue
-        if k == 0:
-            return p.t
-        prev = points[k - 1]
-        d = _metres((prev.lat, prev.lon), (p.lat, p.lon))
-        # The speed reported there (a waypoint merged in has none: the position with it).
-        reported = [
-            q.speed
-            for q in points[k:]
-            if q.t == p.t and q.speed is not None and q.speed >= STILL_SPEED_MS
-        ]
-        speed = reported[0] if reported else road_speed_ms
-        if speed <= 0:
-            return prev.t
-        return max(prev.t, p.t - d / speed)
+        speed = None
+        j = k
+        while j < len(points) and points[j].t == p.t and speed is None:
+            q = points[j]
+            speed = q.speed if q.speed is not None and q.speed >= STILL_SPEED_MS else None
+            j += 1
+        at = set_off.update(p.t, p.lat, p.lon, speed)
+        if at is not None:
+            return at
     return None
 
 
@@ -854,8 +842,9 @@ def _merge_activities(parts: list[Activity]) -> tuple[Activity, ...]:
 
 @dataclass(frozen=True)
 class _FieldTimes:
-    started: float | None  # vehicle clock
-    finished: float | None
+    started: float | None  # on the clock of started_by (None: the vehicle's own)
+    finished: float | None  # the vehicle's clock
+    started_by: str | None = None
 
 
 def _turn_seqs(items: Sequence[PlannedItem]) -> set[int]:
@@ -1550,7 +1539,9 @@ def review_contents(log: LogContents) -> Review:
     if replayed is not None:
         for fid, f in replayed.fields.items():
             if f.vehicle in results:
-                results[f.vehicle].field_times[fid] = _FieldTimes(f.started_s, f.finished_s)
+                results[f.vehicle].field_times[fid] = _FieldTimes(
+                    f.started_s, f.finished_s, f.started_by
+                )
     fields = _field_reviews(plan, results, replayed)
     not_done = [f"{f.id} ({f.vehicle or 'nobody'})" for f in fields if not f.done]
     if not_done:
@@ -1843,6 +1834,11 @@ def _field_reviews(
         times = held.field_times.get(fid) if held is not None else None
         start = held.start_clock if held is not None else None
         started = times.started if times is not None else None
+        # A field handed over after a loss started on the first vehicle's clock: measured
+        # from that vehicle's set-off (the fleet's common timeline).
+        started_by = times.started_by if times is not None else None
+        begun = results.get(started_by) if started_by not in (None, holder) else held
+        begun_start = begun.start_clock if begun is not None else None
         finished = times.finished if times is not None else None
         p_start, p_end = planned.get(fid, (None, None))
         out.append(
@@ -1854,8 +1850,9 @@ def _field_reviews(
                 holes=info.holes if info is not None else (),
                 vehicle=holder,
                 done=finished is not None,
-                started_s=_minus(started, start),
+                started_s=_minus(started, begun_start),
                 finished_s=_minus(finished, start),
+                started_by=started_by if started is not None else None,
                 started_clock_s=started,
                 finished_clock_s=finished,
                 planned_started_s=p_start,
@@ -1866,6 +1863,11 @@ def _field_reviews(
             )
         )
     return out
+
+
+def _begun_by(f: FieldReview) -> str:
+    """ " (begun by t2)" for a field another vehicle began, else ""."""
+    return f" (begun by {f.started_by})" if f.started_by not in (None, f.vehicle) else ""
 
 
 def _minus(a: float | None, b: float | None) -> float | None:
@@ -1985,6 +1987,7 @@ def review_json(review: Review) -> dict[str, Any]:
             "vehicle": f.vehicle,
             "started": r(f.started_s, 1),
             "finished": r(f.finished_s, 1),
+            "started_by": f.started_by,
             "started_clock_s": r(f.started_clock_s, 1),
             "finished_clock_s": r(f.finished_clock_s, 1),
             "planned_started": r(f.planned_started_s, 1),
@@ -2175,11 +2178,21 @@ def review_table(review: Review) -> str:
             worked = []
             for fid in v.fields_done:
                 f = review.field(fid)
-                worked.append(f"{fid} {_hours(f.started_s, digits)}-{_hours(f.finished_s, digits)}")
+                worked.append(
+                    f"{fid} {_hours(f.started_s, digits)}-{_hours(f.finished_s, digits)}"
+                    + _begun_by(f)
+                )
             for fid in v.fields_planned:
                 f = review.field(fid)
                 if not f.done and f.started_s is not None:
-                    worked.append(f"{fid} {_hours(f.started_s, digits)}- (unfinished)")
+                    worked.append(
+                        f"{fid} {_hours(f.started_s, digits)}- (unfinished)" + _begun_by(f)
+                    )
+            for f in review.fields:
+                if f.started_by == v.id and f.vehicle != v.id:
+                    worked.append(
+                        f"{f.id} {_hours(f.started_s, digits)}- (handed over to {f.vehicle})"
+                    )
             missing = [f for f in v.fields_planned if review.field(f).started_s is None]
             line = f"  {v.id:<6} " + (", ".join(worked) or "-")
             if missing:

@@ -390,7 +390,6 @@ class LiveStatus:
         self.marks: dict[str, str] = {}  # vehicle id -> a fault it has (see FaultInjector)
         self.console = Console(file=stream or sys.stdout, width=self.WIDTH, highlight=False)
         self.started = time.monotonic()
-        self.set_off_s: dict[str, float] = {}  # vehicle id -> its clock when it set off
         self._live: Any = None
         self._last = -math.inf
 
@@ -398,26 +397,18 @@ class LiveStatus:
         """A line of news (a fault injected, a simulator gone), at once, above the view."""
         self.console.print(f"! {text}", markup=False, soft_wrap=True)
 
-    def _watch_set_off(self, state: FleetState) -> None:
-        """Each vehicle's clock when its mission started: from the wall time of the start
-        and how fast its clock runs, so that its hours compare with the plan's."""
-        for v in state.vehicles.values():
-            if v.id not in self.set_off_s and v.started_at is not None and v.last_seen:
-                lag_s = max(v.last_seen - v.started_at, 0.0) * v.clock.rate
-                self.set_off_s[v.id] = max(v.sim_time_s - lag_s, 0.0)
-
     def worked_s(self, v: VehicleState) -> float:
-        """Simulated seconds since ``v`` set off, to the end of its mission if it is done."""
-        if v.id not in self.set_off_s:
+        """Simulated seconds since ``v`` set off (the review's rule, :class:`SetOff`), to
+        the end of its mission if it is done."""
+        if v.set_off.at_s is None:
             return 0.0
         end = v.finished_s if v.finished_s is not None else v.sim_time_s
-        return max(end - self.set_off_s[v.id], 0.0)
+        return max(end - v.set_off.at_s, 0.0)
 
     def render(self, state: FleetState) -> Any:
         from rich import box
         from rich.table import Table
 
-        self._watch_set_off(state)
         done = sum(f.status == "done" for f in state.fields.values())
         sim_h = max((self.worked_s(v) for v in state.vehicles.values()), default=0.0) / 3600
         table = Table(
@@ -446,7 +437,6 @@ class LiveStatus:
         return table
 
     def __call__(self, state: FleetState) -> None:
-        self._watch_set_off(state)
         now = time.monotonic()
         if self.console.is_terminal:
             if now - self._last < 0.25:
@@ -609,6 +599,9 @@ def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
     state = daemon.state
     status = result.status if result is not None else None
     lines = ["", "summary: (simulated hours, from when each tractor set off)"]
+    # The live view's plan figures are the first plan's; a re-plan changed them since (the
+    # review of the log sets each vehicle against the plan it last had).
+    planned_by = "first plan" if status is not None and daemon.replans else "planned"
     for v in state.vehicles.values():
         not_done = [f.id for f in state.fields.values() if f.vehicle == v.id and f.status != "done"]
         if status is not None:
@@ -620,7 +613,7 @@ def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
             f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}"
             + (f", not done {' '.join(not_done)}" if not_done else "")
             + f", {'finished after ' if v.finished_s is not None else ''}"
-            f"{worked_s / 3600:.2f} h (planned {planned:.2f} h)"
+            f"{worked_s / 3600:.2f} h ({planned_by} {planned:.2f} h)"
             + (f", upload retries {v.upload_retries}" if v.upload_retries else "")
             + (f", {v.error}" if v.error else "")
         )

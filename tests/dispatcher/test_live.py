@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 from typing import Any
 
 import pytest
@@ -51,7 +52,7 @@ def test_a_recorded_fix_is_served_live_as_recorded(live: Any) -> None:
     fix = topics.decode(channel["schemaName"], channel["encoding"], data)
     # the latest position, not the one before the subscription
     assert (fix["frame_id"], fix["latitude"], fix["longitude"]) == ("t1", 44.001, 87.002)
-    assert fix["heading"] == 135.0
+    assert fix["heading"] == pytest.approx(math.radians(135.0))  # radians, as Foxglove has it
     assert fix["metadata"] == [{"key": "sim_time_s", "value": "1.5"}]
 
 

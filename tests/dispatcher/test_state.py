@@ -18,7 +18,7 @@ from helpers.messages import command_ack, from_vehicle, position, track
 from dispatcher.config.errors import ConfigError
 from dispatcher.config.scenario import load_scenario
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.state import FleetState, Phase
+from dispatcher.daemon.state import FleetState, Phase, SetOff
 from dispatcher.link import mavlink as mc
 from dispatcher.link.mission_protocol import Outcome
 from dispatcher.mission.build import IMPLEMENT_LOWERED, IMPLEMENT_RAISED
@@ -1751,3 +1751,63 @@ def test_a_left_out_tractor_heard_after_a_restart_is_held_and_asks_to_rejoin(dis
     assert daemon._replan_reason == "v1 back" and link.rejoin_asked
     sent = [c for c, _ in commands_to(daemon, "v1", 11)]
     assert sent == [mc.MAV_CMD_DO_SET_MODE]  # HOLD
+
+
+def test_set_off_is_the_first_move_taken_back_along_its_first_leg() -> None:
+    # Standing (GPS noise under JITTER_M), then 10 m away at t = 20 s driving 2 m/s: it set
+    # off 5 s before, at 15 s, not at the last fix standing (10 s) nor the first away.
+    lat0, lon0 = 44.0, 87.0
+    m_lat = 1.0 / 111_132.0  # about a metre of latitude
+    so = SetOff(road_speed_ms=4.0)
+    assert so.update(0.0, lat0, lon0, 0.0) is None
+    assert so.update(10.0, lat0 + 0.2 * m_lat, lon0, 0.05) is None  # noise
+    assert so.update(20.0, lat0 + 10.2 * m_lat, lon0, 2.0) == pytest.approx(15.0, abs=0.05)
+    assert so.update(30.0, lat0, lon0, 0.0) == pytest.approx(15.0, abs=0.05)  # once for all
+    # No speed reported: the road speed (10 m at 4 m/s); without one, the last fix standing.
+    assert SetOff(4.0).update(1.0, lat0, lon0, None) is None
+    road = SetOff(4.0)
+    road.update(10.0, lat0, lon0, None)
+    assert road.update(20.0, lat0 + 10 * m_lat, lon0, None) == pytest.approx(17.5, abs=0.05)
+    bare = SetOff()
+    bare.update(10.0, lat0, lon0, None)
+    assert bare.update(20.0, lat0 + 10 * m_lat, lon0, None) == 10.0
+
+
+def test_set_off_kept_live_from_the_positions_not_a_no_fix(dispatch) -> None:
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    feed(state, "v1", position(1_000), 1.0)  # 0, 0: no fix yet, not a place stood
+    feed(state, "v1", position(2_000, 440_000_000, 870_000_000), 2.0)
+    feed(state, "v1", position(3_000, 440_000_010, 870_000_000), 3.0)  # 0.1 m: noise
+    assert v.set_off.at_s is None
+    feed(state, "v1", position(9_000, 440_001_000, 870_000_000), 4.0)  # 11 m away
+    # Standing still in the report (vx = vy = 0): the road speed takes it back.
+    road_ms = v.set_off.road_speed_ms
+    assert road_ms is not None and road_ms > 0
+    assert v.set_off.at_s == pytest.approx(max(3.0, 9.0 - 11.1 / road_ms), abs=0.1)
+    assert state.status_doc()["vehicles"]["v1"]["set_off_s"] == v.set_off.at_s
+
+
+def test_a_mission_finishes_at_the_first_position_after_its_last_report(dispatch) -> None:
+    """The last item reported at 100 s (its clock at the position before) and accepted once
+    two more positions bore it out: it finished at the first of them, as review has it (the
+    last of them made it 0.02-0.03 h late in the demo's summary)."""
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    last = len(v.items) - 1
+    state.apply(ev.MissionStarted("v1", 1), 1.0)
+    state.apply(ev.ItemReached("v1", last - 1, 90.0), 1.5)
+    for t_ms in (100_000, 110_000, 170_000):
+        feed(state, "v1", position(t_ms, 440_003_000, 872_995_000), 2.0)
+    state.apply(ev.ItemReached("v1", last, 100.0), 2.1)
+    assert v.phase is Phase.DONE and v.finished_s == 110.0
+    # Accepted before any later position: the next one says when.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    state.apply(ev.MissionStarted("v1", 1), 1.0)
+    feed(state, "v1", position(100_000, 440_003_000, 872_995_000), 2.0)
+    state.apply(ev.ItemReached("v1", last, 100.0), 2.1)
+    assert v.finished_s == 100.0
+    feed(state, "v1", position(104_000, 440_003_000, 872_995_000), 2.2)
+    feed(state, "v1", position(108_000, 440_003_000, 872_995_000), 2.3)
+    assert v.finished_s == 104.0
