@@ -34,6 +34,10 @@ COLOURS = [
 ]
 
 
+FIELD_EDGE = "#6b5b3e"  # a field's outline, in the pictures and on the live map
+FIELD_FILL = "#f3efe0"
+
+
 def colour(k: int) -> str:
     return COLOURS[k % len(COLOURS)]
 
@@ -51,10 +55,10 @@ def draw_fields(ax: Axes, farm: Farm) -> None:
         ax.plot(xs, ys, color=ROAD_COLOUR, linewidth=4.0, solid_capstyle="round", zorder=1.5)
     for f in farm.fields:
         xs, ys = f.boundary.exterior.xy
-        ax.fill(xs, ys, facecolor="#f3efe0", edgecolor="#6b5b3e", linewidth=1.0, zorder=1)
+        ax.fill(xs, ys, facecolor=FIELD_FILL, edgecolor=FIELD_EDGE, linewidth=1.0, zorder=1)
         for hole in f.boundary.interiors:
             hx, hy = hole.xy
-            ax.fill(hx, hy, facecolor="white", edgecolor="#6b5b3e", linewidth=0.8, zorder=1)
+            ax.fill(hx, hy, facecolor="white", edgecolor=FIELD_EDGE, linewidth=0.8, zorder=1)
         c = f.boundary.representative_point()
         ax.annotate(
             f.id,

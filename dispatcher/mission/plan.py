@@ -280,13 +280,18 @@ def _earlier_missions(plan_json: Path) -> set[str]:
 def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
     """Fields, garage and each machine's planned route as GeoJSON (lon, lat), for
     Foxglove's Map panel and any GIS."""
-    from dispatcher.mission.map import colour
+    from dispatcher.mission.map import FIELD_EDGE, colour
 
     farm = dispatch.scenario.farm
     features: list[dict[str, Any]] = [
         {
             "type": "Feature",
-            "properties": {"kind": "field", "id": f.id, "name": f.name},
+            "properties": {
+                "kind": "field",
+                "id": f.id,
+                "name": f.name,
+                "style": {"color": FIELD_EDGE, "weight": 1, "fillOpacity": 0.1},
+            },
             "geometry": {
                 "type": "Polygon",
                 "coordinates": [  # the outline, then the holes (a pond is not worked)
@@ -300,7 +305,7 @@ def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
     features.append(
         {
             "type": "Feature",
-            "properties": {"kind": "garage"},
+            "properties": {"kind": "garage", "name": "garage", "style": {"color": "#000000"}},
             "geometry": {"type": "Point", "coordinates": list(farm.garage_lonlat)},
         }
     )
@@ -312,6 +317,7 @@ def plan_geojson(dispatch: DispatchPlan) -> dict[str, Any]:
                 "type": "Feature",
                 "properties": {
                     "kind": "route",
+                    "name": f"{route.machine.id}: {' '.join(route.field_ids) or 'no field'}",
                     "machine": route.machine.id,
                     "fields": route.field_ids,
                     "style": {"color": colour(k), "weight": 2},

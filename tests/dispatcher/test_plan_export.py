@@ -388,6 +388,10 @@ def test_a_pond_in_a_field_is_an_exclusion_no_path_enters(tmp_path):
     shown = plan_geojson(dispatch)
     (field,) = [f for f in shown["features"] if f["properties"]["kind"] == "field"]
     assert len(field["geometry"]["coordinates"]) == 2
+    # Every feature named and styled for Foxglove's Map panel (docs/recording.md).
+    for feature in shown["features"]:
+        props = feature["properties"]
+        assert props["name"] and props["style"]["color"].startswith("#"), props
     # And so does the plan document, that review reads back from a log.
     (planned,) = dispatch.document.fields.values()
     assert [list(map(list, r)) for r in planned.rings] == field["geometry"]["coordinates"]
