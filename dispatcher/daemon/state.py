@@ -154,6 +154,11 @@ class SetOff:
     _origin: tuple[float, float] | None = None
     _still: tuple[float, float, float] | None = None  # (t, lat, lon): the last stood
 
+    @property
+    def heard(self) -> bool:
+        """A position of the vehicle was given."""
+        return self._origin is not None
+
     def update(self, t: float, lat: float, lon: float, speed_ms: float | None) -> float | None:
         """A position fix at ``t`` on the vehicle's clock; the set-off time once known."""
         if self.at_s is not None:
@@ -201,7 +206,9 @@ class VehicleState:
     # says where it is again.
     position_s: float = -math.inf
     heading_deg: float | None = None  # course over ground, from GLOBAL_POSITION_INT.hdg
-    set_off: SetOff = field(default_factory=SetOff)  # since the dispatcher first heard it
+    # When it set off, from the positions heard since its mission's start (not known to a
+    # dispatcher resumed after the vehicle's first item: None).
+    set_off: SetOff = field(default_factory=SetOff)
     mode: int | None = None
     armed: bool = False
     last_seen: float | None = None  # wall clock of the last message
@@ -847,7 +854,8 @@ class FleetState:
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
             v.position_s = v.sim_time_s
             v.fix_times_s.append(v.sim_time_s)
-            v.set_off.update(v.sim_time_s, v.lat, v.lon, math.hypot(msg.vx, msg.vy) / 100.0)
+            if v.reached == 0 or v.set_off.heard:  # (resumed past its start: not known)
+                v.set_off.update(v.sim_time_s, v.lat, v.lon, math.hypot(msg.vx, msg.vy) / 100.0)
             if v.progress_at is None or _metres(v.progress_at, (v.lat, v.lon)) >= STALL_MOVE_M:
                 if v.stalled:
                     out.append(ev.VehicleSeen(vid))  # it moves again

@@ -1811,3 +1811,16 @@ def test_a_mission_finishes_at_the_first_position_after_its_last_report(dispatch
     feed(state, "v1", position(104_000, 440_003_000, 872_995_000), 2.2)
     feed(state, "v1", position(108_000, 440_003_000, 872_995_000), 2.3)
     assert v.finished_s == 104.0
+
+
+def test_set_off_not_guessed_by_a_dispatcher_resumed_mid_mission(dispatch) -> None:
+    # Resumed (its events replayed) after the vehicle's first items: the first move heard
+    # is not when it set off; the status says it does not know.
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    state.apply(ev.MissionStarted("v1", 1), 1.0)
+    state.apply(ev.ItemReached("v1", 2, 50.0), 1.5)
+    feed(state, "v1", position(100_000, 440_000_000, 870_000_000), 2.0)
+    feed(state, "v1", position(110_000, 440_001_000, 870_000_000), 3.0)
+    assert v.set_off.at_s is None
+    assert state.status_doc()["vehicles"]["v1"]["set_off_s"] is None
