@@ -1824,3 +1824,25 @@ def test_set_off_not_guessed_by_a_dispatcher_resumed_mid_mission(dispatch) -> No
     feed(state, "v1", position(110_000, 440_001_000, 870_000_000), 3.0)
     assert v.set_off.at_s is None
     assert state.status_doc()["vehicles"]["v1"]["set_off_s"] is None
+
+
+def test_every_key_of_the_status_document_is_documented(dispatch) -> None:
+    """docs/link.md's tables of the status document name exactly its keys, at each level
+    (a key added to ``status_doc`` and not to the page fails here)."""
+    import re
+
+    page = (Path(__file__).resolve().parents[2] / "docs" / "link.md").read_text()
+    section = page[page.index("### The status document") :]
+    tables = re.split(r"\n(?=Each (?:vehicle|field):)", section)
+    documented = [
+        {
+            k
+            for row in re.findall(r"^\| (`[^|]+`) \|", t, flags=re.M)
+            for k in re.findall(r"`(\w+)`", row)
+        }
+        for t in tables
+    ]
+    doc = FleetState(dispatch.document).status_doc()
+    vehicle = next(iter(doc["vehicles"].values())) | {"foreign_commands": 0}  # the server's
+    field_doc = next(iter(doc["fields"].values()))
+    assert documented == [set(doc), set(vehicle), set(field_doc)]
