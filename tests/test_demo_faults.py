@@ -288,6 +288,11 @@ def test_a_killed_simulator_does_not_stop_the_demo(tmp_path: Path) -> None:
     assert review.planned_makespan_h == max(
         v.planned_time_h for v in review.vehicles if not v.left_out
     )
+    # The summary's hours are the review's (one rule for setting off and finishing), beside
+    # the first plan's figure: the re-plan changed v1's since.
+    assert "(first plan " in v1, summary
+    finished = re.search(r"finished after ([\d.]+) h", v1)
+    assert finished and float(finished[1]) == pytest.approx(v1r.time_h, abs=0.011), summary
 
 
 def _processes_with(word: str) -> list[int]:
