@@ -32,7 +32,10 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``application_id`` =
 One dispatcher a data directory: :meth:`Store.open` locks ``agrifleet.lock`` there.
     events(id, run, wall, vehicle, kind, body)
     vehicles(run, vehicle, phase, reached, items, reboots, error, updated)
-    fields(run, field, vehicle, status, started_s, finished_s, swaths_done)
+    fields(run, field, vehicle, status, started_s, finished_s, swaths_done,
+           started_by)       started_s on started_by's clock, finished_s on vehicle's
+
+A database of schema 1 (no ``fields.started_by``) is brought to 2 when opened.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ from dispatcher.daemon.state import FleetState
 from dispatcher.mission.document import PlanDocument, PlanDocumentError
 from dispatcher.mission.job import DispatchJob
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 APPLICATION_ID = 0x41475246  # "AGRF"
 DB_NAME = "agrifleet.sqlite3"
 LOCK_NAME = "agrifleet.lock"  # held by the dispatcher that has the database open
@@ -107,6 +110,7 @@ CREATE TABLE fields(
     started_s REAL,
     finished_s REAL,
     swaths_done INTEGER NOT NULL,
+    started_by TEXT,
     PRIMARY KEY(run, field)
 );
 """
@@ -243,6 +247,12 @@ class Store:
             return
         if app != APPLICATION_ID:
             raise StoreError(f"{self.path}: not an agrifleet database; use another --data-dir")
+        if version == 1:  # the fields' started_by came with 2
+            c.executescript(
+                "BEGIN IMMEDIATE; ALTER TABLE fields ADD COLUMN started_by TEXT; "
+                f"PRAGMA user_version={SCHEMA_VERSION}; COMMIT;"
+            )
+            version = SCHEMA_VERSION
         if version != SCHEMA_VERSION:
             raise StoreError(
                 f"{self.path}: database schema version {version}, this agrifleet reads "
@@ -440,7 +450,7 @@ class Store:
                     ),
                 )
             self.conn.executemany(
-                "INSERT OR REPLACE INTO fields VALUES (?, ?, ?, ?, ?, ?, ?)",
+                "INSERT OR REPLACE INTO fields VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 [
                     (
                         self.run_id,
@@ -450,6 +460,7 @@ class Store:
                         f.started_s,
                         f.finished_s,
                         f.swaths_done,
+                        f.started_by,
                     )
                     for f in state.fields.values()
                     if f.vehicle in self._touched

@@ -8,7 +8,7 @@ import pytest
 from dispatcher.cli.main import main
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import Phase
-from dispatcher.daemon.store import DB_NAME, Store, StoreError, default_data_dir
+from dispatcher.daemon.store import DB_NAME, SCHEMA_VERSION, Store, StoreError, default_data_dir
 from dispatcher.mission.plan import DispatchPlan
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -210,3 +210,32 @@ def test_a_second_dispatcher_on_the_same_data_directory_is_refused(tmp_path: Pat
         Store.open(tmp_path, "tiny")
     first.close()
     Store.open(tmp_path, "tiny").close()
+
+
+def test_a_database_of_schema_1_is_brought_to_2_keeping_its_run(
+    dispatch: DispatchPlan, tmp_path: Path
+) -> None:
+    job = dispatch.job()
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(job, "x")
+    v1 = job.document.machines[0]
+    state = store.unfinished_run().replay()  # type: ignore[union-attr]
+    for event in run_events(v1.id, len(v1.items) - 1):
+        state.apply(event, 0.0)
+        store.append(event, 0.0)
+    store.commit(state)
+    store.close()
+    with sqlite3.connect(tmp_path / DB_NAME) as db:  # as schema 1 had it
+        db.execute("ALTER TABLE fields DROP COLUMN started_by")
+        db.execute("PRAGMA user_version = 1")
+    store = Store.open(tmp_path, "tiny")
+    assert store.rows("PRAGMA user_version") == [(SCHEMA_VERSION,)] == [(2,)]
+    run = store.unfinished_run()
+    assert run is not None and len(run.events) == len(run_events(v1.id, len(v1.items) - 1))
+    state = run.replay()
+    store.resume_run(run)
+    store.append(ev.VehicleSeen(v1.id), 1.0)
+    store.commit(state)  # the fields' rows written again, with their starter
+    rows = dict(store.rows("SELECT field, started_by FROM fields"))
+    assert rows == {fid: v1.id for fid in v1.fields}
+    store.close()
