@@ -9,6 +9,7 @@ from dispatcher.cli.main import main
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import Phase
 from dispatcher.daemon.store import DB_NAME, SCHEMA_VERSION, Store, StoreError, default_data_dir
+from dispatcher.mission.document import PlannedMachine
 from dispatcher.mission.plan import DispatchPlan
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -105,9 +106,9 @@ def test_uncommitted_events_are_not_kept(dispatch: DispatchPlan, tmp_path: Path)
     assert run is not None and [e for _, e in run.events] == [ev.VehicleSeen("v1")]
 
 
-def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Path) -> None:
+def _v1_runs_its_mission(store: Store, dispatch: DispatchPlan) -> PlannedMachine:
+    """A run begun in ``store`` in which v1 drives its whole mission, committed; v1."""
     job = dispatch.job()
-    store = Store.open(tmp_path, "tiny", sync="normal")
     store.begin_run(job, "x")
     v1 = job.document.machines[0]
     state = store.unfinished_run().replay()  # type: ignore[union-attr]
@@ -115,6 +116,12 @@ def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Pa
         state.apply(event, 0.0)
         store.append(event, 0.0)
     store.commit(state)
+    return v1
+
+
+def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    store = Store.open(tmp_path, "tiny", sync="normal")
+    v1 = _v1_runs_its_mission(store, dispatch)
     rows = store.rows("SELECT vehicle, phase, reached FROM vehicles")
     assert rows == [(v1.id, "done", len(v1.items) - 1)]
     fields = dict(store.rows("SELECT field, status FROM fields"))
@@ -215,15 +222,8 @@ def test_a_second_dispatcher_on_the_same_data_directory_is_refused(tmp_path: Pat
 def test_a_database_of_schema_1_is_brought_to_2_keeping_its_run(
     dispatch: DispatchPlan, tmp_path: Path
 ) -> None:
-    job = dispatch.job()
     store = Store.open(tmp_path, "tiny")
-    store.begin_run(job, "x")
-    v1 = job.document.machines[0]
-    state = store.unfinished_run().replay()  # type: ignore[union-attr]
-    for event in run_events(v1.id, len(v1.items) - 1):
-        state.apply(event, 0.0)
-        store.append(event, 0.0)
-    store.commit(state)
+    v1 = _v1_runs_its_mission(store, dispatch)
     store.close()
     with sqlite3.connect(tmp_path / DB_NAME) as db:  # as schema 1 had it
         db.execute("ALTER TABLE fields DROP COLUMN started_by")
