@@ -1836,7 +1836,7 @@ def _field_reviews(
         started = times.started if times is not None else None
         # A field handed over after a loss started on the first vehicle's clock: measured
         # from that vehicle's set-off (the fleet's common timeline).
-        started_by = times.started_by if times is not None else None
+        started_by = (times.started_by if times is not None else None) or holder
         begun = results.get(started_by) if started_by not in (None, holder) else held
         begun_start = begun.start_clock if begun is not None else None
         finished = times.finished if times is not None else None

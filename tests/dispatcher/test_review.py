@@ -508,7 +508,8 @@ def test_json_has_the_documented_keys_and_is_serialisable(review: Review) -> Non
         } <= set(v)
     assert set(doc["fields"]) == set(FIELDS)
     for f in doc["fields"].values():
-        assert {"done", "vehicle", "started", "finished"} <= set(f)
+        assert {"done", "vehicle", "started", "started_by", "finished"} <= set(f)
+        assert f["started_by"] == f["vehicle"]  # nothing handed over in this run
     assert doc["fields"]["C"]["vehicle"] == "v2"
     assert doc["vehicles"][0]["fields_done"] == ["A", "B"]
 
