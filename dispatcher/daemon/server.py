@@ -39,7 +39,7 @@ from dispatcher.daemon.state import (
     Phase,
     VehicleState,
 )
-from dispatcher.daemon.store import Store, StoredRun
+from dispatcher.daemon.store import Store, StoredRun, StoreError
 from dispatcher.link import mavlink as mc
 from dispatcher.link import wire
 from dispatcher.link.mission_protocol import (
@@ -472,9 +472,12 @@ class Dispatcher:
             except queue.Empty:
                 break
         if self.store is not None:
-            self.store.commit(self.state)
-            if self.state.all_fields_done():
-                self.store.end_run("done")
+            try:
+                self.store.commit(self.state)
+                if self.state.all_fields_done():
+                    self.store.end_run("done")
+            except StoreError as exc:  # (a full disk): the log is still finished below
+                log.error("%s", exc)
         if self.recorder is not None:
             self.recorder.record_status(self._status_doc(), time.time_ns())
             self.recorder.finish()

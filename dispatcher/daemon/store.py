@@ -49,7 +49,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from dispatcher.config.errors import DispatcherError
 from dispatcher.daemon import events as ev
@@ -217,11 +217,11 @@ class Store:
         lock = _lock(data_dir)
         try:
             conn = sqlite3.connect(path, isolation_level=None)
+            store = cls(path, conn, farm_id, lock)
+            store._check_or_create()  # before any change: a database refused stays as it was
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute(f"PRAGMA synchronous={sync.upper()}")
             conn.execute("PRAGMA foreign_keys=ON")
-            store = cls(path, conn, farm_id, lock)
-            store._check_or_create()
         except sqlite3.DatabaseError as exc:
             os.close(lock)
             raise StoreError(f"{path}: not a database agrifleet can use ({exc})") from exc
@@ -247,13 +247,7 @@ class Store:
             return
         if app != APPLICATION_ID:
             raise StoreError(f"{self.path}: not an agrifleet database; use another --data-dir")
-        if version == 1:  # the fields' started_by came with 2
-            c.executescript(
-                "BEGIN IMMEDIATE; ALTER TABLE fields ADD COLUMN started_by TEXT; "
-                f"PRAGMA user_version={SCHEMA_VERSION}; COMMIT;"
-            )
-            version = SCHEMA_VERSION
-        if version != SCHEMA_VERSION:
+        if version not in (1, SCHEMA_VERSION):
             raise StoreError(
                 f"{self.path}: database schema version {version}, this agrifleet reads "
                 f"version {SCHEMA_VERSION}; use another --data-dir"
@@ -265,17 +259,45 @@ class Store:
                 f"{self.path} holds the state of farm {held!r}, not {self.farm_id!r}: "
                 "give this farm its own --data-dir"
             )
+        if version == 1:  # the fields' started_by came with 2
+            c.executescript(
+                "BEGIN IMMEDIATE; ALTER TABLE fields ADD COLUMN started_by TEXT; "
+                f"PRAGMA user_version={SCHEMA_VERSION}; COMMIT;"
+            )
 
     @contextlib.contextmanager
     def _transaction(self) -> Iterator[None]:
-        self.commit()
-        self.conn.execute("BEGIN IMMEDIATE")
+        """Writes committed at once, with the events pending (one COMMIT)."""
+        self._begin()
         try:
             yield
+        except sqlite3.Error as exc:
+            self._failed(exc)
         except BaseException:
+            self._in_transaction = False
             self.conn.execute("ROLLBACK")
             raise
-        self.conn.execute("COMMIT")
+        self.commit()
+
+    def _begin(self) -> None:
+        if not self._in_transaction:
+            try:
+                self.conn.execute("BEGIN IMMEDIATE")
+            except sqlite3.Error as exc:
+                self._failed(exc)
+            self._in_transaction = True
+
+    def _failed(self, exc: sqlite3.Error) -> NoReturn:
+        """A write the database refused (a full disk, a file made read-only): what is
+        pending is rolled back, and the message says where and what to do."""
+        self._in_transaction = False
+        with contextlib.suppress(sqlite3.Error):
+            self.conn.execute("ROLLBACK")
+        raise StoreError(
+            f"{self.path}: cannot write the dispatcher's state ({exc}); is the data "
+            "directory full or not writable? What was kept before is intact: free space "
+            "and start the dispatcher again to resume"
+        ) from exc
 
     def close(self, commit: bool = True) -> None:
         """Close the database (after a commit unless ``commit`` is false: what is pending
@@ -361,15 +383,13 @@ class Store:
         the events to be replayed from)."""
         if self.run_id is None:
             raise StoreError("no run begun or resumed")
-        self.commit()
+        # In one commit with the plan_replaced event pending: a crash between the two
+        # would leave missions that are not the plan's, and a run that cannot resume.
+        rows = [(self.run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions]
+        geojson = json.dumps(job.geojson)
         with self._transaction():
-            self.conn.executemany(
-                "INSERT OR REPLACE INTO missions VALUES (?, ?, ?)",
-                [(self.run_id, vid, json.dumps(job.items_json(vid))) for vid in job.missions],
-            )
-            self.conn.execute(
-                "UPDATE runs SET geojson = ? WHERE id = ?", (json.dumps(job.geojson), self.run_id)
-            )
+            self.conn.executemany("INSERT OR REPLACE INTO missions VALUES (?, ?, ?)", rows)
+            self.conn.execute("UPDATE runs SET geojson = ? WHERE id = ?", (geojson, self.run_id))
 
     def resume_run(self, run: StoredRun) -> None:
         """Append to ``run`` from now on."""
@@ -400,13 +420,14 @@ class Store:
         """Add an event to the open transaction (committed by :meth:`commit`)."""
         if self.run_id is None:
             raise StoreError("no run begun or resumed")
-        if not self._in_transaction:
-            self.conn.execute("BEGIN IMMEDIATE")
-            self._in_transaction = True
-        self.conn.execute(
-            "INSERT INTO events(run, wall, vehicle, kind, body) VALUES (?, ?, ?, ?, ?)",
-            (self.run_id, wall, event.vehicle, event.kind, json.dumps(ev.to_dict(event))),
-        )
+        self._begin()
+        try:
+            self.conn.execute(
+                "INSERT INTO events(run, wall, vehicle, kind, body) VALUES (?, ?, ?, ?, ?)",
+                (self.run_id, wall, event.vehicle, event.kind, json.dumps(ev.to_dict(event))),
+            )
+        except sqlite3.Error as exc:
+            self._failed(exc)
         self._touched.add(event.vehicle)
 
     @property
@@ -421,55 +442,56 @@ class Store:
     def keep_signing_timestamp(self, stamp: int) -> None:
         """Keep ``stamp`` as the signing timestamp to start from after a restart (at once:
         a frame may be signed beyond the last one kept only after this returns)."""
-        self.commit()
         with self._transaction():
             self.conn.execute(
                 "INSERT OR REPLACE INTO meta VALUES ('signing_timestamp', ?)", (str(stamp),)
             )
 
     def commit(self, state: FleetState | None = None) -> None:
-        """Commit the events appended since the last commit, with the current state of the
-        vehicles they concern (and of those vehicles' fields) when ``state`` is given."""
+        """Commit what is pending (the events appended since the last commit, a re-plan's
+        missions, ...), with the current state of the vehicles the events concern (and of
+        those vehicles' fields) when ``state`` is given; without it, those rows wait for
+        the next commit that has it."""
         if not self._in_transaction:
-            return
-        if state is not None:
-            now = time.time()
-            for vid in sorted(self._touched & set(state.vehicles)):
-                v = state.vehicles[vid]
-                self.conn.execute(
-                    "INSERT OR REPLACE INTO vehicles VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                    (
-                        self.run_id,
-                        vid,
-                        v.phase.value,
-                        v.reached,
-                        len(v.items),
-                        v.reboots,
-                        v.error,
-                        now,
-                    ),
-                )
-            self.conn.executemany(
-                "INSERT OR REPLACE INTO fields VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                [
-                    (
-                        self.run_id,
-                        f.id,
-                        f.vehicle,
-                        f.status,
-                        f.started_s,
-                        f.finished_s,
-                        f.swaths_done,
-                        f.started_by,
-                    )
-                    for f in state.fields.values()
-                    if f.vehicle in self._touched
-                ],
-            )
-        self.conn.execute("COMMIT")
+            if state is None or not self._touched:
+                return
+            self._begin()  # rows a commit without the state left to write
+        try:
+            if state is not None:
+                self._write_state(state)
+            self.conn.execute("COMMIT")
+        except sqlite3.Error as exc:
+            self._failed(exc)
         self._in_transaction = False
-        self._touched.clear()
+        if state is not None:
+            self._touched.clear()
         self.commits += 1
+
+    def _write_state(self, state: FleetState) -> None:
+        now = time.time()
+        for vid in sorted(self._touched & set(state.vehicles)):
+            v = state.vehicles[vid]
+            self.conn.execute(
+                "INSERT OR REPLACE INTO vehicles VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (self.run_id, vid, v.phase.value, v.reached, len(v.items), v.reboots, v.error, now),
+            )
+        self.conn.executemany(
+            "INSERT OR REPLACE INTO fields VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            [
+                (
+                    self.run_id,
+                    f.id,
+                    f.vehicle,
+                    f.status,
+                    f.started_s,
+                    f.finished_s,
+                    f.swaths_done,
+                    f.started_by,
+                )
+                for f in state.fields.values()
+                if f.vehicle in self._touched
+            ],
+        )
 
     def rows(self, sql: str, *args: Any) -> list[tuple[Any, ...]]:
         """Read-only query (tests, tools)."""

@@ -7,7 +7,7 @@ import pytest
 
 from dispatcher.cli.main import main
 from dispatcher.daemon import events as ev
-from dispatcher.daemon.state import Phase
+from dispatcher.daemon.state import FleetState, Phase
 from dispatcher.daemon.store import DB_NAME, SCHEMA_VERSION, Store, StoreError, default_data_dir
 from dispatcher.mission.document import PlannedMachine
 from dispatcher.mission.plan import DispatchPlan
@@ -106,8 +106,11 @@ def test_uncommitted_events_are_not_kept(dispatch: DispatchPlan, tmp_path: Path)
     assert run is not None and [e for _, e in run.events] == [ev.VehicleSeen("v1")]
 
 
-def _v1_runs_its_mission(store: Store, dispatch: DispatchPlan) -> PlannedMachine:
-    """A run begun in ``store`` in which v1 drives its whole mission, committed; v1."""
+def _v1_runs_its_mission(
+    store: Store, dispatch: DispatchPlan, commit: bool = True
+) -> tuple[PlannedMachine, FleetState]:
+    """A run begun in ``store`` in which v1 drives its whole mission (committed with the
+    state unless not ``commit``); v1 and the state."""
     job = dispatch.job()
     store.begin_run(job, "x")
     v1 = job.document.machines[0]
@@ -115,13 +118,14 @@ def _v1_runs_its_mission(store: Store, dispatch: DispatchPlan) -> PlannedMachine
     for event in run_events(v1.id, len(v1.items) - 1):
         state.apply(event, 0.0)
         store.append(event, 0.0)
-    store.commit(state)
-    return v1
+    if commit:
+        store.commit(state)
+    return v1, state
 
 
 def test_the_state_tables_follow_the_events(dispatch: DispatchPlan, tmp_path: Path) -> None:
     store = Store.open(tmp_path, "tiny", sync="normal")
-    v1 = _v1_runs_its_mission(store, dispatch)
+    v1, _ = _v1_runs_its_mission(store, dispatch)
     rows = store.rows("SELECT vehicle, phase, reached FROM vehicles")
     assert rows == [(v1.id, "done", len(v1.items) - 1)]
     fields = dict(store.rows("SELECT field, status FROM fields"))
@@ -163,6 +167,8 @@ def test_foreign_and_newer_databases_are_refused(tmp_path: Path) -> None:
         db.execute("CREATE TABLE t(x)")
     with pytest.raises(StoreError, match="not an agrifleet database"):
         Store.open(other, "tiny")
+    with sqlite3.connect(other / DB_NAME) as db:  # left as it was (not made WAL)
+        assert db.execute("PRAGMA journal_mode").fetchone() == ("delete",)
     newer = tmp_path / "newer"
     Store.open(newer, "tiny").close()
     with sqlite3.connect(newer / DB_NAME) as db:
@@ -223,7 +229,7 @@ def test_a_database_of_schema_1_is_brought_to_2_keeping_its_run(
     dispatch: DispatchPlan, tmp_path: Path
 ) -> None:
     store = Store.open(tmp_path, "tiny")
-    v1 = _v1_runs_its_mission(store, dispatch)
+    v1, _ = _v1_runs_its_mission(store, dispatch)
     store.close()
     with sqlite3.connect(tmp_path / DB_NAME) as db:  # as schema 1 had it
         db.execute("ALTER TABLE fields DROP COLUMN started_by")
@@ -238,4 +244,63 @@ def test_a_database_of_schema_1_is_brought_to_2_keeping_its_run(
     store.commit(state)  # the fields' rows written again, with their starter
     rows = dict(store.rows("SELECT field, started_by FROM fields"))
     assert rows == {fid: v1.id for fid in v1.fields}
+    store.close()
+
+
+def test_a_re_plan_is_kept_whole_or_not_at_all(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    """The plan_replaced event and the new missions go in one commit: when the missions
+    cannot be written, the event is not kept either (kept alone, the run could not be
+    resumed: its missions were not the plan's)."""
+    job = dispatch.job()
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(job, "x")
+    store.conn.execute(
+        "CREATE TRIGGER no_missions BEFORE INSERT ON missions "
+        "BEGIN SELECT RAISE(ABORT, 'disk full'); END"
+    )
+    store.append(ev.PlanReplaced(ev.FLEET, "plan-2", "v2 lost", job.document.to_dict()), 1.0)
+    with pytest.raises(StoreError, match="cannot write the dispatcher's state .*disk full"):
+        store.replace_missions(job)
+    assert not store.pending
+    assert store.rows("SELECT count(*) FROM events WHERE kind = 'plan_replaced'") == [(0,)]
+    store.close()
+    store = Store.open(tmp_path, "tiny")
+    assert store.unfinished_run() is not None  # resumable, as before the re-plan
+    store.close()
+
+
+def test_the_state_rows_wait_for_a_commit_with_the_state(
+    dispatch: DispatchPlan, tmp_path: Path
+) -> None:
+    # A commit without the state between (the signing mark's) left the rows unwritten.
+    store = Store.open(tmp_path, "tiny")
+    v1, state = _v1_runs_its_mission(store, dispatch, commit=False)
+    store.keep_signing_timestamp(12345)
+    store.commit(state)
+    assert store.rows("SELECT vehicle, phase FROM vehicles") == [(v1.id, "done")]
+    store.close()
+
+
+def test_another_farms_database_of_schema_1_is_refused_not_upgraded(tmp_path: Path) -> None:
+    north = tmp_path / "north"
+    Store.open(north, "north").close()
+    with sqlite3.connect(north / DB_NAME) as db:
+        db.execute("ALTER TABLE fields DROP COLUMN started_by")
+        db.execute("PRAGMA user_version = 1")
+    with pytest.raises(StoreError, match="'north'"):
+        Store.open(north, "south")
+    with sqlite3.connect(north / DB_NAME) as db:
+        assert db.execute("PRAGMA user_version").fetchone() == (1,)
+
+
+def test_a_write_refused_says_where_and_what_to_do(dispatch: DispatchPlan, tmp_path: Path) -> None:
+    store = Store.open(tmp_path, "tiny")
+    store.begin_run(dispatch.job(), "x")
+    store.conn.execute("PRAGMA query_only = ON")  # as a full disk or a read-only file
+    with pytest.raises(StoreError) as info:
+        store.append(ev.VehicleSeen("v1"), 1.0)
+        store.commit()
+    assert str(tmp_path / DB_NAME) in str(info.value) and "full or not writable" in str(info.value)
+    assert not store.pending
+    store.conn.execute("PRAGMA query_only = OFF")
     store.close()
