@@ -163,7 +163,7 @@ class StoredRun:
         return state
 
 
-def _lock(data_dir: Path) -> int:
+def _lock(data_dir: Path, option: str) -> int:
     """``data_dir``'s lock file, locked, with this process's id in it (its descriptor); a
     :class:`StoreError` naming the holder's when another process holds it (two dispatchers
     on one store would both command the fleet). The lock goes with the process."""
@@ -179,7 +179,7 @@ def _lock(data_dir: Path) -> int:
         os.close(fd)
         raise StoreError(
             f"data directory {data_dir}: in use by another dispatcher (process {holder}); "
-            "stop that one first, or give this one another --data-dir"
+            f"stop that one first, or give this one another {option}"
         ) from None
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
@@ -190,9 +190,15 @@ class Store:
     """One farm's database (module doc). Used from the daemon's main thread only."""
 
     def __init__(
-        self, path: Path, conn: sqlite3.Connection, farm_id: str, lock: int | None = None
+        self,
+        path: Path,
+        conn: sqlite3.Connection,
+        farm_id: str,
+        lock: int | None = None,
+        option: str = "--data-dir",
     ) -> None:
         self.path = path
+        self.option = option  # the command-line option that chose the directory
         self.conn = conn
         self._lock = lock  # held while open: one dispatcher a data directory
         self.farm_id = farm_id
@@ -204,8 +210,11 @@ class Store:
 
     # --- opening -------------------------------------------------------------------------
     @classmethod
-    def open(cls, data_dir: Path, farm_id: str, sync: str = "full") -> Store:
-        """Open (or create) ``data_dir/agrifleet.sqlite3`` for ``farm_id``."""
+    def open(
+        cls, data_dir: Path, farm_id: str, sync: str = "full", option: str = "--data-dir"
+    ) -> Store:
+        """Open (or create) ``data_dir/agrifleet.sqlite3`` for ``farm_id``; ``option`` is
+        the command-line option that chooses the directory, named in the errors."""
         if sync not in SYNC_MODES:
             raise StoreError(f"synchronous mode {sync!r}: one of {', '.join(SYNC_MODES)}")
         data_dir = Path(data_dir)
@@ -214,10 +223,10 @@ class Store:
         except OSError as exc:
             raise StoreError(f"data directory {data_dir}: {exc.strerror or exc}") from exc
         path = data_dir / DB_NAME
-        lock = _lock(data_dir)
+        lock = _lock(data_dir, option)
         try:
             conn = sqlite3.connect(path, isolation_level=None)
-            store = cls(path, conn, farm_id, lock)
+            store = cls(path, conn, farm_id, lock, option)
             store._check_or_create()  # before any change: a database refused stays as it was
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute(f"PRAGMA synchronous={sync.upper()}")
@@ -246,18 +255,18 @@ class Store:
             )
             return
         if app != APPLICATION_ID:
-            raise StoreError(f"{self.path}: not an agrifleet database; use another --data-dir")
+            raise StoreError(f"{self.path}: not an agrifleet database; use another {self.option}")
         if version not in (1, SCHEMA_VERSION):
             raise StoreError(
                 f"{self.path}: database schema version {version}, this agrifleet reads "
-                f"version {SCHEMA_VERSION}; use another --data-dir"
+                f"version {SCHEMA_VERSION}; use another {self.option}"
             )
         row = c.execute("SELECT value FROM meta WHERE key = 'farm_id'").fetchone()
         if row is None or row[0] != self.farm_id:
             held = row[0] if row else "?"
             raise StoreError(
                 f"{self.path} holds the state of farm {held!r}, not {self.farm_id!r}: "
-                "give this farm its own --data-dir"
+                f"give this farm its own {self.option}"
             )
         if version == 1:  # the fields' started_by came with 2
             c.executescript(

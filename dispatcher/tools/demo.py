@@ -511,7 +511,8 @@ def run_demo(
     for line in faults.describe():
         print(f"fault injection: {line}", flush=True)
     # The demo keeps its state beside its logs, and always starts a new run.
-    store = Store.open(log_dir / "state" / dispatch.document.farm_id, dispatch.document.farm_id)
+    farm_id = dispatch.document.farm_id
+    store = Store.open(log_dir / "state" / farm_id, farm_id, option="--log-dir")
     store.abandon_unfinished()
     job = dispatch.job()
     started = time.time()

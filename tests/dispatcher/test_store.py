@@ -304,3 +304,12 @@ def test_a_write_refused_says_where_and_what_to_do(dispatch: DispatchPlan, tmp_p
     assert not store.pending
     store.conn.execute("PRAGMA query_only = OFF")
     store.close()
+
+
+def test_the_errors_name_the_option_that_chose_the_directory(tmp_path: Path) -> None:
+    # The demo keeps its state under --log-dir: it has no --data-dir to give another of.
+    first = Store.open(tmp_path, "tiny", option="--log-dir")
+    with pytest.raises(StoreError, match="another --log-dir") as info:
+        Store.open(tmp_path, "tiny", option="--log-dir")
+    assert "--data-dir" not in str(info.value)
+    first.close()
