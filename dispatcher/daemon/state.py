@@ -712,13 +712,17 @@ class FleetState:
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired
-        v.phase = Phase.WAITING
+        # One lost and left out by a re-plan stays lost, its reason kept, until heard again
+        # (shown as waiting, it had a field and hours of work it no longer has).
+        keep_lost = v.phase is Phase.LOST and v.retired
+        if not keep_lost:
+            v.phase = Phase.WAITING
+            v.error = ""
         # One left out of the plan holds no mission of ours to go on with: heard again, it
         # is held and a re-plan may give it work, as without a restart (the daemon).
         v.resuming = not v.retired
         v.upload_attempts = 0
         v.needs_restart = False
-        v.error = ""
         v.last_seen = v.lost_at = v.off_auto_since = None
         v.phase_before_lost = None
         v.mode = v.system_status = v.mission_total = v.mission_state = v.critical_at = None

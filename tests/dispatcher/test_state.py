@@ -1846,3 +1846,26 @@ def test_every_key_of_the_status_document_is_documented(dispatch) -> None:
     vehicle = next(iter(doc["vehicles"].values())) | {"foreign_commands": 0}  # the server's
     field_doc = next(iter(doc["fields"].values()))
     assert documented == [set(doc), set(vehicle), set(field_doc)]
+
+
+def test_a_lost_vehicle_left_out_stays_lost_through_a_restart(dispatch) -> None:
+    """Lost, its work re-planned over the others, then the dispatcher restarted: it is
+    still lost with its reason (shown "waiting", it had a field and hours of work it no
+    longer has), and heard again it is alive as without the restart."""
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    state.apply(ev.VehicleSeen("v1"), 1.0)
+    state.apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
+    v.retired = True  # what the re-plan does to a vehicle it leaves out
+    state.apply(ev.Resumed("v1"), 3.0)
+    assert v.phase is Phase.LOST and "liveliness token dropped" in v.error
+    assert state.status_doc()["vehicles"]["v1"]["phase"] == "lost"
+    feed(state, "v1", position(5_000, 440_003_000, 872_995_000), 5.0)
+    assert v.phase is Phase.ALIVE and not v.error
+    # One in the plan, lost before the restart, is to be heard again: waiting.
+    other = FleetState(dispatch.document)
+    w = other.vehicles["v1"]
+    other.apply(ev.VehicleSeen("v1"), 1.0)
+    other.apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
+    other.apply(ev.Resumed("v1"), 3.0)
+    assert w.phase is Phase.WAITING and not w.error and w.lost_before_restart
