@@ -137,7 +137,16 @@ def track_quality(
             out = ~np.asarray(shapely.covers(outline, points), dtype=bool)
             idx = np.flatnonzero(inside)
             for k in idx:
-                if k + 1 < len(t) and (out[k] or out[k + 1]):
+                if k + 1 >= len(t):
+                    continue
+                # Up from a reboot on (up_spans): the leg into it is not down outside, the
+                # vehicle back in the garage after the reboot (counted up to the reboot only
+                # when it was outside already).
+                up_from = min((a for a, _ in up_spans if t[k] < a <= t[k + 1]), default=None)
+                if up_from is not None:
+                    if out[k]:
+                        outside_s += float(min(up_from, t1) - t[k])
+                elif out[k] or out[k + 1]:
                     outside_s += float(min(t[k + 1], t1) - t[k])
     every = np.concatenate(errors) if errors else np.zeros(0)
     swaths = np.concatenate(swath_errors) if swath_errors else np.zeros(0)

@@ -867,3 +867,15 @@ def test_across_a_gap_the_mission_is_driven_at_its_pace_then_stood(dispatch) -> 
     short = dataclasses.replace(b, t=1000.0 + span / 2)
     spread = _mission_between(a, short, before, after, items, planned)
     assert spread[-1][1].t < short.t and spread[0][1].t > a.t
+
+
+def test_a_reboot_just_after_a_line_start_is_not_down_outside() -> None:
+    """ArduPilot SITL (tests/test_sitl.py's back-in-the-garage case, CI 2026-11-29) rebooted
+    just after reaching a line's start, back in the garage: the leg from the last position
+    on the line to the first in the garage straddled the reboot, and counted 81.9 s of
+    implement down outside the field. Up from the reboot on, it is not."""
+    data = Path(__file__).resolve().parents[1] / "data"
+    review = review_log(data / "sitl-reboot-after-a-line-start.mcap")
+    (vehicle,) = review.vehicles
+    assert len(vehicle.reboots) == 1 and vehicle.mission_complete
+    assert vehicle.quality is not None and vehicle.quality.outside_down_s == 0.0
