@@ -499,8 +499,10 @@ def _read_events(
     A navigation item's MISSION_ITEM_REACHED takes the time of the position that follows
     it when that position is at the waypoint (the simulator sends one right away), else
     the last time heard when it was reported (not when the next frame came: after a gap in
-    the recording that is the clock after it); other items take the last time heard. A
-    report of the item reported last is a repeat, and left out.
+    the recording that is the clock after it); other items take the last time heard. The
+    first reports after a gap in the recording come before any time is heard: those take
+    the time carried on over the gap (``heard_at``). A report of the item reported last is
+    a repeat, and left out.
 
     Frames are taken in the order they were received. The vehicle's clock
     (``time_boot_ms``) restarts from zero when its autopilot reboots: that is one reboot
@@ -517,6 +519,13 @@ def _read_events(
     pending: tuple[int, int, float | None] | None = None
     heading_to: list[tuple[int, int, int, int]] = []
     caught_up: set[int] = set()
+    clock_ns: int | None = None  # when the vehicle's clock was last heard (receive ns)
+    gap_ns = _recording_gap_ns(
+        [ns for ns, m in frames if m.get("mavpackettype") == "GLOBAL_POSITION_INT"]
+    )
+    # From which entries of ``reached`` and ``again`` the times are heard_at's carried on
+    # past a gap, to be bounded by the next clock.
+    guessed_from: tuple[int, int] | None = None
     last_reached: int | None = None  # the item of the last MISSION_ITEM_REACHED
     highest, highest_ns, highest_t = 0, 0, -math.inf  # the highest item reached, and when
     # The item the vehicle was sent back to (its MISSION_CURRENT at or before the highest
@@ -541,11 +550,35 @@ def _read_events(
 
     def run_clock(raw: float, log_ns: int) -> float:
         """The vehicle's clock made continuous across reboots."""
+        nonlocal clock_ns, pending, guessed_from
         before = clock.now
         t, rebooted = clock.update(raw, log_ns / 1e9)
         if rebooted and before is not None:
             reboots.append(before)
+        clock_ns = log_ns
+        now = clock.now if clock.now is not None else t
+        # What heard_at carried on past a gap happened before this clock, not after.
+        if guessed_from is not None:
+            for i in range(guessed_from[0], len(reached)):
+                seq, when, where = reached[i]
+                reached[i] = (seq, None if when is None else min(when, now), where)
+            for i in range(guessed_from[1], len(again)):
+                again[i] = (again[i][0], min(again[i][1], now))
+            guessed_from = None
+        if pending is not None and pending[2] is not None and pending[2] > now:
+            pending = (pending[0], pending[1], now)
         return t
+
+    def heard_at(log_ns: int) -> float | None:
+        """The vehicle's clock when a frame without one (an item reached, a text) came: the
+        last time heard; or, the first thing after a gap in the recording (no clock heard for
+        as long as _recording_gap_ns: the dispatcher was down, and what it heard first is
+        fresh), that time carried on over the gap at the clock's rate, no later than the
+        next time heard. (Before, an item reached reported first after a restart took the
+        time from before the kill, and review drew the track back there and forth again.)"""
+        if clock.now is None or clock_ns is None or log_ns - clock_ns < gap_ns:
+            return clock.now
+        return clock.now + (log_ns - clock_ns) / 1e9 * clock.rate
 
     for order, (log_ns, msg) in enumerate(frames):
         kind = msg.get("mavpackettype")
@@ -578,29 +611,32 @@ def _read_events(
                 continue
             last_reached = seq
             settle()
+            now = heard_at(log_ns)
+            if now != clock.now and guessed_from is None:  # bounded by the next clock
+                guessed_from = (len(reached), len(again))
             back = sent_back is not None and isinstance(seq, int) and sent_back <= seq <= highest
-            if back and 0 < seq < len(items) and clock.now is not None:
-                again.append((seq, clock.now))
+            if back and 0 < seq < len(items) and now is not None:
+                again.append((seq, now))
                 if back_since is not None:
-                    up_spans.append((back_since, clock.now))
+                    up_spans.append((back_since, now))
                     back_since = None
             if isinstance(seq, int) and seq > highest:
                 highest, highest_ns, sent_back = seq, log_ns, None
-                highest_t = clock.now if clock.now is not None else highest_t
+                highest_t = now if now is not None else highest_t
             if msg.get("caught_up"):
                 # Caught up after a restart: reached at some time before now (not where
                 # the vehicle is now), heading to the next item since.
                 if 0 <= seq < len(items):
                     heading_to.append((log_ns, order, seq + 1, seq + 1))
                     caught_up.add(seq)
-                reached.append((seq, clock.now, order))
+                reached.append((seq, now, order))
                 continue
             if 0 <= seq < len(items) and this_mission:
                 heading_to.append((log_ns, order, seq, seq + 1))
             if 0 <= seq < len(items) and items[seq].is_nav:
-                pending = (seq, order, clock.now)
+                pending = (seq, order, now)
             else:
-                reached.append((seq, clock.now, order))
+                reached.append((seq, now, order))
         elif kind == "MISSION_CURRENT":
             seq = msg.get("plan_seq", msg.get("seq"))
             total = msg.get("plan_total", msg.get("total"))
@@ -629,7 +665,7 @@ def _read_events(
             text = _statustext(msg.get("text"))
             severity = msg.get("severity")
             if text and isinstance(severity, int):
-                texts.append((clock.now, severity, text))
+                texts.append((heard_at(log_ns), severity, text))
     settle()
     if back_since is not None and clock.now is not None:
         up_spans.append((back_since, clock.now))  # the log ends on the drive back
@@ -645,6 +681,14 @@ def _read_events(
         again,
         up_spans,
     )
+
+
+def _recording_gap_ns(positions_ns: Sequence[int]) -> float:
+    """How far apart in receive time (ns) two positions received at ``positions_ns`` (in
+    order) are a gap in the recording: RECORDING_GAP_S, and five times their median
+    spacing."""
+    spacing = float(np.median(np.diff(positions_ns))) if len(positions_ns) > 2 else 0.0
+    return max(RECORDING_GAP_S * 1e9, 5.0 * spacing)
 
 
 def _across_gaps(
@@ -670,9 +714,7 @@ def _across_gaps(
         return track, passed
     reports = sorted(heading_to)
     received_at = [r[0] for r in reports]
-    positions = [p.log_ns for p in track if p.log_ns is not None]
-    spacing = float(np.median(np.diff(positions))) if len(positions) > 2 else 0.0
-    gap_ns = max(RECORDING_GAP_S * 1e9, 5.0 * spacing)
+    gap_ns = _recording_gap_ns([p.log_ns for p in track if p.log_ns is not None])
     out: list[_Point] = []
     a: _Point | None = None  # the last position the vehicle reported
     for b in track:

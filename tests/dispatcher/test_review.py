@@ -39,7 +39,13 @@ from dispatcher.mission.document import (
     PlannedItem,
     PlannedMachine,
 )
-from dispatcher.recording.mcap_file import LogRecord, Recorder, RecordingError, read_log
+from dispatcher.recording.mcap_file import (
+    LogContents,
+    LogRecord,
+    Recorder,
+    RecordingError,
+    read_log,
+)
 from dispatcher.review.plot import plot_review
 from dispatcher.review.report import (
     Review,
@@ -442,15 +448,10 @@ def test_an_item_reached_reported_twice_is_reached_once(
         assert again.fields_done == v.fields_done
 
 
-def test_an_item_reached_just_before_a_gap_in_the_recording_keeps_its_time(
-    review: Review, run_log: tuple[bytes, dict[str, Mission]]
-) -> None:
-    # The dispatcher killed between a MISSION_ITEM_REACHED and the position after it; the
-    # restarted one first hears the vehicle's SYSTEM_TIME, then an item reached: the first
-    # item was reached before the gap, not at the clock after it. Timed after it, its
-    # waypoint came after the gap's (the mission's waypoints put in), and the track went back
-    # to it and forth again: a SITL run's 0.78 km came out 0.99 km.
-    log = read_log(io.BytesIO(run_log[0]))
+def _gap_in_v1(log: LogContents, lost: str) -> tuple[list[LogRecord], LogRecord, LogRecord]:
+    """``log``'s records with v1's frames cut between an item reached a quarter in and one
+    1.5 s (15 steps) later or more, and v1's first frame of the kind ``lost`` from there:
+    those records, the item reached after the gap, the frame lost."""
     ours = "/vehicle/v1/mavlink/from/json"
 
     def kind(record: LogRecord) -> str | None:
@@ -460,22 +461,51 @@ def test_an_item_reached_just_before_a_gap_in_the_recording_keeps_its_time(
 
     records = list(log.records)
     reached = [k for k, r in enumerate(records) if kind(r) == "MISSION_ITEM_REACHED"]
-    cut = reached[len(reached) // 4]  # v1's last frame before the gap
-    # Heard again 1.5 s (15 steps) later or more, at an item reached; its SYSTEM_TIME first.
+    cut = reached[len(reached) // 4]
     back = next(k for k in reached if records[k].log_time_ns >= records[cut].log_time_ns + 15e8)
-    clock = next(k for k in range(back, len(records)) if kind(records[k]) == "SYSTEM_TIME")
+    gone = next(k for k in range(back, len(records)) if kind(records[k]) == lost)
     gapped = [
         r
         for k, r in enumerate(records)
-        if k != clock and not (cut < k < back and "/vehicle/v1/" in r.topic)
+        if k != gone and not (cut < k < back and "/vehicle/v1/" in r.topic)
     ]
-    at = gapped.index(records[back])
-    gapped.insert(at, records[clock]._replace(log_time_ns=records[back].log_time_ns - 1))
+    return gapped, records[back], records[gone]
+
+
+def test_an_item_reached_just_before_a_gap_in_the_recording_keeps_its_time(
+    review: Review, run_log: tuple[bytes, dict[str, Mission]]
+) -> None:
+    # The dispatcher killed between a MISSION_ITEM_REACHED and the position after it; the
+    # restarted one first hears the vehicle's SYSTEM_TIME, then an item reached: the first
+    # item was reached before the gap, not at the clock after it. Timed after it, its
+    # waypoint came after the gap's (the mission's waypoints put in), and the track went back
+    # to it and forth again: a SITL run's 0.78 km came out 0.99 km.
+    log = read_log(io.BytesIO(run_log[0]))
+    gapped, back, clock = _gap_in_v1(log, "SYSTEM_TIME")
+    gapped.insert(gapped.index(back), clock._replace(log_time_ns=back.log_time_ns - 1))
     after = review_contents(dataclasses.replace(log, records=gapped)).vehicle("v1")
     whole = review.vehicle("v1")
     assert after.fields_done == whole.fields_done
     # Across the gap the mission's own waypoints are put in: the same path.
     assert after.distance_m == pytest.approx(whole.distance_m, rel=1e-3)
+
+
+def test_an_item_reached_heard_first_after_a_gap_is_timed_after_it(
+    review: Review, run_log: tuple[bytes, dict[str, Mission]]
+) -> None:
+    # The restarted dispatcher first hears an item reached, before any frame with the
+    # vehicle's clock: the item was reached late in the gap, not at the last clock before
+    # it. Timed before the gap (CI 2026-11-29, tests/test_sitl.py's killed dispatcher), its
+    # waypoint came before the gap's (the mission's waypoints put in), and the track went
+    # there and back: 0.99 km for 0.86 km, and a turn with a loop. Lost: the position at
+    # its waypoint (the simulator sends one right away, ArduPilot not).
+    log = read_log(io.BytesIO(run_log[0]))
+    gapped, _, _ = _gap_in_v1(log, "GLOBAL_POSITION_INT")
+    after = review_contents(dataclasses.replace(log, records=gapped)).vehicle("v1")
+    whole = review.vehicle("v1")
+    assert after.fields_done == whole.fields_done
+    assert after.distance_m == pytest.approx(whole.distance_m, rel=1e-3)
+    assert after.time_h == pytest.approx(whole.time_h, rel=1e-3)
 
 
 def test_upload_figures_from_the_frames_without_a_status(review: Review) -> None:
