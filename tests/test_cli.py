@@ -532,3 +532,60 @@ def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
     farm = tmp_path / "tiny-farm.geojson"
     farm.write_text(farm.read_text().replace("87.3007493", "87.30074", 2))  # field A narrower
     assert fingerprint(base) != first
+
+
+def test_a_setting_an_upgrade_adds_at_its_default_keeps_a_stored_run_resumable(tmp_path):
+    """The fleet and the solver's settings were hashed as their repr: an upgrade that adds a
+    machine or solver setting (with a default) made every unfinished run "made from other
+    inputs", and only --fresh went on (its fields worked again). Their values not at the
+    defaults count; the fingerprint of runs stored before (the repr) is still accepted."""
+    import argparse
+    import dataclasses
+    from types import SimpleNamespace
+
+    from dispatcher.cli.main import check_resumable, inputs_fingerprint, load_scenario_args
+    from dispatcher.config.scenario import SolverSettings
+    from dispatcher.daemon.store import StoreError
+    from planner.problem import Machine
+
+    args = argparse.Namespace(
+        scenario=str(DATA / "tiny.toml"),
+        fields=None,
+        machines=None,
+        objective=None,
+        seed=None,
+        time_limit=None,
+    )
+    scenario = load_scenario_args(args)
+    default = dataclasses.field(default=0.5)
+    machine = dataclasses.make_dataclass(
+        "Machine", [("new_setting", float, default)], bases=(Machine,), frozen=True
+    )
+    solver = dataclasses.make_dataclass(
+        "SolverSettings", [("new_setting", float, default)], bases=(SolverSettings,), frozen=True
+    )
+
+    def upgraded(new_setting: float):  # type: ignore[no-untyped-def]
+        vehicles = tuple(
+            dataclasses.replace(
+                v, machine=machine(**dataclasses.asdict(v.machine), new_setting=new_setting)
+            )
+            for v in scenario.vehicles
+        )
+        settings = solver(**dataclasses.asdict(scenario.solver), new_setting=new_setting)
+        return dataclasses.replace(scenario, vehicles=vehicles, solver=settings)
+
+    before = inputs_fingerprint(scenario, args)
+    assert inputs_fingerprint(upgraded(0.5), args) == before
+    assert inputs_fingerprint(upgraded(0.7), args) != before  # set: another plan
+    # How runs stored before this were fingerprinted: changed by the upgrade alone.
+    old = inputs_fingerprint(scenario, args, as_repr=True)
+    assert old != before and inputs_fingerprint(upgraded(0.5), args, as_repr=True) != old
+
+    def stored(fingerprint: str) -> SimpleNamespace:
+        return SimpleNamespace(id=3, fingerprint=fingerprint, job=SimpleNamespace(plan_id="p"))
+
+    check_resumable(stored(before), upgraded(0.5), args, tmp_path)
+    check_resumable(stored(old), scenario, args, tmp_path)  # stored by the version before
+    with pytest.raises(StoreError, match="unfinished run 3 .* made from other inputs"):
+        check_resumable(stored(before), upgraded(0.7), args, tmp_path)

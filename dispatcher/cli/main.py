@@ -236,12 +236,19 @@ def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def
     return scenario
 
 
-def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
+def inputs_fingerprint(scenario, args: argparse.Namespace, *, as_repr: bool = False) -> str:  # type: ignore[no-untyped-def]
     """What a plan is made from: the farm file as it is now, its fields and garage as read,
     the fleet, and the solver's settings (the command line's included). A stored run made
     from other inputs is not resumed by mistake; a comment, the [dispatcher] section or a
     time limit changed in the scenario do not make another plan, and it is resumed (they
-    refused it: review)."""
+    refused it: review).
+
+    The fleet and the solver's settings count by the values not at their defaults
+    (:func:`_non_defaults`): a setting an upgrade adds, left at its default, leaves the
+    fingerprint as it was, and the run stored before the upgrade is resumed (hashed as
+    their ``repr``, it was refused as made from other inputs: --fresh, and the fields
+    worked twice). ``as_repr``: the fingerprint as runs stored before 2026-11-29 have it
+    (the ``repr``), so that those are resumed too."""
     import dataclasses
     import hashlib
 
@@ -251,10 +258,58 @@ def inputs_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: igno
     farm = scenario.farm
     h.update(repr([(f.id, round(f.area_m2, 1)) for f in farm.fields]).encode())
     h.update(repr(tuple(round(c, 7) for c in farm.garage_lonlat)).encode())
-    h.update(repr(scenario.vehicles).encode())
-    h.update(repr(dataclasses.replace(scenario.solver, time_limit_s=0.0)).encode())
+    solver = dataclasses.replace(scenario.solver, time_limit_s=0.0)
+    if as_repr:
+        h.update(repr(scenario.vehicles).encode())
+        h.update(repr(solver).encode())
+    else:
+        settings = {"fleet": _non_defaults(scenario.vehicles), "solver": _non_defaults(solver)}
+        h.update(json.dumps(settings, sort_keys=True).encode())
     h.update(repr(getattr(args, "seed", None)).encode())
     return h.hexdigest()[:16]
+
+
+def check_resumable(run, scenario, args: argparse.Namespace, where: Path) -> None:  # type: ignore[no-untyped-def]
+    """Raise StoreError unless the unfinished ``run`` kept in ``where`` was made from these
+    inputs (:func:`inputs_fingerprint`, as it is or as runs stored before had it)."""
+    from dispatcher.daemon.store import StoreError
+
+    if run.fingerprint in (
+        inputs_fingerprint(scenario, args),
+        inputs_fingerprint(scenario, args, as_repr=True),
+    ):
+        return
+    raise StoreError(
+        f"{where} holds unfinished run {run.id} (plan {run.job.plan_id}) made from other "
+        f"inputs: {args.scenario}, its farm or the options changed since. Serve it with the "
+        "same ones to finish it, or add --fresh to start over"
+    )
+
+
+def _non_defaults(value: object) -> object:
+    """``value`` as plain data (for a fingerprint): a dataclass as its fields not at their
+    defaults, by name; sequences and mappings element by element; a float exactly."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        plain = {}
+        for f in dataclasses.fields(value):
+            v = getattr(value, f.name)
+            if f.default is not dataclasses.MISSING and v == f.default:
+                continue
+            if f.default_factory is not dataclasses.MISSING and v == f.default_factory():
+                continue
+            plain[f.name] = _non_defaults(v)
+        return plain
+    if isinstance(value, list | tuple):
+        return [_non_defaults(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _non_defaults(v) for k, v in value.items()}
+    if isinstance(value, float):
+        return repr(value)
+    if value is None or isinstance(value, str | int | bool):
+        return value
+    return repr(value)
 
 
 def plan_scenario(args: argparse.Namespace, scenario=None):  # type: ignore[no-untyped-def]
@@ -306,7 +361,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from dispatcher.daemon.server import DaemonConfig, Dispatcher
-    from dispatcher.daemon.store import Store, StoreError, default_data_dir
+    from dispatcher.daemon.store import Store, default_data_dir
     from dispatcher.link.access import access_control, as_hub
     from dispatcher.link.keys import signing_keys
     from dispatcher.tools.replan import replanner_for, replanner_resumed
@@ -326,13 +381,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             print(f"--fresh: run {abandoned} in {store.path} abandoned (kept there as such)")
         run = store.unfinished_run()
         if run is not None:
-            if run.fingerprint != fingerprint:
-                raise StoreError(
-                    f"{store.path} holds unfinished run {run.id} (plan {run.job.plan_id}) "
-                    f"made from other inputs: {args.scenario}, its farm or the options changed "
-                    "since. Serve it with the same ones to finish it, or add --fresh to "
-                    "start over"
-                )
+            check_resumable(run, scenario, args, store.path)
             store.resume_run(run)
             job = run.job
             replanner = replanner_resumed(scenario, job, run.started, run.documents)
