@@ -540,7 +540,7 @@ class FleetState:
                 v.started_at, v.active_seen = now, v.moved_since_start
                 v.progress_s, v.progress_wall = v.sim_time_s, now
             case ev.Resumed():
-                self._resumed(v)
+                self._resumed(v, now)
             case ev.StartFailed(reason=reason):
                 v.phase = Phase.FAILED
                 v.error = reason
@@ -705,13 +705,17 @@ class FleetState:
             return None
         return idle if idle > limit_s else None
 
-    def _resumed(self, v: VehicleState) -> None:
-        """The dispatcher restarted: what it knew of the link is gone; what was reached
-        stays. A vehicle not done, and in the plan, is heard again and asked where it is
-        (the daemon)."""
+    def _resumed(self, v: VehicleState, now: float) -> None:
+        """The dispatcher restarted (at ``now``): what it knew of the link is gone; what was
+        reached stays. A vehicle not done, and in the plan, is heard again and asked where it
+        is (the daemon). One lost when the dispatcher stopped was not heard again before it
+        stopped nor since: its time lost counts up to now (was: up to when it was lost), and
+        one that stays lost (left out), on until heard again."""
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired
+        if v.lost_at is not None:
+            v.lost_s += max(now - v.lost_at, 0.0)
         # One lost and left out by a re-plan stays lost, its reason kept, until heard again
         # (shown as waiting, it had a field and hours of work it no longer has).
         keep_lost = v.phase is Phase.LOST and v.retired
@@ -723,7 +727,8 @@ class FleetState:
         v.resuming = not v.retired
         v.upload_attempts = 0
         v.needs_restart = False
-        v.last_seen = v.lost_at = v.off_auto_since = None
+        v.last_seen = v.off_auto_since = None
+        v.lost_at = now if keep_lost else None
         v.phase_before_lost = None
         v.mode = v.system_status = v.mission_total = v.mission_state = v.critical_at = None
         v.armed = False

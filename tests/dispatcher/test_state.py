@@ -1862,6 +1862,9 @@ def test_a_lost_vehicle_left_out_stays_lost_through_a_restart(dispatch) -> None:
     assert state.status_doc()["vehicles"]["v1"]["phase"] == "lost"
     feed(state, "v1", position(5_000, 440_003_000, 872_995_000), 5.0)
     assert v.phase is Phase.ALIVE and not v.error
+    # Lost from 2 s until heard again at 5 s, the restart at 3 s between (the time lost
+    # before a restart was not counted).
+    assert v.lost_s == 3.0
     # One in the plan, lost before the restart, is to be heard again: waiting.
     other = FleetState(dispatch.document)
     w = other.vehicles["v1"]
@@ -1869,3 +1872,4 @@ def test_a_lost_vehicle_left_out_stays_lost_through_a_restart(dispatch) -> None:
     other.apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
     other.apply(ev.Resumed("v1"), 3.0)
     assert w.phase is Phase.WAITING and not w.error and w.lost_before_restart
+    assert w.lost_s == 1.0  # lost up to the restart
