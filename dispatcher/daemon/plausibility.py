@@ -59,7 +59,7 @@ WAIT_S = 2.0
 @dataclass
 class Claim:
     seq: int
-    clock_s: float
+    clock_s: float | None  # the vehicle's clock when it was made; None: not heard yet
     caught_up: bool
     source: str
     since: float  # wall time of the claim
@@ -91,12 +91,19 @@ class ProgressWitness:
         self.passed = max(self.passed, reached)
 
     def claim(
-        self, vid: str, seq: int, clock_s: float, caught_up: bool, source: str, now: float
+        self, vid: str, seq: int, clock_s: float | None, caught_up: bool, source: str, now: float
     ) -> list[ev.Event]:
         """The vehicle says it reached ``seq``: the event now if its track bears it out,
-        else later (:meth:`observe`), or an alarm."""
+        else later (:meth:`observe`), or an alarm. ``clock_s`` None: the vehicle's clock
+        is not heard yet (a dispatcher just restarted); the event then takes the clock of
+        the position that bears it out (before, it took 0 s, or the clock from before the
+        restart)."""
         if seq <= self.passed:
-            return [ev.ItemReached(vid, seq, clock_s, caught_up=caught_up)]
+            when = clock_s if clock_s is not None else self.prev_clock_s
+            if when is None:
+                # Nothing heard since the restart: passed is what was reached before it.
+                return []
+            return [ev.ItemReached(vid, seq, when, caught_up=caught_up)]
         if not any(c.seq == seq for c in self.claims):
             self.claims.append(Claim(seq, clock_s, caught_up, source, now))
         return []
@@ -120,8 +127,9 @@ class ProgressWitness:
         waiting = []
         for c in self.claims:
             c.reports += 1
-            if c.seq <= self.passed:
-                out.append(ev.ItemReached(vid, c.seq, c.clock_s, caught_up=c.caught_up))
+            when = c.clock_s if c.clock_s is not None else clock_s
+            if c.seq <= self.passed and when is not None:
+                out.append(ev.ItemReached(vid, c.seq, when, caught_up=c.caught_up))
             elif c.reports >= WAIT_REPORTS and now - c.since >= WAIT_S:
                 item = self._first_unpassed()
                 out.append(

@@ -771,7 +771,11 @@ class Dispatcher:
         if v.resuming:
             if v.phase is Phase.ALIVE and v.ready and v.mode is not None:
                 link.ready_since = link.ready_since or now
-                if v.mission_total is not None or now - link.ready_since > RESUME_ASK_S:
+                # What it told of its mission, and its clock (the time of the items it
+                # reached meanwhile: 0 s before it is heard, FleetState), or what it did
+                # not tell in time taken as not known.
+                told = v.mission_total is not None and v.clock.now is not None
+                if told or now - link.ready_since > RESUME_ASK_S:
                     self._resume(v, link, now)
             return
         if v.switch and v.phase is Phase.RUNNING:

@@ -914,7 +914,8 @@ class FleetState:
         """The vehicle says it reached ``seq``: counted once its track bears it out
         (:mod:`dispatcher.daemon.plausibility`)."""
         self._follow(v)
-        return v.witness.claim(v.id, seq, v.sim_time_s, caught_up, source, now)
+        clock_s = v.sim_time_s if v.clock.now is not None else None  # None: not heard yet
+        return v.witness.claim(v.id, seq, clock_s, caught_up, source, now)
 
     def _progress_of_current(self, v: VehicleState, now: float) -> list[ev.Event]:
         """What MISSION_CURRENT says of a running mission that MISSION_ITEM_REACHED did not

@@ -1,6 +1,7 @@
 """The dispatcher's state through losses of link: vehicles resume where they were."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -880,6 +881,7 @@ def test_a_vehicle_still_driving_its_mission_is_kept_and_caught_up(dispatch, tmp
     driving = heartbeat(11)
     driving.base_mode = mc.MAV_MODE_FLAG_SAFETY_ARMED
     feed(daemon.state, "v1", driving, 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     feed(daemon.state, "v1", mission_current(11, 12, len(v.items) - 1, 3), 0.0)  # ACTIVE
     read_back(daemon, "v1", 11)
     assert v.phase is Phase.RUNNING and not v.resuming
@@ -887,6 +889,36 @@ def test_a_vehicle_still_driving_its_mission_is_kept_and_caught_up(dispatch, tmp
     assert not commands_to(daemon, "v1", 11)  # left as it is
     kinds = [k for _, k in daemon.store.rows("SELECT vehicle, kind FROM events") if _ == "v1"]
     assert kinds[-2:] == ["item_reached", "mission_started"]
+
+
+def test_items_reached_meanwhile_are_caught_up_at_the_vehicles_clock_once_heard(dispatch, tmp_path):
+    """After a restart the vehicle told its mission before its clock: the items it reached
+    meanwhile took 0 s (its clock not heard yet). It goes on once its clock is heard, or,
+    if that does not come, RESUME_ASK_S later as before."""
+    from dispatcher.daemon.server import RESUME_ASK_S
+
+    daemon = resumed_daemon(dispatch, tmp_path, running_events("v1", 7))
+    v = daemon.state.vehicles["v1"]
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(daemon.state, "v1", driving_heartbeat(11), 0.0)
+    feed(daemon.state, "v1", mission_current(11, 12, len(v.items) - 1, 3), 0.0)  # ACTIVE
+    daemon._advance("v1", 0.1)
+    assert daemon.links["v1"].download is None and v.resuming  # its clock not heard yet
+    feed(daemon.state, "v1", position(500_000), 0.2)
+    read_back(daemon, "v1", 11)
+    assert v.reached == 11 and not v.resuming
+    rows = daemon.store.rows("SELECT vehicle, kind, body FROM events")
+    caught = [json.loads(b) for vid, k, b in rows if vid == "v1" and k == "item_reached"][-1]
+    assert caught["seq"] == 11 and caught["clock_s"] == 500.0
+    # Never heard: it goes on RESUME_ASK_S later, as before.
+    late = resumed_daemon(dispatch, tmp_path / "late", running_events("v1", 7))
+    w = late.state.vehicles["v1"]
+    late._apply(ev.VehicleSeen("v1"), 0.0)
+    feed(late.state, "v1", driving_heartbeat(11), 0.0)
+    feed(late.state, "v1", mission_current(11, 12, len(w.items) - 1, 3), 0.0)
+    late._advance("v1", 0.1)
+    late._advance("v1", 0.2 + RESUME_ASK_S)
+    assert late.links["v1"].download is not None
 
 
 def resumed_driving_v1(dispatch, tmp_path, current, at):
@@ -1065,6 +1097,7 @@ def test_a_stopped_vehicle_goes_on_from_the_item_it_was_heading_to(dispatch, tmp
     holding = heartbeat(11)
     holding.custom_mode, holding.base_mode = 4, mc.MAV_MODE_FLAG_SAFETY_ARMED  # failsafe HOLD
     feed(daemon.state, "v1", holding, 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     feed(daemon.state, "v1", mission_current(11, 9, len(v.items) - 1, 2), 0.0)
     read_back(daemon, "v1", 11)
     assert v.phase is Phase.STARTING and v.reached == 8
@@ -1076,6 +1109,7 @@ def test_a_vehicle_that_finished_meanwhile_is_done_and_parked(dispatch, tmp_path
     v = daemon.state.vehicles["v1"]
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     last = len(v.items) - 1
     feed(daemon.state, "v1", mission_current(11, last, last, 5), 0.0)  # COMPLETE
     read_back(daemon, "v1", 11)
@@ -1113,6 +1147,7 @@ def test_a_vehicle_standing_at_its_windows_end_with_the_next_on_board_goes_on_fr
     assert v.held == second and v.reached == first - 1
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     stands = mission_current(11, first - 1, second - 1, mc.MISSION_STATE_COMPLETE)
     feed(daemon.state, "v1", stands, 0.0)
     read_back(daemon, "v1", 11, daemon.job.missions["v1"].to_mavlink(255)[:second])
@@ -1127,6 +1162,7 @@ def test_an_upload_cut_by_the_crash_is_made_again_before_going_on(dispatch, tmp_
     v = daemon.state.vehicles["v1"]
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     ours = daemon.job.missions["v1"].to_mavlink(255)
     if held == "shorter":  # the autopilot kept what it had received
         feed(daemon.state, "v1", mission_current(11, 0, len(ours) - 4, 2), 0.0)
@@ -1150,6 +1186,7 @@ def test_an_acknowledgement_lost_in_the_crash_is_found_by_reading_the_mission_ba
     v = daemon.state.vehicles["v1"]
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", heartbeat(11), 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     feed(daemon.state, "v1", mission_current(11, 0, len(v.items) - 1, 2), 0.0)
     read_back(daemon, "v1", 11)
     assert v.acked and v.phase is Phase.STARTING  # no second upload
@@ -1650,6 +1687,7 @@ def test_after_a_restart_a_vehicle_the_operator_stopped_is_not_started(dispatch,
     assert v.operator_hold
     daemon._apply(ev.VehicleSeen("v1"), 0.0)
     feed(daemon.state, "v1", stopped(11), 0.0)
+    feed(daemon.state, "v1", position(1_000), 0.0)  # its clock (no fix yet)
     feed(daemon.state, "v1", mission_current(11, 8, len(v.items) - 1, 2), 0.0)
     read_back(daemon, "v1", 11)
     assert v.phase is Phase.RUNNING and v.needs_restart
@@ -1824,6 +1862,31 @@ def test_set_off_not_guessed_by_a_dispatcher_resumed_mid_mission(dispatch) -> No
     feed(state, "v1", position(110_000, 440_001_000, 870_000_000), 3.0)
     assert v.set_off.at_s is None
     assert state.status_doc()["vehicles"]["v1"]["set_off_s"] is None
+
+
+def test_an_item_reached_heard_before_the_clock_after_a_restart_takes_the_clock_after(
+    dispatch,
+) -> None:
+    """ArduPilot SITL (tests/test_sitl.py's killed dispatcher, 2026-11-29): the restarted
+    dispatcher first heard an item reached, then the vehicle's clock; the item took 0 s
+    (the clock not heard yet), so a field it finished would have. It takes the clock of
+    the position that bears it out."""
+    state = FleetState(dispatch.document)
+    v = state.vehicles["v1"]
+    for event in running_events("v1", 2):  # item 2 reached at 100 s, then a restart
+        state.apply(event, 1.0)
+    state.apply(ev.Resumed("v1"), 2.0)
+    seq = next(s for s in range(3, len(v.items)) if v.items[s].is_nav)
+    item = v.items[seq]
+    reached = from_vehicle(mc.message("MISSION_ITEM_REACHED", seq=seq), 11)
+    events = state.on_message("v1", reached, 3.0)
+    events += state.on_message("v1", position(400_000, *_e7(item.lat, item.lon)), 3.1)
+    (event,) = [e for e in events if isinstance(e, ev.ItemReached)]
+    assert event.seq == seq and event.clock_s == 400.0
+
+
+def _e7(lat: float, lon: float) -> tuple[int, int]:
+    return round(lat * 1e7), round(lon * 1e7)
 
 
 def test_every_key_of_the_status_document_is_documented(dispatch) -> None:
