@@ -35,7 +35,7 @@ import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import shapely
@@ -66,6 +66,10 @@ DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many charac
 
 log = logging.getLogger(__name__)
 
+SNAP_M: Final = 0.001
+"""A field valid as drawn but not in the local metres (a hole's corner snapped onto the
+outline, moved across it by the last digits of a projection) is mended when that moves
+nothing further than this."""
 CROSSING_M = 0.5
 """A road, a gate or a way onto the roads is in a field where it lies deeper inside than
 this (a lane along the fence is not)."""
@@ -766,6 +770,24 @@ def _warn_of_overlaps(source: str, fields: tuple[Field, ...]) -> None:
                 )
 
 
+def _mended(boundary: Polygon) -> Polygon:
+    """``boundary``, valid as drawn, made valid again in the local metres when that moves
+    nothing by more than SNAP_M: its outline less its holes (a hole's corner snapped onto
+    the outline, put across it by the last digits of a projection: a notch in the outline
+    then, the same land); else as it is."""
+    mended = shapely.make_valid(boundary, method="structure")
+    if isinstance(mended, shapely.MultiPolygon):  # slivers of the crossing, if any
+        mended = max(mended.geoms, key=lambda part: part.area)
+    if (
+        isinstance(mended, Polygon)
+        and mended.is_valid
+        and abs(mended.area - boundary.area) <= SNAP_M * boundary.length
+        and mended.hausdorff_distance(boundary) <= SNAP_M
+    ):
+        return orient(mended, sign=1.0)
+    return boundary
+
+
 def _field(
     frame: LocalFrame,
     source: str,
@@ -787,6 +809,8 @@ def _field(
         raise GeometryError(f"{where}: not a polygon: {exc}") from exc
     if boundary.is_empty or boundary.area <= 0.0:
         raise GeometryError(f"{where}: the polygon has no area")
+    if not boundary.is_valid and lonlat.is_valid:
+        boundary = _mended(boundary)
     if not boundary.is_valid:
         # Where, in the file's longitude and latitude (the local metres mean nothing to
         # whoever drew it), unless only the local frame shows it.

@@ -298,10 +298,13 @@ def _to_wgs84(geoms: Any, crs: str | None, where: str) -> Any:
             "(EPSG:4326, or its UTM zone)"
         ) from None
     log.warning("%s: converted from %s to WGS84 longitude/latitude", where, source.name)
-    return shapely.transform(
-        geoms,
-        lambda xy: np.round(np.column_stack(to_wgs84.transform(*xy.T)), CONVERTED_DECIMALS),
-    )
+    exact = shapely.transform(geoms, lambda xy: np.column_stack(to_wgs84.transform(*xy.T)))
+    rounded = shapely.transform(exact, lambda xy: np.round(xy, CONVERTED_DECIMALS))
+    # A polygon the rounding made invalid (a hole's corner snapped onto the outline, moved
+    # across it by up to a centimetre) keeps its exact coordinates: valid as the file has
+    # it, it reads valid (it was refused as self-intersecting, its author blamed).
+    broken = shapely.is_valid(exact) & ~shapely.is_valid(rounded)
+    return np.where(broken, exact, rounded)
 
 
 def _plain(value: Any) -> Any:

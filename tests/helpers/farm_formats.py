@@ -36,13 +36,16 @@ def write_gdal(
     layer: str | None = None,
     crs: str = "EPSG:4326",
     append: bool = False,
+    projected: bool = False,
 ) -> None:
-    """One layer of ``features`` (any geometry types) with their properties as columns."""
+    """One layer of ``features`` (any geometry types) with their properties as columns;
+    their coordinates are longitude/latitude, converted to ``crs``, or already in it
+    (``projected``)."""
     keys: list[str] = []
     for f in features:
         keys += [k for k in f["properties"] if k not in keys]
     geoms = shapely.from_geojson([json.dumps(f["geometry"]) for f in features])
-    if crs != "EPSG:4326":
+    if crs != "EPSG:4326" and not projected:
         to = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
         geoms = shapely.transform(geoms, lambda xy: np.column_stack(to.transform(*xy.T)))
     columns = [np.array([f["properties"].get(k) for f in features], dtype=object) for k in keys]

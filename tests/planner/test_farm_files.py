@@ -332,6 +332,39 @@ def test_a_shapefile_without_its_shx_is_named_not_skipped(tmp_path):
             load_farm(path)
 
 
+def test_a_projected_field_with_a_pond_snapped_to_its_edge_reads_valid(tmp_path):
+    """A hole with a corner on the outline (QGIS's snapping), valid as drawn in UTM: the
+    conversion to longitude/latitude (rounded to 1e-7 degrees) and then to the local metres
+    moved it across the outline by up to a centimetre in a third of the cases, and the
+    field was refused as self-intersecting, its author blamed."""
+    rng = np.random.default_rng(3)
+    features = []
+    for k in range(30):
+        x0, y0 = 572_199.34 + 400.0 * k, 5_539_853.42
+        a = float(rng.uniform(20.0, 200.0))  # where the pond's corner lies on the outline
+        outline = [(x0, y0), (x0 + 300, y0), (x0 + 300, y0 + 300), (x0, y0 + 300), (x0, y0)]
+        dx, dy = rng.uniform(0.1, 1.0, 2)
+        hole = [(x0 + a, y0), (x0 + a + dx, y0 + 50), (x0 + a + 50, y0 + 50),
+                (x0 + a + 50 + dy, y0 + 20), (x0 + a, y0)]  # fmt: skip
+        geometry = {"type": "Polygon", "coordinates": [outline, hole]}
+        features.append({"properties": {"id": f"F{k}"}, "geometry": geometry})
+    garage = {"type": "Point", "coordinates": [572_150.0, 5_539_800.0]}
+    features.append({"properties": {"kind": "garage"}, "geometry": garage})
+    folder = tmp_path / "farm"
+    folder.mkdir()
+    write_gdal(
+        features[:-1], folder / "fields.shp", "ESRI Shapefile", crs="EPSG:25832", projected=True
+    )
+    write_gdal(
+        features[-1:], folder / "garage.shp", "ESRI Shapefile", crs="EPSG:25832", projected=True
+    )
+    farm = load_farm(folder)
+    assert len(farm.fields) == 30
+    for f in farm.fields:
+        assert f.boundary.is_valid, f.id  # the pond a hole, or a notch in the outline
+        assert 300 * 300 - 2_700 < f.area_m2 < 300 * 300 - 1_500, f.id
+
+
 def test_a_zipped_folder_from_a_mac_and_a_date_column_read(tmp_path):
     """Finder's zip adds ``__MACOSX/farm/._*.shp``: two folders of shapefiles, refused as
     "not recognized"; a column of dates made a traceback in a message."""
