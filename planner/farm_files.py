@@ -220,9 +220,11 @@ def _column_names(path: Path, names: list[str]) -> list[str]:
 
 
 def _check_shapefiles_whole(path: Path, source: Path | str) -> None:
-    """A shapefile without its ``.shx`` beside it, which GDAL skips without a word (a copy
-    by mail or USB stick that dropped it): refused, naming it, rather than its fields
-    lost."""
+    """A shapefile without its ``.shx`` or ``.dbf`` beside it, named exactly as GDAL looks
+    for them (its own name, the ending in lower or upper case): GDAL skips a ``.shp``
+    without its ``.shx`` without a word, and reads one without its ``.dbf`` without its
+    columns (ids, names, work angles). A copy by mail or USB stick that dropped one, or
+    wrote ``NORD.SHX`` for ``Nord.shp``: refused, naming it, rather than its fields lost."""
     if isinstance(source, str):  # a folder in a zip
         folder = source.split("/vsizip/", 1)[1][len(str(path)) + 1 :]
         files = [Path(n).name for n in _zip_names(path) if str(Path(n).parent) == folder]
@@ -230,16 +232,26 @@ def _check_shapefiles_whole(path: Path, source: Path | str) -> None:
         files = [p.name for p in path.iterdir()]
     elif path.suffix.lower() == ".shp":
         files = [p.name for p in path.parent.iterdir()]
-        files = [f for f in files if Path(f).stem == path.stem] or [path.name]
+        files = [f for f in files if Path(f).stem.lower() == path.stem.lower()] or [path.name]
     else:  # a zip's top (nothing for any other file)
         files = [n for n in _zip_names(path) if "/" not in n]
-    lower = {f.lower() for f in files}
+    present = set(files)
     for f in sorted(files):
-        stem, suffix = Path(f).stem, Path(f).suffix.lower()
-        if suffix == ".shp" and f"{stem.lower()}.shx" not in lower:
+        stem = Path(f).stem
+        if Path(f).suffix.lower() != ".shp":
+            continue
+        for ending, holds in ((".shx", "its features"), (".dbf", "its columns (ids, names)")):
+            if f"{stem}{ending}" in present or f"{stem}{ending.upper()}" in present:
+                continue
+            other = [g for g in files if g.lower() == f"{stem}{ending}".lower()]
+            if other:
+                raise GeometryError(
+                    f"{path}: {f}'s {ending} is {other[0]}, a name that differs in case, "
+                    f"under which it is not found: rename it {stem}{ending}"
+                )
             raise GeometryError(
-                f"{path}: {f} has no {stem}.shx beside it (a shapefile is its .shp, .shx, "
-                ".dbf and .prj together: copy them all), so its features cannot be read"
+                f"{path}: {f} has no {stem}{ending} beside it (a shapefile is its .shp, "
+                f".shx, .dbf and .prj together: copy them all), so {holds} cannot be read"
             )
 
 

@@ -332,6 +332,39 @@ def test_a_shapefile_without_its_shx_is_named_not_skipped(tmp_path):
             load_farm(path)
 
 
+@pytest.mark.parametrize(
+    ("lost", "renamed", "said"),
+    [
+        ("south.shx", "SOUTH.SHX", r"south\.shp's \.shx is SOUTH\.SHX, .* rename it south\.shx"),
+        ("south.dbf", None, r"south\.shp has no south\.dbf beside it .* its columns"),
+        ("south.dbf", "South.dbf", r"south\.shp's \.dbf is South\.dbf, .* rename it south\.dbf"),
+    ],
+)
+def test_a_shapefile_whose_shx_or_dbf_gdal_does_not_find_is_named(tmp_path, lost, renamed, said):
+    """GDAL looks for a shapefile's .shx and .dbf under its own name, the ending in lower or
+    upper case: a copy that wrote NORD.SHX for Nord.shp lost its fields without a word, one
+    without its .dbf its ids, names and work angles."""
+    folder = tmp_path / "farm"
+    folder.mkdir()
+    features = farm_features(CHANGJI)
+    fields = [f for f in features if f["geometry"]["type"] == "Polygon"]
+    write_gdal(fields[:5], folder / "north.shp", "ESRI Shapefile")
+    write_gdal(fields[5:], folder / "south.shp", "ESRI Shapefile")
+    points = [f for f in features if f["geometry"]["type"] == "Point"]
+    write_gdal(points, folder / "points.shp", "ESRI Shapefile")
+    if renamed is None:
+        (folder / lost).unlink()
+    else:
+        (folder / lost).rename(folder / renamed)
+    for path in (folder, folder / "south.shp", zip_folder(folder, tmp_path / "farm.zip")):
+        with pytest.raises(GeometryError, match=said):
+            load_farm(path)
+    (folder / "north.SHX").write_bytes((folder / "north.shx").read_bytes())  # found too
+    (folder / "north.shx").unlink()
+    with pytest.raises(GeometryError, match=said):  # (the same error, not one for north)
+        load_farm(folder)
+
+
 def test_a_projected_field_with_a_pond_snapped_to_its_edge_reads_valid(tmp_path):
     """A hole with a corner on the outline (QGIS's snapping), valid as drawn in UTM: the
     conversion to longitude/latitude (rounded to 1e-7 degrees) and then to the local metres
