@@ -313,28 +313,10 @@ def test_an_unclosed_ring_read_through_gdal_is_closed(tmp_path):
     assert farm.fields[0].area_m2 == pytest.approx(143.0 * 111.2, rel=0.02)
 
 
-def test_a_shapefile_without_its_shx_is_named_not_skipped(tmp_path):
-    """GDAL skips a .shp whose .shx a copy dropped: its fields were lost without a word."""
-    folder = tmp_path / "farm"
-    folder.mkdir()
-    features = farm_features(CHANGJI)
-    fields = [f for f in features if f["geometry"]["type"] == "Polygon"]
-    write_gdal(fields[:5], folder / "north.shp", "ESRI Shapefile")
-    write_gdal(fields[5:], folder / "south.shp", "ESRI Shapefile")
-    write_gdal(
-        [f for f in features if f["geometry"]["type"] == "Point"],
-        folder / "points.shp",
-        "ESRI Shapefile",
-    )
-    (folder / "south.shx").unlink()
-    for path in (folder, folder / "south.shp", zip_folder(folder, tmp_path / "farm.zip")):
-        with pytest.raises(GeometryError, match=r"south\.shp has no south\.shx beside it"):
-            load_farm(path)
-
-
 @pytest.mark.parametrize(
     ("lost", "renamed", "said"),
     [
+        ("south.shx", None, r"south\.shp has no south\.shx beside it"),
         ("south.shx", "SOUTH.SHX", r"south\.shp's \.shx is SOUTH\.SHX, .* rename it south\.shx"),
         ("south.dbf", None, r"south\.shp has no south\.dbf beside it .* its columns"),
         ("south.dbf", "South.dbf", r"south\.shp's \.dbf is South\.dbf, .* rename it south\.dbf"),
