@@ -75,14 +75,42 @@ def read_farm_document(path: Path) -> Document:
             # The features' own ids (RFC 7946), which GDAL takes as its feature numbers.
             given = doc.get("features")
             if isinstance(given, list) and len(given) == len(converted["features"]):
-                for feature, original in zip(converted["features"], given, strict=True):
-                    if isinstance(original, dict) and original.get("id") is not None:
+                for k, (feature, original) in enumerate(
+                    zip(converted["features"], given, strict=True)
+                ):
+                    if not isinstance(original, dict):
+                        continue
+                    if original.get("id") is not None:
                         feature["id"] = original["id"]
+                    if original.get("geometry") is not None and feature["geometry"] is None:
+                        # GDAL made it none (a misspelt type, coordinates not numbers),
+                        # which would leave the field out: refused, as without a crs.
+                        raise GeometryError(
+                            f"{path}: feature #{k}{_named(original)}: its geometry is not one "
+                            f"(type {_shown(original['geometry'])}; a Polygon is rings of "
+                            "[x, y] in the crs given)"
+                        )
             return converted
         return doc  # type: ignore[no-any-return]
     if suffix == ".xml" or (suffix == ".zip" and _isoxml_in_zip(path) is not None):
         return read_isoxml(path)
     return read_gdal(path)
+
+
+def _named(feature: dict[str, Any]) -> str:
+    """`` (id 'B')`` or `` (name 'Süd')``: how a GeoJSON feature is named, if it is."""
+    given = feature.get("properties")
+    props: dict[str, Any] = given if isinstance(given, dict) else {}
+    named = (("id", feature.get("id")), ("id", props.get("id")), ("name", props.get("name")))
+    for key, value in named:
+        if isinstance(value, str | int) and not isinstance(value, bool):
+            return f" ({key} {value!r})"
+    return ""
+
+
+def _shown(geometry: Any) -> str:
+    kind = geometry.get("type") if isinstance(geometry, dict) else geometry
+    return json.dumps(kind, ensure_ascii=False)[:40]
 
 
 def read_json(path: Path) -> Any:
@@ -160,8 +188,10 @@ def read_gdal(path: Path) -> Document:
     features: list[dict[str, Any]] = []
     for layer in layers:
         try:
-            with warnings.catch_warnings():  # the rings GDAL finds open: closed below
-                warnings.filterwarnings("ignore", "Non closed ring", RuntimeWarning)
+            # GDAL's warnings said in our log, naming the file (a geometry it made none is
+            # named again below, or refused); the rings it finds open are closed below.
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always")
                 meta, fids, geometry, values = pyogrio.raw.read(
                     source, layer=layer, return_fids=True
                 )
@@ -170,6 +200,9 @@ def read_gdal(path: Path) -> Document:
             raise GeometryError(
                 f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
             ) from exc
+        for warning in said:
+            if "Non closed ring" not in str(warning.message):
+                log.warning("%s: layer %r: GDAL: %s", path, layer, warning.message)
         names = _column_names(path, [str(n) for n in meta["fields"]])
         if key and key not in names:  # a GeoPackage's primary key named by its author
             names, values = [*names, key], [*values, fids]

@@ -347,6 +347,27 @@ def test_a_shapefile_whose_shx_or_dbf_gdal_does_not_find_is_named(tmp_path, lost
         load_farm(folder)
 
 
+@pytest.mark.parametrize(
+    ("broken", "shown"),
+    [
+        ({"type": "Polgon"}, '"Polgon"'),
+        ({"coordinates": "abc"}, '"Polygon"'),
+    ],
+)
+def test_a_broken_geometry_in_a_geojson_with_a_crs_is_refused_not_left_out(tmp_path, broken, shown):
+    """GeoJSON with a projected "crs" member is read through GDAL, which made a misspelt
+    or non-numeric geometry none: the field was left out with a warning, where the same
+    file without the crs is refused, naming it."""
+    path = convert(CHANGJI, "geojson-utm", tmp_path)
+    doc = json.loads(path.read_text())
+    k = next(k for k, f in enumerate(doc["features"]) if f["geometry"]["type"] == "Polygon")
+    doc["features"][k]["geometry"].update(broken)
+    name = doc["features"][k]["properties"]["id"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(GeometryError, match=rf"feature #{k} \(id '{name}'\): .*{shown}"):
+        load_farm(path)
+
+
 def test_a_projected_field_with_a_pond_snapped_to_its_edge_reads_valid(tmp_path):
     """A hole with a corner on the outline (QGIS's snapping), valid as drawn in UTM: the
     conversion to longitude/latitude (rounded to 1e-7 degrees) and then to the local metres
