@@ -24,7 +24,7 @@ import warnings
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pyproj
@@ -375,29 +375,56 @@ def _first_line(exc: BaseException) -> str:
 # --- ISO 11783-10 TaskData ---------------------------------------------------------------
 
 
+FARM_SUFFIXES: Final = (".shp", ".gpkg", ".kml", ".kmz", ".geojson", ".json", ".gml")
+"""Files of a farm GDAL or we read, which a folder of a TASKDATA.XML must not hold too."""
+
+
 def _isoxml_in_dir(path: Path) -> Path | None:
     """The TASKDATA.XML in ``path``, or in a folder of it (a terminal's USB stick holds
-    ``TASKDATA/TASKDATA.XML``)."""
-    for child in sorted(path.iterdir()):
-        if child.name.upper() == ISOXML_NAME and child.is_file():
-            return child
-    for child in sorted(path.iterdir()):
-        if child.is_dir():
-            for inner in sorted(child.iterdir()):
-                if inner.name.upper() == ISOXML_NAME and inner.is_file():
-                    return inner
-    return None
+    ``TASKDATA/TASKDATA.XML``); one found beside other farm files, or in several folders
+    (two seasons' exports on a stick), is refused, naming them: one was read, silently."""
+    found = [c for c in sorted(path.iterdir()) if c.name.upper() == ISOXML_NAME and c.is_file()]
+    if not found:
+        found = [
+            inner
+            for child in sorted(path.iterdir())
+            if child.is_dir()
+            for inner in sorted(child.iterdir())
+            if inner.name.upper() == ISOXML_NAME and inner.is_file()
+        ]
+    if not found:
+        return None
+    if len(found) > 1:
+        raise GeometryError(
+            f"{path}: {len(found)} {ISOXML_NAME} "
+            f"({', '.join(str(f.relative_to(path)) for f in found[:5])}): which farm? give "
+            "the one to read (its folder, or the file)"
+        )
+    others = [c.name for c in sorted(path.iterdir()) if c.suffix.lower() in FARM_SUFFIXES]
+    if others:
+        raise GeometryError(
+            f"{path}: both a {ISOXML_NAME} ({found[0].relative_to(path)}) and other farm "
+            f"files ({', '.join(others[:5])}): which farm? give the one to read"
+        )
+    return found[0]
 
 
 def _isoxml_in_zip(path: Path) -> str | None:
+    """The TASKDATA.XML in a .zip (at any depth); several refused, naming them."""
     try:
         with zipfile.ZipFile(path) as archive:
-            for name in archive.namelist():
-                if Path(name).name.upper() == ISOXML_NAME:
-                    return name
+            names = archive.namelist()
     except (OSError, zipfile.BadZipFile):
         return None
-    return None
+    found = sorted(
+        n for n in names if Path(n).name.upper() == ISOXML_NAME and not n.startswith("__MACOSX/")
+    )
+    if len(found) > 1:
+        raise GeometryError(
+            f"{path}: {len(found)} {ISOXML_NAME} in this archive ({', '.join(found[:5])}): "
+            "which farm? give an archive of one"
+        )
+    return found[0] if found else None
 
 
 def read_isoxml(path: Path) -> Document:

@@ -86,6 +86,28 @@ def test_isoxml_partfields_read_as_fields_with_gates_and_home_base(tmp_path, ref
     assert [f.id for f in usb.fields] == [f.id for f in by_default.fields]
 
 
+def test_a_stick_with_two_taskdata_or_taskdata_and_other_files_is_refused(tmp_path):
+    """Two seasons' exports on one USB stick (2023/TASKDATA.XML, 2024/...): the folder read
+    the first, a zip of it the other, without a word; a TASKDATA beside shapefiles hid
+    them. Refused, naming them: the farmer says which."""
+    stick = tmp_path / "stick"
+    for season in ("2023", "2024"):
+        convert(CHANGJI, "isoxml", stick / season)  # stick/<season>/TASKDATA/TASKDATA.XML
+    seasons = [stick / season / "TASKDATA" for season in ("2023", "2024")]
+    both = tmp_path / "both"
+    for season, folder in zip(("2023", "2024"), seasons, strict=True):
+        (both / season).mkdir(parents=True)
+        (both / season / "TASKDATA.XML").write_bytes((folder / "TASKDATA.XML").read_bytes())
+    with pytest.raises(GeometryError, match=r"2 TASKDATA\.XML \(2023/TASKDATA\.XML, 2024/"):
+        load_farm(both)
+    with pytest.raises(GeometryError, match=r"2 TASKDATA\.XML in this archive"):
+        load_farm(zip_folder(both, tmp_path / "both.zip"))
+    assert load_farm(both / "2024").fields  # the one asked for
+    (seasons[0].parent / "roads.geojson").write_text(CHANGJI.read_text())
+    with pytest.raises(GeometryError, match=r"both a TASKDATA\.XML .* \(roads\.geojson\)"):
+        load_farm(seasons[0].parent)
+
+
 def test_an_isoxml_partfield_without_a_boundary_is_skipped_with_its_gates(tmp_path, caplog):
     path = convert(CHANGJI, "isoxml", tmp_path)
     root = ET.parse(path).getroot()
