@@ -66,6 +66,9 @@ DBASE_NAME_LENGTH = 10  # a shapefile's column names are cut to this many charac
 
 log = logging.getLogger(__name__)
 
+NOT_IN_AN_ID: Final = ("Cc", "Cs", "Co", "Cn", "Zl", "Zp")
+"""Unicode categories a field id may not hold: controls (a line break, a tab), surrogates,
+private and unassigned code points, line and paragraph separators."""
 SNAP_M: Final = 0.001
 """A field valid as drawn but not in the local metres (a hole's corner snapped onto the
 outline, moved across it by the last digits of a projection) is mended when that moves
@@ -549,9 +552,12 @@ def _text(value: Any) -> str | None:
 
 def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -> str:
     """The field's id (:func:`_field_id_of`), without control characters: a line break in
-    one broke the printed plan's table, and it goes into every file written (review)."""
+    one broke the printed plan's table, and it goes into every file written (review). The
+    invisible marks of scripts written with them are no control characters: Persian
+    needs the zero-width non-joiner, right-to-left text its marks, and a soft hyphen is
+    text (all refused before)."""
     found = _field_id_of(props, id_field, k, where)
-    if any(unicodedata.category(c).startswith("C") for c in found):
+    if any(unicodedata.category(c) in NOT_IN_AN_ID for c in found):
         raise GeometryError(
             f"{where}: the field id {found!r} holds a control character (a line break, a "
             "tab): ids are printed in tables and written into every file made of the plan"

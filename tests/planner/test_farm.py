@@ -237,6 +237,14 @@ def test_a_field_id_with_a_control_character_is_refused(tmp_path):
     doc = farm_doc()
     doc["features"][0]["properties"]["id"] = "F1\nnorth"
     assert "the field id 'F1\\nnorth' holds a control character" in refused(tmp_path, doc)
+    doc["features"][0]["properties"]["id"] = "F1\u2028north"  # a line separator
+    assert "holds a control character" in refused(tmp_path, doc)
+    # The invisible marks of scripts written with them are text (were refused): Persian's
+    # zero-width non-joiner, a right-to-left mark, a soft hyphen.
+    doc["features"][0]["properties"]["id"] = "F1"
+    for name in ("زمین\u200cشمالی", "\u200fמזרח", "Acker\u00adrand"):
+        doc["features"][1]["properties"]["id"] = name  # F2 (F1 has a gate)
+        assert load_farm(write(tmp_path, doc)).fields[1].id == name
 
 
 def nodes(value: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
