@@ -75,42 +75,21 @@ def read_farm_document(path: Path) -> Document:
             # The features' own ids (RFC 7946), which GDAL takes as its feature numbers.
             given = doc.get("features")
             if isinstance(given, list) and len(given) == len(converted["features"]):
-                for k, (feature, original) in enumerate(
-                    zip(converted["features"], given, strict=True)
-                ):
+                for feature, original in zip(converted["features"], given, strict=True):
                     if not isinstance(original, dict):
                         continue
                     if original.get("id") is not None:
                         feature["id"] = original["id"]
                     if original.get("geometry") is not None and feature["geometry"] is None:
-                        # GDAL made it none (a misspelt type, coordinates not numbers),
-                        # which would leave the field out: refused, as without a crs.
-                        raise GeometryError(
-                            f"{path}: feature #{k}{_named(original)}: its geometry is not one "
-                            f"(type {_shown(original['geometry'])}; a Polygon is rings of "
-                            "[x, y] in the crs given)"
-                        )
+                        # GDAL made it none (a misspelt type, coordinates not numbers), and
+                        # the field was left out: as written, it is refused, naming what is
+                        # wrong with it, as without a crs.
+                        feature["geometry"] = original["geometry"]
             return converted
         return doc  # type: ignore[no-any-return]
     if suffix == ".xml" or (suffix == ".zip" and _isoxml_in_zip(path) is not None):
         return read_isoxml(path)
     return read_gdal(path)
-
-
-def _named(feature: dict[str, Any]) -> str:
-    """`` (id 'B')`` or `` (name 'Süd')``: how a GeoJSON feature is named, if it is."""
-    given = feature.get("properties")
-    props: dict[str, Any] = given if isinstance(given, dict) else {}
-    named = (("id", feature.get("id")), ("id", props.get("id")), ("name", props.get("name")))
-    for key, value in named:
-        if isinstance(value, str | int) and not isinstance(value, bool):
-            return f" ({key} {value!r})"
-    return ""
-
-
-def _shown(geometry: Any) -> str:
-    kind = geometry.get("type") if isinstance(geometry, dict) else geometry
-    return json.dumps(kind, ensure_ascii=False)[:40]
 
 
 def read_json(path: Path) -> Any:

@@ -372,8 +372,8 @@ def test_a_shapefile_whose_shx_or_dbf_gdal_does_not_find_is_named(tmp_path, lost
 @pytest.mark.parametrize(
     ("broken", "shown"),
     [
-        ({"type": "Polgon"}, '"Polgon"'),
-        ({"coordinates": "abc"}, '"Polygon"'),
+        ({"type": "Polgon"}, 'must be a Polygon or MultiPolygon, not "Polgon"'),
+        ({"coordinates": "abc"}, 'coordinates must be a list of rings, not "abc"'),
     ],
 )
 def test_a_broken_geometry_in_a_geojson_with_a_crs_is_refused_not_left_out(tmp_path, broken, shown):
@@ -386,7 +386,7 @@ def test_a_broken_geometry_in_a_geojson_with_a_crs_is_refused_not_left_out(tmp_p
     doc["features"][k]["geometry"].update(broken)
     name = doc["features"][k]["properties"]["id"]
     path.write_text(json.dumps(doc))
-    with pytest.raises(GeometryError, match=rf"feature #{k} \(id '{name}'\): .*{shown}"):
+    with pytest.raises(GeometryError, match=rf"field '{name}': .*{shown}"):
         load_farm(path)
 
 
