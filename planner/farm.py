@@ -233,10 +233,13 @@ def farm_from_geojson(
             name = _field_name(props, options.name_field, field_id, where)
             feature_where = where.removeprefix(f"{source}: ")
             where = f"{source}: field {field_id!r}"
+            if _closed_line(geom):  # a boundary drawn as a path (Google Earth), said a field
+                geom = {"type": "Polygon", "coordinates": [geom["coordinates"]]}
             gtype = geom.get("type")
             if gtype not in ("Polygon", "MultiPolygon"):
                 raise GeometryError(
-                    f"{where}: geometry must be a Polygon or MultiPolygon, not {_shown(gtype)}"
+                    f"{where}: geometry must be a Polygon or MultiPolygon (or a closed "
+                    f"LineString), not {_shown(gtype)}"
                 )
             parts = (
                 geom.get("coordinates") if gtype == "MultiPolygon" else [geom.get("coordinates")]
@@ -271,6 +274,13 @@ def farm_from_geojson(
                     (part_id, part_props, [_ring(r, m, here) for m, r in enumerate(rings)])
                 )
         elif kind == "road":
+            if _closed_line(geom) and _prop(props, "kind") is None:
+                log.warning(
+                    "%s%s: a closed line, read as a road; if it is a field's boundary (a "
+                    "path drawn round it), give it kind 'field'",
+                    where,
+                    _named(props),
+                )
             raw_roads += _road_parts(k, props, geom, where)
         else:  # a gate
             named = _text(_prop(props, "field"))  # a whole number too, as field ids are
@@ -508,6 +518,17 @@ def _named(props: dict[str, Any]) -> str:
         if value is not None:
             return f" ({key} {value!r})"
     return ""
+
+
+def _closed_line(geom: dict[str, Any]) -> bool:
+    """Whether ``geom`` is a LineString that ends where it starts, round some land."""
+    coords = geom.get("coordinates")
+    return (
+        geom.get("type") == "LineString"
+        and isinstance(coords, list)
+        and len(coords) >= 4
+        and coords[0] == coords[-1]
+    )
 
 
 def _kind(props: dict[str, Any], geom: dict[str, Any], where: str) -> str:

@@ -232,6 +232,24 @@ def test_a_fields_numbers_written_as_text_are_read_as_numbers(tmp_path):
     assert "headland_passes must be a whole number >= 0, not 2.5" in refused(tmp_path, doc)
 
 
+def test_a_closed_line_is_a_field_when_said_so_else_a_road_with_a_warning(tmp_path, caplog):
+    """A field drawn as a path round it (Google Earth), or a recorded boundary track: read as
+    a road without a word, and the field not planned. Said kind 'field', it is the field;
+    without a kind, a road still (a loop road is one), with a warning saying how."""
+    doc = farm_doc()
+    ring = rect(LON0 + 0.01, LAT0)
+    loop = {"type": "Feature", "properties": {"name": "West"}}
+    loop["geometry"] = {"type": "LineString", "coordinates": ring}
+    doc["features"].append(loop)
+    with caplog.at_level(logging.WARNING, logger="planner.farm"):
+        farm = load_farm(write(tmp_path, doc))
+    assert "West" in [r.id for r in farm.roads] and "West" not in [f.id for f in farm.fields]
+    assert "(name 'West'): a closed line, read as a road; if it is a field's" in caplog.text
+    loop["properties"]["kind"] = "field"
+    west = load_farm(write(tmp_path, doc)).field("West")
+    assert west.area_m2 == pytest.approx(120 * 80, rel=0.01)
+
+
 def test_a_field_id_with_a_control_character_is_refused(tmp_path):
     """A line break in a field id broke the printed plan's table (review)."""
     doc = farm_doc()
