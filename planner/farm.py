@@ -324,9 +324,13 @@ def farm_from_geojson(
         )
 
     _check_extent(source, garages[0], raw_fields, raw_roads)
-    lons = [p[0] for _, _, rings in raw_fields for p in rings[0]]
+    lons = np.array([p[0] for _, _, rings in raw_fields for p in rings[0]])
     lats = [p[1] for _, _, rings in raw_fields for p in rings[0]]
-    frame = LocalFrame.around((min(lons) + max(lons)) / 2, (min(lats) + max(lats)) / 2)
+    # Longitudes about the first (a farm across the antimeridian, 179.99° and -179.99°, is
+    # there: its frame was centred at longitude 0, 20 000 km away, turned upside down).
+    about = (lons - lons[0] + 180.0) % 360.0 - 180.0
+    centre = (lons[0] + (about.min() + about.max()) / 2 + 180.0) % 360.0 - 180.0
+    frame = LocalFrame.around(float(centre), (min(lats) + max(lats)) / 2)
     fields = tuple(_field(frame, source, fid, props, rings) for fid, props, rings in raw_fields)
     glon, glat = garages[0]
     gx, gy = frame.to_local(glon, glat)

@@ -18,7 +18,7 @@ import pytest
 import shapely
 
 from planner.errors import GeometryError
-from planner.farm import KINDS, MAX_ABS_LATITUDE, load_farm
+from planner.farm import KINDS, MAX_ABS_LATITUDE, Farm, load_farm
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 LON0, LAT0 = 10.0, 50.0  # central Germany: swapped, [50, 10] is in the Horn of Africa
@@ -248,6 +248,32 @@ def test_a_closed_line_is_a_field_when_said_so_else_a_road_with_a_warning(tmp_pa
     loop["properties"]["kind"] = "field"
     west = load_farm(write(tmp_path, doc)).field("West")
     assert west.area_m2 == pytest.approx(120 * 80, rel=0.01)
+
+
+def test_a_farm_across_the_antimeridian_is_where_it_is(tmp_path):
+    """Its local frame was centred at longitude 0 (the middle of -179.998 and 179.998),
+    20 000 km away in another UTM zone, turned upside down: the map showed the garage
+    north of the field it is south of. The same farm moved to longitude 10 is the yardstick."""
+
+    def farm_at(lon0: float) -> Farm:
+        ring = [[lon0 - 0.002, -16.8], [lon0 + 0.002, -16.8], [lon0 + 0.002, -16.796],
+                [lon0 - 0.002, -16.796], [lon0 - 0.002, -16.8]]  # fmt: skip
+        ring = [[(lon + 180.0) % 360.0 - 180.0, lat] for lon, lat in ring]
+        doc = {"type": "FeatureCollection", "features": [
+            point("garage", (lon0 - 0.001 + 180.0) % 360.0 - 180.0, -16.801),
+            field("AM", ring),
+        ]}  # fmt: skip
+        folder = tmp_path / str(lon0)
+        folder.mkdir()
+        return load_farm(write(folder, doc))
+
+    across, moved = farm_at(180.0), farm_at(10.0)
+    for farm in (across, moved):
+        centre = farm.fields[0].boundary.centroid
+        dx, dy = farm.garage[0] - centre.x, farm.garage[1] - centre.y
+        assert dy == pytest.approx(-333.0, abs=5.0) and dx == pytest.approx(-106.0, abs=5.0)
+    # (within the UTM scale: the antimeridian is a zone edge, longitude 10 near its meridian)
+    assert across.fields[0].area_m2 == pytest.approx(moved.fields[0].area_m2, rel=3e-3)
 
 
 def test_a_field_id_with_a_control_character_is_refused(tmp_path):
