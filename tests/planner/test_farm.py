@@ -385,7 +385,10 @@ def test_a_garage_inside_a_field_is_said_so(tmp_path, caplog):
     assert "lies inside field" not in caplog.text
 
 
-def test_a_swapped_garage_is_named(tmp_path):
+@pytest.mark.parametrize("rows", [1024, 1])
+def test_a_swapped_garage_is_named(tmp_path, monkeypatch, rows):
+    # (rows: the extent check counts its distances a block of fields at a time)
+    monkeypatch.setattr("planner.farm.EXTENT_ROWS", rows)
     doc = farm_doc()
     doc["features"][2]["geometry"]["coordinates"] = [LAT0, LON0]
     message = refused(tmp_path, doc)
