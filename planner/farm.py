@@ -71,6 +71,8 @@ NOT_IN_AN_ID: Final = ("Cc", "Cs", "Co", "Cn", "Zl", "Zp")
 private and unassigned code points, line and paragraph separators."""
 EXTENT_ROWS: Final = 1024
 """Fields whose distances to all others the extent check holds at once."""
+SAME_GARAGE_M: Final = 1.0
+"""Garages given this close together are the one garage given more than once."""
 SNAP_M: Final = 0.001
 """A field valid as drawn but not in the local metres (a hole's corner snapped onto the
 outline, moved across it by the last digits of a projection) is mended when that moves
@@ -318,11 +320,22 @@ def farm_from_geojson(
             garage_wheres[k],
         )
         garages = [garages[k]]
+    same = all(_distance_m(*garages[0], *g) <= SAME_GARAGE_M for g in garages[1:])
+    if len(garages) > 1 and all(said_garage) and same:
+        # One garage said more than once (the home base of each partfield of an ISOXML).
+        log.warning(
+            "%s: the garage given %d times at one place (%s)",
+            source,
+            len(garages),
+            _some(garage_wheres),
+        )
+        garages = garages[:1]
     if len(garages) > 1:
+        at = ", ".join(f"({lon:.7f}, {lat:.7f})" for lon, lat in garages[:5])
         raise GeometryError(
-            f"{source}: {len(garages)} garages ({_some(garage_wheres)}); exactly one is "
-            "supported: give the other points a kind (a gate names its field), or the "
-            "scenario's garage = [longitude, latitude]"
+            f"{source}: {len(garages)} garages ({_some(garage_wheres)}) at {at}; exactly one "
+            "is supported: give the other points a kind (a gate names its field), leave "
+            "them out, or give the scenario's garage = [longitude, latitude]"
         )
 
     _check_extent(source, garages[0], raw_fields, raw_roads)

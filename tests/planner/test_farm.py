@@ -385,6 +385,22 @@ def test_a_garage_inside_a_field_is_said_so(tmp_path, caplog):
     assert "lies inside field" not in caplog.text
 
 
+def test_one_garage_given_twice_is_one_and_two_are_named_with_where(tmp_path, caplog):
+    """An ISOXML's home base in each of its partfields: "2 garages (home base, home base)"
+    refused a farm of one garage. Two places are refused still, saying where."""
+    doc = farm_doc()
+    garage = doc["features"][2]
+    assert garage["properties"]["kind"] == "garage"
+    doc["features"].append(json.loads(json.dumps(garage)))
+    with caplog.at_level(logging.WARNING, logger="planner.farm"):
+        farm = load_farm(write(tmp_path, doc))
+    assert farm.garage_lonlat == tuple(garage["geometry"]["coordinates"])
+    assert "the garage given 2 times at one place" in caplog.text
+    doc["features"][-1]["geometry"]["coordinates"][0] += 0.001
+    message = refused(tmp_path, doc)
+    assert "2 garages (feature #2, feature #" in message and ") at (" in message
+
+
 @pytest.mark.parametrize("rows", [1024, 1])
 def test_a_swapped_garage_is_named(tmp_path, monkeypatch, rows):
     # (rows: the extent check counts its distances a block of fields at a time)
