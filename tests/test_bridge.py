@@ -34,6 +34,7 @@ from dispatcher.tools.bridge import (
     DEFAULT_RATE_LIMITS,
     AutopilotFilter,
     HeartbeatPresence,
+    _Bridge,
     parse_rates,
     run_bridge,
 )
@@ -401,3 +402,42 @@ def test_another_autopilots_heartbeat_is_named_once() -> None:
     assert flt.stranger(heartbeat(255, 190, mc.MAV_AUTOPILOT_INVALID)) is None  # a GCS
     assert flt.stranger(vehicle_msg("SYSTEM_TIME", 2, time_unix_usec=0, time_boot_ms=0)) is None
     assert not flt.admit(heartbeat(1), 0.0)  # and it is not forwarded
+
+
+def test_once_the_autopilot_signs_an_unsigned_frame_on_its_link_is_dropped_not_signed() -> None:
+    """The bridge signs what the autopilot sends unsigned: anyone on its link (a second
+    radio, a UDP sender, a shared router) claiming the autopilot's ids got reports to the
+    dispatcher signed with the tractor's key, taken as genuine. Once the autopilot is seen
+    signing with that key, its link takes only signed frames."""
+    key = bytes(range(32))
+    vehicle = load_scenario(SCENARIO).vehicles[0]
+
+    class Link:
+        verified_with: bytes | None = None
+
+        def verify_with(self, key: bytes) -> None:
+            self.verified_with = key
+
+    bridge = _Bridge("f", vehicle, "udpin:x", AutopilotFilter(SYSTEM), HeartbeatPresence(),
+                     1.0, False, key=key)  # fmt: skip
+    bridge.link = link = Link()  # type: ignore[assignment]
+
+    def heard(codec: mc.Codec):  # type: ignore[no-untyped-def]
+        frame = codec.encode(mc.message("MISSION_ITEM_REACHED", seq=42))
+        return mc.Codec(255, 190).decode_one(frame)  # as the link parses it: unchecked
+
+    stranger, autopilot = mc.Codec(SYSTEM, 1), mc.Codec(SYSTEM, 1, key=key)
+    assert bridge._signed_as_it_should(heard(stranger))  # an autopilot that does not sign
+    assert not bridge.autopilot_signs
+    forged = mc.Codec(SYSTEM, 1, key=bytes(32))  # signed, with another key
+    assert bridge._signed_as_it_should(heard(forged)) and not bridge.autopilot_signs
+    assert bridge._signed_as_it_should(heard(autopilot))
+    assert bridge.autopilot_signs and link.verified_with == key
+    assert not bridge._signed_as_it_should(heard(stranger))
+    assert bridge.stats["from_autopilot_unsigned_dropped"] == 1
+    plain = _Bridge("f", vehicle, "udpin:x", AutopilotFilter(SYSTEM), HeartbeatPresence(), 1.0,
+                    False)  # fmt: skip
+    assert plain._signed_as_it_should(heard(stranger))  # no key: its link is trusted
+    for b in (bridge, plain):
+        b._wake_r.close()
+        b._wake_w.close()

@@ -306,6 +306,14 @@ class _Bridge:
         self.inbox: queue.Queue[bytes] = queue.Queue()  # frames from Zenoh, never dropped here
         self._wake_r, self._wake_w = socket.socketpair()  # the Zenoh callback wakes the loop
         self.stats: Counter[str] = Counter()
+        # Whether the autopilot signs with the vehicle's key (seen so): from then on what
+        # comes unsigned on its link is a stranger's, dropped, not signed on its way (it was:
+        # anyone on the link could send the dispatcher reports it took as genuine).
+        self.key = key
+        self.autopilot_signs = False
+        self._verifier = (
+            mc.Codec(255, mc.MAV_COMP_ID_ONBOARD_COMPUTER, key=key) if key is not None else None
+        )
         self._next_attempt = 0.0
         self._last_rx = 0.0
         self._next_companion_beat = 0.0
@@ -391,6 +399,8 @@ class _Bridge:
             log.error("%s", exc)
             return False
         log.info("autopilot link %s open", self.url)
+        if self.autopilot_signs and self.key is not None:
+            self.link.verify_with(self.key)  # it signs still: take nothing unsigned
         if self.setup_key is not None:
             self._setup_signing(self.setup_key)
         self.stats["links_opened"] += 1
@@ -459,6 +469,8 @@ class _Bridge:
             self._last_rx = now
         assert self.publisher is not None
         for msg in messages:
+            if not self._signed_as_it_should(msg):
+                continue
             if msg.get_type() == "HEARTBEAT" and self.filter.from_autopilot(msg):
                 self.presence.on_heartbeat(now)
             elif (source := self.filter.stranger(msg)) and not self.presence.present(now):
@@ -478,6 +490,41 @@ class _Bridge:
                 )
             if self.filter.admit(msg, now):
                 self.publisher.put(mc.mavlink2_frame(msg, self.signer))
+
+    def _signed_as_it_should(self, msg: mc.MAVLinkMessage) -> bool:
+        """Whether to take ``msg`` from the autopilot link. Without a key, or until the
+        autopilot is seen signing with it, everything (an autopilot that does not sign
+        trusts its link, and what comes on it is signed here on its way to Zenoh). Once a
+        frame of the autopilot's carries a good signature, the link takes only signed
+        frames (pymavlink checks them), and one unsigned is dropped and counted."""
+        if self.key is None:
+            return True
+        raw = bytes(msg.get_msgbuf())
+        if mc.frame_signature(raw) is None:
+            if not self.autopilot_signs:
+                return True
+            self.stats["from_autopilot_unsigned_dropped"] += 1
+            dropped = self.stats["from_autopilot_unsigned_dropped"]
+            if dropped == 1 or dropped % 100 == 0:
+                log.warning(
+                    "%s: dropped %d unsigned frame(s) on the link of an autopilot that signs "
+                    "(another sender on %s)",
+                    self.vehicle.id,
+                    dropped,
+                    self.url,
+                )
+            return False
+        if not self.autopilot_signs and self.filter.from_autopilot(msg):
+            assert self._verifier is not None
+            if self._verifier.decode_one(raw) is not None:
+                self.autopilot_signs = True
+                assert self.link is not None
+                self.link.verify_with(self.key)
+                log.info(
+                    "%s: the autopilot signs: its link takes only signed frames now",
+                    self.vehicle.id,
+                )
+        return True
 
     def _hold_token(self, present: bool) -> None:
         if present and self.token is None and self.session is not None:
