@@ -239,8 +239,10 @@ def access_control(farm: str, vehicle_ids: Iterable[str]) -> dict[str, Any]:
 
 def as_hub(options: wire.ZenohOptions, acl: dict[str, Any]) -> wire.ZenohOptions:
     """``options`` applying ``acl`` when others connect to this process over TLS (the
-    dispatcher listening, or a router); unchanged otherwise."""
-    if options.tls is None or not options.listen:
+    dispatcher listening, or a router); unchanged otherwise. Listening as the session will,
+    however set (a ``--zenoh-config`` file's endpoints too: they listened without the list,
+    and a vehicle could put on another's keys)."""
+    if options.tls is None or not options.listens():
         return options
     return replace(options, acl=acl)
 

@@ -180,6 +180,16 @@ class ZenohOptions:
         self._check_listening(conf)
         return conf
 
+    def listens(self) -> list[str]:
+        """The endpoints a session of these options listens on, whoever set them
+        (``--listen``, ``--cfg``, the ``--zenoh-config`` file, Zenoh's default)."""
+        return self._listen_endpoints(self.config())
+
+    def _listen_endpoints(self, conf: zenoh.Config) -> list[str]:
+        value = json.loads(conf.get_json("listen/endpoints"))
+        endpoints = value.get(self.mode, []) if isinstance(value, dict) else value
+        return [e for e in endpoints if isinstance(e, str)]
+
     def _check_listening(self, conf: zenoh.Config) -> None:
         """The endpoints the session will listen on, whoever set them (``--cfg``, the
         ``--zenoh-config`` file, or Zenoh's own default of every interface when the file
@@ -188,7 +198,7 @@ class ZenohOptions:
         if self.insecure_listen:
             return
         value = json.loads(conf.get_json("listen/endpoints"))
-        endpoints = value.get(self.mode, []) if isinstance(value, dict) else value
+        endpoints = self._listen_endpoints(conf)
         exposed = [
             e
             for e in endpoints

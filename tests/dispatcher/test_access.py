@@ -23,6 +23,7 @@ from dispatcher.link.access import (
     AccessError,
     TlsIdentity,
     access_control,
+    as_hub,
     make_farm_pki,
     read_acl,
     zenohd_config,
@@ -174,6 +175,29 @@ def test_with_tls_the_default_endpoint_is_tls_and_a_plain_one_is_refused(pki: Pa
     plain = wire.zenoh_options(args(tls=str(pki), connect=["tcp/127.0.0.1:7447"]), False)
     with pytest.raises(ConfigError, match="tcp/127.0.0.1:7447 would let anyone in"):
         plain.config()
+
+
+@pytest.mark.parametrize("how", ["--listen", "--zenoh-config", "--cfg"])
+def test_the_dispatcher_listening_over_tls_applies_the_acl_however_told(
+    pki: Path, tmp_path: Path, how: str
+) -> None:
+    """serve with --tls and its listener in a --zenoh-config file (or --cfg) listened
+    without the access-control list: a vehicle's certificate could put on another's
+    keys."""
+    endpoint = "tls/127.0.0.1:17447"
+    file = tmp_path / "zenoh.json5"
+    file.write_text(json.dumps({"listen": {"endpoints": [endpoint]}}))
+    told = {
+        "--listen": {"listen": [endpoint]},
+        "--zenoh-config": {"zenoh_config": str(file)},
+        "--cfg": {"cfg": [f'listen/endpoints:["{endpoint}"]']},
+    }[how]
+    options = as_hub(
+        wire.zenoh_options(args(tls=str(pki), **told), True), access_control("f", ["v1"])
+    )
+    conf = options.config()
+    assert json.loads(conf.get_json("listen/endpoints")) == [endpoint]
+    assert json.loads(conf.get_json("access_control/enabled")) is True
 
 
 def test_a_peer_listens_on_loopback_only_and_with_tls_nowhere_unless_told(pki: Path) -> None:
