@@ -34,7 +34,7 @@ from typing import Any
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.link import wire
-from dispatcher.link.keys import PRIVATE_MODE, refuse_if_open, write_file
+from dispatcher.link.keys import PRIVATE_MODE, private_folder, refuse_if_open, write_file
 
 DISPATCHER = "dispatcher"
 ROUTER = "router"
@@ -292,7 +292,7 @@ def make_farm_pki(
             "rename the vehicle"
         )
     out = Path(folder)
-    out.mkdir(mode=0o700, parents=True, exist_ok=True)
+    private_folder(out, "the farm's certificates", AccessError)
     now = now or datetime.datetime.now(datetime.UTC)
     written: list[Path] = []
 

@@ -11,10 +11,12 @@ how a real autopilot gets its key.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import secrets
 import stat
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -53,9 +55,13 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
         raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
     refuse_if_open(mode, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
     try:
-        text = path.read_text(encoding="ascii").strip()
+        raw = path.read_bytes()
+    except OSError as exc:  # not readable by this user, a folder
+        raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
+    try:
+        text = raw.decode("ascii").strip()
         key = bytes.fromhex(text)
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (UnicodeDecodeError, ValueError) as exc:
         raise SigningKeyError(
             f"{path}: not a signing key ({2 * SIGNING_KEY_BYTES} hexadecimal digits expected)"
         ) from exc
@@ -88,13 +94,31 @@ def refuse_if_open(mode: int, path: Path, what: str, error: type[ConfigError]) -
 
 def write_file(path: Path, data: bytes, mode: int) -> None:
     """``data`` into ``path`` whole or not at all (a temporary file renamed), with ``mode``
-    whatever the umask."""
-    tmp = path.with_name(path.name + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.chmod(tmp, mode)
-    os.replace(tmp, path)
+    whatever the umask. The temporary file is a new one of a name not known before (a
+    fixed name, planted as a symlink by whoever could write in the folder, put the key into
+    their file)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, mode)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def private_folder(folder: Path, what: str, error: type[ConfigError]) -> None:
+    """Make ``folder`` (mode 700), or refuse one that exists and that group or others may
+    write in: whoever can could put their files in place of the keys."""
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    mode = folder.stat().st_mode
+    if mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise error(
+            f"{folder}: the folder of {what} may be written by group or others (mode "
+            f"{stat.S_IMODE(mode):03o}): `chmod 700 {folder}` first"
+        )
 
 
 def read_keys(keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str]) -> dict[str, bytes]:
@@ -120,7 +144,7 @@ def write_keys(
     """A new random key for each vehicle that has none (or for every one, ``replace``);
     the paths written. The directory is made mode 700, each file mode 600."""
     folder = Path(keys_dir)
-    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    private_folder(folder, "the signing keys", SigningKeyError)
     written = []
     for vid in vehicle_ids:
         path = key_path(folder, vid)

@@ -109,6 +109,15 @@ def test_a_bad_certificate_or_key_is_refused_naming_the_file(tmp_path: Path) -> 
         v1.check()
 
 
+def test_certificates_are_not_made_in_a_folder_others_may_write_in(tmp_path: Path) -> None:
+    folder = tmp_path / "tls"
+    folder.mkdir()
+    folder.chmod(0o777)
+    with pytest.raises(AccessError, match=r"tls: the folder of the farm's certificates may be"):
+        make_farm_pki(folder, "f", ["v1"])
+    assert not list(folder.iterdir())
+
+
 def test_a_vehicle_named_as_another_identity_is_refused(tmp_path: Path) -> None:
     with pytest.raises(AccessError, match="'dispatcher'"):
         make_farm_pki(tmp_path / "tls", "f", ["v1", DISPATCHER])

@@ -98,6 +98,32 @@ def test_keys_are_made_private_and_kept(tmp_path: Path) -> None:
     assert read_key(folder, "t1") == first
 
 
+def test_keys_go_into_no_file_planted_in_their_folder_and_an_open_folder_is_refused(
+    tmp_path: Path,
+) -> None:
+    """The key was written through a fixed temporary name, following a symlink planted
+    there into the planter's file, and an existing folder that others could write in was
+    taken as it was."""
+    folder = tmp_path / "keys"
+    folder.mkdir(mode=0o700)
+    theirs = tmp_path / "theirs"
+    theirs.write_text("")
+    (folder / "t1.key.tmp").symlink_to(theirs)
+    write_keys(folder, ["t1"])
+    assert theirs.read_text() == "" and not key_path(folder, "t1").is_symlink()
+    assert read_key(folder, "t1") and sorted(p.name for p in folder.iterdir()) == [
+        "t1.key",
+        "t1.key.tmp",
+    ]
+    folder.chmod(0o777)
+    with pytest.raises(SigningKeyError, match=r"keys: the folder of the signing keys may be "):
+        write_keys(folder, ["t2"])
+    folder.chmod(0o700)
+    key_path(folder, "t2").mkdir(mode=0o700)  # not a file
+    with pytest.raises(SigningKeyError, match=r"t2\.key: cannot read the signing key: Is a dir"):
+        read_key(folder, "t2")
+
+
 @pytest.mark.parametrize(
     ("mode", "text", "message"),
     [
