@@ -266,6 +266,7 @@ def farm_from_geojson(
                 if part_id in seen:
                     raise GeometryError(
                         f"{here}: duplicate field id ({seen[part_id]} and {feature_where})"
+                        f"{_id_source(props, options.id_field)}"
                     )
                 seen[part_id] = feature_where
                 if not isinstance(rings, list) or not rings:
@@ -635,6 +636,18 @@ def _field_id_of(props: dict[str, Any], id_field: str | None, k: int, where: str
             )
         return found
     return f"field-{k}"
+
+
+def _id_source(props: dict[str, Any], id_field: str | None) -> str:
+    """Where the field ids come from, and how to take them from elsewhere, for a message
+    on two alike (ArcMap's "Id" column holds 0 for every feature drawn)."""
+    key = id_field or next((k for k in ID_FIELDS if _prop(props, k) is not None), None)
+    if key is None:
+        return ""
+    return (
+        f'; the ids are property {key!r}: give --id-field NAME (id_field = "NAME" in the '
+        "scenario) to take them from another"
+    )
 
 
 def _field_name(props: dict[str, Any], name_field: str | None, field_id: str, where: str) -> str:

@@ -450,7 +450,10 @@ def test_a_self_intersecting_field_is_said_where_in_longitude_and_latitude(tmp_p
 def test_a_duplicate_field_id_names_both_features(tmp_path):
     doc = farm_doc()
     doc["features"][1]["properties"]["id"] = "F1"
-    assert "field 'F1': duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
+    message = refused(tmp_path, doc)
+    assert "field 'F1': duplicate field id (feature #0 and feature #1)" in message
+    # and where the ids come from (ArcMap's "Id" column: 0 for every feature drawn)
+    assert "the ids are property 'id': give --id-field NAME" in message
 
 
 def test_roads_and_gates_as_others_draw_them(tmp_path, caplog):
