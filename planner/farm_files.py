@@ -70,7 +70,11 @@ def read_farm_document(path: Path) -> Document:
         doc = read_json(path)
         if _is_esri_json(doc):
             return read_gdal(path)
-        if isinstance(doc, dict) and doc.get("crs") is not None and not _crs_is_wgs84(doc["crs"]):
+        if (
+            isinstance(doc, dict)
+            and doc.get("crs") is not None
+            and not _crs_is_wgs84(doc["crs"], path)
+        ):
             converted = read_gdal(path)
             # The features' own ids (RFC 7946), which GDAL takes as its feature numbers.
             given = doc.get("features")
@@ -119,14 +123,28 @@ def _is_esri_json(doc: Any) -> bool:
     )
 
 
-def _crs_is_wgs84(crs: Any) -> bool:
-    name = crs.get("properties", {}).get("name") if isinstance(crs, dict) else None
-    if not isinstance(name, str):
-        return True  # not a named CRS: GDAL would not read it either; the checks follow
-    try:
-        return pyproj.CRS.from_user_input(name).equals(WGS84, ignore_axis_order=True)
-    except pyproj.exceptions.CRSError:
-        return True
+def _crs_is_wgs84(crs: Any, path: Path) -> bool:
+    """Whether a GeoJSON's ``crs`` member (GeoJSON 2008) names WGS84; one not understood
+    (not a named CRS, or a name pyproj does not know) is taken as WGS84, as RFC 7946 has
+    every GeoJSON, and said (the checks of longitude and latitude follow)."""
+    properties = crs.get("properties") if isinstance(crs, dict) else None
+    name = properties.get("name") if isinstance(properties, dict) else None
+    if isinstance(crs, dict) and crs.get("type") == "EPSG" and isinstance(properties, dict):
+        name = f"EPSG:{properties.get('code')}"  # GeoJSON 2008's other form, GDAL reads too
+    if isinstance(name, str):
+        try:
+            return pyproj.CRS.from_user_input(name).equals(WGS84, ignore_axis_order=True)
+        except pyproj.exceptions.CRSError:
+            pass
+    shown = json.dumps(crs, ensure_ascii=False)
+    log.warning(
+        "%s: its crs member %s is not understood (a named CRS is, as "
+        '{"type": "name", "properties": {"name": "EPSG:25832"}}); taken as WGS84 '
+        "longitude/latitude",
+        path,
+        shown if len(shown) <= 80 else shown[:77] + "...",
+    )
+    return True
 
 
 # --- GDAL (pyogrio) ----------------------------------------------------------------------

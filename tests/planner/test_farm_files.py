@@ -390,6 +390,25 @@ def test_a_broken_geometry_in_a_geojson_with_a_crs_is_refused_not_left_out(tmp_p
         load_farm(path)
 
 
+def test_a_crs_member_of_the_epsg_form_is_read_and_one_not_understood_said(
+    tmp_path, reference, caplog
+):
+    """GeoJSON 2008 names a CRS as {"type": "EPSG", "properties": {"code": N}} too, which
+    GDAL reads: it was taken as WGS84 and refused as "projected metres"; a crs member not
+    understood at all was taken as WGS84 without a word."""
+    path = convert(CHANGJI, "geojson-utm", tmp_path)
+    doc = json.loads(path.read_text())
+    doc["crs"] = {"type": "EPSG", "properties": {"code": 32645}}
+    path.write_text(json.dumps(doc))
+    same_farm(load_farm(path), reference)
+    plain = json.loads(CHANGJI.read_text())
+    plain["crs"] = {"type": "link", "properties": {"href": "http://example.com/crs"}}
+    (tmp_path / "plain.geojson").write_text(json.dumps(plain))
+    with caplog.at_level(logging.WARNING, logger="planner.farm_files"):
+        same_farm(load_farm(tmp_path / "plain.geojson"), reference)
+    assert 'crs member {"type": "link", ' in caplog.text and "not understood" in caplog.text
+
+
 def test_a_projected_field_with_a_pond_snapped_to_its_edge_reads_valid(tmp_path):
     """A hole with a corner on the outline (QGIS's snapping), valid as drawn in UTM: the
     conversion to longitude/latitude (rounded to 1e-7 degrees) and then to the local metres
