@@ -883,9 +883,12 @@ def _field(
         raise GeometryError(f"{where}: invalid polygon ({why}); is its boundary self-intersecting?")
     angle = _number_text(_prop(props, "work_angle_deg"))
     if angle is not None and (
-        isinstance(angle, bool) or not isinstance(angle, int | float) or not math.isfinite(angle)
+        isinstance(angle, bool) or not isinstance(angle, int | float) or not abs(angle) <= 360.0
     ):
-        raise GeometryError(f"{where}: work_angle_deg must be a number of degrees, not {angle!r}")
+        # (1e300 degrees, taken modulo 180, was a direction no one meant)
+        raise GeometryError(
+            f"{where}: work_angle_deg must be a number of degrees (-360 to 360), not {angle!r}"
+        )
     passes = _number_text(_prop(props, "headland_passes"))
     if isinstance(passes, float) and passes.is_integer():
         passes = int(passes)  # 2.0: a GIS's numeric column (QGIS's default type is real)

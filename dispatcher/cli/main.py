@@ -1061,7 +1061,8 @@ def add_plan_arguments(p: argparse.ArgumentParser, scenario_default: str | None 
     p.add_argument(
         "--name-field",
         metavar="NAME",
-        help="the property that holds a field's name (default: name)",
+        help="the property that holds a field's name (default: the first of name, "
+        "field_name, fieldname, designator, title; else its id)",
     )
     p.add_argument(
         "--machines", type=int, metavar="K", help="use the first K machines of the fleet"

@@ -227,7 +227,11 @@ def test_a_fields_numbers_written_as_text_are_read_as_numbers(tmp_path):
     field = load_farm(write(tmp_path, doc)).fields[0]
     assert (field.work_angle_deg, field.headland_passes) == (45.0, 2)
     doc["features"][0]["properties"] |= {"work_angle_deg": "NE"}
-    assert "work_angle_deg must be a number of degrees, not 'NE'" in refused(tmp_path, doc)
+    assert "work_angle_deg must be a number of degrees (-360 to 360), not 'NE'" in refused(
+        tmp_path, doc
+    )
+    doc["features"][0]["properties"] |= {"work_angle_deg": 1e300}
+    assert "(-360 to 360), not 1e+300" in refused(tmp_path, doc)
     doc["features"][0]["properties"] |= {"work_angle_deg": "45", "headland_passes": "2.5"}
     assert "headland_passes must be a whole number >= 0, not 2.5" in refused(tmp_path, doc)
 
