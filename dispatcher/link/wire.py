@@ -21,8 +21,10 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import json
+import logging
 import re
 import socket
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -41,6 +43,12 @@ DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 DEFAULT_TLS_ENDPOINT = f"tls/127.0.0.1:{DEFAULT_PORT}"
 LOOPBACK_PEER_ENDPOINT = "tcp/127.0.0.1:0"
+ALONE_WARN_S = 15.0
+"""Seconds after which a session told where to connect, and connected to nothing, says so:
+Zenoh in peer mode keeps trying without a word (a TLS folder of another farm, an address
+its certificate does not name, nothing listening there)."""
+
+log = logging.getLogger(__name__)
 PREFIX = "agrifleet"
 
 
@@ -101,12 +109,37 @@ class ZenohOptions:
         when Zenoh cannot open one (a port in use, a certificate it cannot read)."""
         conf = self.config()
         try:
-            return zenoh.open(conf)
+            session = zenoh.open(conf)
         except zenoh.ZError as exc:
             where = ", ".join([*self.listen, *self.connect]) or "the configured endpoints"
             raise ConfigError(
                 f"Zenoh cannot open a session on {where}: {_zenoh_reason(exc)}"
             ) from None
+        if self.connect:
+            timer = threading.Timer(ALONE_WARN_S, self._say_if_alone, (session,))
+            timer.daemon = True
+            timer.start()
+        return session
+
+    def _say_if_alone(self, session: zenoh.Session) -> None:
+        """A warning if ``session`` reaches no peer nor router (:data:`ALONE_WARN_S`)."""
+        try:
+            if list(session.info.peers_zid()) or list(session.info.routers_zid()):
+                return
+        except Exception:  # noqa: BLE001 (closed meanwhile: nothing to say)
+            return
+        hint = (
+            f"is the --tls folder {self.tls.folder} the farm's, and does the listener's "
+            "certificate name that address (agrifleet certs --host)?"
+            if self.tls is not None
+            else "is the dispatcher (or router) listening there?"
+        )
+        log.warning(
+            "connected to nothing at %s after %g s (Zenoh keeps trying): %s",
+            ", ".join(self.connect),
+            ALONE_WARN_S,
+            hint,
+        )
 
     def check_listen_free(self) -> None:
         """A :class:`ConfigError` naming a ``--listen`` endpoint whose port another

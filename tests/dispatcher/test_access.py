@@ -252,3 +252,32 @@ def test_a_tractors_certificate_cannot_pose_as_the_dispatcher(tmp_path: Path) ->
 
     assert v2_connects_to(DISPATCHER)
     assert not v2_connects_to("v1")
+
+
+def test_a_session_connected_to_nothing_says_so(monkeypatch, caplog) -> None:
+    """Zenoh in peer mode keeps trying to connect without a word: a sim or bridge with a TLS
+    folder of another farm, or an address the dispatcher's certificate does not name, ran
+    on, reaching nothing, and said nothing."""
+    from helpers.processes import free_port, wait_for
+
+    monkeypatch.setattr(wire, "ALONE_WARN_S", 0.2)
+    port = free_port()
+    lonely = wire.ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",))
+    with caplog.at_level("WARNING", logger="dispatcher.link.wire"):
+        session = lonely.open()
+        try:
+            wait_for("the warning", lambda: "connected to nothing" in caplog.text, 10.0)
+        finally:
+            session.close()
+    assert f"connected to nothing at tcp/127.0.0.1:{port} after 0.2 s" in caplog.text
+    caplog.clear()
+    hub = wire.ZenohOptions(listen=(f"tcp/127.0.0.1:{port}",)).open()
+    joined = lonely.open()
+    try:
+        wait_for("the peer", lambda: bool(list(joined.info.peers_zid())), 10.0)
+        with caplog.at_level("WARNING", logger="dispatcher.link.wire"):
+            lonely._say_if_alone(joined)
+        assert "connected to nothing" not in caplog.text
+    finally:
+        joined.close()
+        hub.close()
