@@ -468,6 +468,10 @@ class FleetState:
         self.by_system = {v.system_id: v.id for v in self.vehicles.values()}
         # Alarms, oldest first: (wall time, vehicle, what): progress doubted, foreign commands.
         self.alarms: list[tuple[float, str, str]] = []
+        # When the last event but a Resumed happened, on the events' clock: a restart's
+        # Resumed is applied on the daemon's clock after events replayed on the store's
+        # wall clock, so only this is on the clock of their times.
+        self.last_event_at: float | None = None
         # Wall seconds it takes to get missions on board (the first uploads, and the
         # slowest vehicle of any re-plan since): how long a re-plan's kept part must last.
         self.upload_s = 0.0
@@ -475,6 +479,9 @@ class FleetState:
     # --- knowledge: events ----------------------------------------------------------------
     def apply(self, event: ev.Event, now: float) -> None:
         """Change the state by one event; ``now`` is the wall (or log) time it happened."""
+        before = self.last_event_at
+        if not isinstance(event, ev.Resumed):  # (one for each vehicle, in a row)
+            self.last_event_at = now
         if isinstance(event, ev.PlanReplaced):
             self._replace_plan(PlanDocument.from_json(event.document))
             return
@@ -540,7 +547,7 @@ class FleetState:
                 v.started_at, v.active_seen = now, v.moved_since_start
                 v.progress_s, v.progress_wall = v.sim_time_s, now
             case ev.Resumed():
-                self._resumed(v, now)
+                self._resumed(v, now, before)
             case ev.StartFailed(reason=reason):
                 v.phase = Phase.FAILED
                 v.error = reason
@@ -705,17 +712,18 @@ class FleetState:
             return None
         return idle if idle > limit_s else None
 
-    def _resumed(self, v: VehicleState, now: float) -> None:
-        """The dispatcher restarted (at ``now``): what it knew of the link is gone; what was
+    def _resumed(self, v: VehicleState, now: float, stopped: float | None) -> None:
+        """The dispatcher restarted (at ``now``), after its last event before (``stopped``,
+        on the clock of the events replayed): what it knew of the link is gone; what was
         reached stays. A vehicle not done, and in the plan, is heard again and asked where it
-        is (the daemon). One lost when the dispatcher stopped was not heard again before it
-        stopped nor since: its time lost counts up to now (was: up to when it was lost), and
-        one that stays lost (left out), on until heard again."""
+        is (the daemon). One lost when the dispatcher stopped has its time lost counted up
+        to that last event (was: not at all), and one that stays lost (left out) on from
+        the restart until heard again."""
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired
-        if v.lost_at is not None:
-            v.lost_s += max(now - v.lost_at, 0.0)
+        if v.lost_at is not None and stopped is not None:
+            v.lost_s += max(stopped - v.lost_at, 0.0)
         # One lost and left out by a re-plan stays lost, its reason kept, until heard again
         # (shown as waiting, it had a field and hours of work it no longer has).
         keep_lost = v.phase is Phase.LOST and v.retired

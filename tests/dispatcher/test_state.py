@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import pytest
@@ -839,6 +840,28 @@ def resumed_daemon(dispatch, tmp_path, stored):
     daemon.publishers = {vid: Pub() for vid in dispatch.missions}
     daemon._resume_run(run)
     return daemon
+
+
+def test_a_restarted_daemon_counts_the_time_lost_before_it_stopped(dispatch, tmp_path):
+    """The store keeps each event's wall time; the daemon runs on its monotonic clock: the
+    time lost before the restart came out 0 (the two clocks subtracted, floored at 0)."""
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.daemon.store import Store
+
+    store = Store.open(tmp_path, "tiny")
+    job = dispatch.job()
+    store.begin_run(job, "x")
+    start = time.time() - 100.0
+    for event in running_events("v1", 2):
+        store.append(event, start)
+    store.append(ev.VehicleLost("v1", "liveliness token dropped"), start + 10.0)
+    store.append(ev.VehicleSeen("v2"), start + 40.0)  # its last event before it stopped
+    store.commit()
+    run = store.unfinished_run()
+    daemon = Dispatcher(DaemonConfig(job=job, store=store, resume=run))
+    daemon.publishers = {vid: Pub() for vid in dispatch.missions}
+    daemon._resume_run(run)
+    assert daemon.state.vehicles["v1"].lost_s == pytest.approx(30.0)
 
 
 def read_back(daemon, vid, sysid, items=None):
@@ -1919,20 +1942,24 @@ def test_a_lost_vehicle_left_out_stays_lost_through_a_restart(dispatch) -> None:
     v = state.vehicles["v1"]
     state.apply(ev.VehicleSeen("v1"), 1.0)
     state.apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
+    state.apply(ev.VehicleSeen("v2"), 2.5)  # the dispatcher's last event before it stopped
     v.retired = True  # what the re-plan does to a vehicle it leaves out
-    state.apply(ev.Resumed("v1"), 3.0)
+    state.apply(ev.Resumed("v1"), 1003.0)  # (on another clock: the daemon's, not the store's)
+    state.apply(ev.Resumed("v2"), 1003.0)
     assert v.phase is Phase.LOST and "liveliness token dropped" in v.error
     assert state.status_doc()["vehicles"]["v1"]["phase"] == "lost"
-    feed(state, "v1", position(5_000, 440_003_000, 872_995_000), 5.0)
+    feed(state, "v1", position(5_000, 440_003_000, 872_995_000), 1005.0)
     assert v.phase is Phase.ALIVE and not v.error
-    # Lost from 2 s until heard again at 5 s, the restart at 3 s between (the time lost
-    # before a restart was not counted).
-    assert v.lost_s == 3.0
+    # Lost from 2 s to the last event at 2.5 s, and from the restart until heard again 2 s
+    # later (the time lost before a restart was not counted).
+    assert v.lost_s == 2.5
     # One in the plan, lost before the restart, is to be heard again: waiting.
     other = FleetState(dispatch.document)
     w = other.vehicles["v1"]
     other.apply(ev.VehicleSeen("v1"), 1.0)
     other.apply(ev.VehicleLost("v1", "liveliness token dropped"), 2.0)
-    other.apply(ev.Resumed("v1"), 3.0)
+    other.apply(ev.VehicleSeen("v2"), 3.0)
+    other.apply(ev.Resumed("v2"), 1003.0)
+    other.apply(ev.Resumed("v1"), 1003.0)
     assert w.phase is Phase.WAITING and not w.error and w.lost_before_restart
-    assert w.lost_s == 1.0  # lost up to the restart
+    assert w.lost_s == 1.0  # lost up to the dispatcher's last event
