@@ -9,6 +9,7 @@ they started.
 
 from __future__ import annotations
 
+import re
 import signal
 import socket
 import subprocess
@@ -441,3 +442,57 @@ def test_once_the_autopilot_signs_an_unsigned_frame_on_its_link_is_dropped_not_s
     for b in (bridge, plain):
         b._wake_r.close()
         b._wake_w.close()
+
+
+def test_unsigned_frames_a_signing_autopilots_link_refuses_are_counted_and_said(caplog) -> None:
+    """Once the link checks signatures (pymavlink), it drops an unsigned frame itself:
+    the bridge's count and warning saw none of them, and an autopilot that lost its key
+    (a reflash) went silent with no word why."""
+    key = bytes(range(32))
+    vehicle = load_scenario(SCENARIO).vehicles[0]
+    port = free_port(socket.SOCK_DGRAM)
+    bridge = _Bridge("f", vehicle, f"udpin:127.0.0.1:{port}", AutopilotFilter(SYSTEM),
+                     HeartbeatPresence(), 1.0, False, key=key)  # fmt: skip
+    bridge.link = mc.open_mavlink(f"udpin:127.0.0.1:{port}", SYSTEM, 191)
+
+    class Publisher:
+        frames: list[bytes] = []
+
+        def put(self, frame: bytes) -> None:
+            self.frames.append(frame)
+
+    bridge.publisher = Publisher()  # type: ignore[assignment]
+    autopilot, stranger = mc.Codec(SYSTEM, 1, key=key), mc.Codec(SYSTEM, 1)
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def send(codec: mc.Codec, seq: int) -> None:
+        sender.sendto(
+            codec.encode(mc.message("MISSION_ITEM_REACHED", seq=seq)), ("127.0.0.1", port)
+        )
+
+    def until(what: Callable[[], bool]) -> None:
+        deadline = time.monotonic() + TIMEOUT_S
+        while not what():
+            assert time.monotonic() < deadline
+            bridge._from_autopilot(time.monotonic())
+            time.sleep(0.01)
+
+    try:
+        send(autopilot, 1)
+        until(lambda: bridge.autopilot_signs)
+        with caplog.at_level("WARNING", logger="dispatcher.tools.bridge"):
+            for seq in range(2, 5):
+                send(stranger, seq)
+            send(autopilot, 5)
+            until(lambda: len(Publisher.frames) == 2)
+            until(lambda: bridge.stats["from_autopilot_unsigned_dropped"] == 3)
+        # (said at the first drop: the three may come in one read or more)
+        assert re.search(r"dropped [123] unsigned frame\(s\) on the link", caplog.text)
+        assert "its key lost in a reflash" in caplog.text
+        taken = [mc.Codec(255, 190, key=key).decode_one(f) for f in Publisher.frames]
+        assert [m.seq for m in taken if m is not None] == [1, 5]
+    finally:
+        sender.close()
+        bridge._close_link()
+        bridge._wake_r.close()
+        bridge._wake_w.close()

@@ -240,8 +240,7 @@ class _MAVLink(mavlink2.MAVLink):  # type: ignore[misc]
 
     def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         signing = self.signing
-        digest = hashlib.sha256(signing.secret_key + bytes(msgbuf[:-6])).digest()[:6]
-        if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+        if not signature_good(msgbuf, signing.secret_key):
             return False
         low, high = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
         stamp = low + (high << 32)
@@ -296,6 +295,13 @@ class _Recent:
 
     def __contains__(self, frame: object) -> bool:
         return frame in self._set
+
+
+def signature_good(frame: bytes | bytearray, key: bytes) -> bool:
+    """Whether a signed MAVLink 2 frame's signature is ``key``'s (the signature alone: not
+    whether its timestamp is new)."""
+    digest = hashlib.sha256(key + bytes(frame[:-6])).digest()[:6]
+    return hmac.compare_digest(digest, bytes(frame[-6:]))
 
 
 def frame_signature(frame: bytes) -> tuple[int, int] | None:

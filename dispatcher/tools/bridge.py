@@ -311,9 +311,7 @@ class _Bridge:
         # anyone on the link could send the dispatcher reports it took as genuine).
         self.key = key
         self.autopilot_signs = False
-        self._verifier = (
-            mc.Codec(255, mc.MAV_COMP_ID_ONBOARD_COMPUTER, key=key) if key is not None else None
-        )
+        self._link_unsigned = 0  # what the link (checking signatures) refused unsigned
         self._next_attempt = 0.0
         self._last_rx = 0.0
         self._next_companion_beat = 0.0
@@ -401,6 +399,7 @@ class _Bridge:
         log.info("autopilot link %s open", self.url)
         if self.autopilot_signs and self.key is not None:
             self.link.verify_with(self.key)  # it signs still: take nothing unsigned
+            self._link_unsigned = 0
         if self.setup_key is not None:
             self._setup_signing(self.setup_key)
         self.stats["links_opened"] += 1
@@ -467,6 +466,11 @@ class _Bridge:
             return
         if messages:
             self._last_rx = now
+        if self.autopilot_signs:  # the frames the link itself refused unsigned
+            refused = self.link.signing_stats.unsigned
+            if refused > self._link_unsigned:
+                self._unsigned_dropped(refused - self._link_unsigned)
+                self._link_unsigned = refused
         assert self.publisher is not None
         for msg in messages:
             if not self._signed_as_it_should(msg):
@@ -503,28 +507,38 @@ class _Bridge:
         if mc.frame_signature(raw) is None:
             if not self.autopilot_signs:
                 return True
-            self.stats["from_autopilot_unsigned_dropped"] += 1
-            dropped = self.stats["from_autopilot_unsigned_dropped"]
-            if dropped == 1 or dropped % 100 == 0:
-                log.warning(
-                    "%s: dropped %d unsigned frame(s) on the link of an autopilot that signs "
-                    "(another sender on %s)",
-                    self.vehicle.id,
-                    dropped,
-                    self.url,
-                )
+            self._unsigned_dropped(1)
             return False
-        if not self.autopilot_signs and self.filter.from_autopilot(msg):
-            assert self._verifier is not None
-            if self._verifier.decode_one(raw) is not None:
-                self.autopilot_signs = True
-                assert self.link is not None
-                self.link.verify_with(self.key)
-                log.info(
-                    "%s: the autopilot signs: its link takes only signed frames now",
-                    self.vehicle.id,
-                )
+        # (the signature alone: an autopilot whose signing clock lags is one that signs)
+        if (
+            not self.autopilot_signs
+            and self.filter.from_autopilot(msg)
+            and mc.signature_good(raw, self.key)
+        ):
+            self.autopilot_signs = True
+            assert self.link is not None
+            self.link.verify_with(self.key)
+            self._link_unsigned = 0
+            log.info(
+                "%s: the autopilot signs: its link takes only signed frames now", self.vehicle.id
+            )
         return True
+
+    def _unsigned_dropped(self, count: int) -> None:
+        """``count`` more unsigned frames dropped on the link of an autopilot that signs:
+        counted, said at the first and every hundredth."""
+        before = self.stats["from_autopilot_unsigned_dropped"]
+        self.stats["from_autopilot_unsigned_dropped"] += count
+        dropped = self.stats["from_autopilot_unsigned_dropped"]
+        if before == 0 or dropped // 100 > before // 100:
+            log.warning(
+                "%s: dropped %d unsigned frame(s) on the link of an autopilot that signs: "
+                "another sender on %s, or the autopilot no longer signs (its key lost in a "
+                "reflash or a reset of its parameters: give it the key again, --setup-signing)",
+                self.vehicle.id,
+                dropped,
+                self.url,
+            )
 
     def _hold_token(self, present: bool) -> None:
         if present and self.token is None and self.session is not None:
