@@ -69,6 +69,11 @@ log = logging.getLogger(__name__)
 NOT_IN_AN_ID: Final = ("Cc", "Cs", "Co", "Cn", "Zl", "Zp")
 """Unicode categories a field id may not hold: controls (a line break, a tab), surrogates,
 private and unassigned code points, line and paragraph separators."""
+MARKS_IN_AN_ID: Final = frozenset("\u200c\u200d\u200e\u200f\u061c\u00ad")
+"""The invisible format characters a field id may hold, as scripts are written with them:
+zero-width non-joiner and joiner, left-to-right, right-to-left and Arabic letter marks,
+soft hyphen. Not the others (a zero-width space makes "F1" two ids that look one; a
+right-to-left override turns the printed tables round)."""
 EXTENT_ROWS: Final = 1024
 """Fields whose distances to all others the extent check holds at once."""
 SAME_GARAGE_M: Final = 1.0
@@ -598,10 +603,15 @@ def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -
     needs the zero-width non-joiner, right-to-left text its marks, and a soft hyphen is
     text (all refused before)."""
     found = _field_id_of(props, id_field, k, where)
-    if any(unicodedata.category(c) in NOT_IN_AN_ID for c in found):
+    if any(
+        unicodedata.category(c) in NOT_IN_AN_ID
+        or (unicodedata.category(c) == "Cf" and c not in MARKS_IN_AN_ID)
+        for c in found
+    ):
         raise GeometryError(
             f"{where}: the field id {found!r} holds a control character (a line break, a "
-            "tab): ids are printed in tables and written into every file made of the plan"
+            "tab, an invisible space or a direction override): ids are printed in tables and "
+            "written into every file made of the plan"
         )
     return found
 

@@ -372,7 +372,7 @@ def _first_line(exc: BaseException) -> str:
 # --- ISO 11783-10 TaskData ---------------------------------------------------------------
 
 
-FARM_SUFFIXES: Final = (".shp", ".gpkg", ".kml", ".kmz", ".geojson", ".json", ".gml")
+FARM_SUFFIXES: Final = (".shp", ".gpkg", ".kml", ".kmz", ".geojson", ".gml")
 """Files of a farm GDAL or we read, which a folder of a TASKDATA.XML must not hold too."""
 
 
@@ -381,14 +381,13 @@ def _isoxml_in_dir(path: Path) -> Path | None:
     ``TASKDATA/TASKDATA.XML``); one found beside other farm files, or in several folders
     (two seasons' exports on a stick), is refused, naming them: one was read, silently."""
     found = [c for c in sorted(path.iterdir()) if c.name.upper() == ISOXML_NAME and c.is_file()]
-    if not found:
-        found = [
-            inner
-            for child in sorted(path.iterdir())
-            if child.is_dir()
-            for inner in sorted(child.iterdir())
-            if inner.name.upper() == ISOXML_NAME and inner.is_file()
-        ]
+    found += [
+        inner
+        for child in sorted(path.iterdir())
+        if child.is_dir()
+        for inner in sorted(child.iterdir())
+        if inner.name.upper() == ISOXML_NAME and inner.is_file()
+    ]
     if not found:
         return None
     if len(found) > 1:
@@ -420,6 +419,16 @@ def _isoxml_in_zip(path: Path) -> str | None:
         raise GeometryError(
             f"{path}: {len(found)} {ISOXML_NAME} in this archive ({', '.join(found[:5])}): "
             "which farm? give an archive of one"
+        )
+    others = [
+        n
+        for n in names
+        if Path(n).suffix.lower() in FARM_SUFFIXES and not n.startswith("__MACOSX/")
+    ]
+    if found and others:
+        raise GeometryError(
+            f"{path}: both a {ISOXML_NAME} ({found[0]}) and other farm files "
+            f"({', '.join(others[:5])}) in this archive: which farm? give an archive of one"
         )
     return found[0] if found else None
 

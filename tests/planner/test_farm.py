@@ -285,8 +285,9 @@ def test_a_field_id_with_a_control_character_is_refused(tmp_path):
     doc = farm_doc()
     doc["features"][0]["properties"]["id"] = "F1\nnorth"
     assert "the field id 'F1\\nnorth' holds a control character" in refused(tmp_path, doc)
-    doc["features"][0]["properties"]["id"] = "F1\u2028north"  # a line separator
-    assert "holds a control character" in refused(tmp_path, doc)
+    for hidden in ("\u2028", "\u202e", "\u200b"):  # line separator, RTL override, ZWSP
+        doc["features"][0]["properties"]["id"] = f"F1{hidden}north"
+        assert "holds a control character" in refused(tmp_path, doc)
     # The invisible marks of scripts written with them are text (were refused): Persian's
     # zero-width non-joiner, a right-to-left mark, a soft hyphen.
     doc["features"][0]["properties"]["id"] = "F1"

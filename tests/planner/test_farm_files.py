@@ -106,6 +106,12 @@ def test_a_stick_with_two_taskdata_or_taskdata_and_other_files_is_refused(tmp_pa
     (seasons[0].parent / "roads.geojson").write_text(CHANGJI.read_text())
     with pytest.raises(GeometryError, match=r"both a TASKDATA\.XML .* \(roads\.geojson\)"):
         load_farm(seasons[0].parent)
+    with pytest.raises(GeometryError, match=r"both a TASKDATA\.XML .* \(roads\.geojson\) in"):
+        load_farm(zip_folder(seasons[0].parent, tmp_path / "mixed.zip"))
+    # One at the top and one a folder down: two, as a zip of them says.
+    (both / "TASKDATA.XML").write_bytes((both / "2023" / "TASKDATA.XML").read_bytes())
+    with pytest.raises(GeometryError, match=r"3 TASKDATA\.XML \(TASKDATA\.XML, 2023/"):
+        load_farm(both)
 
 
 def test_an_isoxml_partfield_without_a_boundary_is_skipped_with_its_gates(tmp_path, caplog):
