@@ -185,8 +185,8 @@ def read_gdal(path: Path) -> Document:
     features: list[dict[str, Any]] = []
     for layer in layers:
         try:
-            # GDAL's warnings said in our log, naming the file (a geometry it made none is
-            # named again below, or refused); the rings it finds open are closed below.
+            # The read's warnings (GDAL's) said in our log, naming the file (a geometry it
+            # made none is named again, or refused); the rings it finds open are closed below.
             with warnings.catch_warnings(record=True) as said:
                 warnings.simplefilter("always")
                 meta, fids, geometry, values = pyogrio.raw.read(
@@ -199,7 +199,7 @@ def read_gdal(path: Path) -> Document:
             ) from exc
         for warning in said:
             if "Non closed ring" not in str(warning.message):
-                log.warning("%s: layer %r: GDAL: %s", path, layer, warning.message)
+                log.warning("%s: layer %r: reading it: %s", path, layer, warning.message)
         names = _column_names(path, [str(n) for n in meta["fields"]])
         if key and key not in names:  # a GeoPackage's primary key named by its author
             names, values = [*names, key], [*values, fids]

@@ -573,8 +573,8 @@ def _read_events(
         """The vehicle's clock when a frame without one (an item reached, a text) came: the
         last time heard; or, the first thing after a gap in the recording (no clock heard for
         as long as _recording_gap_ns: the dispatcher was down, and what it heard first is
-        fresh), that time carried on over the gap at the clock's rate, no later than the
-        next time heard. (Before, an item reached reported first after a restart took the
+        fresh), that time carried on over the gap at the clock's rate; the items reached so
+        timed are bounded by the next time heard (a text, or a drive back begun, is not). (Before, an item reached reported first after a restart took the
         time from before the kill, and review drew the track back there and forth again.)"""
         if clock.now is None or clock_ns is None or log_ns - clock_ns < gap_ns:
             return clock.now
