@@ -574,8 +574,9 @@ def _read_events(
         last time heard; or, the first thing after a gap in the recording (no clock heard for
         as long as _recording_gap_ns: the dispatcher was down, and what it heard first is
         fresh), that time carried on over the gap at the clock's rate; the items reached so
-        timed are bounded by the next time heard (a text, or a drive back begun, is not). (Before, an item reached reported first after a restart took the
-        time from before the kill, and review drew the track back there and forth again.)"""
+        timed are bounded by the next time heard (a text, or a drive back begun, is not).
+        (Before, an item reached reported first after a restart took the time from before
+        the kill, and review drew the track back there and forth again.)"""
         if clock.now is None or clock_ns is None or log_ns - clock_ns < gap_ns:
             return clock.now
         return clock.now + (log_ns - clock_ns) / 1e9 * clock.rate
