@@ -585,7 +585,9 @@ def test_a_setting_an_upgrade_adds_at_its_default_keeps_a_stored_run_resumable(t
     def stored(fingerprint: str) -> SimpleNamespace:
         return SimpleNamespace(id=3, fingerprint=fingerprint, job=SimpleNamespace(plan_id="p"))
 
-    check_resumable(stored(before), upgraded(0.5), args, tmp_path)
-    check_resumable(stored(old), scenario, args, tmp_path)  # stored by the version before
+    now = inputs_fingerprint(upgraded(0.5), args)
+    check_resumable(stored(before), now, upgraded(0.5), args, tmp_path)
+    check_resumable(stored(old), before, scenario, args, tmp_path)  # by the version before
     with pytest.raises(StoreError, match="unfinished run 3 .* made from other inputs"):
-        check_resumable(stored(before), upgraded(0.7), args, tmp_path)
+        check_resumable(stored(before), inputs_fingerprint(upgraded(0.7), args),
+                        upgraded(0.7), args, tmp_path)  # fmt: skip

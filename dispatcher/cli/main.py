@@ -269,15 +269,15 @@ def inputs_fingerprint(scenario, args: argparse.Namespace, *, as_repr: bool = Fa
     return h.hexdigest()[:16]
 
 
-def check_resumable(run, scenario, args: argparse.Namespace, where: Path) -> None:  # type: ignore[no-untyped-def]
+def check_resumable(run, fingerprint: str, scenario, args: argparse.Namespace, where: Path) -> None:  # type: ignore[no-untyped-def]
     """Raise StoreError unless the unfinished ``run`` kept in ``where`` was made from these
-    inputs (:func:`inputs_fingerprint`, as it is or as runs stored before had it)."""
+    inputs: its fingerprint is ``fingerprint`` (theirs, :func:`inputs_fingerprint`), or
+    theirs as runs stored before had it."""
     from dispatcher.daemon.store import StoreError
 
-    if run.fingerprint in (
-        inputs_fingerprint(scenario, args),
-        inputs_fingerprint(scenario, args, as_repr=True),
-    ):
+    if run.fingerprint == fingerprint:
+        return
+    if run.fingerprint == inputs_fingerprint(scenario, args, as_repr=True):
         return
     raise StoreError(
         f"{where} holds unfinished run {run.id} (plan {run.job.plan_id}) made from other "
@@ -381,7 +381,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             print(f"--fresh: run {abandoned} in {store.path} abandoned (kept there as such)")
         run = store.unfinished_run()
         if run is not None:
-            check_resumable(run, scenario, args, store.path)
+            check_resumable(run, fingerprint, scenario, args, store.path)
             store.resume_run(run)
             job = run.job
             replanner = replanner_resumed(scenario, job, run.started, run.documents)
