@@ -380,10 +380,11 @@ def _isoxml_in_dir(path: Path) -> Path | None:
     """The TASKDATA.XML in ``path``, or in a folder of it (a terminal's USB stick holds
     ``TASKDATA/TASKDATA.XML``); one found beside other farm files, or in several folders
     (two seasons' exports on a stick), is refused, naming them: one was read, silently."""
-    found = [c for c in sorted(path.iterdir()) if c.name.upper() == ISOXML_NAME and c.is_file()]
+    children = sorted(path.iterdir())
+    found = [c for c in children if c.name.upper() == ISOXML_NAME and c.is_file()]
     found += [
         inner
-        for child in sorted(path.iterdir())
+        for child in children
         if child.is_dir()
         for inner in sorted(child.iterdir())
         if inner.name.upper() == ISOXML_NAME and inner.is_file()
@@ -396,7 +397,7 @@ def _isoxml_in_dir(path: Path) -> Path | None:
             f"({', '.join(str(f.relative_to(path)) for f in found[:5])}): which farm? give "
             "the one to read (its folder, or the file)"
         )
-    others = [c.name for c in sorted(path.iterdir()) if c.suffix.lower() in FARM_SUFFIXES]
+    others = [c.name for c in children if c.suffix.lower() in FARM_SUFFIXES]
     if others:
         raise GeometryError(
             f"{path}: both a {ISOXML_NAME} ({found[0].relative_to(path)}) and other farm "
@@ -407,24 +408,14 @@ def _isoxml_in_dir(path: Path) -> Path | None:
 
 def _isoxml_in_zip(path: Path) -> str | None:
     """The TASKDATA.XML in a .zip (at any depth); several refused, naming them."""
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = archive.namelist()
-    except (OSError, zipfile.BadZipFile):
-        return None
-    found = sorted(
-        n for n in names if Path(n).name.upper() == ISOXML_NAME and not n.startswith("__MACOSX/")
-    )
+    names = _zip_names(path)
+    found = sorted(n for n in names if Path(n).name.upper() == ISOXML_NAME)
     if len(found) > 1:
         raise GeometryError(
             f"{path}: {len(found)} {ISOXML_NAME} in this archive ({', '.join(found[:5])}): "
             "which farm? give an archive of one"
         )
-    others = [
-        n
-        for n in names
-        if Path(n).suffix.lower() in FARM_SUFFIXES and not n.startswith("__MACOSX/")
-    ]
+    others = [n for n in names if Path(n).suffix.lower() in FARM_SUFFIXES]
     if found and others:
         raise GeometryError(
             f"{path}: both a {ISOXML_NAME} ({found[0]}) and other farm files "
