@@ -349,8 +349,8 @@ def farm_from_geojson(
     lats = [p[1] for _, _, rings in raw_fields for p in rings[0]]
     # Longitudes about the first (a farm across the antimeridian, 179.99° and -179.99°, is
     # there: its frame was centred at longitude 0, 20 000 km away, turned upside down).
-    about = (lons - lons[0] + 180.0) % 360.0 - 180.0
-    centre = (lons[0] + (about.min() + about.max()) / 2 + 180.0) % 360.0 - 180.0
+    about = _wrapped(lons - lons[0])
+    centre = _wrapped(lons[0] + (about.min() + about.max()) / 2)
     frame = LocalFrame.around(float(centre), (min(lats) + max(lats)) / 2)
     fields = tuple(_field(frame, source, fid, props, rings) for fid, props, rings in raw_fields)
     glon, glat = garages[0]
@@ -733,8 +733,13 @@ def _ring_centre(ring: list[tuple[float, float]]) -> tuple[float, float]:
     field across the antimeridian (179.99° and -179.99°) is there, not at longitude 0."""
     lonlat = np.asarray(ring, dtype=np.float64)
     first = lonlat[0, 0]
-    lon = first + float(np.mean((lonlat[:, 0] - first + 180.0) % 360.0 - 180.0))
-    return (lon + 180.0) % 360.0 - 180.0, float(np.mean(lonlat[:, 1]))
+    lon = first + float(np.mean(_wrapped(lonlat[:, 0] - first)))
+    return float(_wrapped(lon)), float(np.mean(lonlat[:, 1]))
+
+
+def _wrapped(lon: Any) -> Any:
+    """Longitudes (or their differences) in [-180, 180) degrees: numbers or arrays."""
+    return (np.asarray(lon) + 180.0) % 360.0 - 180.0
 
 
 def _check_extent(
