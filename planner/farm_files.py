@@ -20,6 +20,8 @@ import io
 import json
 import logging
 import math
+import re
+import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
@@ -153,15 +155,27 @@ def _crs_is_wgs84(crs: Any, path: Path) -> bool:
 def read_gdal(path: Path) -> Document:
     """Every layer with geometry of a file GDAL reads, reprojected to WGS84; each feature
     named ``layer 'NAME' feature #k`` when the file has several layers."""
+    if not path.exists():
+        raise GeometryError(f"{path}: cannot read the farm: No such file or directory")
+    mended = _kml_holes_apart(path)
+    if mended is None:
+        return _read_gdal(path, path)
+    # GDAL is given a copy, under the same name, with every hole in a boundary of its own.
+    with tempfile.TemporaryDirectory(prefix="agrifleet-kml-") as scratch:
+        copy = Path(scratch) / path.name
+        copy.write_bytes(mended)
+        return _read_gdal(path, copy)
+
+
+def _read_gdal(path: Path, readable: Path) -> Document:
+    """:func:`read_gdal` of ``path``, whose content GDAL reads from ``readable``."""
     import pyogrio
     from pyogrio.errors import DataLayerError, DataSourceError
 
-    if not path.exists():
-        raise GeometryError(f"{path}: cannot read the farm: No such file or directory")
-    source: Path | str = path
+    source: Path | str = readable
     _check_shapefiles_whole(path, source)
     try:
-        layers = [str(name) for name, geom in pyogrio.list_layers(path) if geom is not None]
+        layers = [str(name) for name, geom in pyogrio.list_layers(readable) if geom is not None]
     except (DataSourceError, DataLayerError, OSError) as exc:
         folder = _shapefile_folder_in_zip(path)
         if folder is None:
@@ -219,6 +233,92 @@ def read_gdal(path: Path) -> Document:
                 }
             )
     return {"type": "FeatureCollection", "features": features}
+
+
+# A KML polygon's boundaries (any namespace prefix); a boundary holds one LinearRing.
+_KML_BOUNDARY = re.compile(
+    rb"<((?:[A-Za-z_][\w.-]*:)?)(outer|inner)BoundaryIs(?:\s[^>]*)?(?<!/)>(.*?)</\1\2BoundaryIs\s*>",
+    re.DOTALL,
+)
+_KML_RING = re.compile(rb"<((?:[A-Za-z_][\w.-]*:)?)LinearRing\b.*?</\1LinearRing\s*>", re.DOTALL)
+_KML_PLACEMARK = re.compile(rb"<(?:[A-Za-z_][\w.-]*:)?Placemark\b")
+_KML_NAME = re.compile(rb"<((?:[A-Za-z_][\w.-]*:)?)name\s*>(.*?)</\1name\s*>", re.DOTALL)
+
+
+def _kml_holes_apart(path: Path) -> bytes | None:
+    """A KML or KMZ file whose polygons hold several holes in one ``innerBoundaryIs``, as
+    some tools write them, mended: each hole in a boundary of its own, as KML has it (a
+    KMZ with its main document so mended); None for any other file. GDAL keeps the last
+    ring of such a boundary and drops the others without a word: a pond in the field
+    would be worked through. Several rings in one ``outerBoundaryIs`` (a polygon has one
+    outline) are refused, naming the placemark."""
+    suffix = path.suffix.lower()
+    if suffix not in (".kml", ".kmz") or not path.is_file():
+        return None
+    try:
+        if suffix == ".kml":
+            return _kml_mended(path.read_bytes(), path)
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+            main = _kmz_main(names)
+            if main is None:
+                return None
+            document = _kml_mended(archive.read(main), path)
+            if document is None:
+                return None
+            out = io.BytesIO()
+            with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as copy:
+                for info in archive.infolist():
+                    copy.writestr(info, document if info.filename == main else archive.read(info))
+            return out.getvalue()
+    except (OSError, zipfile.BadZipFile):
+        return None  # GDAL says what is wrong with it
+
+
+def _kmz_main(names: list[str]) -> str | None:
+    """The KML document of a KMZ GDAL reads: ``doc.kml``, else its first ``.kml``."""
+    kml = [n for n in names if n.lower().endswith(".kml") and "/" not in n] or [
+        n for n in names if n.lower().endswith(".kml")
+    ]
+    return "doc.kml" if "doc.kml" in names else (kml[0] if kml else None)
+
+
+def _kml_mended(text: bytes, path: Path) -> bytes | None:
+    """``text`` (a KML document) with each hole in a boundary of its own, or None when
+    every boundary holds one ring already (see :func:`_kml_holes_apart`)."""
+    if b"BoundaryIs" not in text:
+        return None
+    changed = False
+
+    def apart(match: re.Match[bytes]) -> bytes:
+        nonlocal changed
+        prefix, which, inside = match.group(1), match.group(2), match.group(3)
+        rings = [ring.group(0) for ring in _KML_RING.finditer(inside)]
+        if len(rings) <= 1:
+            return match.group(0)
+        if which == b"outer":
+            raise GeometryError(
+                f"{path}: {_kml_placemark_at(text, match.start())}: its outerBoundaryIs "
+                f"holds {len(rings)} rings, and a polygon has one outline: make each its "
+                "own Polygon (a MultiGeometry holds several), or a hole an innerBoundaryIs"
+            )
+        changed = True
+        boundary = prefix + b"innerBoundaryIs>"
+        return b"".join(b"<" + boundary + ring + b"</" + boundary for ring in rings)
+
+    mended = _KML_BOUNDARY.sub(apart, text)
+    return mended if changed else None
+
+
+def _kml_placemark_at(text: bytes, at: int) -> str:
+    """The placemark of a KML document that holds position ``at``, by its name."""
+    starts = [m.start() for m in _KML_PLACEMARK.finditer(text, 0, at)]
+    if not starts:
+        return f"the polygon at byte {at}"
+    name = _KML_NAME.search(text, starts[-1], at)
+    if name is None:
+        return f"the placemark at byte {starts[-1]}"
+    return f"placemark {name.group(2).decode('utf-8', 'replace').strip()!r}"
 
 
 def _from_wkb(geometry: Any, where: str) -> Any:

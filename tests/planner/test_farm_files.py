@@ -5,6 +5,7 @@ garage from the scenario; every error names the file and the feature."""
 
 import json
 import logging
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -299,6 +300,60 @@ def test_a_farm_drawn_in_google_earth_reads_without_our_properties(tmp_path, suf
     farm = load_farm(path)
     assert [f.id for f in farm.fields] == ["North 40", "Creek.0", "Creek.1"]
     assert farm.garage_lonlat == (9.999, 49.999)
+
+
+TWO_PONDS = """<innerBoundaryIs><LinearRing><coordinates>
+10.0002,50.0002 10.0006,50.0002 10.0006,50.0006 10.0002,50.0006 10.0002,50.0002
+</coordinates></LinearRing>
+<LinearRing><coordinates>
+10.0012,50.0002 10.0016,50.0002 10.0016,50.0006 10.0012,50.0006 10.0012,50.0002
+</coordinates></LinearRing></innerBoundaryIs></Polygon></Placemark>
+<Placemark><name>Creek</name>"""
+
+
+@pytest.mark.parametrize("suffix", [".kml", ".kmz"])
+def test_two_ponds_in_one_kml_inner_boundary_are_both_left_out(tmp_path, suffix):
+    """Some tools write a field's holes as rings of one innerBoundaryIs; GDAL kept the last
+    and dropped the others without a word, and a pond would have been worked through."""
+    text = GOOGLE_EARTH_KML.replace(
+        "</Polygon></Placemark>\n<Placemark><name>Creek</name>", TWO_PONDS
+    )
+    assert text.count("<LinearRing>") == GOOGLE_EARTH_KML.count("<LinearRing>") + 2
+    path = tmp_path / f"farm{suffix}"
+    if suffix == ".kmz":
+        import zipfile
+
+        with zipfile.ZipFile(path, "w") as kmz:
+            kmz.writestr("doc.kml", text)
+            kmz.writestr("files/icon.png", b"not read")
+    else:
+        path.write_text(text)
+    field = load_farm(path).fields[0]
+    whole = load_farm(_written(tmp_path / "whole.kml", GOOGLE_EARTH_KML)).fields[0]
+    assert field.id == "North 40"
+    pond = 0.0004 * 111_320 * math.cos(math.radians(50.0)) * 0.0004 * 111_200
+    assert whole.area_m2 - field.area_m2 == pytest.approx(2 * pond, rel=0.02)
+
+
+def test_two_rings_in_one_kml_outer_boundary_are_refused_naming_the_placemark(tmp_path):
+    text = GOOGLE_EARTH_KML.replace(
+        "</LinearRing></outerBoundaryIs></Polygon></Placemark>\n<Placemark><name>Creek</name>",
+        "</LinearRing><LinearRing><coordinates>10.1,50.1 10.2,50.1 10.2,50.2 10.1,50.1"
+        "</coordinates></LinearRing></outerBoundaryIs></Polygon></Placemark>\n"
+        "<Placemark><name>Creek</name>",
+    )
+    assert text != GOOGLE_EARTH_KML
+    path = _written(tmp_path / "farm.kml", text)
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert str(err.value).startswith(
+        f"{path}: placemark 'North 40': its outerBoundaryIs holds 2 rings"
+    )
+
+
+def _written(path, text):
+    path.write_text(text)
+    return path
 
 
 def test_several_unmarked_points_are_named_and_the_scenario_garage_settles_it(tmp_path):
