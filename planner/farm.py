@@ -298,7 +298,7 @@ def farm_from_geojson(
                 raise GeometryError(
                     f"{where} (gate): a gate needs properties.field, the id of its field"
                 )
-            field_id = named
+            field_id = unicodedata.normalize("NFC", named)  # as the field's own (_field_id)
             if geom.get("type") != "Point":
                 raise GeometryError(f"{where} (gate of {field_id!r}): a gate must be a Point")
             where = f"{where} (gate of {field_id!r})"
@@ -601,8 +601,10 @@ def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -
     one broke the printed plan's table, and it goes into every file written (review). The
     invisible marks of scripts written with them are no control characters: Persian
     needs the zero-width non-joiner, right-to-left text its marks, and a soft hyphen is
-    text (all refused before)."""
-    found = _field_id_of(props, id_field, k, where)
+    text (all refused before). Taken in Unicode's composed form (NFC): "Großer Schlag"
+    typed on one machine and copied from a macOS file name on another (decomposed, NFD)
+    look alike and are one field, whose gate finds it."""
+    found = unicodedata.normalize("NFC", _field_id_of(props, id_field, k, where))
     if any(
         unicodedata.category(c) in NOT_IN_AN_ID
         or (unicodedata.category(c) == "Cf" and c not in MARKS_IN_AN_ID)

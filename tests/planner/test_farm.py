@@ -461,6 +461,21 @@ def test_a_duplicate_field_id_names_both_features(tmp_path):
     assert "the ids are property 'id': give --id-field NAME" in message
 
 
+def test_ids_alike_but_for_their_unicode_form_are_one_field_and_its_gate_finds_it(tmp_path):
+    """ "Großer Schlag" with an "ö" of one character (NFC, as most keyboards type it) and
+    of two ("o" and the combining diaeresis, NFD, as macOS file names hold it): printed
+    alike, they were two fields, and the gate of one did not find the other."""
+    composed, decomposed = "Gr\u00f6\u00dfer Schlag", "Gro\u0308\u00dfer Schlag"
+    assert composed != decomposed
+    doc = farm_doc()
+    doc["features"][0]["properties"]["id"] = decomposed
+    doc["features"][4]["properties"]["field"] = composed
+    farm = load_farm(write(tmp_path, doc))
+    assert farm.fields[0].id == composed and farm.gates[0].field_id == composed
+    doc["features"][1]["properties"]["id"] = composed
+    assert "duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
+
+
 def test_roads_and_gates_as_others_draw_them(tmp_path, caplog):
     """A gate naming its field by a whole number, as a GIS column holds it; a lane along a
     field's fence is not a road through it, and a gate digitised inside another field is
