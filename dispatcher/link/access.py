@@ -169,15 +169,16 @@ def _check_pem(ca_path: Path, cert_path: Path, key_path: Path, make: str) -> Non
 
 
 def check_private(path: Path, what: str, remedy: str) -> None:
-    """A private file must exist and be readable by its owner only (as ssh wants of a
-    private key); :class:`AccessError` names the file and the fix."""
+    """A private file must exist, be readable by its owner only and belong to the user
+    agrifleet runs as or root (as ssh wants of a private key); :class:`AccessError` names
+    the file and the fix."""
     try:
-        mode = path.stat().st_mode
+        status = path.stat()
     except FileNotFoundError:
         raise AccessError(
             f"{path}: missing ({what}); make it with `agrifleet certs SCENARIO {remedy}`"
         ) from None
-    refuse_if_open(mode, path, what, AccessError)
+    refuse_if_open(status, path, what, AccessError)
 
 
 # --- the access-control list --------------------------------------------------------

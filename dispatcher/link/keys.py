@@ -1,11 +1,12 @@
 """MAVLink signing keys: one secret per vehicle, in a key directory outside the scenario.
 
 A key file is ``<dir>/<vehicle id>.key`` holding the 32-byte secret as 64 hexadecimal
-digits (and a newline). Key files must be readable by their owner only: a key that group or
-others can read is refused, as ssh refuses such a private key. :func:`write_keys` (the
-``agrifleet keys`` command) makes a new random key per vehicle, the directory mode 700
-and each file mode 600. docs/link.md says how signing works end to end, and docs/bridge.md
-how a real autopilot gets its key.
+digits (and a newline). Key files must be readable by their owner only, and owned by the
+user agrifleet runs as or by root: a key that group or others can read, or that another
+user owns (and so can replace), is refused, as ssh refuses such a private key.
+:func:`write_keys` (the ``agrifleet keys`` command) makes a new random key per vehicle,
+the directory mode 700 and each file mode 600. docs/link.md says how signing works end to
+end, and docs/bridge.md how a real autopilot gets its key.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import argparse
 import contextlib
 import logging
 import os
+import pwd
 import secrets
 import stat
 import tempfile
@@ -45,7 +47,7 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
     wrong with it."""
     path = key_path(keys_dir, vehicle_id)
     try:
-        mode = path.stat().st_mode
+        status = path.stat()
     except FileNotFoundError:
         raise SigningKeyError(
             f"{path}: no signing key for vehicle {vehicle_id!r}; make keys with "
@@ -53,7 +55,7 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
         ) from None
     except OSError as exc:
         raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
-    refuse_if_open(mode, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
+    refuse_if_open(status, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
     try:
         raw = path.read_bytes()
     except OSError as exc:  # not readable by this user, a folder
@@ -83,13 +85,30 @@ PRIVATE_MODE = 0o600
 """A private file's mode: its owner's only, as ssh wants of a private key."""
 
 
-def refuse_if_open(mode: int, path: Path, what: str, error: type[ConfigError]) -> None:
-    """``error`` naming the file and the fix when group or others may read ``what``."""
+def refuse_if_open(status: os.stat_result, path: Path, what: str, error: type[ConfigError]) -> None:
+    """``error`` naming the file and the fix when group or others may read ``what``, or
+    when it belongs to a user other than the one agrifleet runs as (or root), who could
+    replace it with one of theirs (ssh's rules for a private key)."""
+    mode = status.st_mode
     if mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise error(
             f"{path}: {what} is open to group or others (mode {stat.S_IMODE(mode):03o}); "
             f"make it the owner's only: chmod 600 {path}"
         )
+    me = os.geteuid()
+    if status.st_uid not in (me, 0):
+        raise error(
+            f"{path}: {what} belongs to {_user(status.st_uid)}, who could replace it, not to "
+            f"{_user(me)} who runs agrifleet (or root): chown {_user(me)} {path}"
+        )
+
+
+def _user(uid: int) -> str:
+    """A user's name, or its number when it has none here."""
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return str(uid)
 
 
 def write_file(path: Path, data: bytes, mode: int) -> None:

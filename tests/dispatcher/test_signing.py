@@ -147,6 +147,26 @@ def test_a_bad_key_file_is_refused_naming_it(
     assert str(path) in str(err.value)
 
 
+def test_a_key_file_of_another_user_is_refused_naming_both(tmp_path: Path, monkeypatch) -> None:
+    """A key another user owns (mode 600 or not) is one that user can replace with theirs:
+    refused, as ssh refuses such a private key; root's keys are taken."""
+    write_keys(tmp_path, ["t1"])
+    path = key_path(tmp_path, "t1")
+    root = os.geteuid() == 0
+    if root:
+        os.chown(path, 4243, -1)  # the file another user's
+    monkeypatch.setattr("dispatcher.link.keys.os.geteuid", lambda: 4242)
+    with pytest.raises(SigningKeyError) as err:
+        read_key(tmp_path, "t1")
+    assert str(err.value).startswith(f"{path}: the signing key of 't1' belongs to ")
+    assert "who could replace it, not to 4242 who runs agrifleet (or root): chown 4242" in str(
+        err.value
+    )
+    if root:
+        os.chown(path, 0, -1)
+        assert read_key(tmp_path, "t1")  # root's
+
+
 def test_two_vehicles_with_one_key_and_unsigned_with_keys_are_refused(
     tmp_path: Path, capsys
 ) -> None:
