@@ -93,9 +93,26 @@ def read_farm_document(path: Path) -> Document:
                         feature["geometry"] = original["geometry"]
             return converted
         return doc  # type: ignore[no-any-return]
+    if suffix == ".xml" and _is_gml(path):
+        return read_gdal(path)  # GML some tools name .xml
     if suffix == ".xml" or (suffix == ".zip" and _isoxml_in_zip(path) is not None):
         return read_isoxml(path)
     return read_gdal(path)
+
+
+GML_NAMESPACE = b"http://www.opengis.net/gml"
+"""What every GML document's root declares (GML 2 and 3 alike, 3.2 with ``/3.2``)."""
+
+
+def _is_gml(path: Path) -> bool:
+    """Whether the ``.xml`` file at ``path`` is GML (a GIS export named ``.xml``), not
+    ISOXML: its start declares GML's namespace and its root is no TaskData."""
+    try:
+        with path.open("rb") as f:
+            start = f.read(1 << 16)
+    except OSError:
+        return False  # read_isoxml says what is wrong
+    return GML_NAMESPACE in start and b"ISO11783_TaskData" not in start
 
 
 def read_json(path: Path) -> Any:

@@ -266,6 +266,16 @@ def test_a_file_that_is_not_what_its_name_says_is_refused_naming_it(tmp_path, na
     assert str(err.value).startswith(f"{path}: ")
 
 
+@pytest.mark.parametrize("name", ["farm.gml", "farm.xml"])
+def test_gml_reads_as_the_same_farm_also_when_named_xml(tmp_path, reference, name):
+    """Some GIS exports name their GML ``.xml``, which was read as ISOXML and refused
+    ("not ISO 11783-10 TaskData")."""
+    path = tmp_path / name
+    write_gdal(farm_features(CHANGJI), path, "GML", layer="farm")
+    assert (tmp_path / "farm.xsd").exists()
+    same_farm(load_farm(path), reference)
+
+
 GOOGLE_EARTH_KML = """<?xml version="1.0" encoding="UTF-8"?>
 <kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>My farm</name>
 <Folder><name>Fields</name>
