@@ -78,9 +78,16 @@ class RunClock:
     clock. When the vehicle's clock goes back by more than CLOCK_RESTART_S the autopilot
     rebooted; the run's clock carries on from where it was, plus the receive-time gap scaled
     by how fast the vehicle's clock ran against the receive clock before (its speedup).
-    The daemon (live) and review (from the log) keep a vehicle's time with this one rule."""
+    The daemon (live) and review (from the log) keep a vehicle's time with this one rule.
+
+    ``floor``: the latest run time a restarted dispatcher stored of the vehicle. Its new
+    clock, first hearing the vehicle's, does not start below it: a vehicle that rebooted
+    before the crash (its run clock ahead of its own by the reboot) or while the
+    dispatcher was down would otherwise have its times after the restart behind the stored
+    ones (a field finished before it started, a stall unseen until the clock caught up)."""
 
     now: float | None = None  # the run's clock, latest (s)
+    floor: float = 0.0
     _offset: float = 0.0
     _raw_last: float | None = None
     _first: tuple[float, float] | None = None  # (run clock, receive time) when first heard
@@ -90,6 +97,8 @@ class RunClock:
         """The run time of a report at ``raw_s`` on the vehicle's clock, received at
         ``wall_s``; and whether the vehicle rebooted before it."""
         rebooted = False
+        if self._raw_last is None and raw_s + self._offset < self.floor:
+            self._offset = self.floor - raw_s  # goes on from the time stored
         if (
             self._raw_last is not None
             and raw_s < self._raw_last
@@ -718,7 +727,9 @@ class FleetState:
         reached stays. A vehicle not done, and in the plan, is heard again and asked where it
         is (the daemon). One lost when the dispatcher stopped has its time lost counted up
         to that last event (was: not at all), and one that stays lost (left out) on from
-        the restart until heard again."""
+        the restart until heard again. Its clock, new, goes on from the latest time stored
+        of it (:attr:`RunClock.floor`)."""
+        v.clock.floor = v.sim_time_s = max(v.clock.floor, v.sim_time_s, v.progress_s or 0.0)
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired
