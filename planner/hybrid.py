@@ -33,13 +33,15 @@ run (a re-plan) starts instead from the plan being carried out and variants of i
 
 Under the makespan (the farm) the elite's ILS is the squeeze (:func:`ils_step`): a plan
 whose routes all end within minutes of the makespan leaves no move under the makespan
-itself, so the ILS minimises the fleet's total hours instead, each hour a route ends after
-a target just under the best makespan counted OVERLOAD times (a sum, where a field may
-move to the machine that does it faster); a result whose makespan is lower is the new
-elite, and the target follows it. Each generation the squeeze's walk is first handed
+itself, so the ILS minimises the fleet's total hours instead, each hour a route ends after a
+target just under the best makespan counted OVERLOAD times (a sum, where a field may move to
+the machine that does it faster); a result whose makespan is lower is the new elite, and the
+target follows it. In two generations of three the target is above the makespan instead
+(strategic oscillation): the walk may end routes past it where the fleet's hours fall, and
+is squeezed back under in the others. Each generation the squeeze's walk is first handed
 round by cyclic exchanges and paths under the squeeze's figure, with driving counted twice
-(:mod:`planner.cyclic_exchange`): where every route ends near the target a field moved in
-is one too many, and a cycle or a chain through three or more routes moves the fields that
+(:mod:`planner.cyclic_exchange`): where every route ends near the target a field moved in is
+one too many, and a cycle or a chain through three or more routes moves the fields that
 one-for-one moves cannot. The same jam leaves the total road distance, the second
 objective, short of room. With ``distance_share`` > 0 (off by default), in that last share
 of the time a makespan up to ``1 + distance_slack`` times the best found by then counts as
@@ -157,8 +159,15 @@ class HybridParams(IGHOAParams):
     # the fleet least. 60 s, seeds 1-2: 500 x 30 with 6 passes 320.06 and 320.15 h at
     # 0.002 alone, 319.70 and 319.70 h at 0.0002 alone, but 100 x 10 is better at 0.002
     # (33.134 / 33.113 h against 33.138 / 33.166 h); in turn, no farm measured is worse
-    # than at 0.002 alone (benchmarks/RESULTS.md, 2026-11-27).
-    squeeze: float | tuple[float, ...] = (0.002, 0.0002)
+    # than at 0.002 alone (benchmarks/RESULTS.md, 2026-11-27). A step below 0 puts the
+    # target above the makespan (strategic oscillation): the walk is let past it where the
+    # fleet's weighed hours fall, and the steps above 0 then squeeze it back under. Four
+    # such generations of six, 60 s, seeds 1-3: six passes 319.37 / 319.25 / 319.31 h
+    # without, 319.08 / 319.01 / 319.06 h with (on average: two of four 319.08 h, eight
+    # of ten 319.10 h, -0.01 for -0.003 319.11 h, -0.003 for the fine step 319.24 h); 100 x 10
+    # 33.126 h on average against 33.119 h; 500 x 30 55.085 / 55.113 h against 55.038 /
+    # 55.081 h (benchmarks/RESULTS.md, 2026-11-29).
+    squeeze: float | tuple[float, ...] = (0.002, 0.0002, -0.003, -0.003, -0.003, -0.003)
     # The squeeze weighs each machine's hours by what they are worth to the makespan, the
     # duals of the relaxation of assigning fields to machines with the travel no route
     # avoids (planner.relaxation; False: all alike). 60 s, seeds 1-2: 500 x 30 with 6
@@ -215,9 +224,9 @@ class HybridParams(IGHOAParams):
                 "tour_share, distance_share, restart and squeeze_exchange_empty must be "
                 "within [0, 1]"
             )
-        if not all(0.0 <= x < 1.0 for x in self.squeeze_steps):
+        if not all(-1.0 < x < 1.0 for x in self.squeeze_steps):
             # a step of 1 would leave the squeeze a target of 0 h
-            raise ValueError(f"squeeze steps must be within [0, 1), not {self.squeeze}")
+            raise ValueError(f"squeeze steps must be within (-1, 1), not {self.squeeze}")
         if self.distance_slack < 0.0:
             raise ValueError(f"distance_slack must be >= 0, not {self.distance_slack}")
         mask(self.moves)
@@ -495,15 +504,17 @@ def ils_step(  # type: ignore[no-untyped-def]
     (:func:`planner.cost.fleet_value`), so that below it the distance decides; the walk's
     ``accept`` is then a share of what a cost has above the cap (its distance term).
 
-    ``squeeze`` > 0 (the makespan; ``cap`` 0) is the squeeze: the search and the walk go by
+    ``squeeze`` not 0 (the makespan; ``cap`` 0) is the squeeze: the search and the walk go by
     :func:`planner.cost.squeeze_figure` with the target ``1 - squeeze`` times the elite's
-    makespan (the fleet's hours weighed by the tables' hour weights, each hour over the
-    target counted :data:`~planner.cost.OVERLOAD` times), every other ruin seeded on the
-    longest route when ``focus``; a result is the walk's next solution when its figure is
-    lower, and the new elite (the target following it) when its makespan is. Under the
-    makespan itself a plan whose routes all end near it leaves no move (each lengthens some
-    route up to it); under the sum a field goes to a machine that does it faster or nearer,
-    and the overloads then even out. The costs given and returned stay the objective's.
+    makespan, above it for a step below 0 (the walk loosened, free to end routes past the
+    makespan where the weighed hours fall): the fleet's hours weighed by the tables' hour
+    weights, each hour over the target counted :data:`~planner.cost.OVERLOAD` times; every
+    other ruin seeded on the longest route when ``focus``; a result is the walk's next
+    solution when its figure is lower, and the new elite (the target following it) when its
+    makespan is. Under the makespan itself a plan whose routes all end near it leaves no
+    move (each lengthens some route up to it); under the sum a field goes to a machine that
+    does it faster or nearer, and the overloads then even out. The costs given and returned
+    stay the objective's.
 
     Returns the new elite cost and walk cost."""
     perm = walk_perm.copy()
@@ -518,7 +529,7 @@ def ils_step(  # type: ignore[no-untyped-def]
     for step in range(steps):
         if past(deadline):
             break
-        cut = -target if squeeze > 0.0 else cap  # fleet_value's cap < 0: the squeeze
+        cut = -target if squeeze != 0.0 else cap  # fleet_value's cap < 0: the squeeze
         perm[:] = walk_perm
         counts[:] = walk_counts
         if ruin > 0:
@@ -544,7 +555,7 @@ def ils_step(  # type: ignore[no-untyped-def]
         if with_or_opt:
             or_opt_routes(perm, counts, tables[0], tables[1], tables[2], neighbours, pins)
         cost = evaluate(perm, counts, objective, tables, route)
-        if squeeze > 0.0:
+        if squeeze != 0.0:
             figure = squeeze_figure(route, target, hour_weights)
             walk_on = figure < walk_figure - 1e-12
         else:
@@ -562,7 +573,7 @@ def ils_step(  # type: ignore[no-untyped-def]
             elite_counts[:] = counts
             elite_route[:] = route
             elite_cost = cost
-            if squeeze > 0.0:
+            if squeeze != 0.0:
                 target = route.max() * (1.0 - squeeze)
                 walk_figure = squeeze_figure(walk_route, target, hour_weights)
     return elite_cost, walk_cost

@@ -368,7 +368,7 @@ def solve(
     if (
         isinstance(params, hybrid.HybridParams)
         and obj is Objective.MAKESPAN
-        and any(step > 0.0 for step in params.squeeze_steps)
+        and any(step != 0.0 for step in params.squeeze_steps)
         and params.weigh_hours
     ):
         cost_tables = replace(cost_tables, hour_weights=hour_weights(cost_tables, stop.deadline()))
@@ -581,7 +581,7 @@ def solve(
                 walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
             squeeze = params.squeeze_at(gen) if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
-            if squeeze > 0.0 and params.squeeze_exchange_rounds > 0:
+            if squeeze != 0.0 and params.squeeze_exchange_rounds > 0:
                 # The squeeze's walk first handed round by cyclic exchanges under its figure,
                 # no route past the walk's makespan (a walk that comes out ahead of the
                 # elite on the makespan is the new elite).

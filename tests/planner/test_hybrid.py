@@ -176,12 +176,9 @@ def test_the_squeeze_reports_the_true_costs_never_worsens_and_keeps_pins(ruin, p
     assert new <= walk + 1e-12
 
 
-def test_under_a_cap_the_walk_keeps_to_the_cap_and_to_the_elites_road():
-    """``ils_step`` with a makespan cap: the walk's record-to-record ``accept`` is a share of
-    the distance term (what a cost has above the cap), so the walk keeps to plans within
-    the cap (or as far over it as a few metres of road weigh) whose road is within
-    ``accept`` of the elite's; the whole cost's share would let it wander 3 % over the
-    cap whatever its road."""
+def _a_makespan_elite():
+    """A 40 x 4 problem, its kernels' tables, and 20 generations' plan under the makespan
+    as a chromosome with its routes' figures and its cost."""
     problem = problem_for(40, 4, 7)
     tables = CostTables.of(problem).kernel_args()
     best = solve(problem, "makespan", "hybrid", stop_after(20), seed=1)
@@ -189,6 +186,43 @@ def test_under_a_cap_the_walk_keeps_to_the_cap_and_to_the_elites_road():
     counts = np.array([len(r) for r in best.routes], dtype=np.int64)
     route = np.empty(4)
     cost = evaluate(perm, counts, int(Objective.MAKESPAN), tables, route)
+    return problem, tables, best, perm, counts, route, cost
+
+
+def test_a_loosened_squeeze_walks_past_the_makespan_and_the_elite_only_improves():
+    """A squeeze step below 0 puts the target above the elite's makespan: the walk may end
+    a route past the makespan where the weighed hours fall (strategic oscillation: the
+    steps above 0 then push it back under); the elite only improves, and the costs
+    returned are what the arrays cost."""
+    problem, tables, best, perm, counts, route, cost = _a_makespan_elite()
+    weights = tables[8]
+    loose = -0.05
+    target = cost * (1.0 - loose)
+    start_figure = squeeze_figure(route, target, weights)
+    walk_perm, walk_counts, walk_route = perm.copy(), counts.copy(), route.copy()
+    nn = nearest_neighbours(problem.dist, 6)
+    new, walk = ils_step(
+        make_state(3), perm, counts, route, cost, walk_perm, walk_counts, walk_route, cost,
+        int(Objective.MAKESPAN), tables, nn, 1, NO_PINS(40), 200, 3, np.inf, 7, True, 0.03, 11,
+        False, True, 0.0, loose,
+    )  # fmt: skip
+    assert new <= cost
+    assert walk > new  # past the elite's makespan
+    assert squeeze_figure(walk_route, new * (1.0 - loose), weights) < start_figure
+    for p, c, r, value in ((perm, counts, route, new), (walk_perm, walk_counts, walk_route, walk)):
+        assert_valid(p, c, 40, 4)
+        check = np.empty(4)
+        assert value == pytest.approx(evaluate(p, c, int(Objective.MAKESPAN), tables, check))
+        np.testing.assert_allclose(r, check)
+
+
+def test_under_a_cap_the_walk_keeps_to_the_cap_and_to_the_elites_road():
+    """``ils_step`` with a makespan cap: the walk's record-to-record ``accept`` is a share of
+    the distance term (what a cost has above the cap), so the walk keeps to plans within
+    the cap (or as far over it as a few metres of road weigh) whose road is within
+    ``accept`` of the elite's; the whole cost's share would let it wander 3 % over the
+    cap whatever its road."""
+    problem, tables, best, perm, counts, route, cost = _a_makespan_elite()
     cap = float(route.max())  # the deadline is the elite's makespan: no room below it
     capped = cost + cap - route.max()
     walk_perm, walk_counts, walk_route = perm.copy(), counts.copy(), route.copy()
@@ -449,7 +483,8 @@ def test_tour_ils_finds_the_optimal_tour_of_a_circle_and_repeats_itself():
         {"distance_share": -0.1},
         {"distance_slack": -0.1},
         {"restart": 1.5},
-        {"squeeze": -0.1},
+        {"squeeze": -1.0},
+        {"squeeze": (0.002, float("nan"))},
         {"squeeze": (0.002, 1.5)},
         {"squeeze": 1.0},
         {"squeeze_exchange_road": -1.0},
@@ -465,7 +500,9 @@ def test_hybrid_params_refuse_a_bad_setting(bad):
 
 def test_the_squeeze_takes_its_steps_in_turn_one_a_generation():
     default = HybridParams()
-    assert [default.squeeze_at(g) for g in range(1, 6)] == [0.002, 0.0002] * 2 + [0.002]
+    loose = [-0.003] * 4  # the target above the makespan (strategic oscillation)
+    in_turn = [default.squeeze_at(g) for g in range(1, 9)]
+    assert in_turn == [0.002, 0.0002, *loose, 0.002, 0.0002]
     assert [HybridParams(squeeze=0.001).squeeze_at(g) for g in (1, 2, 3)] == [0.001] * 3
     for off in (0.0, ()):
         params = HybridParams(squeeze=off)
