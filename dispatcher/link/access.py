@@ -34,7 +34,7 @@ from typing import Any
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.link import wire
-from dispatcher.link.keys import PRIVATE_MODE, private_folder, refuse_if_open, write_file
+from dispatcher.link.keys import PRIVATE_MODE, private_folder, refuse_unless_private, write_file
 
 DISPATCHER = "dispatcher"
 ROUTER = "router"
@@ -178,7 +178,7 @@ def check_private(path: Path, what: str, remedy: str) -> None:
         raise AccessError(
             f"{path}: missing ({what}); make it with `agrifleet certs SCENARIO {remedy}`"
         ) from None
-    refuse_if_open(status, path, what, AccessError)
+    refuse_unless_private(status, path, what, AccessError)
 
 
 # --- the access-control list --------------------------------------------------------

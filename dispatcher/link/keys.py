@@ -55,7 +55,7 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
         ) from None
     except OSError as exc:
         raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
-    refuse_if_open(status, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
+    refuse_unless_private(status, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
     try:
         raw = path.read_bytes()
     except OSError as exc:  # not readable by this user, a folder
@@ -85,7 +85,9 @@ PRIVATE_MODE = 0o600
 """A private file's mode: its owner's only, as ssh wants of a private key."""
 
 
-def refuse_if_open(status: os.stat_result, path: Path, what: str, error: type[ConfigError]) -> None:
+def refuse_unless_private(
+    status: os.stat_result, path: Path, what: str, error: type[ConfigError]
+) -> None:
     """``error`` naming the file and the fix when group or others may read ``what``, or
     when it belongs to a user other than the one agrifleet runs as (or root), who could
     replace it with one of theirs (ssh's rules for a private key)."""
