@@ -78,9 +78,11 @@ class RunClock:
     clock. When the vehicle's clock goes back by more than CLOCK_RESTART_S the autopilot
     rebooted; the run's clock carries on from where it was, plus the receive-time gap scaled
     by how fast the vehicle's clock ran against the receive clock before (its speedup).
-    The daemon (live) and review (from the log) keep a vehicle's time with this one rule.
+    The daemon (live) and review (from the log) keep a vehicle's time with this one rule
+    (but for :attr:`floor`: after a restart of the dispatcher, review, reading one stream
+    of the vehicle's frames, counts the time down as the daemon cannot).
 
-    ``floor``: the latest run time a restarted dispatcher stored of the vehicle. Its new
+    ``floor``: the latest run time stored of the vehicle (its items reached). Its new
     clock, first hearing the vehicle's, does not start below it: a vehicle that rebooted
     before the crash (its run clock ahead of its own by the reboot) or while the
     dispatcher was down would otherwise have its times after the restart behind the stored
@@ -773,6 +775,7 @@ class FleetState:
         if v.phase not in (Phase.RUNNING, Phase.STARTING, Phase.LOST) and not v.resuming:
             return
         v.progress_s = max(v.progress_s or 0.0, clock_s)
+        v.clock.floor = max(v.clock.floor, clock_s)  # kept: replayed events reset progress_s
         v.progress_wall = now
         if v.phase is Phase.STARTING and seq >= v.start_from:
             v.moved_since_start = True

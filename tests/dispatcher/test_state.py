@@ -1908,13 +1908,22 @@ def test_an_item_reached_heard_before_the_clock_after_a_restart_takes_the_clock_
     assert event.seq == seq and event.clock_s == 400.0
 
 
-def test_a_vehicle_that_rebooted_before_a_restart_keeps_its_time_going_on(dispatch) -> None:
+@pytest.mark.parametrize(
+    "since",
+    [
+        [],
+        # replayed, these set its progress to its clock, not heard in a replay (review)
+        [ev.VehicleLost("v1", "no heartbeat"), ev.VehicleSeen("v1")],
+        [ev.StartRequested("v1", 3), ev.MissionStarted("v1", 3)],
+    ],
+)
+def test_a_vehicle_that_rebooted_before_a_restart_keeps_its_time_going_on(dispatch, since) -> None:
     """Its run clock was ahead of its own by the reboot (item 2 reached at 100 s of the
     run, 30 s after the autopilot booted again); the restarted dispatcher's new clock took
     the vehicle's own, and every time after the restart came out behind the stored ones."""
     state = FleetState(dispatch.document)
     v = state.vehicles["v1"]
-    for event in running_events("v1", 2):  # item 2 reached at 100 s, then a restart
+    for event in running_events("v1", 2) + since:  # item 2 reached at 100 s, then a restart
         state.apply(event, 1.0)
     state.apply(ev.Resumed("v1"), 2.0)
     feed(state, "v1", position(30_000, 440_003_000, 872_995_000), 3.0)
