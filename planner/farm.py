@@ -263,7 +263,8 @@ def farm_from_geojson(
                 if len(parts) == 1
                 else [part_name(field_id, n) for n in range(len(parts))]
             )
-            for alias in {field_id, _text(_prop(props, "id")) or field_id}:
+            named_id = _text(_prop(props, "id"))  # a gate may name it so (NFC, as its own)
+            for alias in {field_id, unicodedata.normalize("NFC", named_id or field_id)}:
                 aliases.setdefault(alias, []).extend(part_ids)
             for n, rings in enumerate(parts):
                 part_id = part_ids[n]

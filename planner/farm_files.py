@@ -190,6 +190,11 @@ def _read_gdal(path: Path, readable: Path) -> Document:
     from pyogrio.errors import DataLayerError, DataSourceError
 
     source: Path | str = readable
+
+    def as_given(text: object) -> str:
+        """GDAL's words, naming the file as given, not its mended copy."""
+        return str(text).replace(str(readable), str(path))
+
     _check_shapefiles_whole(path, source)
     try:
         layers = [str(name) for name, geom in pyogrio.list_layers(readable) if geom is not None]
@@ -204,7 +209,7 @@ def _read_gdal(path: Path, readable: Path) -> Document:
                     "a farm is one folder of them (fields, roads, points); put them together"
                 ) from exc
             raise GeometryError(
-                f"{path}: not a farm file GDAL can read ({_first_line(exc)})"
+                f"{path}: not a farm file GDAL can read ({as_given(_first_line(exc))})"
             ) from exc
         source = f"/vsizip/{path}/{folder}"  # a zipped folder of shapefiles
         _check_shapefiles_whole(path, source)
@@ -226,11 +231,11 @@ def _read_gdal(path: Path, readable: Path) -> Document:
                 key = str(pyogrio.read_info(source, layer=layer).get("fid_column") or "")
         except (DataSourceError, DataLayerError, OSError) as exc:
             raise GeometryError(
-                f"{path}: layer {layer!r}: cannot be read ({_first_line(exc)})"
+                f"{path}: layer {layer!r}: cannot be read ({as_given(_first_line(exc))})"
             ) from exc
         for warning in said:
             if "Non closed ring" not in str(warning.message):
-                log.warning("%s: layer %r: reading it: %s", path, layer, warning.message)
+                log.warning("%s: layer %r: reading it: %s", path, layer, as_given(warning.message))
         names = _column_names(path, [str(n) for n in meta["fields"]])
         if key and key not in names:  # a GeoPackage's primary key named by its author
             names, values = [*names, key], [*values, fids]
@@ -252,8 +257,10 @@ def _read_gdal(path: Path, readable: Path) -> Document:
     return {"type": "FeatureCollection", "features": features}
 
 
-# A KML polygon's boundaries (any namespace prefix); a boundary holds one LinearRing.
+# A KML polygon's boundaries (any namespace prefix), a boundary holding one LinearRing;
+# or a comment or a CDATA section (a description's text), taken as they are.
 _KML_BOUNDARY = re.compile(
+    rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|"
     rb"<((?:[A-Za-z_][\w.-]*:)?)(outer|inner)BoundaryIs(?:\s[^>]*)?(?<!/)>(.*?)</\1\2BoundaryIs\s*>",
     re.DOTALL,
 )
@@ -265,7 +272,7 @@ _KML_NAME = re.compile(rb"<((?:[A-Za-z_][\w.-]*:)?)name\s*>(.*?)</\1name\s*>", r
 def _kml_holes_apart(path: Path) -> bytes | None:
     """A KML or KMZ file whose polygons hold several holes in one ``innerBoundaryIs``, as
     some tools write them, mended: each hole in a boundary of its own, as KML has it (a
-    KMZ with its main document so mended); None for any other file. GDAL keeps the last
+    KMZ with every KML document in it so mended); None for any other file. GDAL keeps the last
     ring of such a boundary and drops the others without a word: a pond in the field
     would be worked through. Several rings in one ``outerBoundaryIs`` (a polygon has one
     outline) are refused, naming the placemark."""
@@ -276,31 +283,24 @@ def _kml_holes_apart(path: Path) -> bytes | None:
         if suffix == ".kml":
             return _kml_mended(path.read_bytes(), path)
         with zipfile.ZipFile(path) as archive:
-            names = archive.namelist()
-            main = _kmz_main(names)
-            if main is None:
-                return None
-            document = _kml_mended(archive.read(main), path)
-            if document is None:
+            # Every KML document in it: GDAL reads the first, and those it links to.
+            mended = {
+                info.filename: _kml_mended(archive.read(info), f"{path}: {info.filename}")
+                for info in archive.infolist()
+                if info.filename.lower().endswith(".kml")
+            }
+            if all(document is None for document in mended.values()):
                 return None
             out = io.BytesIO()
             with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as copy:
                 for info in archive.infolist():
-                    copy.writestr(info, document if info.filename == main else archive.read(info))
+                    copy.writestr(info, mended.get(info.filename) or archive.read(info))
             return out.getvalue()
     except (OSError, zipfile.BadZipFile):
         return None  # GDAL says what is wrong with it
 
 
-def _kmz_main(names: list[str]) -> str | None:
-    """The KML document of a KMZ GDAL reads: ``doc.kml``, else its first ``.kml``."""
-    kml = [n for n in names if n.lower().endswith(".kml") and "/" not in n] or [
-        n for n in names if n.lower().endswith(".kml")
-    ]
-    return "doc.kml" if "doc.kml" in names else (kml[0] if kml else None)
-
-
-def _kml_mended(text: bytes, path: Path) -> bytes | None:
+def _kml_mended(text: bytes, path: Path | str) -> bytes | None:
     """``text`` (a KML document) with each hole in a boundary of its own, or None when
     every boundary holds one ring already (see :func:`_kml_holes_apart`)."""
     if b"BoundaryIs" not in text:
@@ -309,6 +309,8 @@ def _kml_mended(text: bytes, path: Path) -> bytes | None:
 
     def apart(match: re.Match[bytes]) -> bytes:
         nonlocal changed
+        if match.group(2) is None:  # a comment or a CDATA section
+            return match.group(0)
         prefix, which, inside = match.group(1), match.group(2), match.group(3)
         rings = [ring.group(0) for ring in _KML_RING.finditer(inside)]
         if len(rings) <= 1:

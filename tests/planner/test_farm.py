@@ -18,7 +18,7 @@ import pytest
 import shapely
 
 from planner.errors import GeometryError
-from planner.farm import KINDS, MAX_ABS_LATITUDE, Farm, load_farm
+from planner.farm import KINDS, MAX_ABS_LATITUDE, Farm, FarmOptions, load_farm
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 LON0, LAT0 = 10.0, 50.0  # central Germany: swapped, [50, 10] is in the Horn of Africa
@@ -472,6 +472,11 @@ def test_ids_alike_but_for_their_unicode_form_are_one_field_and_its_gate_finds_i
     doc["features"][4]["properties"]["field"] = composed
     farm = load_farm(write(tmp_path, doc))
     assert farm.fields[0].id == composed and farm.gates[0].field_id == composed
+    # Its ids from another column, the gate naming it by its "id" property (review).
+    doc["features"][0]["properties"]["plot"] = "P1"
+    doc["features"][1]["properties"]["plot"] = "P2"
+    farm = load_farm(write(tmp_path, doc), FarmOptions(id_field="plot"))
+    assert farm.gates[0].field_id == "P1"
     doc["features"][1]["properties"]["id"] = composed
     assert "duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
 

@@ -321,20 +321,40 @@ TWO_PONDS = """<innerBoundaryIs><LinearRing><coordinates>
 <Placemark><name>Creek</name>"""
 
 
-@pytest.mark.parametrize("suffix", [".kml", ".kmz"])
-def test_two_ponds_in_one_kml_inner_boundary_are_both_left_out(tmp_path, suffix):
+# Text a KML may hold that the mending must pass over as it is: a description (CDATA)
+# naming the element, and an old outline of two rings commented out.
+ASIDES = (
+    "<description><![CDATA[holes go in <innerBoundaryIs>]]></description><!-- old: "
+    "<outerBoundaryIs><LinearRing><coordinates>1,1 2,1 2,2 1,1</coordinates></LinearRing>"
+    "<LinearRing><coordinates>1,1 2,1 2,2 1,1</coordinates></LinearRing></outerBoundaryIs> -->"
+)
+
+
+@pytest.mark.parametrize("layout", ["kml", "kml with asides", "kmz", "kmz linking a layer"])
+def test_two_ponds_in_one_kml_inner_boundary_are_both_left_out(tmp_path, layout):
     """Some tools write a field's holes as rings of one innerBoundaryIs; GDAL kept the last
-    and dropped the others without a word, and a pond would have been worked through."""
+    and dropped the others without a word, and a pond would have been worked through. In a
+    KMZ, every KML document GDAL may read (GDAL writes its layers as files the first links
+    to); comments and CDATA sections are passed over (review)."""
     text = GOOGLE_EARTH_KML.replace(
         "</Polygon></Placemark>\n<Placemark><name>Creek</name>", TWO_PONDS
     )
     assert text.count("<LinearRing>") == GOOGLE_EARTH_KML.count("<LinearRing>") + 2
-    path = tmp_path / f"farm{suffix}"
-    if suffix == ".kmz":
+    path = tmp_path / f"farm.{layout[:3]}"
+    if layout == "kml with asides":
+        text = text.replace("<name>North 40</name>", "<name>North 40</name>" + ASIDES)
+    if layout.startswith("kmz"):
         import zipfile
 
+        link = "<NetworkLink><Link><href>layers/fields.kml</href></Link></NetworkLink>"
         with zipfile.ZipFile(path, "w") as kmz:
-            kmz.writestr("doc.kml", text)
+            if layout == "kmz":
+                kmz.writestr("doc.kml", text)
+            else:
+                kmz.writestr(
+                    "doc.kml", GOOGLE_EARTH_KML.split("<Folder>")[0] + link + "</Document></kml>"
+                )
+                kmz.writestr("layers/fields.kml", text)
             kmz.writestr("files/icon.png", b"not read")
     else:
         path.write_text(text)
