@@ -34,7 +34,13 @@ from typing import Any
 
 from dispatcher.config.errors import ConfigError
 from dispatcher.link import wire
-from dispatcher.link.keys import PRIVATE_MODE, private_folder, refuse_unless_private, write_file
+from dispatcher.link.keys import (
+    PRIVATE_MODE,
+    private_folder,
+    refuse_unless_closed,
+    refuse_unless_private,
+    write_file,
+)
 
 DISPATCHER = "dispatcher"
 ROUTER = "router"
@@ -179,6 +185,7 @@ def check_private(path: Path, what: str, remedy: str) -> None:
             f"{path}: missing ({what}); make it with `agrifleet certs SCENARIO {remedy}`"
         ) from None
     refuse_unless_private(status, path, what, AccessError)
+    refuse_unless_closed(path.parent, "the farm's certificates", AccessError)
 
 
 # --- the access-control list --------------------------------------------------------

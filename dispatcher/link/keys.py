@@ -46,6 +46,7 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
     """The signing key of ``vehicle_id``; :class:`SigningKeyError` names the file and what is
     wrong with it."""
     path = key_path(keys_dir, vehicle_id)
+    refuse_unless_closed(path.parent, "the signing keys", SigningKeyError)
     try:
         status = path.stat()
     except FileNotFoundError:
@@ -97,12 +98,22 @@ def refuse_unless_private(
             f"{path}: {what} is open to group or others (mode {stat.S_IMODE(mode):03o}); "
             f"make it the owner's only: chmod 600 {path}"
         )
+    foreign = _foreign_owner(status, path)
+    if foreign:
+        raise error(f"{path}: {what} belongs to {foreign}")
+
+
+def _foreign_owner(status: os.stat_result, path: Path) -> str:
+    """Whose ``path`` is, and the fix, when not the user agrifleet runs as nor root's
+    (they could replace it); empty when it is theirs."""
     me = os.geteuid()
-    if status.st_uid not in (me, 0):
-        raise error(
-            f"{path}: {what} belongs to {_user(status.st_uid)}, who could replace it, not to "
-            f"{_user(me)} who runs agrifleet (or root): chown {_user(me)} {path}"
-        )
+    if status.st_uid in (me, 0):
+        return ""
+    owner, runner = _user(status.st_uid), _user(me)
+    return (
+        f"{owner}, who could replace it, not to {runner} who runs agrifleet (or root): "
+        f"chown {runner} {path}"
+    )
 
 
 def _user(uid: int) -> str:
@@ -134,12 +145,25 @@ def private_folder(folder: Path, what: str, error: type[ConfigError]) -> None:
     """Make ``folder`` (mode 700), or refuse one that exists and that group or others may
     write in: whoever can could put their files in place of the keys."""
     folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    mode = folder.stat().st_mode
-    if mode & (stat.S_IWGRP | stat.S_IWOTH):
+    refuse_unless_closed(folder, what, error)
+
+
+def refuse_unless_closed(folder: Path, what: str, error: type[ConfigError]) -> None:
+    """``error`` naming the folder and the fix when group or others may write in it, or it
+    belongs to a user other than the one agrifleet runs as (or root): whoever can could
+    rename their own file over a key in it (checked on reading too, not only on writing)."""
+    try:
+        status = folder.stat()
+    except OSError:
+        return  # the file in it is then missing, and said so
+    if status.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
         raise error(
             f"{folder}: the folder of {what} may be written by group or others (mode "
-            f"{stat.S_IMODE(mode):03o}): `chmod 700 {folder}` first"
+            f"{stat.S_IMODE(status.st_mode):03o}): `chmod 700 {folder}` first"
         )
+    foreign = _foreign_owner(status, folder)
+    if foreign:
+        raise error(f"{folder}: the folder of {what} belongs to {foreign}")
 
 
 def read_keys(keys_dir: str | os.PathLike[str], vehicle_ids: Iterable[str]) -> dict[str, bytes]:

@@ -167,6 +167,25 @@ def test_a_key_file_of_another_user_is_refused_naming_both(tmp_path: Path, monke
         assert read_key(tmp_path, "t1")  # root's
 
 
+def test_keys_in_a_folder_others_may_write_are_refused_on_reading(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """Whoever may write in the keys' folder can rename a key of theirs over one there: the
+    folder was checked when keys were made, not when read (review)."""
+    folder = tmp_path / "keys"
+    write_keys(folder, ["t1"])
+    folder.chmod(0o770)
+    with pytest.raises(SigningKeyError, match=r"keys: the folder of the signing keys may be "):
+        read_key(folder, "t1")
+    folder.chmod(0o700)
+    assert read_key(folder, "t1")
+    if os.geteuid() == 0:
+        os.chown(folder, 4243, -1)  # the folder another user's
+    monkeypatch.setattr("dispatcher.link.keys.os.geteuid", lambda: 4242)
+    with pytest.raises(SigningKeyError, match=r"keys: the folder of the signing keys belongs to"):
+        read_key(folder, "t1")
+
+
 def test_two_vehicles_with_one_key_and_unsigned_with_keys_are_refused(
     tmp_path: Path, capsys
 ) -> None:
