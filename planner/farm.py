@@ -263,8 +263,7 @@ def farm_from_geojson(
                 if len(parts) == 1
                 else [part_name(field_id, n) for n in range(len(parts))]
             )
-            named_id = _text(_prop(props, "id"))  # a gate may name it so (NFC, as its own)
-            for alias in {field_id, unicodedata.normalize("NFC", named_id or field_id)}:
+            for alias in {field_id, _text(_prop(props, "id")) or field_id}:
                 aliases.setdefault(alias, []).extend(part_ids)
             for n, rings in enumerate(parts):
                 part_id = part_ids[n]
@@ -299,7 +298,7 @@ def farm_from_geojson(
                 raise GeometryError(
                     f"{where} (gate): a gate needs properties.field, the id of its field"
                 )
-            field_id = unicodedata.normalize("NFC", named)  # as the field's own (_field_id)
+            field_id = named
             if geom.get("type") != "Point":
                 raise GeometryError(f"{where} (gate of {field_id!r}): a gate must be a Point")
             where = f"{where} (gate of {field_id!r})"
@@ -585,9 +584,11 @@ def _kind(props: dict[str, Any], geom: dict[str, Any], where: str) -> str:
 
 def _text(value: Any) -> str | None:
     """An id or name as text: a string, or a whole number (shapefile and GeoPackage
-    columns are often integers); None for anything else."""
+    columns are often integers); None for anything else. Taken in Unicode's composed form
+    (NFC): "Großer Schlag" typed on one machine and copied from a macOS file name on
+    another (decomposed, NFD) look alike and are one field, whose gate finds it."""
     if isinstance(value, str) and value.strip():
-        return value.strip()
+        return unicodedata.normalize("NFC", value.strip())
     if isinstance(value, bool):
         return None
     if isinstance(value, int):
@@ -602,10 +603,8 @@ def _field_id(props: dict[str, Any], id_field: str | None, k: int, where: str) -
     one broke the printed plan's table, and it goes into every file written (review). The
     invisible marks of scripts written with them are no control characters: Persian
     needs the zero-width non-joiner, right-to-left text its marks, and a soft hyphen is
-    text (all refused before). Taken in Unicode's composed form (NFC): "Großer Schlag"
-    typed on one machine and copied from a macOS file name on another (decomposed, NFD)
-    look alike and are one field, whose gate finds it."""
-    found = unicodedata.normalize("NFC", _field_id_of(props, id_field, k, where))
+    text (all refused before). In Unicode's composed form, as :func:`_text` gives it."""
+    found = _field_id_of(props, id_field, k, where)
     if any(
         unicodedata.category(c) in NOT_IN_AN_ID
         or (unicodedata.category(c) == "Cf" and c not in MARKS_IN_AN_ID)

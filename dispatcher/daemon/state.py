@@ -731,7 +731,7 @@ class FleetState:
         to that last event (was: not at all), and one that stays lost (left out) on from
         the restart until heard again. Its clock, new, goes on from the latest time stored
         of it (:attr:`RunClock.floor`)."""
-        v.clock.floor = v.sim_time_s = max(v.clock.floor, v.sim_time_s, v.progress_s or 0.0)
+        v.sim_time_s = max(v.sim_time_s, v.clock.floor)
         if v.phase is Phase.DONE:
             return
         v.lost_before_restart = v.phase is Phase.LOST and not v.retired

@@ -232,11 +232,7 @@ class ZenohOptions:
             return
         value = json.loads(conf.get_json("listen/endpoints"))
         endpoints = self._listen_endpoints(conf)
-        exposed = [
-            e
-            for e in endpoints
-            if isinstance(e, str) and not e.startswith("tls/") and not is_loopback(e)
-        ]
+        exposed = [e for e in endpoints if not e.startswith("tls/") and not is_loopback(e)]
         if exposed:
             source = (
                 "--cfg"

@@ -397,9 +397,8 @@ class _Bridge:
             log.error("%s", exc)
             return False
         log.info("autopilot link %s open", self.url)
-        if self.autopilot_signs and self.key is not None:
-            self.link.verify_with(self.key)  # it signs still: take nothing unsigned
-            self._link_unsigned = 0
+        if self.autopilot_signs:
+            self._verify_link()  # it signs still: take nothing unsigned
         if self.setup_key is not None:
             self._setup_signing(self.setup_key)
         self.stats["links_opened"] += 1
@@ -516,13 +515,18 @@ class _Bridge:
             and mc.signature_good(raw, self.key)
         ):
             self.autopilot_signs = True
-            assert self.link is not None
-            self.link.verify_with(self.key)
-            self._link_unsigned = 0
+            self._verify_link()
             log.info(
                 "%s: the autopilot signs: its link takes only signed frames now", self.vehicle.id
             )
         return True
+
+    def _verify_link(self) -> None:
+        """The autopilot's link takes only frames signed with the key from now on
+        (pymavlink checks them); what it refuses is counted from here."""
+        assert self.link is not None and self.key is not None
+        self.link.verify_with(self.key)
+        self._link_unsigned = 0
 
     def _unsigned_dropped(self, count: int) -> None:
         """``count`` more unsigned frames dropped on the link of an autopilot that signs:
