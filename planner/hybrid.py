@@ -203,15 +203,6 @@ class HybridParams(IGHOAParams):
     # seeds 1-5 33.116 h on average without, 33.138 h at 0.2 (benchmarks/RESULTS.md,
     # 2026-11-28 09:20).
     squeeze_exchange_empty: float = 0.2
-    # Under the makespan, each generation of the squeeze this many re-packings of
-    # ``repack_size`` neighbouring routes of its walk (planner.repack: their fields shared
-    # out again among their machines by a small integer program, kept if the squeeze's
-    # figure falls); 0: never. The squeeze's moves change one field at a time; two routes
-    # re-packed trade two fields for one, three for two. Six passes, 60 s, seeds 1-6:
-    # 319.107 h on average without, 319.015 h with 10-20 pairs (benchmarks/RESULTS.md,
-    # 2026-11-29 08:30); the one-pass farms level.
-    repack_groups: int = 20
-    repack_size: int = 2
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -219,17 +210,14 @@ class HybridParams(IGHOAParams):
             min(self.ils_steps, self.ruin, self.tour_kicks, self.route_kicks) < 0
             or min(self.population_tasks, self.cyclic_exchange_rounds) < 0
             or self.squeeze_exchange_rounds < 0
-            or self.repack_groups < 0
             or not self.squeeze_exchange_road >= 0.0  # NaN too
             or self.perturb < 1
         ):
             raise ValueError(
                 "ils_steps, ruin, tour_kicks, route_kicks, population_tasks, "
-                "cyclic_exchange_rounds, squeeze_exchange_rounds, squeeze_exchange_road and "
-                "repack_groups must be >= 0 and perturb >= 1"
+                "cyclic_exchange_rounds, squeeze_exchange_rounds and squeeze_exchange_road "
+                "must be >= 0 and perturb >= 1"
             )
-        if self.repack_size < 2:
-            raise ValueError(f"repack_size must be >= 2 routes, not {self.repack_size}")
         shares = (self.tour_share, self.distance_share, self.restart, self.squeeze_exchange_empty)
         if not all(0.0 <= x <= 1.0 for x in shares):
             raise ValueError(

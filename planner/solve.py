@@ -60,7 +60,6 @@ from planner.pins import repair_pins
 from planner.population import random_counts
 from planner.problem import Problem
 from planner.relaxation import hour_weights
-from planner.repack import repack
 from planner.rng import make_state, randint, shuffle
 from planner.sa import AnnealingParams, anneal
 
@@ -461,7 +460,6 @@ def solve(
         "other_gains": 0.0,
         "cyclic_exchange_gains": 0.0,
         "squeeze_exchange_gains": 0.0,
-        "repack_gains": 0.0,
     }
     gen = 0
     # hybrid's makespan cap (0: none yet): finish_within_h once a plan is within it, or in
@@ -485,7 +483,6 @@ def solve(
     exchanged_perm, exchanged_counts = elite_perm.copy(), elite_counts.copy()
     exchanged_route, exchanged_cost = elite_route.copy(), elite_cost
     exchange_state = make_state(seed + 0x5EED)
-    repack_state = make_state(seed + 0x9ACC)  # planner.repack's draws of routes
     exchanged_done = False
     # The elite's cost when it last improved, and the progress of the run then.
     improved_cost, improved_at = elite_cost, 0.0
@@ -584,14 +581,12 @@ def solve(
                 walk_route[:], walk_cost = elite_route, before
             # Under the makespan (not in the slack's last share) the ILS is the squeeze.
             squeeze = params.squeeze_at(gen) if obj == Objective.MAKESPAN and cap == 0.0 else 0.0
-            if squeeze != 0.0:
-                target = float(elite_route.max()) * (1.0 - squeeze)
-                walk = (walk_perm, walk_counts, walk_route)
-                elite = (elite_perm, elite_counts, elite_route)
+            if squeeze != 0.0 and params.squeeze_exchange_rounds > 0:
                 # The squeeze's walk first handed round by cyclic exchanges under its figure,
                 # no route past the walk's makespan (a walk that comes out ahead of the
                 # elite on the makespan is the new elite).
-                if params.squeeze_exchange_rounds > 0 and cyclic_exchange(
+                target = float(elite_route.max()) * (1.0 - squeeze)
+                if cyclic_exchange(
                     state, walk_perm, walk_counts, tables, pins, float(walk_route.max()),
                     params.squeeze_exchange_rounds, stop.deadline(), target,
                     float(params.squeeze_exchange_road), float(params.squeeze_exchange_empty),
@@ -599,18 +594,13 @@ def solve(
                 ) > 0.0:  # fmt: skip
                     improve_routes(walk_perm, walk_counts, tables[0], tables[1], tables[2],
                                    neighbours, pins)  # fmt: skip
-                    walk_cost, improved = _walk_ahead(obj, tables, walk, elite, improved)
+                    walk_cost = float(
+                        evaluate(walk_perm, walk_counts, int(obj), tables, walk_route)
+                    )
                     stats["squeeze_exchange_gains"] += 1.0
-                # Then a few neighbouring routes of the walk re-packed (planner.repack).
-                if params.repack_groups > 0:
-                    evaluate(walk_perm, walk_counts, int(obj), tables, walk_route)
-                    if repack(
-                        repack_state, walk_perm, walk_counts, walk_route, int(obj), tables,
-                        neighbours, pins, min_count, target, float(walk_route.max()),
-                        params.repack_groups, params.repack_size, stop.deadline(),
-                    ) > 0.0:  # fmt: skip
-                        walk_cost, improved = _walk_ahead(obj, tables, walk, elite, improved)
-                        stats["repack_gains"] += 1.0
+                    if walk_cost < improved:
+                        elite_perm[:], elite_counts[:] = walk_perm, walk_counts
+                        elite_route[:], improved = walk_route, walk_cost
             # In chunks, so that a stop flag is seen between them.
             for done in range(0, params.ils_steps, ILS_CHUNK):
                 if stop.interrupted():
@@ -760,23 +750,6 @@ def solve(
         elapsed_s=elapsed,
         stats=stats,
     )
-
-
-def _walk_ahead(
-    obj: Objective,
-    tables: tuple[np.ndarray, ...],
-    walk: tuple[np.ndarray, np.ndarray, np.ndarray],
-    elite: tuple[np.ndarray, np.ndarray, np.ndarray],
-    improved: float,
-) -> tuple[float, float]:
-    """After a change to the squeeze's walk (perm, counts, route costs): its cost, and the
-    elite's, the walk copied into the elite (in place) when it has come out ahead."""
-    cost = float(evaluate(walk[0], walk[1], int(obj), tables, walk[2]))
-    if cost < improved:
-        for into, value in zip(elite, walk, strict=True):
-            into[:] = value
-        improved = cost
-    return cost, improved
 
 
 def _check_finish_within(hours: float, algorithm: str, slack: float) -> None:
