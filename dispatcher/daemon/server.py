@@ -101,8 +101,9 @@ answers whose work went to the others, while it is heard: whether it hears us ag
 FIX_TIMEOUT_S = 120.0
 """Wall seconds a rebooted autopilot has to say where it is (a GPS fix: ArduPilot drives
 no mission without one) before its start fails and its work goes to the others (when
-there are others and work ahead of it; else it is waited for); it is asked again once it
-says where it is (Dispatcher._probe), and rejoins if it answers."""
+there are others and work ahead of it; else it is waited for, with a warning every
+FIX_TIMEOUT_S); it is asked again once it says where it is (Dispatcher._probe), and
+rejoins if it answers."""
 LOWERING_RETRIES = 2
 """Resends of a lowering of the implement (Dispatcher._lower_when_past) before it counts as
 unanswered: each send is checked to be still right where the vehicle drives, so few."""
@@ -836,6 +837,15 @@ class Dispatcher:
                 )
                 self._apply(ev.StartFailed(vid, error), now)
                 self._log("error", f"{vid}: {error}")
+            elif now - link.awaiting_fix > FIX_TIMEOUT_S:
+                # Nobody to take its work: waited for (an RTK fix can take minutes), and
+                # the operator told so every FIX_TIMEOUT_S.
+                link.awaiting_fix = now
+                self._log(
+                    "warning",
+                    f"{vid}: still no position since its autopilot rebooted (no GPS fix?); "
+                    "its work waits for it: no other tractor can take it",
+                )
         elif not v.needs_restart and (failsafe := self._failsafe_over(v, link)):
             link.start_item = v.resume_item
             self._log(

@@ -549,10 +549,12 @@ def test_a_rebooted_autopilot_with_no_fix_has_its_work_re_planned_and_is_asked_a
     assert v.phase is Phase.ALIVE and not v.needs_restart  # to rejoin with a new mission
 
 
-def test_a_rebooted_autopilot_with_no_fix_and_nobody_to_take_its_work_is_waited_for(dispatch):
+def test_a_rebooted_autopilot_with_no_fix_and_nobody_to_take_its_work_is_waited_for(
+    dispatch, caplog
+):
     """Its work would go nowhere (the others gone, or nothing re-plans): failing it would
-    leave its work undone and it stranded; it is waited for, and started once it says
-    where it is."""
+    leave its work undone and it stranded; it is waited for, the operator told why every
+    FIX_TIMEOUT_S, and started once it says where it is."""
     from dispatcher.daemon.server import FIX_TIMEOUT_S
 
     items = daemon_for(dispatch).state.vehicles["v1"].items
@@ -563,11 +565,14 @@ def test_a_rebooted_autopilot_with_no_fix_and_nobody_to_take_its_work_is_waited_
         if other is not v:
             other.phase = Phase.FAILED
     now = 4.0
-    while now < 3.1 + 2 * FIX_TIMEOUT_S:
-        feed(daemon.state, "v1", position(int(now * 1000), 0, 0), now)  # no fix
-        daemon._advance("v1", now)
-        now += 1.0
+    with caplog.at_level("WARNING"):
+        while now < 3.1 + 2.5 * FIX_TIMEOUT_S:
+            feed(daemon.state, "v1", position(int(now * 1000), 0, 0), now)  # no fix
+            daemon._advance("v1", now)
+            now += 1.0
     assert v.phase is Phase.RUNNING and v.needs_restart and not commands_to(daemon, "v1", 11)
+    assert caplog.text.count("v1: still no position since its autopilot rebooted") == 2
+    assert "no other tractor can take it" in caplog.text
     placed = next(k for k in range(down, 0, -1) if items[k].x)  # where its line starts
     feed(daemon.state, "v1", position(int(now * 1000), *at_item(dispatch, placed)), now)
     daemon._advance("v1", now)
