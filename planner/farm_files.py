@@ -39,6 +39,9 @@ log = logging.getLogger(__name__)
 
 GEOJSON_SUFFIXES = (".geojson", ".json")
 ISOXML_NAME = "TASKDATA.XML"
+# The newest ISO 11783-10 (TaskData) version this reader knows (VersionMajor; the partfield,
+# polygon, line-string and point elements read here are the same in versions 3 and 4).
+ISOXML_MAJOR = 4
 WGS84 = pyproj.CRS.from_epsg(4326)
 CONVERTED_DECIMALS = 7
 """Converted lon/lat are rounded to 1e-7 degrees (~1 cm, a MAVLink position's step): a
@@ -549,7 +552,8 @@ def read_isoxml(path: Path) -> Document:
     (PFD A), ``code`` (B) and ``name`` (C, the designator); its outer LSG (type 1) and holes
     (type 2) are the rings, from their PNTs (C latitude, D longitude). Several boundary
     PLNs make a multi-part field. PNTs of type 3 (field access) in a PFD are its gates, a
-    PNT of type 11 (home base) is the garage."""
+    PNT of type 11 (home base) is the garage. A VersionMajor other than 0 to
+    :data:`ISOXML_MAJOR` is read as that version, with a warning."""
     source = path
     main = ISOXML_NAME  # the TASKDATA.XML: in a zip, its name there
     try:
@@ -571,6 +575,13 @@ def read_isoxml(path: Path) -> Document:
     except (OSError, zipfile.BadZipFile) as exc:
         raise GeometryError(f"{path}: cannot read the farm: {exc}") from exc
     root = _isoxml_root(data, source, "ISO11783_TaskData")
+    version = (root.get("VersionMajor") or "").strip()
+    if version and not (version.isdigit() and int(version) <= ISOXML_MAJOR):
+        log.warning(
+            "%s: ISO 11783-10 VersionMajor %r, not one this reader knows (up to %d); read as "
+            "version %d: check the fields it gives",
+            source, version, ISOXML_MAJOR, ISOXML_MAJOR,
+        )  # fmt: skip
     for xfr in root.findall("XFR"):  # partfields and the rest kept in external files
         name = f"{xfr.get('A', '')}.XML"
         try:

@@ -583,6 +583,19 @@ def test_isoxml_water_and_obstacles_are_not_worked(tmp_path):
     assert whole.area_m2 - field.area_m2 == pytest.approx(pond, rel=0.01)
 
 
+def test_isoxml_of_a_newer_version_than_known_is_read_with_a_warning(tmp_path, caplog):
+    path = tmp_path / "TASKDATA.XML"
+    for version, warned in (("4", False), ("3", False), ("5", True), ("v5", True)):
+        text = TASKDATA.format(ns="", body=ISOXML_PFD.format(more=""))
+        path.write_text(text.replace('VersionMajor="4"', f'VersionMajor="{version}"'))
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="planner.farm_files"):
+            (field,) = load_farm(path).fields
+        assert field.id == "PFD1"
+        said = f"{path}: ISO 11783-10 VersionMajor '{version}', not one this reader knows (up to 4)"
+        assert (said in caplog.text) == warned, version
+
+
 BOWTIE = """<PLN A="4" B="Stall"><LSG A="1"><PNT A="2" C="50.0005" D="10.001"/>
 <PNT A="2" C="50.0015" D="10.002"/><PNT A="2" C="50.0005" D="10.002"/>
 <PNT A="2" C="50.0015" D="10.001"/></LSG></PLN>"""
