@@ -839,7 +839,8 @@ class Dispatcher:
                 self._log("error", f"{vid}: {error}")
             elif now - link.awaiting_fix > FIX_TIMEOUT_S:
                 # Nobody to take its work: waited for (an RTK fix can take minutes), and
-                # the operator told so every FIX_TIMEOUT_S.
+                # the operator told so every FIX_TIMEOUT_S (should others come back, its
+                # start fails FIX_TIMEOUT_S after the last telling).
                 link.awaiting_fix = now
                 self._log(
                     "warning",
