@@ -553,7 +553,8 @@ def read_isoxml(path: Path) -> Document:
     (type 2) are the rings, from their PNTs (C latitude, D longitude). Several boundary
     PLNs make a multi-part field. PNTs of type 3 (field access) in a PFD are its gates, a
     PNT of type 11 (home base) is the garage. A VersionMajor this reader does not know
-    (above :data:`ISOXML_MAJOR`, or not a number) is read as that version, with a warning."""
+    (above :data:`ISOXML_MAJOR`, or not a number) is read as version :data:`ISOXML_MAJOR`,
+    with a warning."""
     source = path
     main = ISOXML_NAME  # the TASKDATA.XML: in a zip, its name there
     try:
