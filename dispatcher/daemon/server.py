@@ -233,6 +233,7 @@ class _Link:
     switch_from: int | None = None  # re-planned while driving: the first item of its new route
     join: int | None = None  # and where it went on in it, having driven past the kept part
     topup_from: int | None = None  # topping up: how many items it held before
+    sent_on_from: int = 0  # the end of the window it was last started again after
     # The upload under way: (the plan item it begins at, its items with home), the
     # vehicle's numbering once it is acknowledged (link/numbering.py).
     numbered: tuple[int, int] | None = None
@@ -1061,10 +1062,15 @@ class Dispatcher:
         under it (it keeps driving the items it holds), read the new items back, and start
         it again if it reached the end of its old window meanwhile (it stopped there)."""
         if link.topup_from is None:
+            if self._stands_at_old_window_end(v, link, now):
+                # Its reports of the end of its old window were lost when the top-up ended
+                # (a 30 %-loss radio: taken to be driving, it stood there for good).
+                self._on_from_window_end(v, link, now, v.held_before)
+                return
             count = self._topup_due(v, link)
             if count is None:
                 return
-            link.topup_from = v.held
+            link.topup_from, link.sent_on_from = v.held, 0
             self._apply(ev.WindowExtended(v.id, count), now)
             self._log(
                 "info",
@@ -1104,29 +1110,61 @@ class Dispatcher:
         sent = count_on_board(v.held, v.numbering.base)
         self._upload_took[v.id] = (now - link.since, sent + v.held - old_end)
         self.topups.append((v.id, sent))
-        complete = v.mission_state == mc.MISSION_STATE_COMPLETE
-        at_end = v.current >= old_end - 1
         if (
             (v.reached >= old_end - 1 and v.current < old_end)
-            or complete
+            or v.mission_state == mc.MISSION_STATE_COMPLETE
             or (v.driving and v.mission_stopped)
         ):
-            # It reached the end of what it held before the new items were there: it
-            # stands there, its mission complete; on from the next item (the first new one
-            # when its autopilot says so and what said it reached the last is lost). Or,
-            # renumbered under way, it stopped at the item it drove to from memory (or the
-            # set-current came after it): on after that one.
-            self.window_waits += 1
-            if complete and at_end:
-                link.start_item = max(v.go_on_item, old_end)
-            elif complete or v.mission_stopped:
-                link.start_item = v.go_on_item
-            else:
-                link.start_item = v.resume_item
-            self._log(
-                "info", f"{v.id}: waited at the end of its window; on at item {link.start_item}"
+            self._on_from_window_end(v, link, now, old_end)
+
+    def _stands_at_old_window_end(self, v: VehicleState, link: _Link, now: float) -> bool:
+        """Whether a driving vehicle given its next window says, since, that its mission is
+        complete at the end of the window it held before (``v.held_before``), short of the
+        end of what it holds now: it stands there, and nothing else will send it on. Not
+        once it was sent on from there (a late report from before its start would start it
+        twice), nor while its last start's news settles (CURRENT_SETTLE_S) or anything else
+        is under way."""
+        old_end = v.held_before
+        return (
+            0 < old_end < v.held
+            and v.phase is Phase.RUNNING
+            and v.driving
+            and v.mission_state == mc.MISSION_STATE_COMPLETE
+            and old_end - 1 <= v.current < v.held - 1
+            and v.current_of_last_upload
+            and link.sent_on_from != old_end
+            and (v.started_at is None or now - v.started_at >= CURRENT_SETTLE_S)
+            and not (
+                link.busy
+                or link.renumbered
+                or link.hold is not None
+                or v.switch
+                or v.resuming
+                or v.needs_restart
+                or v.retired
+                or v.operator_hold
+                or self._replan is not None
+                or bool(self._replan_reason)
             )
-            self._start(v, link, now, in_auto=True)
+        )
+
+    def _on_from_window_end(self, v: VehicleState, link: _Link, now: float, old_end: int) -> None:
+        """Start again a vehicle that reached the end of what it held (``old_end`` items)
+        before its next window was on board: it stands there, its mission complete; on
+        from the next item (the first new one when its autopilot says so and what said it
+        reached the last is lost). Or, renumbered under way, it stopped at the item it
+        drove to from memory (or the set-current came after it): on after that one."""
+        self.window_waits += 1
+        link.sent_on_from = old_end
+        complete = v.mission_state == mc.MISSION_STATE_COMPLETE
+        if complete and v.current >= old_end - 1:
+            link.start_item = max(v.go_on_item, old_end)
+        elif complete or v.mission_stopped:
+            link.start_item = v.go_on_item
+        else:
+            link.start_item = v.resume_item
+        self._log("info", f"{v.id}: waited at the end of its window; on at item {link.start_item}")
+        self._start(v, link, now, in_auto=True)
 
     def _send_window(self, v: VehicleState, link: _Link, now: float, switch: bool = False) -> None:
         """Upload the part of its mission the vehicle is to hold (``v.held`` items): home

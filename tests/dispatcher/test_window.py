@@ -137,6 +137,49 @@ def test_a_vehicle_near_the_end_of_its_window_is_topped_up_and_started_if_it_sto
     assert link.start_item == held
 
 
+def test_a_vehicle_heard_to_stand_at_its_old_windows_end_after_its_top_up_is_started_again(
+    dispatch,
+):
+    """A lossy radio (CI, 30 % loss): the tractor drove the last items of its window while
+    the top-up went up; its reports of the last item and of its mission's end were lost, so
+    when the read-back ended it was taken to be driving. Its autopilot says it is complete
+    at the end of its old window only afterwards (every second, with the longer total):
+    started again then, at the first new item, not left standing for ever (the run waited
+    240 s for it); once, not again while the start's news settles."""
+    daemon = windowed(dispatch)
+    daemon.config.topup_lead_s = 1e6  # its top-up due at once
+    vid = "v1"
+    v = drive(daemon, vid, 5, 0.0)
+    held = v.held
+    feed(daemon.state, vid, mission_current(11, held - 3, held - 1, STATE_ACTIVE), 1.0)
+    daemon._advance(vid, 1.0)
+    link = daemon.links[vid]
+    assert link.upload is not None and link.topup_from == held
+    link.upload.outcome = Outcome.DONE
+    daemon._advance(vid, 2.0)
+    answer_read_back(daemon, vid, 11, 2.5)
+    daemon.config.topup_lead_s = 0.0  # its next window not yet due
+    sent = len(daemon.publishers[vid].sent())
+    daemon._advance(vid, 3.0)
+    assert link.topup_from is None and link.start is None  # it drives, as far as is known
+    assert daemon.publishers[vid].sent()[sent:] == []
+    stands = mission_current(11, held - 1, v.held - 1, mc.MISSION_STATE_COMPLETE)
+    feed(daemon.state, vid, stands, 4.0)
+    assert v.at_window_end and daemon.state.stalled_for(v, 0.0, 100.0) is None
+    daemon._advance(vid, 4.0)
+    commands = [(m.command, m.param1, m.param2) for m in daemon.publishers[vid].sent()[sent:]]
+    assert commands == [(mc.MAV_CMD_DO_SET_MODE, 1.0, 4.0)]  # HOLD, then on (in AUTO)
+    assert link.start is not None and link.start_item == held
+    assert daemon.window_waits == 1
+    # started; its next report late: what it said before does not start it twice
+    link.start.outcome = Outcome.DONE
+    daemon.state.apply(ev.MissionStarted(vid, held), 5.0)
+    sent = len(daemon.publishers[vid].sent())
+    for now in (6.0, 8.0, 30.0):
+        daemon._advance(vid, now)
+    assert daemon.publishers[vid].sent()[sent:] == [] and daemon.window_waits == 1
+
+
 def test_a_replan_that_leaves_the_window_alone_uploads_nothing_now(dispatch):
     state = FleetState(dispatch.document)
     vid = dispatch.document.machines[0].id
