@@ -341,7 +341,13 @@ class VehicleState:
         window is on its way: at the end of the one it held before (not beyond)."""
         if self.held < len(self.items) and self.reached >= self.held - 1:
             return True
-        if self.held_before > 0 and self.reached == self.held_before - 1:
+        if (
+            self.held_before > 0
+            and self.reached == self.held_before - 1
+            and self.current < self.held_before
+        ):
+            # Not once its autopilot says it heads for the first new item (it holds it):
+            # one that gets nowhere then is stuck on the way, not waiting.
             return True
         # Its autopilot says its mission is complete at the last item of what it holds:
         # the report of that item was lost, or doubted (a demo at 2367x through a 10 %-loss

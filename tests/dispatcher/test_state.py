@@ -1588,6 +1588,14 @@ def test_a_tractor_whose_autopilot_says_its_window_is_complete_is_not_stalled(di
     assert v.at_window_end and state.stalled_for(v, 60.0, 50.0) is None
     v.current, v.mission_state = 5, mc.MISSION_STATE_ACTIVE  # really standing mid-window
     assert state.stalled_for(v, 60.0, 50.0) == 900.0
+    # At the last item of its old window, "active" heading there: its "complete" may be
+    # lost, it may wait there for its next window. Heading on to the first new item (it
+    # holds it) and getting nowhere: stuck on the way, stalled, not waiting for ever.
+    v.reached, v.mission_total = 7, 11
+    v.current = 7
+    assert v.at_window_end and state.stalled_for(v, 60.0, 50.0) is None
+    v.current = 8
+    assert not v.at_window_end and state.stalled_for(v, 60.0, 50.0) == 900.0
 
 
 def test_a_mission_driven_to_its_end_before_the_start_was_acknowledged_counts(dispatch):
