@@ -19,7 +19,7 @@ from dispatcher.cli.main import EXIT_BAD_INPUT
 from dispatcher.cli.main import main as cli_main
 from dispatcher.config.errors import ConfigError
 from dispatcher.daemon.state import FieldState, Phase, SetOff, VehicleState
-from dispatcher.mission.document import PlannedItem
+from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.recording.mcap_file import read_logs
 from dispatcher.review.report import review_contents, review_table
 from dispatcher.tools.demo import (
@@ -288,11 +288,12 @@ def test_a_killed_simulator_does_not_stop_the_demo(tmp_path: Path) -> None:
     assert review.planned_makespan_h == max(
         v.planned_time_h for v in review.vehicles if not v.left_out
     )
-    # The summary's hours are the review's (one rule for setting off and finishing), beside
-    # the first plan's figure: the re-plan changed v1's since.
-    assert "(first plan " in v1, summary
-    finished = re.search(r"finished after ([\d.]+) h", v1)
+    # The summary's hours are the review's (one rule for setting off and finishing), and
+    # so is its plan: v1's hours until the re-plan and the re-plan's for the rest.
+    finished = re.search(r"finished after ([\d.]+) h \(planned ([\d.]+) h\)", v1)
     assert finished and float(finished[1]) == pytest.approx(v1r.time_h, abs=0.011), summary
+    assert float(finished[2]) == pytest.approx(v1r.planned_time_h, abs=0.011), (summary, v1r)
+    assert "the re-plan's for the rest" in summary
 
 
 def _processes_with(word: str) -> list[int]:
@@ -352,6 +353,30 @@ def test_the_live_view_fits_80_columns_and_ends_on_the_final_state() -> None:
     assert "15/15 fields done" in last and "lost (simulator" in text, text
     # Hours since each tractor set off (SetOff, the review's rule: its clock at 9 999 s).
     assert status.worked_s(_six_tractors(0).vehicles["tractor-0"]) == pytest.approx(1.0)
+
+
+def test_the_live_views_plan_of_a_re_planned_tractor_is_its_hours_until_then_and_the_rest():
+    """The review's rule: a tractor given a new mission by a re-plan is planned the hours
+    it worked until the re-plan and what the re-plan gives it for the rest; one whose
+    mission the re-plan left as it was keeps its figure."""
+    farm = _six_tractors(0)
+    planned = {vid: 21.15 for vid in farm.vehicles}
+    status = LiveStatus(1714.0, planned, stream=io.StringIO(), period_s=0.0)
+
+    def plan(plan_id: str, hours: float) -> PlanDocument:
+        machines = [SimpleNamespace(id=vid, time_h=hours) for vid in farm.vehicles]
+        return SimpleNamespace(plan_id=plan_id, machines=machines)  # type: ignore[return-value]
+
+    status.follow_plans(farm, plan("first", 21.15))  # type: ignore[arg-type]
+    v = farm.vehicles["tractor-0"]
+    v.items = (*v.items, v.items[0])  # re-planned
+    farm.vehicles["tractor-1"].items = tuple(farm.vehicles["tractor-1"].items)  # the same
+    status.follow_plans(farm, plan("again", 2.0))  # type: ignore[arg-type]
+    assert status.planned_h["tractor-0"] == pytest.approx(status.worked_s(v) / 3600 + 2.0)
+    assert status.planned_h["tractor-1"] == 21.15
+    v.sim_time_s += 3600.0  # the same plan seen again: nothing changes
+    status.follow_plans(farm, plan("again", 2.0))  # type: ignore[arg-type]
+    assert status.planned_h["tractor-0"] == pytest.approx(1.0 / 3600 + 2.0)
 
 
 def test_the_default_speedup_fits_the_plan_into_the_target_but_not_faster_than_the_ceiling():

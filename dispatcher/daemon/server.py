@@ -1782,6 +1782,7 @@ class Dispatcher:
             self.recorder.record_plan(job.document.to_dict(), dict(job.geojson), time.time_ns())
         self._plan_json = job.document.to_json()
         self.publishers["plan"].put(self._plan_json)
+        self._publish_status(now)  # what each vehicle is to do now, at once
         gone = [vid for vid, v in self.state.vehicles.items() if v.retired]
         for vid in gone:
             v = self.state.vehicles[vid]

@@ -33,6 +33,7 @@ from dispatcher.daemon.store import Store
 from dispatcher.link import wire
 from dispatcher.link.keys import read_keys, write_keys
 from dispatcher.link.signals import stop_on_signals
+from dispatcher.mission.document import PlanDocument, PlannedItem
 from dispatcher.mission.plan import DispatchPlan
 from dispatcher.recording.address import DEFAULT_PORT as DEFAULT_LIVE_PORT
 from dispatcher.tools.replan import replanner_for
@@ -385,7 +386,9 @@ class LiveStatus:
         from rich.console import Console
 
         self.speedup = speedup
-        self.planned_h = planned_h
+        self.planned_h = planned_h  # each tractor's planned hours, as its last plan says
+        self._plan_id: str | None = None  # of the plan last followed (follow_plans)
+        self._missions: dict[str, tuple[PlannedItem, ...]] = {}  # each tractor's, then
         self.period_s = period_s
         self.marks: dict[str, str] = {}  # vehicle id -> a fault it has (see FaultInjector)
         self.console = Console(file=stream or sys.stdout, width=self.WIDTH, highlight=False)
@@ -404,6 +407,23 @@ class LiveStatus:
             return 0.0
         end = v.finished_s if v.finished_s is not None else v.sim_time_s
         return max(end - v.set_off.at_s, 0.0)
+
+    def follow_plans(self, state: FleetState, document: PlanDocument) -> None:
+        """The plan the dispatcher follows now is ``document``: a tractor whose mission a
+        re-plan changed is planned the hours it worked until the re-plan and the re-plan's
+        for the rest (the review's rule). The dispatcher publishes its status, and so
+        calls this, as it adopts a re-plan."""
+        if document.plan_id == self._plan_id:
+            return
+        first, self._plan_id = self._plan_id is None, document.plan_id
+        for m in document.machines:
+            v = state.vehicles.get(m.id)
+            if v is None:
+                continue
+            seen, self._missions[m.id] = self._missions.get(m.id), v.items
+            if first or seen is None or v.items == seen:
+                continue
+            self.planned_h[m.id] = self.worked_s(v) / 3600 + m.time_h
 
     def render(self, state: FleetState) -> Any:
         from rich import box
@@ -547,6 +567,7 @@ def run_demo(
     def progress(state: FleetState) -> None:
         if injector is not None:
             injector(state)
+        printer.follow_plans(state, daemon.job.document)
         printer(state)
 
     config.on_progress = progress
@@ -600,9 +621,11 @@ def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
     state = daemon.state
     status = result.status if result is not None else None
     lines = ["", "summary: (simulated hours, from when each tractor set off)"]
-    # The live view's plan figures are the first plan's; a re-plan changed them since (the
-    # review of the log sets each vehicle against the plan it last had).
-    planned_by = "first plan" if status is not None and daemon.replans else "planned"
+    if status is not None and daemon.replans:
+        lines.append(
+            "  (planned, of a tractor re-planned: the hours it worked until the re-plan and "
+            "the re-plan's for the rest, as the review counts)"
+        )
     for v in state.vehicles.values():
         not_done = [f.id for f in state.fields.values() if f.vehicle == v.id and f.status != "done"]
         if status is not None:
@@ -614,7 +637,7 @@ def summary(daemon: Dispatcher, result: DemoResult | None = None) -> str:
             f"  {v.id}: {v.phase.value}, fields {' '.join(v.fields_done) or '-'}"
             + (f", not done {' '.join(not_done)}" if not_done else "")
             + f", {'finished after ' if v.finished_s is not None else ''}"
-            f"{worked_s / 3600:.2f} h ({planned_by} {planned:.2f} h)"
+            f"{worked_s / 3600:.2f} h (planned {planned:.2f} h)"
             + (f", upload retries {v.upload_retries}" if v.upload_retries else "")
             + (f", {v.error}" if v.error else "")
         )
