@@ -388,7 +388,7 @@ class LiveStatus:
         self.speedup = speedup
         self.planned_h = planned_h  # each tractor's planned hours, as its last plan says
         self._plan_id: str | None = None  # of the plan last followed (follow_plans)
-        self._missions: dict[str, tuple[PlannedItem, ...]] = {}  # each tractor's, then
+        self._missions: dict[str, tuple[PlannedItem, ...]] = {}  # each tractor's under it
         self.period_s = period_s
         self.marks: dict[str, str] = {}  # vehicle id -> a fault it has (see FaultInjector)
         self.console = Console(file=stream or sys.stdout, width=self.WIDTH, highlight=False)
