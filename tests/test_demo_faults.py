@@ -380,13 +380,22 @@ def test_the_live_views_plan_of_a_re_planned_tractor_is_its_hours_until_then_and
 
 
 def test_the_default_speedup_fits_the_plan_into_the_target_but_not_faster_than_the_ceiling():
-    def plan(hours: float):  # type: ignore[no-untyped-def]
-        return SimpleNamespace(plan=SimpleNamespace(makespan_h=hours))
+    def plan(hours: float, items: int = 2181):  # type: ignore[no-untyped-def]
+        # the demo farm's busiest mission: 22.04 h over 2 180 items, 36.4 s an item
+        machines = [SimpleNamespace(time_h=22.04, items=[None] * items)]
+        return SimpleNamespace(
+            plan=SimpleNamespace(makespan_h=hours), document=SimpleNamespace(machines=machines)
+        )
 
     assert auto_speedup(plan(10.0)) == pytest.approx(10.0 * 3600.0 / TARGET_WALL_S)  # 800x
     assert auto_speedup(plan(0.001)) == 1.0  # never slower than real time
     assert auto_speedup(plan(40.0)) == MAX_AUTO_SPEEDUP  # 3 200x would make it late
-    # Through a lossy, slow radio the uploads take longer in wall time: a lower ceiling.
+    # Through a lossy, slow radio the uploads take longer in wall time: no faster than they
+    # keep up, three items over the radio for each driven, 0.41 s each at 30 % and 200 ms.
     lossy = Impairment(loss=0.3, duplicate=0.1, delay_s=0.2)
-    assert auto_speedup(plan(40.0), radio=lossy) == pytest.approx(MAX_AUTO_SPEEDUP * 0.49 / 3)
+    assert auto_speedup(plan(40.0), radio=lossy) == pytest.approx(36.38 / (3 * 0.4134), rel=1e-3)
+    assert 25.0 < auto_speedup(plan(40.0), radio=lossy) < 35.0
+    # a light loss does not hold the demo back; a longer item to drive allows more
+    assert auto_speedup(plan(40.0), radio=Impairment(loss=0.05)) == MAX_AUTO_SPEEDUP
+    assert auto_speedup(plan(40.0, items=1001), radio=lossy) > auto_speedup(plan(40.0), radio=lossy)
     assert auto_speedup(plan(40.0), radio=Impairment()) == MAX_AUTO_SPEEDUP

@@ -56,6 +56,16 @@ no upload retries; at 1 714x (what fits 45 s) the two with the longest missions 
 be sent in time, ``Dispatcher._stops_sooner``). 1 200x leaves a margin for a slower
 machine. Until 2026-11-27 the ceiling was 1 800x, chosen from runs whose simulator drove on
 at road speed after each start at a window's end (d67da2c), which hid the waits."""
+RADIO_ITEM_S = (0.26, 0.76, 3.8)
+"""Seconds one item of a mission upload takes through an impaired radio, from its loss p and
+its delay spread D (seconds): ``a p² / (1 − p) + b D + c p D``, these the a, b, c fitted to
+the transfer benchmark (benchmarks/RESULTS.md, 2026-11-28 04:45 and 2026-11-29 12:30; 200
+items, medians): 30 % loss and no delay 0.027 s an item, no loss and 0–200 ms late 0.15 s,
+both 0.41 s; 20 % loss and 20 ms 0.045 s (the fit 0.043 s). A late frame overtakes the one
+before it and ArduPilot takes only the item it expects, so the delay counts most."""
+UPLOAD_ITEMS_PER_ITEM = 3.0
+"""Items sent or read over the radio for each item of a mission driven: its upload, its
+read-back and what a top-up sends again (the demo's windows, docs/link.md)."""
 FAULT_CHECK_PERIOD_S = 0.1
 """How often (wall seconds) the share of the work is looked at when faults are planned (the
 dispatcher's status period, which calls the progress callback, is cut to this: its default,
@@ -95,14 +105,25 @@ def auto_speedup(
     dispatch: DispatchPlan, target_wall_s: float = TARGET_WALL_S, radio: Impairment | None = None
 ) -> float:
     """The speedup that runs the plan in ``target_wall_s``, within [1, MAX_AUTO_SPEEDUP];
-    through an impaired ``radio``, within that ceiling times the share of exchanges that get
-    through at the first try ((1 - loss)^2, a frame and its answer) over one plus ten times
-    the delay in seconds: the uploads run in wall time and take that much longer (a review:
-    30 % loss and 200 ms at 1 200x did not finish a field in 240 s, each window's upload
-    taking ~23 simulated hours)."""
+    through an impaired ``radio``, not faster than its uploads keep up with the tractors:
+    the simulated seconds of the busiest item (the least time an item of a mission takes to
+    drive) over UPLOAD_ITEMS_PER_ITEM times what an item takes through the radio
+    (RADIO_ITEM_S). Faster, the tractors wait at their windows' ends while their simulated
+    hours run on (30 % loss and 200 ms: at 196x, the ceiling of before, the first windows
+    took 61–173 s and t6 was at 26.5 h of a 14.25 h plan after 10 min; at 1 200x not a
+    field in 240 s)."""
     ceiling = MAX_AUTO_SPEEDUP
     if radio is not None and radio.active:
-        ceiling *= (1.0 - radio.loss) ** 2 / (1.0 + 10.0 * radio.delay_s)
+        a, b, c = RADIO_ITEM_S
+        p, d = radio.loss, radio.delay_s
+        item_s = a * p * p / (1.0 - p) + b * d + c * p * d
+        drive_s = [
+            m.time_h * 3600.0 / (len(m.items) - 1)
+            for m in dispatch.document.machines
+            if len(m.items) > 1 and m.time_h > 0
+        ]
+        if item_s > 0 and drive_s:
+            ceiling = min(ceiling, min(drive_s) / (UPLOAD_ITEMS_PER_ITEM * item_s))
     return min(max(1.0, dispatch.plan.makespan_h * 3600.0 / target_wall_s), max(ceiling, 1.0))
 
 
