@@ -106,8 +106,8 @@ def auto_speedup(
 ) -> float:
     """The speedup that runs the plan in ``target_wall_s``, within [1, MAX_AUTO_SPEEDUP];
     through an impaired ``radio``, not faster than its uploads keep up with the tractors:
-    the simulated seconds of the busiest item (the least time an item of a mission takes to
-    drive) over UPLOAD_ITEMS_PER_ITEM times what an item takes through the radio
+    the simulated seconds an item takes to drive (on average, in the mission where that is
+    least) over UPLOAD_ITEMS_PER_ITEM times what an item takes through the radio
     (RADIO_ITEM_S). Faster, the tractors wait at their windows' ends while their simulated
     hours run on (30 % loss and 200 ms: at 196x, the ceiling of before, the first windows
     took 61–173 s and t6 was at 26.5 h of a 14.25 h plan after 10 min; at 1 200x not a
