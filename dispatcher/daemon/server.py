@@ -1022,17 +1022,7 @@ class Dispatcher:
         now, when it is due its next window (mission/window.py): it will reach the end of
         the one it holds, at its pace, within the scenario's ``topup_lead_s`` plus twice
         what the top-up should take at the pace of its last upload. None: not due."""
-        if (
-            v.held >= len(v.items)
-            or self._replan is not None  # a re-plan under way: its next window may change
-            or bool(self._replan_reason)
-            or v.switch
-            or v.resuming
-            or v.needs_restart
-            or v.retired
-            or link.hold is not None
-            or link.busy
-        ):
+        if v.held >= len(v.items) or not self._window_free(v, link):
             return None
         more = window(v.items, v.held, self.config.window_items)
         left_s = self._left_s(v, v.held)
@@ -1041,6 +1031,21 @@ class Dispatcher:
         # What the next top-up takes: the whole longer prefix, and the new items read back.
         lead_s = self.config.topup_lead_s + self._upload_s(v, 2 * more - v.held)
         return more if left_s <= lead_s else None
+
+    def _window_free(self, v: VehicleState, link: _Link) -> bool:
+        """Whether what a driving vehicle holds may be extended, or it be sent on from its
+        window's end, now: no re-plan under way (its next window may change), no new route
+        or restart of its own to come, not held by us, no exchange with it running."""
+        return not (
+            self._replan is not None
+            or bool(self._replan_reason)
+            or v.switch
+            or v.resuming
+            or v.needs_restart
+            or v.retired
+            or link.hold is not None
+            or link.busy
+        )
 
     def _left_s(self, v: VehicleState, held: int) -> float | None:
         """Wall seconds until a driving vehicle reaches the last of the first ``held`` items
@@ -1134,18 +1139,8 @@ class Dispatcher:
             and v.current_of_last_upload
             and link.sent_on_from != old_end
             and (v.started_at is None or now - v.started_at >= CURRENT_SETTLE_S)
-            and not (
-                link.busy
-                or link.renumbered
-                or link.hold is not None
-                or v.switch
-                or v.resuming
-                or v.needs_restart
-                or v.retired
-                or v.operator_hold
-                or self._replan is not None
-                or bool(self._replan_reason)
-            )
+            and not (link.renumbered or v.operator_hold)
+            and self._window_free(v, link)
         )
 
     def _on_from_window_end(self, v: VehicleState, link: _Link, now: float, old_end: int) -> None:
