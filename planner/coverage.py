@@ -191,6 +191,10 @@ class FieldCoverage:
     # the machine was (the last swath's end, or the previous ring's end) to the ring's start;
     # empty when there is none (a hop).
     headland_moves: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
+    # Per corner, per headland ring: when the move onto it is no planned path (a hop, or no
+    # turns planned), the corners of the in-field path onto its start where the straight
+    # line would leave the field (around a hole between two rings); else empty.
+    headland_links: tuple[tuple[tuple[XY, ...], ...], ...] = field(repr=False, default=())
     turn_radius_m: float = 0.0
     headland_passes: int = 0  # as laid out (given, or as many as the turns need)
     # The field's area neither a swath nor a headland ring sweeps (:func:`_unworked_m2`).
@@ -241,6 +245,11 @@ class FieldCoverage:
         """For each headland ring of :meth:`headland_path`, the points of the drivable path
         onto it (empty: a hop, or turns are not planned)."""
         return self.headland_moves[_check_corner(corner)] if self.headland_moves else ()
+
+    def headland_link(self, corner: int) -> tuple[tuple[XY, ...], ...]:
+        """For each headland ring of :meth:`headland_path`, the points that keep a move onto
+        it that is no planned path inside the field (usually none)."""
+        return self.headland_links[_check_corner(corner)] if self.headland_links else ()
 
     def turn_length_m(self, corner: int) -> float:
         """Metres driven in the planned turns between swaths from ``corner``, moves to
@@ -349,6 +358,7 @@ def cover_field(
     turn_paths: list[tuple[tuple[XY, ...], ...]] = []
     fits = _TurnsInside(field_poly, radius, clock)
     headland_moves: list[tuple[tuple[XY, ...], ...]] = []
+    headland_links: list[tuple[tuple[XY, ...], ...]] = []
     for corner_path in paths:
         routes = tuple(
             # Any move whose straight line would leave the field: cell changes, and
@@ -369,6 +379,7 @@ def cover_field(
         turn_paths.append(turns)
         headland_paths.append(rings)
         headland_moves.append(moves)
+        headland_links.append(_ring_links(corner_path[-1].end, rings, moves, distance))
         transits.append(_transit_m(corner_path, rings, distance, turns, moves))
         clock.check("planning the moves between swaths")
     if fits.hops:
@@ -418,6 +429,7 @@ def cover_field(
         links=tuple(links),
         turn_paths=tuple(turn_paths) if radius > 0.0 else (),
         headland_moves=tuple(headland_moves) if radius > 0.0 else (),
+        headland_links=tuple(headland_links),
         turn_radius_m=radius,
         headland_passes=passes,
         unworked_m2=unworked,
@@ -1428,6 +1440,22 @@ def _transit_m(
             total += distance(position, ring[0])
         position = ring[-1]
     return total
+
+
+def _ring_links(
+    position: XY,
+    rings: tuple[tuple[XY, ...], ...],
+    moves: tuple[tuple[XY, ...], ...],
+    distance: _InFieldDistance,
+) -> tuple[tuple[XY, ...], ...]:
+    """For each ring, the in-field path's corners from where the machine was onto its
+    start when no planned path leads there (:attr:`FieldCoverage.headland_links`)."""
+    links: list[tuple[XY, ...]] = []
+    for i, ring in enumerate(rings):
+        planned = i < len(moves) and bool(moves[i])
+        links.append(() if planned else distance.route(position, ring[0])[1])
+        position = ring[-1]
+    return tuple(links)
 
 
 def _heading(swath: Swath) -> float:

@@ -138,7 +138,7 @@ def remaining_coverage(
     # planned turn onto it and the in-field link onto it from the segment before, and
     # whether that move counts as in-field transit (to another cell, or onto a ring).
     turns, links = cov.turn(corner), cov.link(corner)
-    onto_rings = cov.headland_move(corner)
+    onto_rings, rings_linked = cov.headland_move(corner), cov.headland_link(corner)
     parts: list[Swath] = list(swaths)
     turn_via: list[tuple[XY, ...]] = [()]
     link_via: list[tuple[XY, ...]] = [()]
@@ -153,7 +153,7 @@ def remaining_coverage(
             parts.append(Swath(a, b, -1 - r, e))
             onto = onto_rings[r] if e == 0 and r < len(onto_rings) else ()
             turn_via.append(onto)
-            link_via.append(())
+            link_via.append(rings_linked[r] if e == 0 and r < len(rings_linked) else ())
             transit.append(e == 0 and not onto)
     work = [s.length_m for s in parts]
     share = sum(work[k] for k in ahead) / max(sum(work), 1e-9)
@@ -198,6 +198,7 @@ def remaining_coverage(
         turn_paths=tuple(tuple(t) for _, t, _, _ in laid_out) if cov.turn_paths else (),
         links=tuple(tuple(k) for _, _, k, _ in laid_out),
         headland_moves=((),) * 4,
+        headland_links=((),) * 4,
     )
     log.debug("field %s: %d of %d segments left", visit.field.id, len(rest), total)
     return coverage, share, orders

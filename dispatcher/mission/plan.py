@@ -70,7 +70,11 @@ def visit_lonlat(farm: Farm, visit: Visit) -> FieldVisit:
         return LatLon(lat, lon)
 
     swaths = tuple((latlon(*a), latlon(*b)) for a, b in segments)
-    links = tuple(tuple(latlon(*p) for p in via) for via in visit.links)
+    # the links onto each ring (around a hole between two rings) after the swaths' own
+    links_xy = list(visit.links) + [()] * (len(visit.swaths) - 1 - len(visit.links))
+    for ring, onto in zip(visit.headland, visit.coverage.headland_link(visit.corner), strict=True):
+        links_xy += [onto] + [()] * (len(ring) - 2)
+    links = tuple(tuple(latlon(*p) for p in via) for via in links_xy)
     moves = list(visit.coverage.turn(visit.corner))
     if visit.coverage.turn_radius_m > 0.0:  # planned turns: also onto each ring, not along it
         moves += [()] * (len(visit.swaths) - 1 - len(moves))

@@ -1,5 +1,6 @@
 """`agrifleet plan`: every file, traceable missions, and each bad input rejected cleanly."""
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -419,6 +420,33 @@ def test_mission_turns_are_drivable_in_notched_fields(one_field_scenario, shape,
         _, mission = mission_through(one_field_scenario, polygon, width, radius, corner)
         turns = assert_mission_turns_drivable(one_field_scenario.farm, mission, polygon, radius)
         assert turns > 0
+
+
+@pytest.mark.parametrize(("width", "radius"), [(6.0, 5.0), (4.0, 4.0)])
+def test_no_leg_of_a_mission_crosses_a_pond_between_headland_rings(
+    one_field_scenario, width, radius
+):
+    """A field with a square hole and a round pond (an outside review's farm): every leg
+    the mission drives in the field, onto and between the headland rings too, stays out of
+    both."""
+    from shapely.geometry import LineString, Point, Polygon
+
+    pond = Point(200, 120).buffer(20).exterior.coords
+    polygon = Polygon(
+        [(0, 0), (300, 0), (300, 200), (0, 200)],
+        [[(40, 40), (60, 40), (60, 60), (40, 60)], list(pond)],
+    )
+    inside = polygon.buffer(ROUNDING_M)
+    farm = one_field_scenario.farm
+    for corner in range(4):
+        _, mission = mission_through(one_field_scenario, polygon, width, radius, corner)
+        points = [
+            farm.frame.to_local(item.lon, item.lat)
+            for item, trace in zip(mission.items, mission.traces, strict=True)
+            if trace.field_id == "f" and item.is_waypoint and trace.role != "road"
+        ]
+        for a, b in itertools.pairwise(points):
+            assert inside.covers(LineString([a, b])), (corner, a, b)
 
 
 def test_a_one_swath_field_still_turns_onto_its_headland(one_field_scenario):

@@ -583,6 +583,35 @@ def test_moves_between_swaths_stay_inside_notched_and_holed_fields(angle):
                 assert inside.covers(LineString([a.end, *links[k], b.start])), (corner, k)
 
 
+POND_FIELD = Polygon(
+    [(0, 0), (300, 0), (300, 200), (0, 200)],
+    [[(40, 40), (60, 40), (60, 60), (40, 60)], list(Point(200, 120).buffer(20).exterior.coords)],
+)
+
+
+@pytest.mark.parametrize(("w", "r"), [(6.0, 5.0), (4.0, 4.0), (6.0, 0.0)])
+def test_moves_onto_the_headland_rings_go_around_the_holes_between_them(w, r):
+    """From the last swath onto the first ring, and from one ring to the next (around the
+    border, around each hole), a move no planned path makes drives through the corners of
+    the in-field path, not straight across a pond (an outside review's farm: a square hole
+    and a round pond, the garage at each corner)."""
+    inside = POND_FIELD.buffer(0.05)
+    crossings = 0
+    passes = None if r else 1  # as many as the turns need; one without turns
+    cov = cover_field(POND_FIELD, w, field_id="pond", headland_passes=passes, turn_radius_m=r)
+    for corner in range(4):
+        rings, links = cov.headland_path(corner), cov.headland_link(corner)
+        moves = cov.headland_move(corner) or ((),) * len(rings)
+        assert len(links) == len(rings) == len(moves) >= 3  # the border and both holes
+        position = cov.path(corner)[-1].end
+        for ring, via, link in zip(rings, moves, links, strict=True):
+            assert not (via and link)  # a planned path or a link, never both
+            assert inside.covers(shapely.LineString([position, *via, *link, ring[0]])), corner
+            crossings += not inside.covers(shapely.LineString([position, ring[0]]))
+            position = ring[-1]
+    assert crossings > 0  # the straight line would cross a hole somewhere
+
+
 # ----------------------------------------------------------------------------- planned turns
 
 
