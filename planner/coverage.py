@@ -347,6 +347,14 @@ def cover_field(
         rings_by_pass, region, lane, angle, cells, ref = _layout(
             field_poly, w, passes, angle_deg, simplify_m, field_id, radius, clock
         )
+        needed = headland_passes_for_turns(w, radius, _closest_swaths_m(cells, w))
+        if passes < needed:
+            notes.append(
+                f"field {field_id!r}: headland_passes = {passes} is less than turns of radius "
+                f"{radius:g} m need ({needed}): the machine's {w:g} m implement may reach up "
+                f"to {w / 2:g} m past the border in a turn (give the field {needed} passes, "
+                "or leave headland_passes out to have as many as the turns need)"
+            )
 
     skips = [_skips_rows(cell, radius, clock) for cell in cells]
     clock.check("ordering the swaths")
@@ -550,8 +558,7 @@ def _layout_fitting_turns(
             wanted = max(wanted or 0, passes)
             most = passes = passes - 1
             continue
-        gaps = [float(np.diff(c.lines[:, 0]).min()) for c in layout[4] if len(c.lines) > 1]
-        needed = min(headland_passes_for_turns(w, radius, min(gaps, default=w)), most)
+        needed = min(headland_passes_for_turns(w, radius, _closest_swaths_m(layout[4], w)), most)
         if needed <= passes:
             if wanted is not None:
                 notes.append(
@@ -560,6 +567,13 @@ def _layout_fitting_turns(
                 )
             return layout
         passes = int(needed)
+
+
+def _closest_swaths_m(cells: Sequence[_Cell], w: float) -> float:
+    """The least distance between two neighbouring swaths of a cell (``w`` when no cell
+    has two)."""
+    gaps = [float(np.diff(c.lines[:, 0]).min()) for c in cells if len(c.lines) > 1]
+    return min(gaps, default=w)
 
 
 def _checked_radius(turn_radius_m: float, field_id: str) -> float:

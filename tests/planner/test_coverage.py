@@ -694,6 +694,24 @@ def test_too_little_headland_for_the_turns_leaves_hops(caplog) -> None:
     assert "no drivable path" in caplog.text
 
 
+def test_fewer_headland_passes_given_than_the_turns_need_are_said(caplog) -> None:
+    """A field's own ``headland_passes`` below what its turns need: the turns' centre lines
+    fit, but the implement reaches past the border by up to half its width (an outside
+    review's 300 m square, one pass for a 6 m implement turning on 5 m). Said, naming the
+    field and the passes that would do; not with enough passes, nor without turns."""
+    field = rectangle_field(300.0, 300.0)
+    needed = cover_field(field, 6.0, field_id="auto", turn_radius_m=5.0).headland_passes
+    assert needed >= 2
+    cov = cover_field(field, 6.0, field_id="tight", headland_passes=1, turn_radius_m=5.0)
+    assert sum(1 for t in cov.turn(0) if t) == len(cov.swaths) - 1  # every turn planned
+    said = [n for n in cov.notes if "headland_passes = 1" in n]
+    assert said and f"give the field {needed} passes" in said[0] and "'tight'" in said[0]
+    assert "3 m past the border" in said[0]
+    for passes, radius in ((needed, 5.0), (1, 0.0)):
+        roomy = cover_field(field, 6.0, field_id="f", headland_passes=passes, turn_radius_m=radius)
+        assert not any("headland_passes =" in n for n in roomy.notes), (passes, radius)
+
+
 def test_bad_turn_radius_names_the_field() -> None:
     with pytest.raises(GeometryError, match="'bad'.*turn radius"):
         cover_field(rectangle_field(60.0, 100.0), 6.0, field_id="bad", turn_radius_m=-1.0)
