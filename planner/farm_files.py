@@ -25,6 +25,7 @@ import tempfile
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
 
@@ -239,7 +240,7 @@ def _read_gdal(path: Path, readable: Path) -> Document:
         for warning in said:
             if "Non closed ring" not in str(warning.message):
                 log.warning("%s: layer %r: reading it: %s", path, layer, as_given(warning.message))
-        names = _column_names(path, [str(n) for n in meta["fields"]])
+        names = _column_names(path, [str(n) for n in meta["fields"]], values)
         if key and key not in names:  # a GeoPackage's primary key named by its author
             names, values = [*names, key], [*values, fids]
         where = f"layer {layer!r} feature" if len(layers) > 1 else "feature"
@@ -362,12 +363,16 @@ def _from_wkb(geometry: Any, where: str) -> Any:
     raise AssertionError("unreachable: one geometry failed together but none alone")
 
 
-def _column_names(path: Path, names: list[str]) -> list[str]:
+def _column_names(path: Path, names: list[str], values: Sequence[Any]) -> list[str]:
     """The columns as the file's author named them. A KML written by GDAL (QGIS's "Save
     as KML") holds each placemark's XML id, which GDAL reads back as column ``id``, and the
-    author's ``id`` in its ExtendedData, read as ``id2``: the author's is ``id``."""
+    author's ``id`` in its ExtendedData's SchemaData, read as ``id2``: the author's is
+    ``id``. An ``id`` in plain ``<Data name="id">`` (Google Earth's, or written by hand) GDAL
+    reads as ``id`` itself, leaving ``id2`` empty: then ``id`` is the author's as it is."""
     if path.suffix.lower() in (".kml", ".kmz") and "id" in names and "id2" in names:
-        return ["kml_placemark_id" if n == "id" else "id" if n == "id2" else n for n in names]
+        given = values[names.index("id2")]
+        if any(v is not None and str(v).strip() for v in given):
+            return ["kml_placemark_id" if n == "id" else "id" if n == "id2" else n for n in names]
     return names
 
 

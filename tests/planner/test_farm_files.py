@@ -415,6 +415,25 @@ def test_a_kml_saved_by_qgis_keeps_its_authors_ids(tmp_path, reference):
     same_farm(load_farm(path), reference)
 
 
+@pytest.mark.parametrize("xml_ids", [False, True], ids=["plain", "with placemark ids"])
+def test_a_kmls_ids_in_plain_extended_data_are_the_fields_ids(tmp_path, xml_ids):
+    """``<Data name="id">`` in a placemark's ExtendedData (Google Earth's, or by hand), in
+    folders, the placemarks with or without an XML id of their own: GDAL reads it as
+    ``id``, beside an empty ``id2``. The ids were thrown away for the names (an outside
+    review's farm: two fields both named "Wiese" were refused as one id)."""
+    placemark = '<Placemark id="pm{k}">' if xml_ids else "<Placemark>"
+    text = GOOGLE_EARTH_KML
+    for k, (name, fid) in enumerate((("North 40", "F1"), ("Creek", "F2"))):
+        data = f'<ExtendedData><Data name="id"><value>{fid}</value></Data></ExtendedData>'
+        old = f"<Placemark><name>{name}</name>"
+        text = text.replace(old, placemark.format(k=k) + f"<name>Wiese</name>{data}")
+    path = tmp_path / "farm.kml"
+    path.write_text(text)
+    farm = load_farm(path)
+    assert [f.id for f in farm.fields] == ["F1", "F2.0", "F2.1"]
+    assert [f.name for f in farm.fields] == ["Wiese", "Wiese (0)", "Wiese (1)"]
+
+
 def test_an_unclosed_ring_read_through_gdal_is_closed(tmp_path):
     # A KML drawn by hand; the same ring in plain GeoJSON was taken already.
     text = GOOGLE_EARTH_KML.replace("10.0,50.001,0 10.0,50.0,0\n", "10.0,50.001,0\n")
