@@ -32,7 +32,7 @@ import json
 import logging
 import math
 import unicodedata
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -45,7 +45,7 @@ from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
-from planner.farm_files import WHERE_KEY, read_farm_document
+from planner.farm_files import CONVERTED_DECIMALS, WHERE_KEY, read_farm_document
 from planner.geo import LocalFrame, check_wgs84
 
 MAX_GARAGE_DISTANCE_M = 50_000.0
@@ -852,22 +852,47 @@ def _warn_of_overlaps(source: str, fields: tuple[Field, ...]) -> None:
                 )
 
 
-def _mended(boundary: Polygon) -> Polygon:
-    """``boundary``, valid as drawn, made valid again in the local metres when that moves
-    nothing by more than SNAP_M: its outline less its holes (a hole's corner snapped onto
-    the outline, put across it by the last digits of a projection: a notch in the outline
-    then, the same land); else as it is."""
+def _mended(
+    boundary: Polygon, to_metres: Callable[[Polygon], Polygon] = lambda polygon: polygon
+) -> Polygon:
+    """``boundary`` made valid when that moves nothing by more than SNAP_M (measured in
+    ``to_metres`` of it): its outline less its holes (a hole's corner snapped onto the
+    outline, or put across it by the last digits of a projection; a hole drawn with an edge
+    on the outline): a notch in the outline then, the same land. Else ``boundary`` itself."""
     mended = shapely.make_valid(boundary, method="structure")
     if isinstance(mended, shapely.MultiPolygon):  # slivers of the crossing, if any
         mended = max(mended.geoms, key=lambda part: part.area)
+    if not (isinstance(mended, Polygon) and mended.is_valid):
+        return boundary
+    before, after = to_metres(boundary), to_metres(mended)
     if (
-        isinstance(mended, Polygon)
-        and mended.is_valid
-        and abs(mended.area - boundary.area) <= SNAP_M * boundary.length
-        and mended.hausdorff_distance(boundary) <= SNAP_M
+        abs(after.area - before.area) <= SNAP_M * before.length
+        and after.hausdorff_distance(before) <= SNAP_M
     ):
         return orient(mended, sign=1.0)
     return boundary
+
+
+def _to_local(frame: LocalFrame, polygon: Polygon) -> Polygon:
+    """``polygon`` (longitude, latitude) in ``frame``'s metres."""
+    return shapely.transform(polygon, lambda lonlat: np.column_stack(frame.to_local(*lonlat.T)))
+
+
+def _written_valid(lonlat: Polygon) -> Polygon:
+    """``lonlat`` as it stays valid when written to CONVERTED_DECIMALS (plan.json, the GIS
+    files, the fences): a hole within a centimetre of the outline meets it there once
+    rounded, and a GIS or GDAL refuses the polygon; snapped to that grid (the rim between
+    them gone, a notch) when rounding would make it invalid."""
+    step = 10.0**-CONVERTED_DECIMALS
+    rounded = shapely.transform(lonlat, lambda xy: np.round(xy, CONVERTED_DECIMALS))
+    if rounded.is_valid:
+        return lonlat
+    snapped = shapely.set_precision(lonlat, step)
+    if isinstance(snapped, shapely.MultiPolygon):
+        snapped = max(snapped.geoms, key=lambda part: part.area)
+    if isinstance(snapped, Polygon) and snapped.is_valid and not snapped.is_empty:
+        return orient(snapped, sign=1.0)
+    return lonlat
 
 
 def _field(
@@ -891,13 +916,21 @@ def _field(
         raise GeometryError(f"{where}: not a polygon: {exc}") from exc
     if boundary.is_empty or boundary.area <= 0.0:
         raise GeometryError(f"{where}: the polygon has no area")
-    if not boundary.is_valid and lonlat.is_valid:
+    # Where, in the file's longitude and latitude (the local metres mean nothing to whoever
+    # drew it), unless only the local frame shows it.
+    invalid = f"{where}: invalid polygon ({{}}); is its boundary self-intersecting?"
+    if not lonlat.is_valid:
+        # A hole drawn onto the outline (a pond snapped to the field's edge in a GIS): its
+        # outline less its holes, a notch, when that is the same land.
+        notched = _mended(lonlat, lambda polygon: _to_local(frame, polygon))
+        if notched is lonlat:
+            raise GeometryError(invalid.format(explain_validity(lonlat)))
+        lonlat, boundary = notched, orient(_to_local(frame, notched), sign=1.0)
+    if not boundary.is_valid:
         boundary = _mended(boundary)
     if not boundary.is_valid:
-        # Where, in the file's longitude and latitude (the local metres mean nothing to
-        # whoever drew it), unless only the local frame shows it.
-        why = explain_validity(lonlat if not lonlat.is_valid else boundary)
-        raise GeometryError(f"{where}: invalid polygon ({why}); is its boundary self-intersecting?")
+        raise GeometryError(invalid.format(explain_validity(boundary)))
+    lonlat = _written_valid(lonlat)
     angle = _number_text(_prop(props, "work_angle_deg"))
     if angle is not None and (
         isinstance(angle, bool) or not isinstance(angle, int | float) or not abs(angle) <= 360.0

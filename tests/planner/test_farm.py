@@ -236,6 +236,56 @@ def test_a_fields_numbers_written_as_text_are_read_as_numbers(tmp_path):
     assert "headland_passes must be a whole number >= 0, not 2.5" in refused(tmp_path, doc)
 
 
+def rounded_valid(polygon: shapely.Polygon) -> bool:
+    """Whether ``polygon`` stays valid written to 1e-7 degrees (plan.json, the GIS files)."""
+    return shapely.transform(polygon, lambda xy: xy.round(7)).is_valid
+
+
+def test_a_pond_drawn_onto_the_fields_edge_is_a_notch_and_a_bow_tie_is_still_refused(tmp_path):
+    """A hole with an edge on the outline (a pond snapped to the edge in QGIS) is invalid as
+    drawn in longitude/latitude, though the local metres may not show it: it was taken as
+    it was, and writing the plan's KML then failed with a traceback (an outside review's
+    farm). Now the outline less the pond, the same land; a polygon that is no such case
+    is refused, naming the file and field, as before."""
+    dlon, dlat = 1 / (111320 * math.cos(math.radians(LAT0))), 1 / 110540  # a metre
+    ring = rect(LON0, LAT0, 200.0, 100.0)
+    pond = [[LON0, LAT0 + 40 * dlat], [LON0 + 30 * dlon, LAT0 + 50 * dlat],
+            [LON0, LAT0 + 60 * dlat], [LON0, LAT0 + 40 * dlat]]  # fmt: skip
+    doc = farm_doc()
+    doc["features"][0]["geometry"]["coordinates"] = [ring]
+    whole = load_farm(write(tmp_path, doc)).fields[0].area_m2
+    doc["features"][0]["geometry"]["coordinates"] = [ring, pond]
+    assert not shapely.Polygon(ring, [pond]).is_valid
+    field = load_farm(write(tmp_path, doc)).fields[0]
+    assert field.boundary_lonlat.is_valid and rounded_valid(field.boundary_lonlat)
+    assert len(field.boundary_lonlat.interiors) == 0  # a notch
+    assert field.area_m2 == pytest.approx(whole * (1.0 - 300.0 / 20_000.0), rel=1e-3)
+    assert field.boundary.is_valid and len(field.boundary.interiors) == 0
+    bow_tie = [ring[0], ring[2], ring[1], ring[3], ring[0]]
+    doc["features"][0]["geometry"]["coordinates"] = [bow_tie]
+    assert "field 'F1': invalid polygon (Self-intersection" in refused(tmp_path, doc)
+
+
+def test_a_pond_a_millimetre_inside_the_edge_stays_valid_as_written(tmp_path):
+    """A hole valid as drawn, a millimetre from a slanting outline: rounded to 1e-7 degrees
+    (~1 cm) for plan.json and the GIS files it met the outline, and the written polygon was
+    invalid. Kept valid at that grid (a notch there)."""
+    dlon, dlat = 1 / (111320 * math.cos(math.radians(LAT0))), 1 / 110540
+    ring = [[LON0, LAT0], [LON0 + 200 * dlon, LAT0 - 4e-8], [LON0 + 200 * dlon, LAT0 + 100 * dlat],
+            [LON0, LAT0 + 100 * dlat], [LON0, LAT0]]  # fmt: skip
+    low = LAT0 - 1e-8  # above the outline's edge there by ~1 mm
+    pond = [[LON0 + 80 * dlon, low], [LON0 + 80 * dlon, LAT0 + 25 * dlat],
+            [LON0 + 120 * dlon, LAT0 + 25 * dlat], [LON0 + 120 * dlon, low],
+            [LON0 + 80 * dlon, low]]  # fmt: skip
+    assert shapely.Polygon(ring, [pond]).is_valid
+    assert not rounded_valid(shapely.Polygon(ring, [pond]))
+    doc = farm_doc()
+    doc["features"][0]["geometry"]["coordinates"] = [ring, pond]
+    field = load_farm(write(tmp_path, doc)).fields[0]
+    assert field.boundary_lonlat.is_valid and rounded_valid(field.boundary_lonlat)
+    assert field.boundary_lonlat.hausdorff_distance(shapely.Polygon(ring, [pond])) < 1e-7
+
+
 def test_a_closed_line_is_a_field_when_said_so_else_a_road_with_a_warning(tmp_path, caplog):
     """A field drawn as a path round it (Google Earth), or a recorded boundary track: read as
     a road without a word, and the field not planned. Said kind 'field', it is the field;
