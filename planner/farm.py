@@ -45,7 +45,7 @@ from shapely.geometry.polygon import orient
 from shapely.validation import explain_validity
 
 from planner.errors import GeometryError
-from planner.farm_files import CONVERTED_DECIMALS, WHERE_KEY, read_farm_document
+from planner.farm_files import CONVERTED_DECIMALS, MARKS_KEY, WHERE_KEY, read_farm_document
 from planner.geo import LocalFrame, check_wgs84
 
 MAX_GARAGE_DISTANCE_M = 50_000.0
@@ -308,11 +308,15 @@ def farm_from_geojson(
             log.warning("%s: the scenario's garage replaces the garage in the farm file", source)
         lon, lat = _lonlat(list(options.garage), f"{source}: the scenario's garage")
         garages = [(lon, lat)]
+    marks = {
+        "fields": "Polygon features with properties.kind 'field'",
+        "garage": "a Point feature with properties.kind 'garage'",
+    } | doc.get(MARKS_KEY, {})
     if not raw_fields:  # before the garage: a file of no fields has no garage either
-        raise GeometryError(f"{source}: no fields (Polygon features with properties.kind 'field')")
+        raise GeometryError(f"{source}: no fields ({marks['fields']})")
     if not garages:
         raise GeometryError(
-            f"{source}: no garage (a Point feature with properties.kind 'garage', "
+            f"{source}: no garage ({marks['garage']}, "
             "or the scenario's garage = [longitude, latitude])"
         )
     if len(garages) > 1 and said_garage.count(True) == 1:
@@ -777,13 +781,30 @@ def _check_extent(
     if to_garage[farm] > limit:
         nearest = float(to_garage[:-1].min())
         swapped = float(_distance_m(glat, glon, lon[farm], lat[farm]))
-        hint = (
-            f"with longitude and latitude swapped it would be {_km(swapped)} from them: "
-            "either the garage or the fields have [latitude, longitude] where GeoJSON wants "
-            "[longitude, latitude]"
-            if swapped <= limit
-            else "are its longitude and latitude swapped? GeoJSON wants [longitude, latitude]"
-        )
+        signs = {
+            what: float(_distance_m(glon * east, glat * north, lon[farm], lat[farm]))
+            for what, east, north in (
+                ("latitude", 1.0, -1.0),
+                ("longitude", -1.0, 1.0),
+                ("longitude and latitude", -1.0, -1.0),
+            )
+        }
+        sign, signed = min(signs.items(), key=lambda item: item[1])
+        if swapped <= limit:
+            hint = (
+                f"with longitude and latitude swapped it would be {_km(swapped)} from them: "
+                "either the garage or the fields have [latitude, longitude] where GeoJSON "
+                "wants [longitude, latitude]"
+            )
+        elif signed <= limit:
+            hint = (
+                f"with the sign of its {sign} changed it would be {_km(signed)} from them: "
+                "a minus sign missing or too many? (south latitudes and west longitudes are "
+                "negative)"
+            )
+        else:
+            hint = "are its longitude and latitude swapped? GeoJSON wants [longitude, latitude]"
+
         raise GeometryError(
             f"{source}: the garage is {_km(nearest)} from the nearest field "
             f"(limit {_km(limit)}); {hint}"

@@ -63,6 +63,9 @@ Document = dict[str, Any]
 WHERE_KEY = "_where"
 """A feature's name in messages (``layer 'fields' feature #3``, ``partfield 'PFD2'``), set
 by the readers of formats whose features a plain index would not find."""
+MARKS_KEY = "_marks"
+"""A document's way of marking its fields and its garage, in the format's own words, for the
+messages of a farm without them (``{"fields": ..., "garage": ...}``); GeoJSON's without."""
 
 
 def read_farm_document(path: Path) -> Document:
@@ -656,7 +659,11 @@ def read_isoxml(path: Path) -> Document:
     for pnt in root.iter("PNT"):
         if pnt.get("A") == PNT_HOMEBASE:
             features.append(_isoxml_point(pnt, "home base", source, {"kind": "garage"}))
-    return {"type": "FeatureCollection", "features": features}
+    marks = {
+        "fields": f'partfields (PFD) with a boundary polygon (PLN A="{PLN_BOUNDARY}")',
+        "garage": f'a home base point (PNT A="{PNT_HOMEBASE}")',
+    }
+    return {"type": "FeatureCollection", "features": features, MARKS_KEY: marks}
 
 
 def _beside(path: Path, source: Path, main: str, name: str) -> bytes:

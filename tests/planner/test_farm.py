@@ -394,6 +394,18 @@ def test_one_field_swapped_near_the_rest_of_the_farm_is_named(tmp_path):
     assert "its longitudes and latitudes look swapped" in message
 
 
+@pytest.mark.parametrize(("east", "north", "sign"), [(1, -1, "latitude"), (-1, 1, "longitude")])
+def test_a_garage_with_a_sign_lost_is_said_so(tmp_path, east, north, sign):
+    """A garage in the other hemisphere (a farm at 34 S 19 E, the garage's minus sign lost):
+    it was asked whether its longitude and latitude were swapped (an outside review's)."""
+    doc = farm_doc(19.0, -34.0)
+    garage = doc["features"][2]["geometry"]["coordinates"]
+    doc["features"][2]["geometry"]["coordinates"] = [garage[0] * east, garage[1] * north]
+    message = refused(tmp_path, doc)
+    assert f"with the sign of its {sign} changed it would be 0.1 km from them" in message
+    assert "swapped" not in message
+
+
 def test_a_field_farther_than_the_limit_from_the_garage_is_named_with_its_distance(tmp_path):
     doc = farm_doc()
     east = LON0 + 60_000 / (111320 * math.cos(math.radians(LAT0)))  # 60 km east

@@ -588,6 +588,21 @@ TASKDATA = """<?xml version="1.0" encoding="UTF-8"?>
 {body}<PNT A="11" C="49.999" D="9.999"/></ISO11783_TaskData>"""
 
 
+def test_an_isoxml_farm_without_a_home_base_or_partfields_is_told_in_isoxmls_words(tmp_path):
+    """It was told of GeoJSON's Point features and properties.kind (an outside review's)."""
+    path = tmp_path / "TASKDATA.XML"
+    path.write_text(
+        TASKDATA.format(ns="", body=ISOXML_PFD.format(more="")).replace('A="11"', 'A="9"')
+    )
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert 'no garage (a home base point (PNT A="11"), or the scenario\'s garage' in str(err.value)
+    path.write_text(TASKDATA.format(ns="", body=""))
+    with pytest.raises(GeometryError) as err:
+        load_farm(path)
+    assert "kind" not in str(err.value) and "PFD" in str(err.value)
+
+
 def test_isoxml_water_and_obstacles_are_not_worked(tmp_path):
     """A pond (PLN type 3) in a partfield was read as land: swaths drove through it."""
     path = tmp_path / "TASKDATA.XML"
