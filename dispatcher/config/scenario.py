@@ -473,8 +473,8 @@ def load_scenario(
     name_field: str | None = None,
 ) -> Scenario:
     """The scenario file at ``path``; on the farm file ``fields`` instead of its own when
-    given (``--fields``: its own is then not read, and may be missing), the farm id then
-    the farm file's name, as :meth:`Scenario.with_farm` has it; its farm read with
+    given (``--fields``: its own is then not read, and it or its key may be missing), the
+    farm id then the farm file's name, as :meth:`Scenario.with_farm` has it; its farm read with
     ``id_field`` and ``name_field`` when given (``--id-field``, ``--name-field``)."""
     path = Path(path)
     doc = _read_toml(path)
@@ -487,9 +487,12 @@ def load_scenario(
             "(it is a Zenoh key segment and names the run's files)"
         )
     farm_key = doc.get("farm")
-    if farm_key is None:
-        raise ConfigError(f"{src}: missing key 'farm' (the farm file: GeoJSON, KML, ...)")
-    if not isinstance(farm_key, str) or not farm_key.strip():
+    if farm_key is None and fields is None:
+        raise ConfigError(
+            f"{src}: missing key 'farm' (the farm file: GeoJSON, KML, ...; or give one "
+            "with --fields)"
+        )
+    if farm_key is not None and (not isinstance(farm_key, str) or not farm_key.strip()):
         raise ConfigError(
             f"{src}: key 'farm' must name the farm file (GeoJSON, KML, ...), not {_shown(farm_key)}"
         )
@@ -502,7 +505,7 @@ def load_scenario(
     if fields is not None:
         farm_id = farm_id_for(fields)
     try:
-        farm = load_farm(path.parent / farm_key if fields is None else fields, farm_options)
+        farm = load_farm(path.parent / str(farm_key) if fields is None else fields, farm_options)
     except PlannerError as exc:
         pointed = " (the farm its key 'farm' names)" if fields is None else ""
         raise ConfigError(f"{exc}\n  read for {src}{pointed}") from exc

@@ -129,6 +129,17 @@ def refused(tmp_path: Path, doc: dict[str, Any]) -> str:
     return message
 
 
+def test_a_scenario_without_a_farm_key_plans_the_farm_given_with_fields(tmp_path):
+    """``--fields FARM`` stands for the scenario's farm; a scenario kept for many farms need
+    not name one (it was refused: missing key 'farm'). Without ``--fields`` it must."""
+    doc = scenario_doc()
+    del doc["farm"]
+    scenario = load_scenario(write(tmp_path, doc), DATA / "tiny-farm.geojson")
+    assert scenario.farm_id == "tiny-farm" and len(scenario.farm.fields) > 0
+    message = refused(tmp_path, doc)
+    assert "missing key 'farm'" in message and "--fields" in message
+
+
 def test_the_test_writer_reproduces_tiny_toml(tmp_path):
     scenario = load_scenario(write(tmp_path, scenario_doc()))
     tiny = load_scenario(DATA / "tiny.toml")
