@@ -200,6 +200,7 @@ def farm_from_geojson(
     raw_roads: list[tuple[str, str, list[tuple[float, float]]]] = []  # id, where, points
     raw_gates: list[tuple[str, str, tuple[float, float]]] = []  # field id, where, lon/lat
     seen: dict[str, str] = {}  # field id -> the feature it came from (for messages)
+    given: dict[str, str] = {}  # the same for the ids as given, before a MultiPolygon's split
     # A gate names its field as the file does (properties.id, an ISOXML PFD's id): which
     # fields (parts of a MultiPolygon) that is, when the field id is another property.
     aliases: dict[str, list[str]] = {}
@@ -258,6 +259,12 @@ def farm_from_geojson(
                     f"{where}: a MultiPolygon's coordinates must be a list of polygons, "
                     f"not {_shown(parts)}"
                 )
+            if field_id in given:  # one of them split: PFD1 beside PFD1.0 and PFD1.1
+                raise GeometryError(
+                    f"{where}: duplicate field id ({given[field_id]} and {feature_where})"
+                    f"{_id_source(props, options.id_field)}"
+                )
+            given[field_id] = feature_where
             part_ids = (
                 [field_id]
                 if len(parts) == 1

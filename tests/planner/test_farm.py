@@ -521,6 +521,10 @@ def test_a_duplicate_field_id_names_both_features(tmp_path):
     assert "field 'F1': duplicate field id (feature #0 and feature #1)" in message
     # and where the ids come from (ArcMap's "Id" column: 0 for every feature drawn)
     assert "the ids are property 'id': give --id-field NAME" in message
+    # one of the two a MultiPolygon (its parts F1.0, F1.1 beside F1): the same id twice
+    ring = doc["features"][1]["geometry"]["coordinates"]
+    doc["features"][1]["geometry"] = {"type": "MultiPolygon", "coordinates": [ring, ring]}
+    assert "field 'F1': duplicate field id (feature #0 and feature #1)" in refused(tmp_path, doc)
 
 
 def test_ids_alike_but_for_their_unicode_form_are_one_field_and_its_gate_finds_it(tmp_path):
