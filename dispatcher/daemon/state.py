@@ -610,7 +610,9 @@ class FleetState:
         for v in self.vehicles.values():
             m = planned.get(v.id)
             if m is None:
-                v.retired = True
+                # (one not heard since the dispatcher's restart has nothing left to be
+                # asked about: it rejoins as any retired vehicle does, when heard)
+                v.retired, v.resuming = True, False
                 continue
             if m.items == v.items and not v.retired:
                 self._own_fields(m)

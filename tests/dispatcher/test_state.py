@@ -1827,6 +1827,33 @@ def test_a_left_out_tractor_heard_after_a_restart_is_held_and_asks_to_rejoin(dis
     assert sent == [mc.MAV_CMD_DO_SET_MODE]  # HOLD
 
 
+def test_a_tractor_left_out_by_a_re_plan_after_a_restart_is_held_when_heard_again(
+    dispatch, tmp_path
+):
+    """An outside review: a restarted dispatcher re-planned without a tractor it had not
+    heard yet ("never came alive"); heard then, it was asked where it stood on the mission
+    the re-plan took away (KeyError, exit 1, the fleet held). It is held, and asks to rejoin,
+    as any tractor left out."""
+    from dispatcher.mission.job import DispatchJob
+
+    daemon = resumed_daemon(
+        dispatch, tmp_path, [*running_events("v1", 7), *running_events("v2", 3)]
+    )
+    daemon.publishers["plan"] = Pub()
+    v, link = daemon.state.vehicles["v1"], daemon.links["v1"]
+    assert v.resuming
+    job = daemon.job
+    rest = dataclasses.replace(job.document, machines=job.document.machines[1:], plan_id="")
+    missions = {vid: m for vid, m in job.missions.items() if vid != "v1"}
+    daemon._adopt(DispatchJob(rest.with_id(), missions, {}), "v1 lost (never came alive)", 1.0)
+    assert v.retired and not v.resuming
+    feed(daemon.state, "v1", heartbeat(11), 2.0)
+    daemon._advance("v1", 2.0)  # (raised KeyError: 'v1')
+    link = daemon.links["v1"]
+    assert link.download is None and link.upload is None  # not read back nor sent a mission
+    assert daemon._replan_reason == "v1 back" and link.rejoin_asked
+
+
 def test_set_off_is_the_first_move_taken_back_along_its_first_leg() -> None:
     # Standing (GPS noise under JITTER_M), then 10 m away at t = 20 s driving 2 m/s: it set
     # off 5 s before, at 15 s, not at the last fix standing (10 s) nor the first away.
