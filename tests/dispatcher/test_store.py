@@ -4,6 +4,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from helpers.processes import free_port
 
 from dispatcher.cli.main import main
 from dispatcher.daemon import events as ev
@@ -205,7 +206,9 @@ def test_serve_refuses_to_resume_a_run_of_other_inputs(
     store = Store.open(tmp_path, "tiny")
     store.begin_run(dispatch.job(), "made-from-something-else")
     store.close()
-    code = main(["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path), "--unsigned"])
+    listen = f"tcp/127.0.0.1:{free_port()}"  # (not the scenario's 7447: a demo may be on it)
+    args = ["serve", str(DATA / "tiny.toml"), "--data-dir", str(tmp_path), "--listen", listen]
+    code = main([*args, "--unsigned"])
     assert code == 2
     err = capsys.readouterr().err
     assert "unfinished run 1" in err and "--fresh" in err and str(tmp_path / DB_NAME) in err
