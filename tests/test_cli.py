@@ -528,6 +528,8 @@ def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
     assert fingerprint(base + "\n[dispatcher]\nlost_after_s = 9.0\n") == first
     assert fingerprint(base, time_limit=3.0) == first
     assert fingerprint(base, seed=7) != first
+    seed = int(next(ln for ln in base.splitlines() if ln.startswith("seed")).split("=")[1])
+    assert fingerprint(base, seed=seed) == first  # --seed as the scenario has it (a review)
     assert fingerprint(base.replace("road_fuel_lh = 3.0", "road_fuel_lh = 4.0", 1)) != first
     farm = tmp_path / "tiny-farm.geojson"
     farm.write_text(farm.read_text().replace("87.3007493", "87.30074", 2))  # field A narrower

@@ -265,7 +265,10 @@ def inputs_fingerprint(scenario, args: argparse.Namespace, *, as_repr: bool = Fa
     else:
         settings = {"fleet": _non_defaults(scenario.vehicles), "solver": _non_defaults(solver)}
         h.update(json.dumps(settings, sort_keys=True).encode())
-    h.update(repr(getattr(args, "seed", None)).encode())
+    seed = getattr(args, "seed", None)
+    if seed == scenario.solver.seed:
+        seed = None  # --seed as the scenario has it: the same inputs as without it
+    h.update(repr(seed).encode())
     return h.hexdigest()[:16]
 
 
