@@ -385,8 +385,9 @@ class VehicleState:
         so, and whether it said the failsafe is over since. Said by its text since ``since``
         (wall), or (the text lost on the radio) by a HEARTBEAT saying CRITICAL since
         ``held_since`` (out of AUTO), as Rover says for exactly its radio, ground-station
-        and EKF failsafes; over when the text says so or a later HEARTBEAT is STANDBY or
-        ACTIVE again. None after an EKF failsafe."""
+        and EKF failsafes, or by the text saying it is over since ``held_since``; over when
+        the text says so (when: then) or a later HEARTBEAT is STANDBY or ACTIVE again. None
+        after an EKF failsafe."""
         found: tuple[float, str, bool] | None = None
         for t, _, text in self.texts:
             if t < since:
@@ -395,8 +396,14 @@ class VehicleState:
                 return None
             if FAILSAFE_TEXT.match(text):
                 found = (t, text, False)
-            elif found is not None and FAILSAFE_CLEARED_TEXT.match(text):
-                found = (found[0], found[1], True)
+            elif FAILSAFE_CLEARED_TEXT.match(text):
+                if found is not None:  # when: its end (each failsafe once, its end with it)
+                    found = (t, found[1], True)
+                elif t >= held_since:
+                    # Its start not heard (our session down meanwhile: a dispatcher frozen
+                    # for 20 s heard neither text nor CRITICAL), its end after it left AUTO:
+                    # a failsafe held it, and is over.
+                    found = (t, text, True)
         if self.critical_at is None or self.critical_at < held_since:
             return found
         over = self.system_status in READY_STATES  # a HEARTBEAT after the critical one
