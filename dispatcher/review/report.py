@@ -376,6 +376,9 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
     def of(vid: str) -> _Traffic:
         return traffic.setdefault(vid, _Traffic([], [], []))
 
+    # The run's events, a stored copy among them where no log before held it.
+    kept_events = {id(rec) for rec in _event_records(log)}
+
     for rec in log.records:
         topic = rec.topic
         match = _VEHICLE_TOPIC.match(topic)
@@ -399,14 +402,19 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
                 of(fix.group(1)).fixes.append((rec.log_time_ns, doc))
         elif topic == EVENTS_TOPIC:
             # Items the dispatcher caught up with after a restart (reached while it was
-            # down): reports of the vehicle's, as its MISSION_CURRENT showed them.
+            # down): reports of the vehicle's, as its MISSION_CURRENT showed them. And the
+            # items a crash's log lost (its last half second), from their stored copies in
+            # the next log (a run killed as it ended was reviewed as unfinished).
             doc = _decode(rec.data)
             if (
                 doc is not None
                 and doc.get("kind") == ev.ItemReached.kind
-                and doc.get("caught_up")
-                and not doc.get(ev.STORED)  # a copy, after a restart, of one seen before
                 and isinstance(doc.get("vehicle"), str)
+                and (
+                    id(rec) in kept_events
+                    if doc.get(ev.STORED)  # a copy, after a restart, of one seen before?
+                    else doc.get("caught_up")
+                )
             ):
                 of(doc["vehicle"]).from_vehicle.append(
                     (
@@ -414,7 +422,7 @@ def _sort_traffic(log: LogContents) -> tuple[dict[str, _Traffic], list[tuple[int
                         {
                             "mavpackettype": "MISSION_ITEM_REACHED",
                             "seq": doc.get("seq"),
-                            "caught_up": True,
+                            "caught_up": bool(doc.get("caught_up")),
                         },
                     )
                 )

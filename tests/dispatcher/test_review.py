@@ -703,7 +703,7 @@ def test_a_resumed_logs_stored_events_stand_in_for_what_the_crashed_log_lost() -
     two items reached just before the kill were in the store, not in the first log)."""
     from dispatcher.daemon import events as ev
     from dispatcher.recording.mcap_file import EVENTS_TOPIC, LogContents, LogRecord
-    from dispatcher.review.report import _event_records
+    from dispatcher.review.report import _event_records, _sort_traffic
 
     def rec(event: ev.Event, ns: int, stored: bool = False) -> LogRecord:
         doc = {**ev.to_dict(event), **({ev.STORED: True} if stored else {})}
@@ -720,6 +720,13 @@ def test_a_resumed_logs_stored_events_stand_in_for_what_the_crashed_log_lost() -
         ("item_reached", 2),
         ("item_reached", 3),
         ("vehicle_lost", None),
+    ]
+    # The item the crash lost is the vehicle's report too (its frame was lost with it: an
+    # outside review's run, killed as it ended, was reviewed as unfinished at 2700 of 2703);
+    # those the first log holds are not reported twice.
+    traffic, _, _ = _sort_traffic(log)
+    assert traffic["v2"].from_vehicle == [
+        (3, {"mavpackettype": "MISSION_ITEM_REACHED", "seq": 3, "caught_up": False})
     ]
 
 
