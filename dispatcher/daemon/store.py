@@ -233,7 +233,12 @@ class Store:
             conn.execute("PRAGMA foreign_keys=ON")
         except sqlite3.DatabaseError as exc:
             os.close(lock)
-            raise StoreError(f"{path}: not a database agrifleet can use ({exc})") from exc
+            raise StoreError(
+                f"{path}: not a database agrifleet can use ({exc}): if it is this farm's, "
+                "damaged, move it aside (`sqlite3 FILE .recover` may save its events; the "
+                "logs hold the run) and serve again to start over; else use another "
+                f"{option}"
+            ) from exc
         except StoreError:
             os.close(lock)
             raise

@@ -178,8 +178,16 @@ def test_foreign_and_newer_databases_are_refused(tmp_path: Path) -> None:
         Store.open(newer, "tiny")
     (tmp_path / "text").mkdir()
     (tmp_path / "text" / DB_NAME).write_text("not a database at all, but long enough " * 40)
-    with pytest.raises(StoreError, match="not a database"):
+    with pytest.raises(StoreError, match="not a database") as err:
         Store.open(tmp_path / "text", "tiny")
+    assert "move it aside" in str(err.value) and "use another --data-dir" in str(err.value)
+    half = tmp_path / "half"  # a database cut short (a disk full, a copy broken off)
+    Store.open(half, "tiny").close()
+    whole = (half / DB_NAME).read_bytes()
+    (half / DB_NAME).write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(StoreError, match="not a database agrifleet can use .*move it aside"):
+        Store.open(half, "tiny")
+    assert (half / DB_NAME).read_bytes() == whole[: len(whole) // 2]  # left as it was
     with pytest.raises(StoreError, match="synchronous"):
         Store.open(tmp_path / "x", "tiny", sync="off")
 
