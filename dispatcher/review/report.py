@@ -1634,7 +1634,9 @@ def review_contents(log: LogContents) -> Review:
 def _fresh_mission(vid: str, given_ns: int, start_ns: int | None) -> str:
     return (
         f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
-        f"its traffic from there against that mission (the fields show all its work)"
+        f"its traffic from there against that mission: what it did before is not in its "
+        "row's hours, distance and fuel, nor the totals' (its fields done before show "
+        "with times before its row's start)"
     )
 
 
