@@ -736,7 +736,8 @@ def _across_gaps(
                 before, after = reports[middle - 1][3], reports[middle][2]
                 for seq, point in _mission_between(a, b, before, after, items, planned_s):
                     out.append(point)
-                    passed[seq] = point.t
+                    if seq is not None:
+                        passed[seq] = point.t
         out.append(b)
         a = b
     return out, passed
@@ -749,16 +750,19 @@ def _mission_between(
     after: int,
     items: Sequence[PlannedItem],
     planned_s: Sequence[float] | None = None,
-) -> list[tuple[int, _Point]]:
+) -> list[tuple[int | None, _Point]]:
     """The mission's waypoints from item ``before`` up to (not with) ``after``, passed
     between positions ``a`` and ``b``: at the mission's pace from ``a`` when ``planned_s``
-    (each item's planned time) says it fits in the gap, else at times spread between."""
+    (each item's planned time) says it fits in the gap, else at times spread between.
+    At that pace, when ``b`` finds it standing, then (item None) its arrival there at the
+    pace of the leg into ``after``: the rest of the gap it stood there (held on the leg,
+    not at its last waypoint: a straight line on to ``b`` counted those hours as driving)."""
     between = [s for s in range(max(before, 1), min(after, len(items))) if items[s].is_nav]
     pace = planned_s if planned_s is not None and len(planned_s) == len(items) else None
     origin = pace[max(before - 1, 0)] if pace is not None else 0.0
     # the legs to each waypoint, and on from the last to ``b``, fit in the gap
     fits = pace is not None and 0.0 < pace[min(after, len(items) - 1)] - origin <= b.t - a.t
-    out = []
+    out: list[tuple[int | None, _Point]] = []
     for n, s in enumerate(between, 1):
         item = items[s]
         if mc.has_fix(item.lat, item.lon):
@@ -767,6 +771,21 @@ def _mission_between(
             else:
                 t = a.t + (b.t - a.t) * n / (len(between) + 1)
             out.append((s, _Point(t, a.order, item.lat, item.lon, None, True, filled=True)))
+    legs = [
+        k for k in range(after, 0, -1) if items[k].is_nav and mc.has_fix(items[k].lat, items[k].lon)
+    ]
+    standing = b.speed is not None and b.speed < STILL_SPEED_MS  # (driving: it drove on)
+    if fits and standing and pace is not None and len(legs) >= 2 and legs[0] == after:
+        into, frm = items[after], items[legs[1]]
+        leg_m = _metres((frm.lat, frm.lon), (into.lat, into.lon))
+        leg_s = pace[after] - pace[legs[1]]
+        last = out[-1][1] if out else a
+        if leg_m > 0.0 and leg_s > 0.0:
+            arrive = (
+                last.t + min(_metres((last.lat, last.lon), (b.lat, b.lon)) / leg_m, 1.0) * leg_s
+            )
+            if last.t < arrive < b.t:
+                out.append((None, _Point(arrive, a.order, b.lat, b.lon, None, filled=True)))
     return out
 
 

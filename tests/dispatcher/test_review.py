@@ -897,10 +897,22 @@ def test_across_a_gap_the_mission_is_driven_at_its_pace_then_stood(dispatch) -> 
     span = planned[after] - planned[before - 1]
     b = _Point(1000.0 + 10 * span, 1, items[after].lat, items[after].lon, 0.0)
     paced = _mission_between(a, b, before, after, items, planned)
-    assert [s for s, _ in paced] == [s for s in range(before, after) if items[s].is_nav]
-    for s, point in paced:
+    *passed, (arrival, there) = paced
+    assert [s for s, _ in passed] == [s for s in range(before, after) if items[s].is_nav]
+    for s, point in passed:
         assert point.t == pytest.approx(1000.0 + planned[s] - planned[before - 1])
-    assert paced[-1][1].t < 1000.0 + 1.5 * span  # then it stood, 8.5 spans of the gap
+    # at b's place when the mission's pace brings it there, then it stood: 9 spans
+    assert arrival is None and (there.lat, there.lon) == (b.lat, b.lon)
+    assert there.t == pytest.approx(1000.0 + span)
+    # Held half way along the leg into ``after`` (an outside review's run: a straight line
+    # from the last waypoint on to where it stood counted its 5 h held as work): there
+    # half the leg's time after that waypoint.
+    prev = passed[-1][0]
+    lat, lon = (items[prev].lat + items[after].lat) / 2, (items[prev].lon + items[after].lon) / 2
+    held = dataclasses.replace(b, lat=lat, lon=lon)
+    *_, (_, mid) = _mission_between(a, held, before, after, items, planned)
+    half = 1000.0 + planned[prev] - planned[before - 1] + (planned[after] - planned[prev]) / 2
+    assert mid.t == pytest.approx(half, rel=1e-3) and (mid.lat, mid.lon) == (lat, lon)
     short = dataclasses.replace(b, t=1000.0 + span / 2)
     spread = _mission_between(a, short, before, after, items, planned)
     assert spread[-1][1].t < short.t and spread[0][1].t > a.t
