@@ -1859,6 +1859,21 @@ def test_a_tractor_left_out_by_a_re_plan_after_a_restart_is_held_when_heard_agai
     assert daemon._replan_reason == "v1 back" and link.rejoin_asked
 
 
+def test_progress_may_be_looked_at_more_often_than_the_status_is_published(dispatch):
+    """The demo looks for its faults every 0.1 s; the status went out (and into the log, and
+    to Foxglove) as often, ten times the documented once a second (an outside review)."""
+    daemon = daemon_for(dispatch)
+    calls = []
+    daemon.config.on_progress = lambda state: calls.append(state)
+    daemon.config.progress_period_s = 0.1
+    published = []
+    publish = daemon._publish_status
+    daemon._publish_status = lambda now: (published.append(now), publish(now))
+    for k in range(1, 61):  # 3 s in ticks of 0.05 s
+        daemon._tick(daemon._started + k / 20 + 1e-6)
+    assert len(published) == 3 and len(calls) >= 20
+
+
 def test_set_off_is_the_first_move_taken_back_along_its_first_leg() -> None:
     # Standing (GPS noise under JITTER_M), then 10 m away at t = 20 s driving 2 m/s: it set
     # off 5 s before, at 15 s, not at the last fix standing (10 s) nor the first away.
