@@ -127,7 +127,16 @@ def test_upload_run_complete_cycle_recorded_to_mcap(procs, tmp_path):
             key = f"agrifleet/tiny/vehicle/{vid}/mavlink/{direction}"
             assert counts[key] > 0
             assert counts[f"{key}/json"] == counts[key]  # every frame decoded
-        assert counts[f"/vehicle/{vid}/fix"] > 0
+        # A fix with each position (those heard as the run ended too: the map's last)
+        heard = log.on(f"agrifleet/tiny/vehicle/{vid}/mavlink/from/json")
+        positions = [r.decode_json() for r in heard]
+        fixed = [
+            d
+            for d in positions
+            if d["mavpackettype"] == "GLOBAL_POSITION_INT"
+            and mc.has_fix(d["lat"] / 1e7, d["lon"] / 1e7)
+        ]
+        assert counts[f"/vehicle/{vid}/fix"] == len(fixed) > 0
     assert counts["/plan/geojson"] == 1
     # A decoded frame matches its raw bytes.
     raw = log.on("agrifleet/tiny/vehicle/v1/mavlink/to")

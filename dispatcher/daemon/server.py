@@ -557,15 +557,6 @@ class Dispatcher:
                 self._apply(ev.LeftAuto(vid, reason, by_operator=True), now)
                 self._log("warning", f"{vid}: {reason}; {OPERATOR_HOLDS}")
             self._apply(event, now)
-        if msg.get_type() == "GLOBAL_POSITION_INT" and self.recorder is not None:
-            self.recorder.record_location(
-                vid,
-                msg.lat / 1e7,
-                msg.lon / 1e7,
-                t_ns,
-                msg.time_boot_ms / 1000.0,
-                heading_deg=v.heading_deg,
-            )
         for machine in link.exchanges():
             if machine is not None and machine.outcome is Outcome.RUNNING:
                 self._send(vid, machine.on_message(msg, now))
@@ -590,6 +581,23 @@ class Dispatcher:
             if doc is not None and v is not None and msg is not None:
                 _plan_numbers(doc, msg, v)
             self.recorder.record_frame(key, payload, t_ns, doc)
+            if (
+                v is not None
+                and msg is not None
+                and msg.get_type() == "GLOBAL_POSITION_INT"
+                and msg.get_srcSystem() == v.system_id
+            ):
+                # With its frame: also those still queued when the run ends (the last
+                # position of every tractor, back in the garage, was missing on the map).
+                known = msg.hdg != 0xFFFF  # UINT16_MAX: unknown
+                self.recorder.record_location(
+                    v.id,
+                    msg.lat / 1e7,
+                    msg.lon / 1e7,
+                    t_ns,
+                    msg.time_boot_ms / 1000.0,
+                    heading_deg=msg.hdg / 100.0 if known else v.heading_deg,
+                )
         return msg
 
     def _foreign_command(

@@ -1859,6 +1859,27 @@ def test_a_tractor_left_out_by_a_re_plan_after_a_restart_is_held_when_heard_agai
     assert daemon._replan_reason == "v1 back" and link.rejoin_asked
 
 
+def test_a_position_still_queued_as_the_run_ends_is_recorded_as_a_fix_too(dispatch):
+    """At the end the dispatcher records what is still queued, frames only: each tractor's
+    last position, back in the garage, was on the MAVLink topic but not on its fix topic,
+    and Foxglove's map ended without it (an outside review)."""
+    import io
+
+    from dispatcher.link import wire
+    from dispatcher.recording.mcap_file import Recorder, read_log
+    from dispatcher.recording.topics import location_topic
+
+    daemon = daemon_for(dispatch)
+    buf = io.BytesIO()
+    daemon.recorder = Recorder(buf, "tiny")
+    daemon.recorder.start()
+    frame = mc.Codec(11, 1).encode(position(5_000, 440_003_000, 873_001_000))
+    daemon._record_only(("frame", wire.vehicle_from("tiny", "v1"), frame, 1_000_000_000))
+    daemon.recorder.finish()
+    fixes = read_log(io.BytesIO(buf.getvalue())).on(location_topic("v1"))
+    assert len(fixes) == 1
+
+
 def test_progress_may_be_looked_at_more_often_than_the_status_is_published(dispatch):
     """The demo looks for its faults every 0.1 s; the status went out (and into the log, and
     to Foxglove) as often, ten times the documented once a second (an outside review)."""
