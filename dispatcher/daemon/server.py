@@ -1787,7 +1787,17 @@ class Dispatcher:
         published; each vehicle whose mission changed given its new one (module doc of
         tools/replan). Returns those vehicles."""
         before = {vid: v.items for vid, v in self.state.vehicles.items()}
+        relaid = {fid: len(f.relaid) for fid, f in self.state.fields.items()}
         self._apply(ev.PlanReplaced(ev.FLEET, job.plan_id, reason, job.document.to_dict()), now)
+        for fid, f in self.state.fields.items():
+            if len(f.relaid) > relaid.get(fid, 0):
+                began, worked = f.relaid[-1]
+                self._log(
+                    "warning",
+                    f"field {fid}: laid out anew for {f.vehicle} (no tractor of {began}'s width "
+                    f"and turning radius takes its rest): the {worked} segments worked of it "
+                    "are worked again",
+                )
         self.job = job
         if self.store is not None:
             self.store.replace_missions(job)

@@ -462,6 +462,9 @@ class FieldState:
     # (working width, turning radius) of the layout the segments number: a re-plan that
     # gives the field to a machine of another width or radius lays it out anew.
     layout: tuple[float, float] | None = None
+    # Each time it was laid out anew with some of it worked: who began it, and how many of
+    # the old layout's segments had been worked (to be worked again in the new one).
+    relaid: list[tuple[str, int]] = field(default_factory=list)
 
     @property
     def worked_twice(self) -> list[int]:
@@ -707,6 +710,8 @@ class FleetState:
                 continue
             anew = f.layout is not None and layouts[fid] != f.layout
             if anew:
+                if f.passes:  # (begun by started_by; the plan has given it on by now)
+                    f.relaid.append((f.started_by or f.vehicle, len(f.passes)))
                 f.passes = {}
             if anew or not f.passes:
                 f.segments = max(segments) + 1
@@ -846,7 +851,7 @@ class FleetState:
             f.status = "working"
             # Its time is the start, better than the entry's, unless some of the field was
             # worked before (a re-plan's rest of it: the start stays the first visit's).
-            if (reported and not f.passes) or f.started_s is None:
+            if (reported and not f.passes and not f.relaid) or f.started_s is None:
                 f.started_s, f.started_by = clock_s, v.id
         elif item.role == "swath_end":
             f.swaths_done += 1
@@ -1086,6 +1091,7 @@ class FleetState:
                     "swaths_done": f.swaths_done,
                     "segments": f.segments,
                     "worked_twice": f.worked_twice,
+                    "relaid": [list(r) for r in f.relaid],
                 }
                 for f in self.fields.values()
             },

@@ -198,6 +198,9 @@ class FieldReview:
     segments: int = 0
     worked_twice: tuple[int, ...] = ()
     never_worked: tuple[int, ...] = ()
+    # Laid out anew by a re-plan for a machine of another width or turning radius: (who
+    # began it, the segments of the old layout worked), each worked again in the new one.
+    relaid: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -1622,6 +1625,11 @@ def review_contents(log: LogContents) -> Review:
                 f"field {fr.id}: segment(s) {', '.join(map(str, fr.worked_twice))} "
                 f"of {fr.segments} worked more than once"
             )
+        for began, worked in fr.relaid:
+            warnings.append(
+                f"field {fr.id}: laid out anew by a re-plan (another working width or turning "
+                f"radius): the {worked} segment(s) worked of it before ({began}'s) worked again"
+            )
         if fr.done and fr.never_worked:
             warnings.append(
                 f"field {fr.id}: done, but segment(s) {', '.join(map(str, fr.never_worked))} "
@@ -1932,6 +1940,7 @@ def _field_reviews(
                 segments=state.segments if state is not None else 0,
                 worked_twice=tuple(state.worked_twice) if state is not None else (),
                 never_worked=tuple(state.never_worked) if state is not None else (),
+                relaid=tuple(state.relaid) if state is not None else (),
             )
         )
     return out
@@ -2069,6 +2078,7 @@ def review_json(review: Review) -> dict[str, Any]:
             "segments": f.segments,
             "worked_twice": list(f.worked_twice),
             "never_worked": list(f.never_worked),
+            "relaid": [list(r) for r in f.relaid],
         }
         for f in review.fields
     }

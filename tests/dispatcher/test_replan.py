@@ -413,7 +413,8 @@ def test_a_field_a_re_plan_lays_out_anew_counts_the_new_layouts_segments(dispatc
         started(state, vid)
     state.apply(ev.ItemReached(lost, swath_end(dispatch, lost, fid, 1), 100.0), 1.0)
     state.apply(ev.VehicleLost(lost, "heartbeats stopped"), 2.0)
-    assert state.fields[fid].passes
+    worked = len(state.fields[fid].passes)
+    assert worked
     nxt = replan(dispatch.scenario, dispatch, state, stop=stop_after(5))
     job = handover(dispatch.job(), state, nxt)
     state.apply(ev.PlanReplaced(ev.FLEET, job.plan_id, "lost", job.document.to_dict()), 3.0)
@@ -421,7 +422,12 @@ def test_a_field_a_re_plan_lays_out_anew_counts_the_new_layouts_segments(dispatc
     new = {i.segment for i in items if i.field_id == fid and i.role == "swath_end"}
     f = state.fields[fid]
     assert f.segments == max(new) + 1 and not f.passes
+    # What was worked of it is said (to be worked again: the status and the review lost it,
+    # and the start went to the second tractor: an outside review)
+    assert f.relaid == [(lost, worked)] and f.started_by == lost
+    assert state.status_doc()["fields"][fid]["relaid"] == [[lost, worked]]
     for event in (ev.SwitchUploaded(other), ev.UploadAcked(other)):  # its new mission on board
         state.apply(event, 4.0)
     state.apply(ev.ItemReached(other, len(items) - 1, 900.0), 5.0)
     assert f.status == "done" and not f.never_worked and not f.worked_twice
+    assert f.started_by == lost  # the first start is kept
