@@ -746,8 +746,10 @@ class Dispatcher:
                 self._apply(ev.BackInAuto(vid), now)
             if v.phase is Phase.WAITING and now - self._started > self._alive_timeout(v):
                 # One left out of the plan before a restart: its work is the others'.
-                self._log("info" if v.retired else "error", f"{vid}: never came alive")
-                self._apply(ev.VehicleLost(vid, "never came alive"), now)
+                # (one that worked before the dispatcher's restart did come alive then)
+                why = "not heard since the restart" if v.resuming else "never came alive"
+                self._log("info" if v.retired else "error", f"{vid}: {why}")
+                self._apply(ev.VehicleLost(vid, why), now)
             elif (
                 v.phase is Phase.ALIVE
                 and v.mode is None  # no HEARTBEAT of it taken

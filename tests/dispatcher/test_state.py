@@ -1797,7 +1797,7 @@ def test_a_left_out_vehicle_not_heard_after_a_restart_is_no_error(dispatch, tmp_
     daemon.config.replanner = lambda state, cancel: None
     with caplog.at_level("INFO"):
         daemon._tick(daemon._started + 61.0)
-    assert v.phase is Phase.LOST and "v1: never came alive" in caplog.text
+    assert v.phase is Phase.LOST and "v1: not heard since the restart" in caplog.text
     assert not [r for r in caplog.records if r.levelname == "ERROR" and "v1:" in r.message]
     # Its work is the others' already: a review's restarts each re-planned the farm for it.
     asked = daemon._replan_reason + daemon._replan_asked[0]
