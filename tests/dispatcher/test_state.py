@@ -1859,6 +1859,36 @@ def test_a_tractor_left_out_by_a_re_plan_after_a_restart_is_held_when_heard_agai
     assert daemon._replan_reason == "v1 back" and link.rejoin_asked
 
 
+def test_an_events_stored_copy_and_its_record_have_one_time(dispatch, tmp_path):
+    """A resumed run's log copies the stored events; the review tells a copy from its
+    original by the time (to SAME_EVENT_NS). A re-plan's event was stored 0.12 s before it
+    was recorded (its 630 kB document written between), and the review told it twice."""
+    import io
+
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+    from dispatcher.daemon.store import Store
+    from dispatcher.recording.mcap_file import EVENTS_TOPIC, Recorder, read_log
+    from dispatcher.review.report import SAME_EVENT_NS
+
+    store = Store.open(tmp_path, "tiny")
+    job = dispatch.job()
+    store.begin_run(job, "x")
+    daemon = Dispatcher(DaemonConfig(job=job, store=store))
+    buf = io.BytesIO()
+    daemon.recorder = Recorder(buf, "tiny")
+    daemon.recorder.start()
+    daemon.store.append = lambda event, wall, append=store.append: (  # a slow write
+        time.sleep(0.05),
+        append(event, wall),
+    )
+    daemon._apply(ev.VehicleSeen("v1"), 0.0)
+    store.commit()
+    daemon.recorder.finish()
+    (wall,) = [w for (w,) in store.rows("SELECT wall FROM events")]
+    (record,) = read_log(io.BytesIO(buf.getvalue())).on(EVENTS_TOPIC)
+    assert abs(record.log_time_ns - wall * 1e9) <= SAME_EVENT_NS
+
+
 def test_a_position_still_queued_as_the_run_ends_is_recorded_as_a_fix_too(dispatch):
     """At the end the dispatcher records what is still queued, frames only: each tractor's
     last position, back in the garage, was on the MAVLink topic but not on its fix topic,
