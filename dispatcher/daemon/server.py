@@ -1796,9 +1796,9 @@ class Dispatcher:
                 began, worked = f.relaid[-1]
                 self._log(
                     "warning",
-                    f"field {fid}: laid out anew for {f.vehicle} (no tractor of {began}'s width "
-                    f"and turning radius takes its rest): the {worked} segments worked of it "
-                    "are worked again",
+                    f"field {fid}: laid out anew for {f.vehicle}, of another working width or "
+                    f"turning radius than {began}, who began it: the {worked} segments worked "
+                    "of it are worked again",
                 )
         self.job = job
         if self.store is not None:
