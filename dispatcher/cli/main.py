@@ -41,7 +41,8 @@ EXIT_CODES = {
     EXIT_OK: "done (serve, demo: every field done; sim, bridge, router: stopped by Ctrl-C or "
     "SIGTERM)",
     EXIT_FAILURE: "an unexpected error (a bug: please report it with the traceback)",
-    EXIT_BAD_INPUT: "bad input: a file, key or option, named in the message; nothing written",
+    EXIT_BAD_INPUT: "bad input: a file, key or option, named in the message; no plan, mission "
+    "or run written (serve: the data and log directories may have been made)",
     EXIT_INCOMPLETE: "serve, demo: the run ended with fields not done (vehicles failed or lost)",
     EXIT_LINK_DOWN: "sim --mavlink: the MAVLink socket could not be opened",
     EXIT_INTERRUPTED: "serve, demo, plan, bench: interrupted (Ctrl-C, SIGTERM); a run's log is "
