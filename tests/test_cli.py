@@ -525,6 +525,15 @@ def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
 
     first = fingerprint(base)
     assert fingerprint(base + "\n# a comment\n") == first
+    # The same farm saved again (another layout of its JSON), a field renamed: the same
+    # plan (the file's bytes refused the resume: an outside review)
+    farm = tmp_path / "tiny-farm.geojson"
+    drawn = json.loads(farm.read_text())
+    farm.write_text(json.dumps(drawn, indent=4))
+    assert fingerprint(base) == first
+    drawn["features"][0]["properties"]["name"] = "Renamed"
+    farm.write_text(json.dumps(drawn))
+    assert fingerprint(base) == first
     assert fingerprint(base + "\n[dispatcher]\nlost_after_s = 9.0\n") == first
     assert fingerprint(base, time_limit=3.0) == first
     assert fingerprint(base, seed=7) != first
@@ -590,6 +599,9 @@ def test_a_setting_an_upgrade_adds_at_its_default_keeps_a_stored_run_resumable(t
     now = inputs_fingerprint(upgraded(0.5), args)
     check_resumable(stored(before), now, upgraded(0.5), args, tmp_path)
     check_resumable(stored(old), before, scenario, args, tmp_path)  # by the version before
+    by_bytes = inputs_fingerprint(scenario, args, file_bytes=True)  # to 2026-11-29 14:00
+    assert by_bytes not in (before, old)
+    check_resumable(stored(by_bytes), before, scenario, args, tmp_path)
     with pytest.raises(StoreError, match="unfinished run 3 .* made from other inputs"):
         check_resumable(stored(before), inputs_fingerprint(upgraded(0.7), args),
                         upgraded(0.7), args, tmp_path)  # fmt: skip

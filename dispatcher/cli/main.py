@@ -237,25 +237,32 @@ def load_scenario_args(args: argparse.Namespace):  # type: ignore[no-untyped-def
     return scenario
 
 
-def inputs_fingerprint(scenario, args: argparse.Namespace, *, as_repr: bool = False) -> str:  # type: ignore[no-untyped-def]
-    """What a plan is made from: the farm file as it is now, its fields and garage as read,
-    the fleet, and the solver's settings (the command line's included). A stored run made
-    from other inputs is not resumed by mistake; a comment, the [dispatcher] section or a
-    time limit changed in the scenario do not make another plan, and it is resumed (they
-    refused it: review).
+def inputs_fingerprint(  # type: ignore[no-untyped-def]
+    scenario, args: argparse.Namespace, *, as_repr: bool = False, file_bytes: bool = False
+) -> str:
+    """What a plan is made from: the farm as read (its fields' outlines, work angles and
+    headland passes, its roads, gates and garage), the fleet, and the solver's settings
+    (the command line's included). A stored run made from other inputs is not resumed by
+    mistake; a comment, the [dispatcher] section or a time limit changed in the scenario do
+    not make another plan, and it is resumed (they refused it: review); nor does the same
+    farm saved again, or a field renamed (the farm file's bytes refused it: review).
 
     The fleet and the solver's settings count by the values not at their defaults
     (:func:`_non_defaults`): a setting an upgrade adds, left at its default, leaves the
     fingerprint as it was, and the run stored before the upgrade is resumed (hashed as
     their ``repr``, it was refused as made from other inputs: --fresh, and the fields
-    worked twice). ``as_repr``: the fingerprint as runs stored before 2026-11-29 have it
-    (the ``repr``), so that those are resumed too."""
+    worked twice). The fingerprints runs stored before had, so that those are resumed too:
+    ``file_bytes``, the farm file's bytes for the farm as read (to 2026-11-29 14:00);
+    ``as_repr``, those and the settings' ``repr`` (before 2026-11-29)."""
     import dataclasses
     import hashlib
 
     h = hashlib.sha256()
-    with contextlib.suppress(OSError):
-        h.update(Path(scenario.farm.source).read_bytes())
+    if file_bytes or as_repr:
+        with contextlib.suppress(OSError):
+            h.update(Path(scenario.farm.source).read_bytes())
+    else:
+        h.update(_farm_as_read(scenario.farm))
     farm = scenario.farm
     h.update(repr([(f.id, round(f.area_m2, 1)) for f in farm.fields]).encode())
     h.update(repr(tuple(round(c, 7) for c in farm.garage_lonlat)).encode())
@@ -281,13 +288,38 @@ def check_resumable(run, fingerprint: str, scenario, args: argparse.Namespace, w
 
     if run.fingerprint == fingerprint:
         return
-    if run.fingerprint == inputs_fingerprint(scenario, args, as_repr=True):
-        return
+    for before in ({"file_bytes": True}, {"as_repr": True}):
+        if run.fingerprint == inputs_fingerprint(scenario, args, **before):
+            return
     raise StoreError(
         f"{where} holds unfinished run {run.id} (plan {run.job.plan_id}) made from other "
         f"inputs: {args.scenario}, its farm or the options changed since. Serve it with the "
         "same ones to finish it, or add --fresh to start over"
     )
+
+
+def _farm_as_read(farm) -> bytes:  # type: ignore[no-untyped-def]
+    """The farm as planned from, to 1e-7 degrees: each field's id, outline and holes, work
+    angle and headland passes; each road; each gate (not names, nor the file's layout)."""
+
+    def ring(coords: Any) -> list[list[float]]:
+        return [[round(x, 7), round(y, 7)] for x, y in coords]
+
+    doc = {
+        "fields": [
+            [
+                f.id,
+                [ring(f.boundary_lonlat.exterior.coords)]
+                + [ring(hole.coords) for hole in f.boundary_lonlat.interiors],
+                f.work_angle_deg,
+                f.headland_passes,
+            ]
+            for f in farm.fields
+        ],
+        "roads": [[r.id, ring(r.line_lonlat.coords)] for r in farm.roads],
+        "gates": [[g.field_id, ring([g.lonlat])] for g in farm.gates],
+    }
+    return json.dumps(doc, sort_keys=True).encode()
 
 
 def _non_defaults(value: object) -> object:
