@@ -1539,12 +1539,29 @@ def review_contents(log: LogContents) -> Review:
     results: dict[str, _VehicleResult] = {}
 
     def reviewed_from(vid: str) -> int:
-        """From when the vehicle's traffic is set against its last mission (and a warning
-        when a re-plan sent it out again with that mission)."""
+        """From when the vehicle's traffic is set against its last mission (a re-plan sent
+        it out again with that mission: what it did before is added by ``with_before``)."""
+        return fresh.get(vid, since_ns)
+
+    def with_before(vid: str, later: _VehicleResult) -> _VehicleResult:
+        """``later``, the row of a vehicle a re-plan sent out again with a fresh mission,
+        with what it did before against the mission it had then (and a warning saying so);
+        ``later`` as it is for any other."""
         given_ns = fresh.get(vid, since_ns)
-        if given_ns > since_ns:
-            warnings.append(_fresh_mission(vid, given_ns, start_ns))
-        return given_ns
+        if given_ns <= since_ns:
+            return later
+        joined = _with_work_before(
+            vid, later, traffic.get(vid, _Traffic([], [], [])), since_ns, given_ns, plans[base:],
+            rings,
+        )  # fmt: skip
+        warnings.append(_fresh_mission(vid, given_ns, start_ns, joined is not later))
+        if joined is not later:
+            # the fields it worked before are its row's again: said as the status lists them
+            said = status.get(vid, {}) if status else {}
+            if said.get("fields_done") == list(joined.review.fields_done):
+                mismatch = f"{vid}: the dispatcher's status lists fields"
+                joined.warnings = [w for w in joined.warnings if not w.startswith(mismatch)]
+        return joined
 
     rings = {fid: f.rings for fid, f in plan.fields.items()}
     for machine in plan.machines:
@@ -1564,6 +1581,7 @@ def review_contents(log: LogContents) -> Review:
             rings,
             given.log_ns if went_on else None,
         )
+        result = with_before(machine.id, result)
         results[machine.id] = result
         vehicles.append(result.review)
         warnings += result.warnings
@@ -1587,6 +1605,7 @@ def review_contents(log: LogContents) -> Review:
             given.log_ns if went_on else None,
             left_out=True,
         )
+        result = with_before(vid, result)
         result.review = dataclasses.replace(result.review, left_out=True)
         results[vid] = result
         vehicles.append(result.review)
@@ -1658,12 +1677,120 @@ def review_contents(log: LogContents) -> Review:
     )
 
 
-def _fresh_mission(vid: str, given_ns: int, start_ns: int | None) -> str:
+def _fresh_mission(vid: str, given_ns: int, start_ns: int | None, joined: bool) -> str:
+    if joined:
+        return (
+            f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
+            "what it did before, against the mission it had then (planned to where it got), "
+            "and its traffic from there against the new one"
+        )
     return (
         f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
-        f"its traffic from there against that mission: what it did before is not in its "
-        "row's hours, distance and fuel, nor the totals' (its fields done before show "
-        "with times before its row's start)"
+        f"its traffic from there against that mission: what it did before (its clock went "
+        "back meanwhile) is not in its row's hours, distance and fuel, nor the totals'"
+    )
+
+
+def _with_work_before(
+    vid: str,
+    later: _VehicleResult,
+    traffic: _Traffic,
+    since_ns: int,
+    given_ns: int,
+    plans: Sequence[_Plan],
+    fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
+) -> _VehicleResult:
+    """``later`` (a vehicle's row from ``given_ns``, when a re-plan gave it a fresh mission)
+    with its traffic before, reviewed against the mission it had then, up to where it got
+    (the rest of that mission went to the re-plan), joined into one row on its clock. A
+    tractor stopped, its work re-planned, back and sent out again: its first 13.6 h were
+    in neither its row nor the totals (an outside review). ``later`` as it is when it did
+    nothing before, or its clock went back meanwhile (a reboot: no one timeline)."""
+    before = [p for p in plans if p.log_ns < given_ns]
+    had = next((p for p in reversed(before) if any(m.id == vid for m in p.machines)), None)
+    if had is None:
+        return later
+    _, planned = _mission_given(before, had, vid)
+    cut = _Traffic(
+        [x for x in traffic.from_vehicle if x[0] < given_ns],
+        [x for x in traffic.to_vehicle if x[0] < given_ns],
+        [x for x in traffic.fixes if x[0] < given_ns],
+    )
+    earlier = _review_vehicle(vid, planned, cut, None, since_ns, given_ns, fields, left_out=True)
+    first, last = earlier.review, later.review
+    if first.start_clock_s is None or first.end_clock_s is None:
+        return later
+    if last.start_clock_s is not None and last.start_clock_s < first.end_clock_s:
+        return later
+    return _joined(earlier, later)
+
+
+def _joined(earlier: _VehicleResult, later: _VehicleResult) -> _VehicleResult:
+    """One row of two parts of a vehicle's day on one clock: ``earlier`` then ``later``
+    (:func:`_with_work_before`); between them it stood."""
+    a, b = earlier.review, later.review
+    assert a.start_clock_s is not None and a.end_clock_s is not None
+    start = a.start_clock_s
+    if b.start_clock_s is None:  # not set off again (yet): the earlier part and the wait
+        shift, gap = 0.0, 0.0
+    else:
+        shift = b.start_clock_s - start
+        gap = max(b.start_clock_s - a.end_clock_s, 0.0)
+    end = b.end_clock_s if b.end_clock_s is not None else a.end_clock_s
+
+    def moved(acts: Sequence[Activity]) -> tuple[Activity, ...]:
+        return tuple(
+            dataclasses.replace(x, start_s=x.start_s + shift, end_s=x.end_s + shift) for x in acts
+        )
+
+    waited = (
+        (Activity("stopped", a.end_clock_s - start, a.end_clock_s - start + gap),) if gap else ()
+    )
+    fuel = None if a.fuel_l is None or b.fuel_l is None else a.fuel_l + b.fuel_l
+    review = dataclasses.replace(
+        b,
+        fields_planned=tuple(dict.fromkeys(a.fields_done + b.fields_planned)),
+        fields_done=a.fields_done + b.fields_done,
+        start_clock_s=start,
+        end_clock_s=end,
+        distance_m=a.distance_m + b.distance_m,
+        work_m=a.work_m + b.work_m,
+        transit_m=a.transit_m + b.transit_m,
+        time_h=(end - start) / 3600.0,
+        working_h=a.working_h + b.working_h,
+        transit_h=a.transit_h + b.transit_h,
+        stopped_h=a.stopped_h + b.stopped_h + gap / 3600.0,
+        turns=a.turns + b.turns,
+        turning_h=a.turning_h + b.turning_h,
+        fuel_l=fuel,
+        planned_distance_m=a.planned_distance_m + b.planned_distance_m,
+        planned_road_m=a.planned_road_m + b.planned_road_m,
+        planned_time_h=a.planned_time_h + b.planned_time_h,
+        mission_time_h=(
+            None
+            if a.mission_time_h is None or b.mission_time_h is None
+            else a.mission_time_h + b.mission_time_h
+        ),
+        planned_fuel_l=a.planned_fuel_l + b.planned_fuel_l,
+        planned_turns=a.planned_turns + b.planned_turns,
+        upload_attempts=a.upload_attempts + b.upload_attempts,
+        upload_retries=a.upload_retries + b.upload_retries,
+        heartbeat_gaps_s=a.heartbeat_gaps_s + b.heartbeat_gaps_s,
+        last_report_h=(
+            a.last_report_h if b.last_report_h is None else b.last_report_h + shift / 3600.0
+        ),
+        activities=a.activities + waited + moved(b.activities),
+        track=a.track + tuple((t + shift, lat, lon) for t, lat, lon in b.track),
+        planned_route=a.planned_route + b.planned_route,
+        reboots=a.reboots + tuple(t + shift for t in b.reboots),
+        autopilot_problems=tuple(dict.fromkeys(a.autopilot_problems + b.autopilot_problems)),
+    )
+    return dataclasses.replace(
+        later,
+        review=review,
+        field_times={**earlier.field_times, **later.field_times},
+        start_clock=start,
+        planned_s=(None if later.planned_s is None else [t + shift for t in later.planned_s]),
     )
 
 

@@ -730,6 +730,52 @@ def test_a_resumed_logs_stored_events_stand_in_for_what_the_crashed_log_lost() -
     ]
 
 
+def test_a_vehicle_sent_out_again_has_what_it_did_before_in_its_row(review: Review) -> None:
+    """A tractor stopped, its work re-planned, back and sent out with a fresh mission: its
+    row was its traffic from then on, and its first 13.6 h were in neither its row nor the
+    totals (an outside review). The part before, reviewed against the mission it had then,
+    and the part after are one row on its clock, the wait between them standing."""
+    from dispatcher.review.report import Activity, _FieldTimes, _joined, _VehicleResult
+
+    base = review.vehicle("v1")
+
+    def part(start: float, end: float, fields: tuple[str, ...], km: float) -> _VehicleResult:
+        row = dataclasses.replace(
+            base,
+            fields_done=fields,
+            fields_planned=fields,
+            start_clock_s=start,
+            end_clock_s=end,
+            distance_m=km * 1000.0,
+            time_h=(end - start) / 3600.0,
+            working_h=(end - start) / 3600.0,
+            transit_h=0.0,
+            stopped_h=0.0,
+            fuel_l=10.0,
+            planned_time_h=1.0,
+            activities=(Activity("work", 0.0, end - start, fields[0]),),
+            track=((0.0, 50.0, 10.0), (end - start, 50.0, 10.001)),
+            reboots=(),
+        )
+        times = {fields[0]: _FieldTimes(start, end, "v1")}
+        return _VehicleResult(row, times, start, [0.0, 60.0], [], ())
+
+    joined = _joined(part(1000.0, 4600.0, ("A",), 3.0), part(8200.0, 11800.0, ("B",), 2.0))
+    row = joined.review
+    assert row.fields_done == ("A", "B") and row.start_clock_s == 1000.0
+    assert row.end_clock_s == 11800.0 and row.time_h == pytest.approx(3.0)
+    assert row.working_h == pytest.approx(2.0) and row.stopped_h == pytest.approx(1.0)
+    assert row.distance_m == 5000.0 and row.fuel_l == 20.0 and row.planned_time_h == 2.0
+    assert [(a.kind, a.start_s, a.end_s) for a in row.activities] == [
+        ("work", 0.0, 3600.0),
+        ("stopped", 3600.0, 7200.0),
+        ("work", 7200.0, 10800.0),
+    ]
+    assert row.track[-1][0] == 10800.0  # on the row's clock, from the first set-off
+    assert joined.start_clock == 1000.0 and set(joined.field_times) == {"A", "B"}
+    assert joined.planned_s == [7200.0, 7260.0]
+
+
 def test_a_vehicle_sent_out_again_by_a_re_plan_is_reviewed_from_its_fresh_mission() -> None:
     """A re-plan that gives a vehicle a fresh mission (from item 1, not going on from what
     it drove) is told apart from one that keeps its mission: the vehicle's row is set
