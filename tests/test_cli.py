@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import pytest
+from helpers.processes import free_port
 
 from dispatcher.cli.main import main
 
@@ -400,15 +401,25 @@ def test_bad_numbers_and_unusable_paths_exit_2_naming_them(tmp_path, capsys):
     # The directories to write into: named, before anything is planned or kept (plan --out
     # planned for its whole time limit, then said "File exists").
     data = tmp_path / "data"
+    listen = ["--listen", f"tcp/127.0.0.1:{free_port()}"]  # (a demo beside may hold 7447)
     for argv, flag in (
         (["plan", str(TINY), "--out", str(taken)], "--out"),
         (["keys", str(TINY), "--keys", str(taken)], "--keys"),
         (["certs", str(TINY), "--tls", str(taken)], "--tls"),
         (
-            ["serve", str(TINY), "--unsigned", "--data-dir", str(data), "--log-dir", str(taken)],
+            [
+                "serve",
+                str(TINY),
+                *listen,
+                "--unsigned",
+                "--data-dir",
+                str(data),
+                "--log-dir",
+                str(taken),
+            ],
             "--log-dir",
-        ),
-        (["serve", str(TINY), "--unsigned", "--data-dir", str(taken)], "--data-dir"),
+        ),  # fmt: skip
+        (["serve", str(TINY), *listen, "--unsigned", "--data-dir", str(taken)], "--data-dir"),
         (["demo", str(TINY), "--no-foxglove", "--log-dir", str(taken)], "--log-dir"),
     ):
         assert main(argv) == 2
