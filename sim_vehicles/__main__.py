@@ -6,8 +6,11 @@ instead, as ArduPilot SITL. Parses arguments and calls :func:`sim_vehicles.runne
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import math
+import os
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +23,7 @@ from dispatcher.link import wire
 from dispatcher.link.keys import add_signing_arguments, signing_keys
 from sim_vehicles.impairment import add_impairment_arguments, impairment_of
 
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>: the signal a process gets when its parent dies
 EXIT_BAD_INPUT = 2
 EXIT_LINK_DOWN = 4  # the --mavlink socket could not be opened (address in use ...)
 
@@ -89,6 +93,13 @@ def build_parser(prog: str = "python -m sim_vehicles") -> argparse.ArgumentParse
         "(listen, as SITL), udpin:HOST:PORT or udpout:HOST:PORT",
     )
     p.add_argument("--stats", metavar="FILE", help="write frames sent per vehicle as JSON at exit")
+    p.add_argument(
+        "--exit-with-parent",
+        type=int,
+        metavar="PID",
+        help="stop, as on SIGTERM, when process PID, the one that started it, ends, however "
+        "it ends (kill -9 too; Linux): the demo's simulators",
+    )
     add_signing_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     wire.add_zenoh_arguments(p, title="zenoh (not with --mavlink)")
@@ -132,12 +143,31 @@ def check_mavlink_args(args: argparse.Namespace, ids: Sequence[str]) -> None:
         raise ValueError(f"--mavlink replaces Zenoh: drop {', '.join(zenoh_given)}")
 
 
+def exit_with_parent(parent: int) -> None:
+    """SIGTERM to this process when its parent, process ``parent``, ends, kill -9 too
+    (Linux's PR_SET_PDEATHSIG; elsewhere nothing): a demo killed so left its simulators
+    connected to its port, where the next demo on it heard them (an outside review). Also
+    when it ended before this was asked for (the new parent is another process)."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM) != 0:
+        logging.getLogger("sim_vehicles").warning(
+            "--exit-with-parent: prctl failed (%s)", os.strerror(ctypes.get_errno())
+        )
+        return
+    if os.getppid() != parent:  # it ended before the signal was asked for
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def main(argv: Sequence[str] | None = None, prog: str = "python -m sim_vehicles") -> int:
     args = build_parser(prog).parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    if args.exit_with_parent is not None:
+        exit_with_parent(args.exit_with_parent)
     from dispatcher.config.scenario import load_scenario
     from dispatcher.link.mavlink import LinkDown
     from sim_vehicles.mavlink_port import run_mavlink

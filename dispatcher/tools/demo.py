@@ -222,6 +222,8 @@ def sim_command(
         f"{speedup:.3f}",
         "--vehicle",
         vehicle,
+        "--exit-with-parent",  # none left on the port by a demo killed with -9
+        str(os.getpid()),
         *(("--keys", str(keys_dir)) if keys_dir is not None else ("--unsigned",)),
     ]
     if radio is not None and radio.active:

@@ -3,6 +3,7 @@ connects to it from a thread; everything waits on conditions, never on fixed sle
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import socket
 import subprocess
@@ -259,3 +260,56 @@ def test_command_line_process_stops_cleanly_on_sigterm() -> None:
         assert "simulator stopped" in output
         inbox.wait("the token to go", lambda: (alive_key, zenoh.SampleKind.DELETE) in inbox.tokens)
         tokens.undeclare()
+
+
+def test_a_simulator_started_with_exit_with_parent_ends_when_its_parent_is_killed():
+    """A demo killed with -9 left its simulators running, connected to its port (the next
+    demo there could hear them: an outside review). ``--exit-with-parent`` (the demo's) ends
+    one with its parent, however that ends."""
+    import os
+    import time
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("PR_SET_PDEATHSIG is Linux's")
+    port = free_port()
+    sim = [
+        sys.executable, "-m", "sim_vehicles", str(SCENARIO), "--vehicle", "t1",
+        "--listen", f"tcp/127.0.0.1:{port}", "--unsigned",
+    ]  # fmt: skip
+    parent = subprocess.Popen(
+        [sys.executable, "-c", "import os, subprocess, sys, time; "
+         f"p = subprocess.Popen({sim!r} + ['--exit-with-parent', str(os.getpid())]); "
+         "print(p.pid, flush=True); time.sleep(120)"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+
+        def running() -> bool:
+            try:
+                return "Z" not in Path(f"/proc/{child}/stat").read_text().split()[2]
+            except FileNotFoundError:
+                return False
+
+        def listening() -> bool:
+            with socket.socket() as s:
+                return s.connect_ex(("127.0.0.1", port)) == 0
+
+        deadline = time.monotonic() + 3 * TIMEOUT_S
+        while time.monotonic() < deadline and running() and not listening():
+            time.sleep(0.1)
+        assert running() and listening()  # up: its parent may go now
+        parent.kill()  # SIGKILL: nothing of the parent's own runs
+        parent.wait()
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline and running():
+            time.sleep(0.1)
+        assert not running(), "the simulator outlived its parent"
+    finally:
+        parent.kill()
+        parent.wait()
+        if parent.stdout is not None:
+            parent.stdout.close()
+        with contextlib.suppress(ProcessLookupError, UnboundLocalError):
+            os.kill(child, signal.SIGKILL)
