@@ -589,14 +589,14 @@ class Dispatcher:
             ):
                 # With its frame: also those still queued when the run ends (the last
                 # position of every tractor, back in the garage, was missing on the map).
-                known = msg.hdg != 0xFFFF  # UINT16_MAX: unknown
+                course = mc.course_deg(msg)
                 self.recorder.record_location(
                     v.id,
                     msg.lat / 1e7,
                     msg.lon / 1e7,
                     t_ns,
                     msg.time_boot_ms / 1000.0,
-                    heading_deg=msg.hdg / 100.0 if known else v.heading_deg,
+                    heading_deg=v.heading_deg if course is None else course,
                 )
         return msg
 

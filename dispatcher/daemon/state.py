@@ -900,8 +900,9 @@ class FleetState:
                 # still counts, nothing else.
                 return out + self._clock(v, msg.time_boot_ms / 1000.0, now)
             v.lat, v.lon = msg.lat / 1e7, msg.lon / 1e7
-            if msg.hdg != 0xFFFF:  # UINT16_MAX: unknown
-                v.heading_deg = msg.hdg / 100.0
+            course = mc.course_deg(msg)
+            if course is not None:  # (north is 0: not "unknown")
+                v.heading_deg = course
             out += self._clock(v, msg.time_boot_ms / 1000.0, now)
             v.position_s = v.sim_time_s
             v.fix_times_s.append(v.sim_time_s)

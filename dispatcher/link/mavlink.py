@@ -113,6 +113,12 @@ def is_message_name(name: str) -> bool:
     return name.isupper() and hasattr(mavlink2, f"MAVLink_{name.lower()}_message")
 
 
+def course_deg(msg: MAVLinkMessage) -> float | None:
+    """A GLOBAL_POSITION_INT's course over ground in degrees, None when it says it is
+    unknown (``hdg`` UINT16_MAX)."""
+    return None if msg.hdg == 0xFFFF else msg.hdg / 100.0
+
+
 def has_fix(lat_deg: float, lon_deg: float) -> bool:
     """Whether a reported position (degrees) is a fix: finite, on the globe, and not the
     0, 0 an autopilot reports in GLOBAL_POSITION_INT before it has one."""

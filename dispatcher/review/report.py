@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -774,9 +775,17 @@ def _mission_between(
             else:
                 t = a.t + (b.t - a.t) * n / (len(between) + 1)
             out.append((s, _Point(t, a.order, item.lat, item.lon, None, True, filled=True)))
-    legs = [
-        k for k in range(after, 0, -1) if items[k].is_nav and mc.has_fix(items[k].lat, items[k].lon)
-    ]
+    # ``after`` and the waypoint before it, when both are (not the whole mission scanned)
+    legs = list(
+        itertools.islice(
+            (
+                k
+                for k in range(after, 0, -1)
+                if items[k].is_nav and mc.has_fix(items[k].lat, items[k].lon)
+            ),
+            2,
+        )
+    )
     standing = b.speed is not None and b.speed < STILL_SPEED_MS  # (driving: it drove on)
     if fits and standing and pace is not None and len(legs) >= 2 and legs[0] == after:
         into, frm = items[after], items[legs[1]]
