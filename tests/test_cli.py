@@ -556,6 +556,57 @@ def test_a_stored_run_is_resumed_unless_the_plan_would_differ(tmp_path):
     assert fingerprint(base) != first
 
 
+def test_a_refused_resume_says_which_input_changed(tmp_path):
+    """A refused resume said "its farm or the options changed since", whatever it was: an
+    operator had to guess between the farm file, the fleet and the solver's settings. A run
+    stored with each input's hash is refused naming the ones that changed; one stored with
+    the bare fingerprint (before) still gets the general words."""
+    import argparse
+    import shutil
+    from types import SimpleNamespace
+
+    from dispatcher.cli.main import check_resumable, load_scenario_args, stored_fingerprint
+    from dispatcher.daemon.store import StoreError
+
+    for name in ("tiny.toml", "tiny-farm.geojson"):
+        shutil.copy(DATA / name, tmp_path / name)
+    scenario_path = tmp_path / "tiny.toml"
+    base = scenario_path.read_text()
+    farm = tmp_path / "tiny-farm.geojson"
+    drawn = farm.read_text()
+
+    def inputs(text: str = base, seed: int | None = None):  # type: ignore[no-untyped-def]
+        scenario_path.write_text(text)
+        args = argparse.Namespace(
+            scenario=str(scenario_path), fields=None, machines=None, objective=None,
+            seed=seed, time_limit=None,
+        )  # fmt: skip
+        scenario = load_scenario_args(args)
+        return stored_fingerprint(scenario, args), scenario, args
+
+    first, _, _ = inputs()
+    run = SimpleNamespace(id=4, fingerprint=first, job=SimpleNamespace(plan_id="p"))
+
+    def refusal(*changed) -> str:  # type: ignore[no-untyped-def]
+        now, scenario, args = changed[0] if changed else inputs()
+        with pytest.raises(StoreError) as info:
+            check_resumable(run, now, scenario, args, tmp_path)
+        return str(info.value)
+
+    check_resumable(run, *inputs(), tmp_path)  # the same inputs: resumed
+    assert "inputs: " in refusal(inputs(seed=7)) and "the seed changed since" in refusal(
+        inputs(seed=7)
+    )
+    fleet = refusal(inputs(base.replace("road_fuel_lh = 3.0", "road_fuel_lh = 4.0", 1)))
+    assert "the fleet changed since" in fleet and "farm" not in fleet.split("inputs:")[1]
+    farm.write_text(drawn.replace("87.3007493", "87.30074", 2))  # field A narrower
+    both = refusal(inputs(seed=7))
+    assert "the farm (its fields, roads, gates or garage) and the seed changed since" in both
+    farm.write_text(drawn)
+    run.fingerprint = first.split()[0]  # stored before the inputs' hashes were kept
+    assert "its farm or the options changed since" in refusal(inputs(seed=7))
+
+
 def test_a_setting_an_upgrade_adds_at_its_default_keeps_a_stored_run_resumable(tmp_path):
     """The fleet and the solver's settings were hashed as their repr: an upgrade that adds a
     machine or solver setting (with a default) made every unfinished run "made from other

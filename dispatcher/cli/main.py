@@ -254,46 +254,95 @@ def inputs_fingerprint(  # type: ignore[no-untyped-def]
     worked twice). The fingerprints runs stored before had, so that those are resumed too:
     ``file_bytes``, the farm file's bytes for the farm as read (to 2026-11-29 14:00);
     ``as_repr``, those and the settings' ``repr`` (before 2026-11-29)."""
-    import dataclasses
     import hashlib
 
     h = hashlib.sha256()
+    for chunk in _inputs(scenario, args, as_repr=as_repr, file_bytes=file_bytes)[0]:
+        h.update(chunk)
+    return h.hexdigest()[:16]
+
+
+def stored_fingerprint(scenario, args: argparse.Namespace) -> str:  # type: ignore[no-untyped-def]
+    """The fingerprint a run is stored with: :func:`inputs_fingerprint`, then a short hash
+    of each of its inputs by name ("farm=… fleet=… solver=… seed=…"), so that a refused
+    resume can say which of them changed (:func:`check_resumable`)."""
+    import hashlib
+
+    parts = _inputs(scenario, args)[1]
+    named = [f"{name}={hashlib.sha256(data).hexdigest()[:8]}" for name, data in parts.items()]
+    return " ".join([inputs_fingerprint(scenario, args), *named])
+
+
+# Each input of a plan in a refused resume's words (the names of _inputs's parts).
+_INPUT_WORDS = {
+    "farm": "the farm (its fields, roads, gates or garage)",
+    "fleet": "the fleet",
+    "solver": "the solver's settings",
+    "seed": "the seed",
+}
+
+
+def _inputs(  # type: ignore[no-untyped-def]
+    scenario, args: argparse.Namespace, *, as_repr: bool = False, file_bytes: bool = False
+) -> tuple[list[bytes], dict[str, bytes]]:
+    """What :func:`inputs_fingerprint` hashes, in its order, and the same inputs by name
+    (keys of :data:`_INPUT_WORDS`)."""
+    import dataclasses
+
+    farm = scenario.farm
+    read = [] if file_bytes or as_repr else [_farm_as_read(farm)]
     if file_bytes or as_repr:
         with contextlib.suppress(OSError):
-            h.update(Path(scenario.farm.source).read_bytes())
-    else:
-        h.update(_farm_as_read(scenario.farm))
-    farm = scenario.farm
-    h.update(repr([(f.id, round(f.area_m2, 1)) for f in farm.fields]).encode())
-    h.update(repr(tuple(round(c, 7) for c in farm.garage_lonlat)).encode())
+            read = [Path(farm.source).read_bytes()]
+    farm_chunks = [
+        *read,
+        repr([(f.id, round(f.area_m2, 1)) for f in farm.fields]).encode(),
+        repr(tuple(round(c, 7) for c in farm.garage_lonlat)).encode(),
+    ]
     solver = dataclasses.replace(scenario.solver, time_limit_s=0.0)
+    fleet_data, solver_data = _non_defaults(scenario.vehicles), _non_defaults(solver)
     if as_repr:
-        h.update(repr(scenario.vehicles).encode())
-        h.update(repr(solver).encode())
+        settings = [repr(scenario.vehicles).encode(), repr(solver).encode()]
     else:
-        settings = {"fleet": _non_defaults(scenario.vehicles), "solver": _non_defaults(solver)}
-        h.update(json.dumps(settings, sort_keys=True).encode())
+        both = {"fleet": fleet_data, "solver": solver_data}
+        settings = [json.dumps(both, sort_keys=True).encode()]
     seed = getattr(args, "seed", None)
     if seed == scenario.solver.seed:
         seed = None  # --seed as the scenario has it: the same inputs as without it
-    h.update(repr(seed).encode())
-    return h.hexdigest()[:16]
+    seed_chunk = repr(seed).encode()
+    parts = {
+        "farm": b"".join(farm_chunks),
+        "fleet": json.dumps(fleet_data, sort_keys=True).encode(),
+        "solver": json.dumps(solver_data, sort_keys=True).encode(),
+        "seed": seed_chunk,
+    }
+    return [*farm_chunks, *settings, seed_chunk], parts
 
 
 def check_resumable(run, fingerprint: str, scenario, args: argparse.Namespace, where: Path) -> None:  # type: ignore[no-untyped-def]
     """Raise StoreError unless the unfinished ``run`` kept in ``where`` was made from these
-    inputs: its fingerprint is ``fingerprint`` (theirs, :func:`inputs_fingerprint`), or
-    theirs as runs stored before had it."""
+    inputs: its fingerprint is ``fingerprint`` (theirs, :func:`stored_fingerprint`), or
+    theirs as runs stored before had it. The error names the inputs that changed where
+    the run was stored with each one's hash (since 2026-11-29 17:00)."""
     from dispatcher.daemon.store import StoreError
 
-    if run.fingerprint == fingerprint:
+    stored, *stored_parts = run.fingerprint.split()
+    now, *now_parts = fingerprint.split()
+    if stored == now:
         return
     for before in ({"file_bytes": True}, {"as_repr": True}):
-        if run.fingerprint == inputs_fingerprint(scenario, args, **before):
+        if stored == inputs_fingerprint(scenario, args, **before):
             return
+    changed = sorted(set(stored_parts) - set(now_parts))
+    names = [part.split("=")[0] for part in changed if part.split("=")[0] in _INPUT_WORDS]
+    what = (
+        " and ".join(_INPUT_WORDS[name] for name in names) + " changed since"
+        if stored_parts and names
+        else "its farm or the options changed since"
+    )
     raise StoreError(
         f"{where} holds unfinished run {run.id} (plan {run.job.plan_id}) made from other "
-        f"inputs: {args.scenario}, its farm or the options changed since. Serve it with the "
+        f"inputs: {args.scenario}, {what}. Serve it with the "
         "same ones to finish it, or add --fresh to start over"
     )
 
@@ -410,7 +459,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     zenoh.check_listen_free()  # and a port another process listens on
     data_dir = made_dir(args.data_dir or default_data_dir(scenario.farm_id), "--data-dir")
     made_dir(args.log_dir, "--log-dir")
-    fingerprint = inputs_fingerprint(scenario, args)
+    fingerprint = stored_fingerprint(scenario, args)
     store = Store.open(data_dir, scenario.farm_id, args.sync)
     try:
         if args.fresh and (abandoned := store.abandon_unfinished()) is not None:
