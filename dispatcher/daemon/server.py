@@ -302,7 +302,11 @@ class Dispatcher:
             for vid, key in keys.items()
         }
         self.foreign_frames: dict[str, int] = {}  # frames on a vehicle's key not sent by us
-        self._foreign_alarmed: dict[str, float] = {}
+        # When each vehicle's last alarm of a kind of foreign frame was raised (by kind: a
+        # decoy of one kind must not silence the next), and the vehicles whose mission is
+        # read back again once the read-back under way ends.
+        self._foreign_alarmed: dict[tuple[str, str], float] = {}
+        self._check_again: set[str] = set()
         missing = [vid for vid in self.state.vehicles if config.keys and vid not in keys]
         if missing:
             raise ValueError(f"no signing key for {', '.join(missing)}")
@@ -528,7 +532,7 @@ class Dispatcher:
         kind, key, payload, t_ns = item
         vid = wire.vehicle_of(key)
         if kind == "command":
-            self._foreign_command(vid, key, payload, t_ns, now)
+            self._foreign_command(key, payload, t_ns, now)
             return
         if vid not in self.state.vehicles:
             self._record_only(item)
@@ -600,24 +604,56 @@ class Dispatcher:
                 )
         return msg
 
-    def _foreign_command(
-        self, vid: str | None, key: str, payload: bytes, t_ns: int, now: float
-    ) -> None:
+    def _foreign_command(self, key: str, payload: bytes, t_ns: int, now: float) -> None:
         """A frame on a vehicle's command key that this dispatcher did not send: recorded,
-        and an alarm (the first, then at most one a second per vehicle; all counted). The
-        vehicle's mission is then read back and restored if it is not ours."""
+        and for each vehicle the key reaches (a key expression with wildcards reaches
+        several; a vehicle takes every put its key intersects) an alarm, the first of its
+        kind (not signed with the vehicle's key, signed with it: leaked, or a replay of
+        ours), then at most one of that kind a second per vehicle; all counted. The
+        vehicle's mission is then read back and restored if it is not ours; a frame it may
+        have taken (signed with its key, or signing off) that comes while that is under way
+        has it read back again after (an alarm's rate limit let the upload that followed a
+        decoy go unchecked: review)."""
         msg = self.codec.decode_one(payload)
         if self.recorder is not None:
             self.recorder.record_frame(key, payload, t_ns, mc.as_dict(msg) if msg else None)
-        if vid not in self.state.vehicles:
-            return
+        for vid in self._addressed(key):
+            self._foreign_one(vid, msg, payload, now)
+
+    def _addressed(self, key: str) -> list[str]:
+        """The vehicles whose command key the key expression ``key`` reaches."""
+        vid = wire.vehicle_of(key)
+        if vid in self.state.vehicles and key == wire.vehicle_to(self.farm, vid):
+            return [vid]
+        try:
+            expr = zenoh.KeyExpr(key)
+        except zenoh.ZError:
+            return []
+        return [
+            v
+            for v in self.state.vehicles
+            if zenoh.KeyExpr(wire.vehicle_to(self.farm, v)).intersects(expr)
+        ]
+
+    def _foreign_one(
+        self, vid: str, msg: mc.MAVLinkMessage | None, payload: bytes, now: float
+    ) -> None:
+        """A foreign frame on ``vid``'s command key (:meth:`_foreign_command`)."""
         self.foreign_frames[vid] = self.foreign_frames.get(vid, 0) + 1
-        if now - self._foreign_alarmed.get(vid, -math.inf) < FOREIGN_ALARM_PERIOD_S:
-            return
-        self._foreign_alarmed[vid] = now
         check = self.command_checks.get(vid)
         signed = check is not None and check.decode_one(payload) is not None
         replayed = signed and self.codecs[vid].sent_before(payload)
+        taken = (signed and not replayed) or not self.codecs[vid].signed
+        v = self.state.vehicles[vid]
+        link = self.links.get(vid)
+        if taken and v.verify_mission and link is not None and link.download is not None:
+            self._check_again.add(vid)  # it may have changed what is being read back
+        kind = "replayed" if replayed else "signed" if signed else "unsigned"
+        if now - self._foreign_alarmed.get((vid, kind), -math.inf) < FOREIGN_ALARM_PERIOD_S:
+            if taken and not v.verify_mission and v.phase is not Phase.FAILED and not v.retired:
+                v.verify_mission = True  # read back once more (its alarm was said)
+            return
+        self._foreign_alarmed[(vid, kind)] = now
         what = msg.get_type() if msg is not None else "undecodable frame"
         system = msg.get_srcSystem() if msg is not None else -1
         self._apply(ev.ForeignCommand(vid, what, system, signed, replayed), now)
@@ -632,6 +668,11 @@ class Dispatcher:
         if different is None:
             return
         link.download = None
+        if v.id in self._check_again and not different:
+            # A foreign frame it may have taken came while it was read: read it again.
+            self._check_again.discard(v.id)
+            return
+        self._check_again.discard(v.id)
         v.verify_mission = False
         if not different:
             self._log("info", f"{v.id}: its mission read back intact after the foreign command")

@@ -2104,3 +2104,75 @@ def test_a_lost_vehicle_left_out_stays_lost_through_a_restart(dispatch) -> None:
     other.apply(ev.Resumed("v1"), 1003.0)
     assert w.phase is Phase.WAITING and not w.error and w.lost_before_restart
     assert w.lost_s == 1.0  # lost up to the dispatcher's last event
+
+
+def foreign_daemon(dispatch, keys=None):
+    """A daemon whose v1 drives its mission; ``keys``: each vehicle's signing key."""
+    from dispatcher.daemon.server import DaemonConfig, Dispatcher
+
+    daemon = Dispatcher(DaemonConfig(job=dispatch.job(), keys=keys))
+    daemon.publishers = {vid: Pub() for vid in dispatch.missions}
+    for event in running_events("v1", 3):
+        daemon._apply(event, 0.0)
+    return daemon
+
+
+def stranger_upload(codec):
+    """A foreign system's MISSION_COUNT for v1 (system 11)."""
+    count = mc.message("MISSION_COUNT", target_system=11, target_component=1, count=2)
+    return codec.encode(count)
+
+
+def test_a_command_on_a_key_expression_with_wildcards_alarms_every_vehicle_it_reaches(dispatch):
+    """A put on `…/vehicle/*/mavlink/to` (or `agrifleet/<farm>/**`) reaches every tractor's
+    command key, and each took it; the dispatcher read `*` as a vehicle it does not know and
+    dropped it without a word (an outside review: v1 driven 1.5 km away, no alarm)."""
+    from dispatcher.link import wire
+
+    daemon = foreign_daemon(dispatch)
+    stranger = mc.Codec(77, 190)
+    farm = daemon.farm
+    for n, key in enumerate(
+        [wire.vehicle_to(farm, "*"), f"{wire.PREFIX}/{farm}/**", "**/v2/mavlink/to"]
+    ):
+        daemon._handle(("command", key, stranger_upload(stranger), 0), 10.0 * n)
+    alarmed = [vid for _, vid, _ in daemon.state.alarms]
+    assert alarmed == ["v1", "v2", "v1", "v2", "v2"], daemon.state.alarms
+    assert all(v.verify_mission for v in daemon.state.vehicles.values())
+    assert daemon.foreign_frames == {"v1": 2, "v2": 3}
+    daemon._handle(("command", f"{wire.PREFIX}/another-farm/**", b"x", 0), 40.0)
+    assert len(daemon.state.alarms) == 5  # (another farm's keys: not ours to alarm)
+
+
+@pytest.mark.parametrize("signed", [True, False], ids=["signed", "unsigned"])
+def test_a_decoy_frame_does_not_let_the_upload_after_it_go_unchecked(dispatch, signed):
+    """An alarm a second per vehicle: an unsigned decoy on v1's key silenced the upload
+    signed with its leaked key 0.4 s later (no alarm; the read-back the decoy began found
+    the mission intact before the upload came, and v1 drove the foreign mission: an outside
+    review). A frame of another kind alarms, and one v1 may have taken while its mission
+    is read back has it read back once more."""
+    import secrets
+
+    keys = {vid: secrets.token_bytes(32) for vid in dispatch.missions} if signed else None
+    daemon = foreign_daemon(dispatch, keys)
+    v, link = daemon.state.vehicles["v1"], daemon.links["v1"]
+    decoy, leaked = mc.Codec(77, 190), mc.Codec(77, 190, key=keys["v1"] if keys else None)
+    command = ("command", "agrifleet/tiny/vehicle/v1/mavlink/to")
+    daemon._handle((*command, stranger_upload(decoy), 0), 1.0)
+    daemon._advance("v1", 1.1)
+    assert link.download is not None and v.verify_mission  # reading v1's mission back
+    daemon._handle((*command, stranger_upload(leaked), 0), 1.4)
+    texts = [text for _, _, text in daemon.state.alarms]
+    assert len(texts) == (2 if signed else 1), texts
+    assert not signed or "it has leaked" in texts[1]
+    items = daemon.job.missions["v1"].to_mavlink(255)  # read back before the upload: intact
+    count = mc.message("MISSION_COUNT", target_system=255, target_component=190, count=len(items))
+    link.download.on_message(from_vehicle(count, 11), 1.5)
+    for item in items:
+        link.download.on_message(from_vehicle(item, 11), 1.5)
+    daemon._advance("v1", 1.6)
+    assert v.verify_mission, "the mission was taken as checked"
+    daemon._advance("v1", 1.7)
+    assert link.download is not None  # read back again
+    asked = [m.get_type() for m in daemon.publishers["v1"].sent(11) if m is not None]
+    assert asked.count("MISSION_REQUEST_LIST") == 2, asked
