@@ -695,13 +695,16 @@ def _shown(value: Any) -> str:
 
 
 def _lonlat(value: Any, where: str) -> tuple[float, float]:
+    # RFC 7946 3.1.1: two or more numbers, the third an altitude (kept by no one here, but
+    # a string there is a broken file all the same: it was taken without a word).
     if (
         not isinstance(value, list | tuple)
         or len(value) < 2
-        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value[:2])
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     ):
         raise GeometryError(
-            f"{where}: a position must be [longitude, latitude], not {_shown(value)}"
+            f"{where}: a position must be [longitude, latitude] or [longitude, latitude, "
+            f"altitude], numbers, not {_shown(value)}"
         )
     lon, lat = float(value[0]), float(value[1])
     check_wgs84(lon, lat, where)

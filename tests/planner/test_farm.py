@@ -177,8 +177,8 @@ MISPLACED = {
     "number for a position": (
         ("features", 0, "geometry", "coordinates", 0, 2),
         10.5,
-        "field 'F1', ring 0 (outline) position 2: a position must be [longitude, latitude], "
-        "not 10.5",
+        "field 'F1', ring 0 (outline) position 2: a position must be [longitude, latitude] or "
+        "[longitude, latitude, altitude], numbers, not 10.5",
     ),
     "strings in a position": (
         ("features", 0, "geometry", "coordinates", 0, 1),
@@ -188,12 +188,20 @@ MISPLACED = {
     "bools in a position": (
         ("features", 0, "geometry", "coordinates", 0, 1),
         [True, False],
-        "position 1: a position must be [longitude, latitude], not [true, false]",
+        "position 1: a position must be [longitude, latitude] or [longitude, latitude, "
+        "altitude], numbers, not [true, false]",
+    ),
+    "a string for an altitude": (
+        ("features", 0, "geometry", "coordinates", 0, 1),
+        [10.001, 50.0, "x"],
+        "position 1: a position must be [longitude, latitude] or [longitude, latitude, "
+        'altitude], numbers, not [10.001, 50.0, "x"]',
     ),
     "string for the garage's position": (
         ("features", 2, "geometry", "coordinates"),
         "10.0 50.0",
-        'feature #2 (garage): a position must be [longitude, latitude], not "10.0 50.0"',
+        "feature #2 (garage): a position must be [longitude, latitude] or [longitude, latitude, "
+        'altitude], numbers, not "10.0 50.0"',
     ),
     "number for a road": (
         ("features", 3, "geometry", "coordinates"),
@@ -203,7 +211,8 @@ MISPLACED = {
     "null for a gate's position": (
         ("features", 4, "geometry", "coordinates"),
         None,
-        "feature #4 (gate of 'F1'): a position must be [longitude, latitude], not null",
+        "feature #4 (gate of 'F1'): a position must be [longitude, latitude] or [longitude, "
+        "latitude, altitude], numbers, not null",
     ),
     "a ring of two points": (
         ("features", 1, "geometry", "coordinates", 0),
