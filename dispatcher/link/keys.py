@@ -56,6 +56,9 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
         ) from None
     except OSError as exc:
         raise SigningKeyError(f"{path}: cannot read the signing key: {exc.strerror}") from exc
+    if not stat.S_ISREG(status.st_mode):  # a pipe would hang the read, a folder mislead
+        kind = "a folder" if stat.S_ISDIR(status.st_mode) else "a pipe, socket or device"
+        raise SigningKeyError(f"{path}: not a key file but {kind}")
     refuse_unless_private(status, path, f"the signing key of {vehicle_id!r}", SigningKeyError)
     try:
         raw = path.read_bytes()
@@ -69,9 +72,10 @@ def read_key(keys_dir: str | os.PathLike[str], vehicle_id: str) -> bytes:
             f"{path}: not a signing key ({2 * SIGNING_KEY_BYTES} hexadecimal digits expected)"
         ) from exc
     if len(key) != SIGNING_KEY_BYTES:
+        lines = len(text.split())
         raise SigningKeyError(
             f"{path}: a signing key is {2 * SIGNING_KEY_BYTES} hexadecimal digits, "
-            f"found {len(text)}"
+            f"found {2 * len(key)}" + (f" on {lines} lines (one key a file)" if lines > 1 else "")
         )
     if len(set(key)) == 1:
         # All zeros turns signing off on ArduPilot; any one byte over is a key anyone guesses.

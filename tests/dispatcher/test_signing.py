@@ -120,7 +120,7 @@ def test_keys_go_into_no_file_planted_in_their_folder_and_an_open_folder_is_refu
         write_keys(folder, ["t2"])
     folder.chmod(0o700)
     key_path(folder, "t2").mkdir(mode=0o700)  # not a file
-    with pytest.raises(SigningKeyError, match=r"t2\.key: cannot read the signing key: Is a dir"):
+    with pytest.raises(SigningKeyError, match=r"t2\.key: not a key file but a folder"):
         read_key(folder, "t2")
 
 
@@ -130,6 +130,12 @@ def test_keys_go_into_no_file_planted_in_their_folder_and_an_open_folder_is_refu
         (0o644, None, "open to group or others (mode 644); make it the owner's only: chmod 600"),
         (0o600, "not hex at all", "not a signing key (64 hexadecimal digits expected)"),
         (0o600, "ab" * 16, "a signing key is 64 hexadecimal digits, found 32"),
+        # Two keys pasted into one file were "found 129" (the newline counted): review
+        (
+            0o600,
+            "ab" * 32 + "\n" + "cd" * 32 + "\n",
+            "digits, found 128 on 2 lines (one key a file)",
+        ),
         # All zeros turns signing off on ArduPilot, and anyone can sign with it (review).
         (0o600, "00" * 32, "not a secret key (one byte, 00, 32 times)"),
     ],
@@ -145,6 +151,15 @@ def test_a_bad_key_file_is_refused_naming_it(
     with pytest.raises(SigningKeyError, match=re.escape(message)) as err:
         read_key(tmp_path, "t1")
     assert str(path) in str(err.value)
+
+
+def test_a_pipe_in_place_of_a_key_file_is_refused_not_waited_on(tmp_path: Path) -> None:
+    """A named pipe of mode 600 passed every check and `serve` waited on it for good (an
+    outside review)."""
+    (tmp_path / "keys").mkdir(mode=0o700)
+    os.mkfifo(key_path(tmp_path / "keys", "t1"), 0o600)
+    with pytest.raises(SigningKeyError, match=r"t1\.key: not a key file but a pipe"):
+        read_key(tmp_path / "keys", "t1")
 
 
 def test_a_key_file_of_another_user_is_refused_naming_both(tmp_path: Path, monkeypatch) -> None:
