@@ -405,7 +405,9 @@ def test_another_autopilots_heartbeat_is_named_once() -> None:
     assert not flt.admit(heartbeat(1), 0.0)  # and it is not forwarded
 
 
-def test_once_the_autopilot_signs_an_unsigned_frame_on_its_link_is_dropped_not_signed() -> None:
+def test_once_the_autopilot_signs_an_unsigned_frame_on_its_link_is_dropped_not_signed(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """The bridge signs what the autopilot sends unsigned: anyone on its link (a second
     radio, a UDP sender, a shared router) claiming the autopilot's ids got reports to the
     dispatcher signed with the tractor's key, taken as genuine. Once the autopilot is seen
@@ -432,10 +434,14 @@ def test_once_the_autopilot_signs_an_unsigned_frame_on_its_link_is_dropped_not_s
     assert not bridge.autopilot_signs
     forged = mc.Codec(SYSTEM, 1, key=bytes(32))  # signed, with another key
     assert bridge._signed_as_it_should(heard(forged)) and not bridge.autopilot_signs
+    # (passed on, the dispatcher refuses it; counted and said: an autopilot that holds a
+    # key replaced since signed with it, and nothing said why the tractor stood)
+    assert bridge.stats["from_autopilot_other_key"] == 1
     assert bridge._signed_as_it_should(heard(autopilot))
     assert bridge.autopilot_signs and link.verified_with == key
     assert not bridge._signed_as_it_should(heard(stranger))
     assert bridge.stats["from_autopilot_unsigned_dropped"] == 1
+    assert "signed with a key other than" in caplog.text and "USB port" in caplog.text
     plain = _Bridge("f", vehicle, "udpin:x", AutopilotFilter(SYSTEM), HeartbeatPresence(), 1.0,
                     False)  # fmt: skip
     assert plain._signed_as_it_should(heard(stranger))  # no key: its link is trusted

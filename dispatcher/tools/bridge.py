@@ -509,17 +509,38 @@ class _Bridge:
             self._unsigned_dropped(1)
             return False
         # (the signature alone: an autopilot whose signing clock lags is one that signs)
-        if (
-            not self.autopilot_signs
-            and self.filter.from_autopilot(msg)
-            and mc.signature_good(raw, self.key)
-        ):
-            self.autopilot_signs = True
-            self._verify_link()
-            log.info(
-                "%s: the autopilot signs: its link takes only signed frames now", self.vehicle.id
-            )
+        if not self.autopilot_signs and self.filter.from_autopilot(msg):
+            if mc.signature_good(raw, self.key):
+                self.autopilot_signs = True
+                self._verify_link()
+                log.info(
+                    "%s: the autopilot signs: its link takes only signed frames now",
+                    self.vehicle.id,
+                )
+            else:
+                self._other_key()
         return True
+
+    def _other_key(self) -> None:
+        """A frame with the autopilot's ids signed with another key than the vehicle's:
+        passed on (the dispatcher refuses it), counted, said at the first and every
+        hundredth. Most often the autopilot holds a key replaced since: on a port other
+        than its USB one it refuses a SETUP_SIGNING not signed with the key it holds, so
+        --setup-signing there changes nothing (it went unsaid: the dispatcher refused every
+        frame, and the tractor stood; an outside review)."""
+        self.stats["from_autopilot_other_key"] += 1
+        count = self.stats["from_autopilot_other_key"]
+        if count == 1 or count % 100 == 0:
+            log.error(
+                "%s: %d frame(s) with the autopilot's ids signed with a key other than %s's "
+                "(the dispatcher refuses them). If its key was replaced (agrifleet keys "
+                "--replace), give the autopilot the new one on its USB port (SERIAL0; in SITL "
+                "TCP 5760) with --setup-signing: on its other ports it takes SETUP_SIGNING "
+                "only signed with the key it holds (docs/bridge.md)",
+                self.vehicle.id,
+                count,
+                self.vehicle.id,
+            )
 
     def _verify_link(self) -> None:
         """The autopilot's link takes only frames signed with the key from now on
