@@ -529,3 +529,26 @@ def test_a_lost_rovers_work_goes_to_the_other_while_it_drives(
     assert review.vehicle("r1").mission_complete, table
     taken = [(a, b) for rp in review.replans for _, a, b in rp.taken_over]
     assert taken and set(taken) == {("r2", "r1")}, review.replans
+
+
+def test_an_autopilot_given_the_key_signs_and_takes_nothing_unsigned_on_its_other_ports(
+    procs: Processes, sitl: Sitl, tmp_path: Path
+) -> None:
+    """`bridge --setup-signing` on the autopilot's USB port (SERIAL0): ArduPilot stores
+    the key and signs from then on, the bridge sees it and takes only signed frames, the
+    dispatcher drives it; on SERIAL1 a ground station's unsigned PARAM_SET is refused and
+    one signed with the key is taken (no test ran the real autopilot's signing: review)."""
+    from dispatcher.link.keys import read_key
+
+    port = free_port()
+    sitl.start(wipe=True)
+    serve = procs.serve(SCENARIO, port, tmp_path / "logs")
+    bridge = procs.bridge(SCENARIO, "r1", sitl, port, "--setup-signing")
+    report = lambda: procs.report(sitl)  # noqa: E731
+    signs = "the autopilot signs: its link takes only signed frames now"
+    wait_for("the autopilot to sign", lambda: signs in Processes.output(bridge), 60.0, report)
+    wait_under_way(procs, sitl, serve, port, 0.05)
+    with pytest.raises(AssertionError, match="did not confirm"):
+        sitl.set_param("BATT_ARM_VOLT", 0.5, timeout_s=5.0)  # unsigned: refused
+    sitl.set_param("BATT_ARM_VOLT", 0.5, key=read_key(procs.keys(SCENARIO), "r1"))
+    assert "signed with a key other than" not in Processes.output(bridge), report()

@@ -119,7 +119,9 @@ class Processes:
             *extra,
         )
 
-    def bridge(self, scenario: Path, vehicle: str, sitl: Sitl, port: int) -> subprocess.Popen[str]:
+    def bridge(
+        self, scenario: Path, vehicle: str, sitl: Sitl, port: int, *extra: str
+    ) -> subprocess.Popen[str]:
         return self.start(
             "bridge",
             "bridge",
@@ -132,6 +134,7 @@ class Processes:
             f"tcp/127.0.0.1:{port}",
             "--keys",
             self.keys(scenario),
+            *extra,
         )
 
     def sim(

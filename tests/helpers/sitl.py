@@ -179,13 +179,18 @@ class Sitl:
                 self.proc.kill()
                 self.proc.wait(10)
 
-    def set_param(self, name: str, value: float, timeout_s: float = 20.0) -> None:
-        """Set a parameter over SERIAL1, as a second ground station would."""
+    def set_param(
+        self, name: str, value: float, timeout_s: float = 20.0, key: bytes | None = None
+    ) -> None:
+        """Set a parameter over SERIAL1, as a second ground station would (its frames
+        signed with ``key``, if given)."""
         from pymavlink import mavutil
 
         link = mavutil.mavlink_connection(
             f"tcp:127.0.0.1:{self.port + 2}", source_system=254, source_component=190
         )
+        if key is not None:
+            link.setup_signing(key, sign_outgoing=True)
         try:
             deadline = time.monotonic() + timeout_s
             link.wait_heartbeat(timeout=timeout_s)
