@@ -326,6 +326,20 @@ def test_exit_codes_are_documented_and_agree_with_the_code(capsys):
         assert f"| {code} |" in readme, f"README lists no exit code {code}"
 
 
+def test_a_state_that_cannot_be_written_is_not_called_bad_input(monkeypatch, capsys):
+    """A full disk while serve ran ended it with exit 2, "bad input", which it was not: the
+    inputs were fine and the run resumes once there is room (exit 5 says so)."""
+    cli = importlib.import_module("dispatcher.cli.main")
+    from dispatcher.daemon.store import StoreWriteError
+
+    def full(args):  # type: ignore[no-untyped-def]
+        raise StoreWriteError("agrifleet.sqlite3: cannot write the dispatcher's state (full)")
+
+    monkeypatch.setattr(cli, "cmd_serve", full)
+    assert main(["serve", str(DATA / "tiny.toml"), "--unsigned"]) == cli.EXIT_STATE_UNWRITTEN == 5
+    assert "cannot write the dispatcher's state" in capsys.readouterr().err
+
+
 def test_every_option_has_help_text():
     import argparse
 

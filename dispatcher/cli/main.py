@@ -36,6 +36,7 @@ EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
 EXIT_INCOMPLETE = 3  # dispatcher.daemon.server's (tests/test_cli.py checks they agree)
 EXIT_LINK_DOWN = 4  # sim_vehicles' --mavlink socket
+EXIT_STATE_UNWRITTEN = 5  # the data directory refused a write (dispatcher.daemon.store)
 EXIT_INTERRUPTED = 130
 EXIT_CODES = {
     EXIT_OK: "done (serve, demo: every field done; sim, bridge, router: stopped by Ctrl-C or "
@@ -45,6 +46,9 @@ EXIT_CODES = {
     "or run written (serve: the data and log directories may have been made)",
     EXIT_INCOMPLETE: "serve, demo: the run ended with fields not done (vehicles failed or lost)",
     EXIT_LINK_DOWN: "sim --mavlink: the MAVLink socket could not be opened",
+    EXIT_STATE_UNWRITTEN: "serve, demo: the dispatcher's state could not be written (a full "
+    "disk, a read-only data directory); what was kept before is intact: free space and serve "
+    "again to resume",
     EXIT_INTERRUPTED: "serve, demo, plan, bench: interrupted (Ctrl-C, SIGTERM); a run's log is "
     "finished first",
 }
@@ -1222,8 +1226,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.handler(args))
     except (PlannerError, DispatcherError) as exc:
+        from dispatcher.daemon.store import StoreWriteError
+
         print(f"agrifleet: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return EXIT_STATE_UNWRITTEN if isinstance(exc, StoreWriteError) else EXIT_BAD_INPUT
     except BrokenPipeError:
         # Output piped into `head` and the like: stop quietly, as Unix tools do.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -121,6 +121,11 @@ class StoreError(DispatcherError):
     which file and why, and what to do."""
 
 
+class StoreWriteError(StoreError):
+    """A write the database refused while a run goes on (a full disk, a file made
+    read-only): not bad input; what was kept before it is intact, to resume from."""
+
+
 def _quote(text: str) -> str:
     """An SQL string literal."""
     return "'" + text.replace("'", "''") + "'"
@@ -307,7 +312,7 @@ class Store:
         self._in_transaction = False
         with contextlib.suppress(sqlite3.Error):
             self.conn.execute("ROLLBACK")
-        raise StoreError(
+        raise StoreWriteError(
             f"{self.path}: cannot write the dispatcher's state ({exc}); is the data "
             "directory full or not writable? What was kept before is intact: free space "
             "and start the dispatcher again to resume"

@@ -9,7 +9,14 @@ from helpers.processes import free_port
 from dispatcher.cli.main import main
 from dispatcher.daemon import events as ev
 from dispatcher.daemon.state import FleetState, Phase
-from dispatcher.daemon.store import DB_NAME, SCHEMA_VERSION, Store, StoreError, default_data_dir
+from dispatcher.daemon.store import (
+    DB_NAME,
+    SCHEMA_VERSION,
+    Store,
+    StoreError,
+    StoreWriteError,
+    default_data_dir,
+)
 from dispatcher.mission.document import PlannedMachine
 from dispatcher.mission.plan import DispatchPlan
 
@@ -270,7 +277,7 @@ def test_a_re_plan_is_kept_whole_or_not_at_all(dispatch: DispatchPlan, tmp_path:
         "BEGIN SELECT RAISE(ABORT, 'disk full'); END"
     )
     store.append(ev.PlanReplaced(ev.FLEET, "plan-2", "v2 lost", job.document.to_dict()), 1.0)
-    with pytest.raises(StoreError, match="cannot write the dispatcher's state .*disk full"):
+    with pytest.raises(StoreWriteError, match="cannot write the dispatcher's state .*disk full"):
         store.replace_missions(job)
     assert not store.pending
     assert store.rows("SELECT count(*) FROM events WHERE kind = 'plan_replaced'") == [(0,)]
