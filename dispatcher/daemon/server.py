@@ -2050,7 +2050,7 @@ class Dispatcher:
     def _status_doc(self) -> dict[str, Any]:
         """The fleet's status with each vehicle's count of frames on its command key we did
         not send (the last, at the end of the run, too: review read 0 from it)."""
-        doc = self.state.status_doc()
+        doc = self.state.status_doc(time.monotonic())
         for vid, count in self.foreign_frames.items():
             doc["vehicles"][vid]["foreign_commands"] = count
         return doc

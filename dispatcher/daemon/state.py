@@ -1047,7 +1047,15 @@ class FleetState:
     def all_fields_done(self) -> bool:
         return all(f.status == "done" for f in self.fields.values())
 
-    def status_doc(self) -> dict[str, Any]:
+    def status_doc(self, now: float | None = None) -> dict[str, Any]:
+        """The fleet's status document (docs/link.md). ``now`` (the clock of the events):
+        a vehicle lost at that moment has its loss so far in ``lost_s`` (it was counted only
+        once it came back: one lost for good, stalled or killed, showed 0)."""
+
+        def lost_s(v: VehicleState) -> float:
+            ongoing = now - v.lost_at if now is not None and v.lost_at is not None else 0.0
+            return v.lost_s + max(ongoing, 0.0)
+
         return {
             "plan_id": self.plan_id,
             "vehicles": {
@@ -1073,7 +1081,7 @@ class FleetState:
                     "upload_retries": v.upload_retries,
                     "frames_refused": v.frames_refused,
                     "alarms": v.alarms,
-                    "lost_s": round(v.lost_s, 3),
+                    "lost_s": round(lost_s(v), 3),
                     "stopped_outside_auto": v.off_auto_since is not None,
                     "system_status": v.system_status,
                     "reboots": v.reboots,

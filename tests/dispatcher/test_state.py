@@ -2176,3 +2176,17 @@ def test_a_decoy_frame_does_not_let_the_upload_after_it_go_unchecked(dispatch, s
     assert link.download is not None  # read back again
     asked = [m.get_type() for m in daemon.publishers["v1"].sent(11) if m is not None]
     assert asked.count("MISSION_REQUEST_LIST") == 2, asked
+
+
+def test_a_vehicle_still_lost_has_its_loss_so_far_in_the_status(dispatch):
+    """`lost_s` grew only when a vehicle came back: one stalled or killed for good showed
+    0 in the live status and in the last one the review reads (an outside review: a
+    tractor dead for the whole 108 s run, 0.0)."""
+    state = FleetState(dispatch.document)
+    state.apply(ev.VehicleSeen("v1"), 1.0)
+    state.apply(ev.VehicleLost("v1", "liveliness token dropped"), 10.0)
+    assert state.status_doc(25.0)["vehicles"]["v1"]["lost_s"] == 15.0
+    state.apply(ev.VehicleSeen("v1"), 30.0)
+    state.apply(ev.VehicleStalled("v1", 120.0), 40.0)
+    assert state.status_doc(50.0)["vehicles"]["v1"]["lost_s"] == 30.0  # 20 s, then 10 s
+    assert state.status_doc()["vehicles"]["v1"]["lost_s"] == 20.0  # (no clock: those ended)
