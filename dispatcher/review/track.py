@@ -110,11 +110,24 @@ def track_quality(
     turns = loops = 0
     previous_stretch_end: tuple[int, float] | None = None  # (seq, time) of the last up
     for down_seq, up_seq in _stretches(items):
-        if down_seq not in times or up_seq not in times:
+        if down_seq not in times:
             previous_stretch_end = None
             continue
-        t0, t1 = times[down_seq], times[up_seq]
-        line_points = [local(items[s]) for s in _nav_between(items, down_seq, up_seq)]
+        if up_seq in times:
+            t0, t1 = times[down_seq], times[up_seq]
+            line_points = [local(items[s]) for s in _nav_between(items, down_seq, up_seq)]
+        elif max(times) > up_seq:  # its end not heard, what came after was: not measured
+            previous_stretch_end = None
+            continue
+        else:
+            # Begun, never ended: the vehicle failed (or the log ended) while working it.
+            # Measured up to its track's end against the line up to the waypoint it drove
+            # to (it was left out: the stretch a tractor failed on went unchecked, the
+            # whole field with turns not planned; an outside review).
+            last = max((s for s in times if down_seq < s < up_seq), default=down_seq)
+            towards = next((s for s in range(last + 1, up_seq) if items[s].is_nav), up_seq)
+            t0, t1 = times[down_seq], float(t[-1])
+            line_points = [local(items[s]) for s in _nav_between(items, down_seq, towards + 1)]
         field_id = items[down_seq].field_id
         if previous_stretch_end is not None and items[previous_stretch_end[0]].field_id == field_id:
             turns += 1

@@ -839,6 +839,40 @@ def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside(
     assert up is not None and up.outside_down_s == 0.0 and up.samples < with_pond.samples
 
 
+def test_the_stretch_a_vehicle_failed_on_is_measured_up_to_its_tracks_end():
+    """A stretch whose raise was never reached (the tractor died or stalled on it) was
+    left out: its cross-track error and time outside never checked ("no working stretch
+    driven" for a tractor with work in the table; an outside review). Measured up to the
+    track's end, against the line to the waypoint it drove to; one whose end was not heard
+    but what came after was (a lossy radio) is still left out."""
+    outline = ((10.0, 50.0), (10.003, 50.0), (10.003, 50.001), (10.0, 50.001), (10.0, 50.0))
+
+    def item(seq: int, role: str, lon: float, command: int) -> PlannedItem:
+        return PlannedItem(seq, "F", 0, role, round(50.0005e7), round(lon * 1e7), command)
+
+    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
+    items = [
+        item(0, "home", 10.0001, nav),
+        item(1, "swath_start", 10.0001, nav),
+        item(2, "implement_down", 10.0001, servo),
+        item(3, "swath_end", 10.0019, nav),
+        item(4, "implement_up", 10.0019, servo),
+    ]
+    # Down at 10 s; 60 s along the swath, off it by ~5 m and out past the field's end
+    # (it never reached the swath's end), then standing there until its track ends.
+    track = [(10.0 + k, 50.0005, 10.0001 + 0.0018 * k / 100) for k in range(61)]
+    track += [(71.0 + k, 50.00055, 10.0031 + 0.00001 * k) for k in range(20)]
+    failed = track_quality(items, {0: 0.0, 1: 10.0, 2: 10.0}, track, {"F": (outline,)})
+    assert failed is not None and failed.samples > 60
+    assert failed.cross_track_max_m is not None and failed.cross_track_max_m > 3.0
+    assert failed.outside_down_s > 15.0
+    # Its end not heard, the next stretch's start heard: not measured (as before).
+    more = [*items, item(5, "swath_start", 10.0019, nav), item(6, "implement_down", 10.0019, servo)]
+    times = {0: 0.0, 1: 10.0, 2: 10.0, 5: 75.0, 6: 75.0}
+    lossy = track_quality(more, times, track, {"F": (outline,)})
+    assert lossy is not None and lossy.samples < failed.samples
+
+
 def test_a_vehicle_sent_back_to_a_swaths_start_lowers_the_implement_there_again() -> None:
     """Back in the garage after a reboot, a vehicle is sent back to where its swath starts
     (its MISSION_CURRENT goes back) and drives there with the implement up: the items
