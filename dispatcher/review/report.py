@@ -262,8 +262,17 @@ class Review:
 
     @property
     def makespan_h(self) -> float:
-        """Hours from setting off until the last vehicle was back (so far, if not all are)."""
-        return max((v.time_h for v in self.vehicles), default=0.0)
+        """Hours from setting off until the last vehicle was back (so far, if not all are);
+        a vehicle a re-plan left out does not set it (its clock ran on while it stood where
+        it failed: the makespan was credited to a stalled tractor; an outside review)."""
+        longest = self.makespan_vehicle
+        return longest.time_h if longest is not None else 0.0
+
+    @property
+    def makespan_vehicle(self) -> VehicleReview | None:
+        """The vehicle that sets :attr:`makespan_h` (of those left out only if all are)."""
+        kept = [v for v in self.vehicles if not v.left_out] or list(self.vehicles)
+        return max(kept, key=lambda v: v.time_h, default=None)
 
     @property
     def makespan_final(self) -> bool:
@@ -2377,7 +2386,8 @@ def review_table(review: Review) -> str:
             "(or to its last report). road h: moving with the implement up.",
             "",
         ]
-        longest = max(review.vehicles, key=lambda v: v.time_h)
+        longest = review.makespan_vehicle
+        assert longest is not None  # (there are vehicles)
         planned = (
             f"{review.planned_makespan_h:.2f} h planned"
             if review.planned_makespan_h is not None

@@ -544,6 +544,19 @@ def test_json_has_the_documented_keys_and_is_serialisable(review: Review) -> Non
     assert doc["vehicles"][0]["fields_done"] == ["A", "B"]
 
 
+def test_a_vehicle_left_out_by_a_re_plan_does_not_set_the_makespan(review: Review) -> None:
+    """Its clock runs on while it stands where it failed: "makespan 0.17 h (v1)" for a
+    stalled v1 when every field was done at 0.08 h (an outside review)."""
+    first, *others = review.vehicles
+    stalled = dataclasses.replace(first, time_h=99.0, left_out=True)
+    rv = dataclasses.replace(review, vehicles=(stalled, *others))
+    assert others and rv.makespan_h == max(v.time_h for v in others) < 99.0
+    assert rv.makespan_vehicle is not None and rv.makespan_vehicle.id != first.id
+    assert f"({rv.makespan_vehicle.id}" in review_table(rv).split("makespan:")[1].splitlines()[0]
+    alone = dataclasses.replace(review, vehicles=(stalled,))
+    assert alone.makespan_h == 99.0  # all left out: the longest of them
+
+
 def test_table_shows_each_vehicle_totals_and_makespan(review: Review) -> None:
     text = review_table(review)
     lines = text.splitlines()
