@@ -1568,12 +1568,12 @@ def review_contents(log: LogContents) -> Review:
         given_ns = fresh.get(vid, since_ns)
         if given_ns <= since_ns:
             return later
-        joined = _with_work_before(
+        joined, before = _with_work_before(
             vid, later, traffic.get(vid, _Traffic([], [], [])), since_ns, given_ns, plans[base:],
             rings,
         )  # fmt: skip
-        warnings.append(_fresh_mission(vid, given_ns, start_ns, joined is not later))
-        if joined is not later:
+        warnings.append(_fresh_mission(vid, given_ns, start_ns, before))
+        if before == "joined":
             # the fields it worked before are its row's again: said as the status lists them
             said = status.get(vid, {}) if status else {}
             if said.get("fields_done") == list(joined.review.fields_done):
@@ -1695,12 +1695,19 @@ def review_contents(log: LogContents) -> Review:
     )
 
 
-def _fresh_mission(vid: str, given_ns: int, start_ns: int | None, joined: bool) -> str:
-    if joined:
+def _fresh_mission(vid: str, given_ns: int, start_ns: int | None, before: str) -> str:
+    """What a vehicle's row is when a re-plan gave it a fresh mission; ``before``: what
+    :func:`_with_work_before` made of its traffic before ("joined", "nothing", "clock")."""
+    if before == "joined":
         return (
             f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
             "what it did before, against the mission it had then (planned to where it got), "
             "and its traffic from there against the new one"
+        )
+    if before == "nothing":  # (it was told its clock went back: an outside review)
+        return (
+            f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}, before it "
+            "had set off; its row is its traffic from there against that mission"
         )
     return (
         f"{vid}: given a fresh mission by a re-plan {_ago(given_ns, start_ns)}; its row is "
@@ -1717,17 +1724,18 @@ def _with_work_before(
     given_ns: int,
     plans: Sequence[_Plan],
     fields: Mapping[str, Sequence[Sequence[Sequence[float]]]],
-) -> _VehicleResult:
+) -> tuple[_VehicleResult, str]:
     """``later`` (a vehicle's row from ``given_ns``, when a re-plan gave it a fresh mission)
     with its traffic before, reviewed against the mission it had then, up to where it got
     (the rest of that mission went to the re-plan), joined into one row on its clock. A
     tractor stopped, its work re-planned, back and sent out again: its first 13.6 h were
     in neither its row nor the totals (an outside review). ``later`` as it is when it did
-    nothing before, or its clock went back meanwhile (a reboot: no one timeline)."""
+    nothing before, or its clock went back meanwhile (a reboot: no one timeline); with
+    which of the three ("joined", "nothing", "clock")."""
     before = [p for p in plans if p.log_ns < given_ns]
     had = next((p for p in reversed(before) if any(m.id == vid for m in p.machines)), None)
     if had is None:
-        return later
+        return later, "nothing"
     _, planned = _mission_given(before, had, vid)
     cut = _Traffic(
         [x for x in traffic.from_vehicle if x[0] < given_ns],
@@ -1737,10 +1745,10 @@ def _with_work_before(
     earlier = _review_vehicle(vid, planned, cut, None, since_ns, given_ns, fields, left_out=True)
     first, last = earlier.review, later.review
     if first.start_clock_s is None or first.end_clock_s is None:
-        return later
+        return later, "nothing"
     if last.start_clock_s is not None and last.start_clock_s < first.end_clock_s:
-        return later
-    return _joined(earlier, later)
+        return later, "clock"
+    return _joined(earlier, later), "joined"
 
 
 def _joined(earlier: _VehicleResult, later: _VehicleResult) -> _VehicleResult:

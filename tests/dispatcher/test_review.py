@@ -789,6 +789,27 @@ def test_a_vehicle_sent_out_again_has_what_it_did_before_in_its_row(review: Revi
     assert joined.planned_s == [7200.0, 7260.0]
 
 
+def test_a_vehicle_given_a_fresh_mission_before_it_set_off_is_said_so(review: Review) -> None:
+    """A tractor re-planned a second into the log, before it had done anything, was told
+    "what it did before (its clock went back meanwhile) is not in its row" (an outside
+    review): nothing is left out of its row, and its clock went nowhere."""
+    from dispatcher.review.report import (
+        _fresh_mission,
+        _parse_plan,
+        _Traffic,
+        _VehicleResult,
+        _with_work_before,
+    )
+
+    plan = _parse_plan(_plan_doc({vid: _mission(vid) for vid in ROUTES}, "plan-1"), 10)
+    assert plan is not None
+    later = _VehicleResult(review.vehicle("v1"), {}, 0.0, [], [], ())
+    result, before = _with_work_before("v1", later, _Traffic([], [], []), 0, 50, [plan], {})
+    assert result is later and before == "nothing"
+    said = _fresh_mission("v1", 50, 0, before)
+    assert "before it had set off" in said and "clock went back" not in said
+
+
 def test_a_vehicle_sent_out_again_by_a_re_plan_is_reviewed_from_its_fresh_mission() -> None:
     """A re-plan that gives a vehicle a fresh mission (from item 1, not going on from what
     it drove) is told apart from one that keeps its mission: the vehicle's row is set
