@@ -889,12 +889,18 @@ def _order_rings(rings_by_pass: list[list[FloatArray]], after: XY) -> tuple[tupl
 
 
 def _start_ring_near(ring: FloatArray, point: FloatArray) -> FloatArray:
-    """The closed ``ring`` rotated to start and end at its point nearest ``point``."""
+    """The closed ``ring`` rotated to start and end at its point nearest ``point``; at a
+    corner instead, where that point is within :data:`MIN_RING_EDGE_M` of one (cut there, an
+    edge of 0.1 mm was left, a swath of no length the mission refused: the whole plan of a
+    field with three ponds failed; an outside review)."""
     line = LineString(ring)
     along = line.project(Point(point))
     nearest = np.asarray(line.interpolate(along).coords[0])
     seg = np.hypot(*np.diff(ring, axis=0).T)
     i = int(np.clip(np.searchsorted(np.cumsum(seg), along, side="left"), 0, len(seg) - 1))
+    for corner in (ring[i], ring[i + 1]):
+        if math.dist(nearest, corner) < MIN_RING_EDGE_M:
+            nearest = corner
     out = np.vstack([nearest, ring[i + 1 :], ring[1 : i + 1]])
     out = out[np.r_[True, np.hypot(*np.diff(out, axis=0).T) > _EPS_M]]
     if math.dist(out[-1], out[0]) <= _EPS_M:

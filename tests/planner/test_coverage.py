@@ -805,3 +805,19 @@ def test_headland_ring_corners_are_rounded_to_the_turning_radius(r: float) -> No
         assert min(radii) >= r * (1 - 1e-6)
         assert shapely.Polygon(field).buffer(1e-6).covers(shapely.LineString(ring))
     assert covered_fraction(cov, field) >= 0.99
+
+
+def test_a_ring_started_near_a_corner_starts_at_the_corner() -> None:
+    """A headland ring is entered at its point nearest the machine; 0.1 mm from a corner,
+    cutting it there left an edge of 0.1 mm, a swath of no length the mission refused:
+    the whole plan of a field with three ponds failed (an outside review)."""
+    from planner.coverage import _start_ring_near
+
+    ring = np.array([(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0), (0.0, 0.0)])
+    for point in [(10.5, 1e-4), (10.5, 10.0 - 1e-4), (5.0, -1.0), (-3.0, 0.01)]:
+        out = _start_ring_near(ring, np.array(point))
+        edges = np.hypot(*np.diff(out, axis=0).T)
+        assert edges.min() >= MIN_RING_EDGE_M, (point, out)
+        assert np.allclose(out[0], out[-1]) and abs(edges.sum() - 40.0) < 1e-9
+    assert np.allclose(_start_ring_near(ring, np.array((10.5, 1e-4)))[0], (10.0, 0.0))
+    assert np.allclose(_start_ring_near(ring, np.array((5.0, -1.0)))[0], (5.0, 0.0))
