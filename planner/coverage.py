@@ -794,7 +794,7 @@ def _headland_and_region(
     min_area = 0.01 * w * w
     if passes == 0:
         return [], MultiPolygon([field_poly]), None
-    inner = field_poly.buffer(-passes * w, join_style="mitre")
+    inner = field_poly.buffer(-passes * w, join_style="round")
     parts = [orient(p, sign=1.0) for p in _polygons(inner) if p.area >= min_area]
     if not parts:
         raise GeometryError(
@@ -804,7 +804,7 @@ def _headland_and_region(
     for k in range(passes):
         if clock is not None:
             clock.check("laying out the headland")
-        offset = field_poly.buffer(-(k + 0.5) * w, join_style="mitre")
+        offset = field_poly.buffer(-(k + 0.5) * w, join_style="round")
         offset = _rounded(_simplified_ring(offset, min(RING_SIMPLIFY_M, w / 20.0)), radius)
         rings: list[FloatArray] = []
         for part in (orient(p, sign=1.0) for p in _polygons(offset)):

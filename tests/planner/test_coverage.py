@@ -432,7 +432,7 @@ def test_a_boundary_driven_with_gnss_gives_rings_of_its_shape_not_of_its_points(
     assert len(cov.headland) == len(clean.headland) == 3
     laps = []  # each pass's offset with its corners rounded as the turns need
     for k in range(3):
-        offset = field.buffer(-(k + 0.5) * 6.0, join_style="mitre")
+        offset = field.buffer(-(k + 0.5) * 6.0, join_style="round")  # (an erosion: below)
         laps.append(offset.buffer(-6.0, join_style="mitre").buffer(6.0, join_style="round"))
     for ring, ring_clean in zip(cov.headland, clean.headland, strict=True):
         assert len(ring) <= (2 if drift_m < 0.1 else 10) * len(ring_clean)
@@ -821,3 +821,22 @@ def test_a_ring_started_near_a_corner_starts_at_the_corner() -> None:
         assert np.allclose(out[0], out[-1]) and abs(edges.sum() - 40.0) < 1e-9
     assert np.allclose(_start_ring_near(ring, np.array((10.5, 1e-4)))[0], (10.0, 0.0))
     assert np.allclose(_start_ring_near(ring, np.array((5.0, -1.0)))[0], (5.0, 0.0))
+
+
+def test_a_boundary_walked_with_gnss_noise_is_covered_as_its_shape() -> None:
+    """A 150 x 120 m field walked with a receiver (a point every 0.5 m, +-0.3 m): its
+    headland offsets had mitre spikes several metres deep at each noisy corner (the
+    inner region 16 % short, notches of 17 m), the swaths laid across 23 cells at
+    128-158 degrees, 6-9 % of the field unworked (an outside review). An offset inward is
+    the outline eroded (round joins): the same layout as the clean field's."""
+    rng = np.random.default_rng(3)
+    box = shapely.box(0.0, 0.0, 150.0, 120.0)
+    along = np.arange(0.0, box.exterior.length, 0.5)
+    points = shapely.get_coordinates(shapely.line_interpolate_point(box.exterior, along))
+    drawn = shapely.make_valid(Polygon(points + rng.uniform(-0.3, 0.3, points.shape)))
+    noisy = max(shapely.get_parts(drawn), key=lambda part: part.area)  # (a loop cut off)
+    clean = cover_field(box, 3.7, field_id="clean", turn_radius_m=4.5)
+    cov = cover_field(noisy, 3.7, field_id="gnss", turn_radius_m=4.5)
+    assert min(cov.angle_deg, 180.0 - cov.angle_deg) < 1.0 and clean.angle_deg == 0.0
+    assert abs(len(cov.swaths) - len(clean.swaths)) <= 1, (len(cov.swaths), len(clean.swaths))
+    assert covered_fraction(cov, noisy) >= 0.97
