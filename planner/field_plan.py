@@ -51,6 +51,10 @@ log = logging.getLogger(__name__)
 CORNERS = 4
 FloatArray = NDArray[np.float64]
 
+SOLVER_MIN_SHARE = 0.2
+"""The least share of a plan's time limit the solver searches for: where the coverage used
+more than the rest, the plan ends that much past the limit (:func:`plan_farm`)."""
+
 UNABLE_H = 1e6
 """The hours a machine is taken to spend on a field it cannot work (narrower than its
 implement: :func:`cover_farm`): no plan that gives it one is kept under the objectives that
@@ -547,13 +551,27 @@ def plan_farm(
     network = TransitNetwork(farm)
     problem = farm_problem(farm, machines, coverage, network, obj)
     if stop is not None and deadline.limited:
+        seconds = deadline.seconds or 0.0
         left = deadline.left()
-        if left < 0.5 * (deadline.seconds or 0.0):
+        floor = SOLVER_MIN_SHARE * seconds
+        if left < floor:
+            # With no time left the answer was the unsearched first plan: 8.6 times the
+            # makespan of one searched for 5 s more (an outside review). Late, but searched.
+            log.warning(
+                "coverage and transit took %.1f s of the %g s time limit; the solver has "
+                "%.1f s more (a fifth of the limit), the plan %.1f s past it",
+                seconds - left,
+                seconds,
+                floor,
+                floor - left,
+            )
+            deadline = Deadline(floor)
+        elif left < 0.5 * seconds:
             log.warning(
                 "coverage and transit took %.1f s of the %g s time limit; the solver has %.1f s",
-                (deadline.seconds or 0.0) - left,
-                deadline.seconds,
-                max(left, 0.0),
+                seconds - left,
+                seconds,
+                left,
             )
         stop = stop.within(deadline)
     result = solve(
