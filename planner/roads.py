@@ -239,6 +239,34 @@ class _RoadGraph:
         return u, v, along, (float(q.x), float(q.y))
 
 
+def _joined_to(network: BaseGeometry, point: XY) -> BaseGeometry:
+    """The part of ``network`` (lines) that hangs together with its line nearest ``point``."""
+    parts = list(shapely.get_parts(network))
+    joined_parts = _hanging_with(parts, point)
+    return shapely.union_all([p for p, keep in zip(parts, joined_parts, strict=True) if keep])
+
+
+def _hanging_with(lines: Sequence[BaseGeometry], point: XY) -> list[bool]:
+    """Which of ``lines`` hang together (touch, cross, through others) with the one
+    nearest ``point``."""
+    if len(lines) <= 1:
+        return [True] * len(lines)
+    tree = shapely.STRtree(lines)
+    group = list(range(len(lines)))
+
+    def root(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = group[i]
+        return i
+
+    left, right = tree.query(lines, predicate="intersects")
+    for a, b in zip(left.tolist(), right.tolist(), strict=True):
+        group[root(a)] = root(b)
+    home = root(int(tree.query_nearest(Point(point))[0]))
+    return [root(i) == home for i in range(len(lines))]
+
+
 def _outside(
     segments: Sequence[LineString], fields: BaseGeometry | None
 ) -> tuple[list[BaseGeometry], list[int]]:
@@ -652,6 +680,11 @@ class TransitNetwork:
         # from a part of its fence it shares with no other field (else across that field).
         outside = network.difference(cores)
         outside = network if outside.is_empty else outside
+        # On the roads the garage's road joins (a piece of road drawn on a field's fence,
+        # joined to nothing, took that field's gate: "the roads do not connect field 'A'",
+        # with the garage's road 11 m away; an outside review).
+        reached = outside.intersection(_joined_to(network, farm.garage))
+        outside = outside if reached.is_empty else reached
         outlines = shapely.STRtree([Polygon(f.boundary.exterior) for f in farm.fields])
         for k, f in enumerate(farm.fields):
             # A gate drawn inside the field is on its fence: the tractor drove from the fence

@@ -170,6 +170,24 @@ def test_the_best_gate_is_taken_and_a_field_without_gate_is_entered_nearest_the_
     assert (100, 50) in via
 
 
+def test_a_field_without_gate_is_entered_from_the_roads_the_garage_reaches(caplog):
+    """A piece of road drawn along A's east fence, joined to nothing, took A's gate (0 m
+    from it): "the roads do not connect field 'A' to the garage", its transit around the
+    fields, the garage's road 20 m north of A (an outside review). A is entered from the
+    roads the garage's road joins."""
+    stray = [(100, 0), (100, 60), (180, 60)]  # on A's fence, then off to nowhere
+    farm = farm_of(SQUARES, (-50, 120), [ROAD, stray], [("B", (350, 100))])
+    with caplog.at_level("WARNING", logger="planner.roads"):
+        net = TransitNetwork(farm)
+    assert "do not connect" not in caplog.text, caplog.text
+    ((gx, gy),) = net.gates["A"]
+    assert gy == pytest.approx(100) and 0 <= gx <= 100  # its north fence, under the road
+    length, _ = net.route((-50, 120), (50, 50), None, "A")
+    assert length == pytest.approx(
+        math.dist((-50, 120), (gx, 120)) + 20 + math.dist((gx, gy), (50, 50))
+    )
+
+
 def test_roads_drawn_with_a_small_gap_at_a_junction_connect():
     # The spur stops 1 cm short of the road (rounded coordinates): still one network.
     gap_spur = [(150, 119.99), (150, 0)]
