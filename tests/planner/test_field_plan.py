@@ -465,3 +465,21 @@ def test_a_coverage_that_used_the_whole_time_limit_still_leaves_the_solver_a_fif
     assert len(left) == 1 and 0.15 <= left[0] <= 0.2, left  # (was < 0: none)
     assert "the solver has 0.2 s more (a fifth of the limit)" in caplog.text
     assert sorted(fid for m in plan.machines for fid in m.field_ids) == [f"f{k}" for k in range(5)]
+
+
+@pytest.mark.parametrize("objective", ["distance", "minmax"])
+def test_under_the_road_alone_tied_machines_are_told_apart_by_their_hours(objective):
+    """Every machine leaves from the garage: a route's road is the same whoever drives it,
+    and the first machine of the tie took the field (6.9 m, 1.35 h, where the one that
+    hops needed 0.29 h; an outside review's fleet). The fewest hours decide among equal
+    roads."""
+    farm = one_field_farm(rectangle_field(80.0, 100.0, 0.0, (12.0, 20.0)))
+    fleet = [
+        Machine("big", 6.9, 6500.0, 20.0, 0.004, 5.0, 6.7, 1.0, min_turn_radius_m=6.0),
+        Machine("mid", 5.5, 6000.0, 20.0, 0.004, 4.0, 5.0, 1.2, min_turn_radius_m=5.0),
+        Machine("small", 3.7, 5000.0, 20.0, 0.004, 3.0, 4.0, 1.4, min_turn_radius_m=4.5),
+        Machine("hop", 6.0, 30000.0, 15.0, 0.001, 3.0, 7.0, 5.0),
+    ]
+    plan = plan_farm(farm, fleet, objective, "hybrid", stop_after(10), seed=1)
+    (busy,) = [m for m in plan.machines if m.field_ids]
+    assert busy.machine.id == "hop", [(m.machine.id, m.time_h) for m in plan.machines]
