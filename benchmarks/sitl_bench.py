@@ -39,17 +39,18 @@ def bench_sitl() -> str:
         try:
             port = free_port()
             sitl.start(wipe=True)
-            serve = procs.serve(SCENARIO, port, work / "logs", "--fields", str(FARM))
-            procs.start(
-                "bridge",
-                "bridge",
-                str(SCENARIO),
-                "--vehicle",
+            # Its own data directory (the default, the user's state folder, kept the run and
+            # the next bench resumed it) and the bridge with the farm and the keys serve has
+            # (without them it spoke for another farm, unsigned: "r1: never came alive").
+            data = ("--data-dir", str(work / "data"))
+            serve = procs.serve(SCENARIO, port, work / "logs", "--fields", str(FARM), *data)
+            procs.bridge(
+                SCENARIO,
                 "r1",
-                "--mavlink",
-                sitl.url,
-                "--connect",
-                f"tcp/127.0.0.1:{port}",
+                sitl,
+                port,
+                "--fields",
+                str(FARM),
                 "--rate",
                 "GLOBAL_POSITION_INT=50",
             )
