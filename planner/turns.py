@@ -36,7 +36,7 @@ from planner.errors import GeometryError
 XY = tuple[float, float]
 FloatArray = NDArray[np.float64]
 
-ARC_STEP_DEG = 15.0  # largest angle between consecutive points on an arc
+ARC_STEP_DEG = 30.0  # largest angle between consecutive points on an arc (below)
 ARC_STEP_M = 2.0  # largest arc length between consecutive points on an arc
 MIN_GAP_M = 0.01  # turn points closer than this to the swath end or start are left out
 _EPS_M = 1e-9
