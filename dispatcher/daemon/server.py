@@ -307,6 +307,7 @@ class Dispatcher:
         # read back again once the read-back under way ends.
         self._foreign_alarmed: dict[tuple[str, str], float] = {}
         self._check_again: set[str] = set()
+        self._command_exprs: dict[str, zenoh.KeyExpr] | None = None  # (_addressed's)
         missing = [vid for vid in self.state.vehicles if config.keys and vid not in keys]
         if missing:
             raise ValueError(f"no signing key for {', '.join(missing)}")
@@ -629,11 +630,11 @@ class Dispatcher:
             expr = zenoh.KeyExpr(key)
         except zenoh.ZError:
             return []
-        return [
-            v
-            for v in self.state.vehicles
-            if zenoh.KeyExpr(wire.vehicle_to(self.farm, v)).intersects(expr)
-        ]
+        if self._command_exprs is None:
+            self._command_exprs = {
+                v: zenoh.KeyExpr(wire.vehicle_to(self.farm, v)) for v in self.state.vehicles
+            }
+        return [v for v, own in self._command_exprs.items() if own.intersects(expr)]
 
     def _foreign_one(
         self, vid: str, msg: mc.MAVLinkMessage | None, payload: bytes, now: float

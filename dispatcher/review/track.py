@@ -109,6 +109,7 @@ def track_quality(
     samples = 0
     turns = loops = 0
     previous_stretch_end: tuple[int, float] | None = None  # (seq, time) of the last up
+    last_heard = max(times, default=-1)
     for down_seq, up_seq in _stretches(items):
         if down_seq not in times:
             previous_stretch_end = None
@@ -116,7 +117,7 @@ def track_quality(
         if up_seq in times:
             t0, t1 = times[down_seq], times[up_seq]
             line_points = [local(items[s]) for s in _nav_between(items, down_seq, up_seq)]
-        elif max(times) > up_seq:  # its end not heard, what came after was: not measured
+        elif last_heard > up_seq:  # its end not heard, what came after was: not measured
             previous_stretch_end = None
             continue
         else:

@@ -842,23 +842,30 @@ def test_a_vehicle_sent_out_again_by_a_re_plan_is_reviewed_from_its_fresh_missio
     assert fresh == {"v2": 30}  # v1's mission is the same: not sent out again
 
 
+def line_item(seq: int, role: str, lon: float, command: int) -> PlannedItem:
+    """An item of field F on the line of latitude 50.0005 (at ``lon``)."""
+    return PlannedItem(seq, "F", 0, role, round(50.0005e7), round(lon * 1e7), command)
+
+
+def one_swath() -> list[PlannedItem]:
+    """A mission of one swath along that line, from lon 10.0001 to 10.0019 (~130 m)."""
+    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
+    return [
+        line_item(0, "home", 10.0001, nav),
+        line_item(1, "swath_start", 10.0001, nav),
+        line_item(2, "implement_down", 10.0001, servo),
+        line_item(3, "swath_end", 10.0019, nav),
+        line_item(4, "implement_up", 10.0019, servo),
+    ]
+
+
 def test_driving_through_a_ponds_hole_with_the_implement_down_counts_as_outside():
     """The field's holes are not field: a working line across a pond is time outside."""
     outline = ((10.0, 50.0), (10.002, 50.0), (10.002, 50.001), (10.0, 50.001), (10.0, 50.0))
     pond = ((10.0008, 50.0003), (10.0012, 50.0003), (10.0012, 50.0007), (10.0008, 50.0007))
     pond += pond[:1]
 
-    def item(seq: int, role: str, lon: float, command: int) -> PlannedItem:
-        return PlannedItem(seq, "F", 0, role, round(50.0005e7), round(lon * 1e7), command)
-
-    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
-    items = [
-        item(0, "home", 10.0001, nav),
-        item(1, "swath_start", 10.0001, nav),
-        item(2, "implement_down", 10.0001, servo),
-        item(3, "swath_end", 10.0019, nav),
-        item(4, "implement_up", 10.0019, servo),
-    ]
+    items = one_swath()
     times = {0: 0.0, 1: 10.0, 2: 10.0, 3: 110.0, 4: 110.0}
     track = [(10.0 + k, 50.0005, 10.0001 + 0.0018 * k / 100) for k in range(101)]
     without = track_quality(items, times, track, {"F": (outline,)})
@@ -881,17 +888,7 @@ def test_the_stretch_a_vehicle_failed_on_is_measured_up_to_its_tracks_end():
     but what came after was (a lossy radio) is still left out."""
     outline = ((10.0, 50.0), (10.003, 50.0), (10.003, 50.001), (10.0, 50.001), (10.0, 50.0))
 
-    def item(seq: int, role: str, lon: float, command: int) -> PlannedItem:
-        return PlannedItem(seq, "F", 0, role, round(50.0005e7), round(lon * 1e7), command)
-
-    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
-    items = [
-        item(0, "home", 10.0001, nav),
-        item(1, "swath_start", 10.0001, nav),
-        item(2, "implement_down", 10.0001, servo),
-        item(3, "swath_end", 10.0019, nav),
-        item(4, "implement_up", 10.0019, servo),
-    ]
+    items = one_swath()
     # Down at 10 s; 60 s along the swath, off it by ~5 m and out past the field's end
     # (it never reached the swath's end), then standing there until its track ends.
     track = [(10.0 + k, 50.0005, 10.0001 + 0.0018 * k / 100) for k in range(61)]
@@ -901,7 +898,12 @@ def test_the_stretch_a_vehicle_failed_on_is_measured_up_to_its_tracks_end():
     assert failed.cross_track_max_m is not None and failed.cross_track_max_m > 3.0
     assert failed.outside_down_s > 15.0
     # Its end not heard, the next stretch's start heard: not measured (as before).
-    more = [*items, item(5, "swath_start", 10.0019, nav), item(6, "implement_down", 10.0019, servo)]
+    nav, servo = mc.MAV_CMD_NAV_WAYPOINT, mc.MAV_CMD_DO_SET_SERVO
+    more = [
+        *items,
+        line_item(5, "swath_start", 10.0019, nav),
+        line_item(6, "implement_down", 10.0019, servo),
+    ]
     times = {0: 0.0, 1: 10.0, 2: 10.0, 5: 75.0, 6: 75.0}
     lossy = track_quality(more, times, track, {"F": (outline,)})
     assert lossy is not None and lossy.samples < failed.samples

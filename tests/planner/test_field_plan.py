@@ -111,7 +111,8 @@ def test_corner_choice_is_the_best_of_all_combinations():
     assert road == pytest.approx(length(corners))
 
 
-def test_plan_farm_covers_every_field_once():
+def five_field_farm() -> Farm:
+    """Five 80 x 50 m fields in a row, 120 m apart, the garage west of them."""
     frame = LocalFrame.around(87.3, 44.0)
     fields = tuple(
         Field(
@@ -122,7 +123,11 @@ def test_plan_farm_covers_every_field_once():
         )
         for k in range(5)
     )
-    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    return Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+
+
+def test_plan_farm_covers_every_field_once():
+    farm = five_field_farm()
     machines = [MACHINE, Machine("n", 3.7, 4000.0, 10.0, 0.002, 2.0, 4.0)]
     plan = plan_farm(farm, machines, "makespan", "ighoa", stop_after(50), seed=2)
     done = sorted(fid for m in plan.machines for fid in m.field_ids)
@@ -432,17 +437,7 @@ def test_a_coverage_that_used_the_whole_time_limit_still_leaves_the_solver_a_fif
     from planner import field_plan
     from planner.solve import UntilDeadline
 
-    frame = LocalFrame.around(87.3, 44.0)
-    fields = tuple(
-        Field(
-            f"f{k}",
-            f"f{k}",
-            rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)),
-            rectangle_field(50.0, 80.0, 0.0, (120.0 * k, 0.0)),
-        )
-        for k in range(5)
-    )
-    farm = Farm(fields=fields, garage=(-60.0, 20.0), garage_lonlat=(87.3, 44.0), frame=frame)
+    farm = five_field_farm()
     real = field_plan.cover_farm
 
     def slow(farm, machines, deadline):  # type: ignore[no-untyped-def]
