@@ -317,14 +317,9 @@ def fewest_hours_among_equals(result: Result) -> Result:
         and np.allclose(tables.end_dist, tables.end_dist[:1])
     ):
         return result  # (machines starting where they stand: a re-plan's)
-    unable = problem.work_hours >= UNABLE_H
     m = len(result.routes)
-    hours = np.full((m, m), np.inf)  # [route, machine]
-    for r, route in enumerate(result.routes):
-        pinned = any(problem.pinned_machine[t] == r for t in route)
-        for k in range(m):
-            if not (any(unable[k, t] for t in route) or (pinned and k != r)):
-                hours[r, k] = _share(tables, Objective.TIME, k, route, _metres(tables, k, route))
+    unable = problem.work_hours >= UNABLE_H
+    hours = _route_costs(problem, tables, Objective.TIME, unable, result.routes)
     finite = np.isfinite(hours)
     rows, cols = linear_sum_assignment(np.where(finite, hours, 1e12))
     if not finite[rows, cols].all():
@@ -434,12 +429,7 @@ def _handed_round(
     from scipy.optimize import linear_sum_assignment
 
     m = len(given)
-    cost = np.full((m, m), np.inf)  # [route, machine]
-    for r, route in enumerate(given):
-        pinned = any(problem.pinned_machine[t] == r for t in route)
-        for k in range(m):
-            if not (any(unable[k, t] for t in route) or (pinned and k != r)):
-                cost[r, k] = _share(tables, obj, k, route, _metres(tables, k, route))
+    cost = _route_costs(problem, tables, obj, unable, given)
     finite = np.isfinite(cost)
     big = 1.0 + 2.0 * m * float(np.abs(cost[finite]).max(initial=1.0))
     if obj in (Objective.MINMAX, Objective.MAKESPAN):
@@ -464,6 +454,25 @@ def _handed_round(
     for r, k in zip(rows.tolist(), cols.tolist(), strict=True):
         out[k] = list(given[r])
     return out
+
+
+def _route_costs(
+    problem: Problem,
+    tables: CostTables,
+    obj: Objective,
+    unable: NDArray[np.bool_],
+    routes: Sequence[Sequence[int]],
+) -> FloatArray:
+    """[route, machine]: each whole route's share of ``obj`` on each machine; infinite on
+    one that cannot work a field of it, or for a route with a field pinned to another."""
+    m = len(routes)
+    cost = np.full((m, m), np.inf)
+    for r, route in enumerate(routes):
+        pinned = any(problem.pinned_machine[t] == r for t in route)
+        for k in range(m):
+            if not (any(unable[k, t] for t in route) or (pinned and k != r)):
+                cost[r, k] = _share(tables, obj, k, route, _metres(tables, k, route))
+    return cost
 
 
 def _inserted_m(tables: CostTables, k: int, route: Sequence[int], at: int, j: int) -> float:

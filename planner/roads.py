@@ -240,31 +240,18 @@ class _RoadGraph:
 
 
 def _joined_to(network: BaseGeometry, point: XY) -> BaseGeometry:
-    """The part of ``network`` (lines) that hangs together with its line nearest ``point``."""
-    parts = list(shapely.get_parts(network))
-    joined_parts = _hanging_with(parts, point)
-    return shapely.union_all([p for p, keep in zip(parts, joined_parts, strict=True) if keep])
-
-
-def _hanging_with(lines: Sequence[BaseGeometry], point: XY) -> list[bool]:
-    """Which of ``lines`` hang together (touch, cross, through others) with the one
-    nearest ``point``."""
-    if len(lines) <= 1:
-        return [True] * len(lines)
-    tree = shapely.STRtree(lines)
-    group = list(range(len(lines)))
-
-    def root(i: int) -> int:
-        while group[i] != i:
-            group[i] = group[group[i]]
-            i = group[i]
-        return i
-
-    left, right = tree.query(lines, predicate="intersects")
-    for a, b in zip(left.tolist(), right.tolist(), strict=True):
-        group[root(a)] = root(b)
-    home = root(int(tree.query_nearest(Point(point))[0]))
-    return [root(i) == home for i in range(len(lines))]
+    """The part of ``network`` (lines) that hangs together (touching, crossing, through
+    others) with its line nearest ``point``."""
+    parts = shapely.get_parts(network)
+    if len(parts) <= 1:
+        return network
+    tree = shapely.STRtree(parts)
+    touching = nx.Graph()
+    touching.add_nodes_from(range(len(parts)))
+    left, right = tree.query(parts, predicate="intersects")
+    touching.add_edges_from(zip(left.tolist(), right.tolist(), strict=True))
+    home = nx.node_connected_component(touching, int(tree.query_nearest(Point(point))[0]))
+    return shapely.union_all(parts[sorted(home)])
 
 
 def _outside(
